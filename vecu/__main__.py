@@ -1,0 +1,5 @@
+import sys
+
+from vecu.cli import main
+
+sys.exit(main())
