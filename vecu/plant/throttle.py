@@ -14,6 +14,8 @@ from typing import Iterator
 import numpy as np
 from scipy import signal
 
+from vecu.calibration import TpsCalibration
+
 THETA_MIN_DEG = 0.0
 THETA_MAX_DEG = 90.0
 MODE_BOUNDS_DEG = (8.0, 16.0)  # Theta_1 = [0, 8], Theta_2 = (8, 16], Theta_3 = (16, 90]
@@ -132,11 +134,11 @@ class ThrottlePlant:
             self._refill()
         return self.i * self.i + H_WATTMETER * self._noise[self._pos][2]
 
-    def tps_voltage(self) -> float:
-        """Linear 0-90 deg -> 0-5 V position sensor with small electrical noise."""
+    def tps_voltage(self, calibration: TpsCalibration) -> float:
+        """Position-sensor output for the current angle, with small electrical noise."""
         if self._pos >= len(self._noise):
             self._refill()
-        return self.theta / 90.0 * 5.0 + self.config.tps_noise_v * self._noise[self._pos][3]
+        return calibration.voltage(self.theta) + self.config.tps_noise_v * self._noise[self._pos][3]
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,1 @@
+"""DBC files shipped with vecu (installed as package data vecu.dbc)."""

@@ -1,0 +1,29 @@
+"""Sensor datasheet values shared by the plant (which produces the signal) and the ECU (which reads it)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TpsCalibration:
+    """Throttle position sensor: linear angle-to-voltage law with electrical-fault margins.
+
+    The paper's sensor maps 0-90 deg onto 0-5 V. A sensor whose 0 deg is 0 V cannot tell a closed
+    throttle from an open circuit, so vecu uses the automotive practice of 0.5 V at 0 deg and
+    4.5 V at 90 deg inside the 0-5 V signal range; readings below `fault_low_v` or above
+    `fault_high_v` are electrical faults (docs/models.md). v_at_0=0, v_at_90=5 restores the paper's law.
+    """
+
+    v_at_0: float = 0.5
+    v_at_90: float = 4.5
+    fault_low_v: float = 0.25
+    fault_high_v: float = 4.75
+
+    def voltage(self, theta_deg: float) -> float:
+        return self.v_at_0 + (self.v_at_90 - self.v_at_0) * theta_deg / 90.0
+
+    def angle(self, voltage: float) -> float:
+        """Voltage -> angle in deg, clipped to the mechanical range [0, 90]."""
+        theta = (voltage - self.v_at_0) * 90.0 / (self.v_at_90 - self.v_at_0)
+        return 0.0 if theta < 0.0 else (90.0 if theta > 90.0 else theta)

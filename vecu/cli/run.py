@@ -1,0 +1,107 @@
+"""`vecu run`: plant + fault injector + ECU on a python-can bus; summary, log, JSON and plot."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from vecu.bus import BusOpenError
+from vecu.cli import UserInputError
+from vecu.recorder import TraceWriteError
+
+
+def _kill_time(text: str) -> float | None:
+    if text.lower() in ("none", "never", "off"):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds or 'none', got {text!r}") from None
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run plant, fault injector and virtual ECU on a CAN bus",
+                       description="Run the throttle plant, the fault injector and the virtual ECU "
+                                   "on one python-can bus (default: in-process virtual bus, "
+                                   "simulated clock).")
+    p.add_argument("--duration", type=float, default=10.0, metavar="S", help="seconds (default 10)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--interface", help="python-can interface (default: python-can config, else virtual)")
+    p.add_argument("--channel", help="python-can channel (default: config, else 'vecu')")
+    p.add_argument("--bitrate", type=int, help="bitrate for interfaces that need one")
+    p.add_argument("--kill-tps-at", type=_kill_time, default=5.0, metavar="T",
+                   help="inject the TPS fault at T s, or 'none' (default 5)")
+    p.add_argument("--fault", default="dead",
+                   help="dead, short_supply, stuck, frames_stop, offset, gain, noise (default dead)")
+    p.add_argument("--fault-value", type=float, metavar="X",
+                   help="offset in V (default 0.5), gain G in [0,1] (0.5), noise sigma in V (0.3)")
+    p.add_argument("--noise-scale", type=float, default=1.0, metavar="A",
+                   help="process-noise scale alpha of the throttle model (1 = paper)")
+    p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
+    p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
+    p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
+    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
+    p.add_argument("--plot", metavar="FILE.png", help="write a truth-vs-estimate plot")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from vecu.runner import RunConfig, run
+
+    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    config = RunConfig(
+        duration_s=args.duration, seed=args.seed, noise_scale=args.noise_scale,
+        kill_tps_at_s=args.kill_tps_at, fault=args.fault, fault_value=args.fault_value,
+        estimator=args.estimator, realtime=args.realtime, interface=args.interface,
+        channel=args.channel, bitrate=args.bitrate, log_path=args.log,
+        keep_series=bool(args.plot))
+    for path in (args.log, args.summary, args.plot):
+        if path and not Path(path).resolve().parent.is_dir():
+            raise UserInputError(f"{path}: directory does not exist")
+    try:
+        result = run(config)
+    except (ValueError, KeyError, BusOpenError, TraceWriteError) as exc:
+        raise UserInputError(str(exc).strip("'\"")) from exc
+    if args.summary:
+        Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
+    if args.plot and result.series is not None:
+        from vecu.plot import plot_throttle_run
+        plot_throttle_run(result.series, result.summary, args.plot)
+    if not args.quiet:
+        print(format_summary(result.summary))
+    return 0
+
+
+def format_summary(s: dict[str, Any]) -> str:
+    th = s["throttle"]
+    fr = s["frames"]
+    lines = [f"vecu run: {s['sim_time_s']:.3f} s in {s['wall_time_s']:.2f} s wall "
+             f"({s['x_realtime']}x real time), {s['ticks']} ticks, {s['overruns']} overruns"]
+    if th["kill_time_s"] is None:
+        lines.append("TPS: no fault injected")
+    elif th["detected"]:
+        lines.append(f"TPS fault '{th['fault']}' at {th['kill_time_s']:.3f} s: detected as "
+                     f"{th['detected_as']} after {th['detection_latency_ms']:.1f} ms; "
+                     f"broadcasting the {th['final_source']} (status {th['final_status']})")
+    else:
+        lines.append(f"TPS fault '{th['fault']}' at {th['kill_time_s']:.3f} s: NOT detected")
+    if th["false_alarm"]:
+        lines.append(f"WARNING: TPS fault reported before any injection (at {th['detection_time_s']} s)")
+    for phase, label in (("before_kill", "before fault"), ("after_kill", "after fault")):
+        b = th[phase]["broadcast_error_deg"]
+        e = th[phase]["estimate_error_deg"]
+        if b["n"]:
+            lines.append(f"  {label:12s} broadcast error {b['mean']:+6.2f} ± {b['std']:5.2f} deg | "
+                         f"estimator ({th['estimator']}) {e['mean']:+6.2f} ± {e['std']:5.2f} deg")
+    rx = fr["ecu_rx"]
+    lines.append(f"frames: sent {fr['sent']} (plant {fr['plant_sent']}, ecu {fr['ecu_sent']}), "
+                 f"ECU received {fr['received']}, rejected {fr['rejected']} "
+                 f"(dlc {rx['dlc_errors']}, crc {rx['crc_errors']}, counter {rx['counter_errors']}, "
+                 f"value {rx['value_errors']}, unknown id {rx['unknown_id']})")
+    lines.append(f"broadcast: {th['missing_broadcasts']} missing ticks, {th['nan_outputs']} NaN")
+    return "\n".join(lines)

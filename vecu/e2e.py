@@ -1,0 +1,64 @@
+"""End-to-end protection: 4-bit alive counter and CRC-8 SAE J1850 (AUTOSAR CRC8, poly 0x1D).
+
+Layout follows AUTOSAR E2E profile 1 in spirit: the CRC covers the 16-bit data ID (the CAN ID,
+low byte first) followed by every payload byte except the CRC byte itself.
+"""
+
+from __future__ import annotations
+
+
+def _make_table(poly: int) -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ poly) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table.append(crc)
+    return tuple(table)
+
+
+_TABLE = _make_table(0x1D)
+
+
+def crc8_sae_j1850(data: bytes | bytearray, init: int = 0xFF) -> int:
+    """CRC-8 SAE J1850: poly 0x1D, init 0xFF, final XOR 0xFF, not reflected (check 0x4B)."""
+    crc = init
+    table = _TABLE
+    for b in data:
+        crc = table[crc ^ b]
+    return crc ^ 0xFF
+
+
+def e2e_crc(data_id: int, payload: bytes | bytearray, crc_index: int) -> int:
+    """CRC over data ID (2 bytes, little endian) and payload without the CRC byte."""
+    crc = 0xFF
+    table = _TABLE
+    crc = table[crc ^ (data_id & 0xFF)]
+    crc = table[crc ^ ((data_id >> 8) & 0xFF)]
+    for idx, b in enumerate(payload):
+        if idx != crc_index:
+            crc = table[crc ^ b]
+    return crc ^ 0xFF
+
+
+class AliveCounterCheck:
+    """Receiver side of a 4-bit alive counter: accepts +1 (mod 16); flags repeats and jumps.
+
+    After an error the next counter is accepted as the new reference (resynchronisation).
+    """
+
+    def __init__(self, modulo: int = 16, max_delta: int = 1) -> None:
+        self.modulo = modulo
+        self.max_delta = max_delta
+        self._last: int | None = None
+
+    def check(self, counter: int) -> bool:
+        last = self._last
+        self._last = counter
+        if last is None:
+            return True
+        delta = (counter - last) % self.modulo
+        return 1 <= delta <= self.max_delta
+
+    def reset(self) -> None:
+        self._last = None
