@@ -13,9 +13,11 @@ from vecu.cli import UserInputError
 from vecu.recorder import TraceWriteError
 
 
-def _kill_time(text: str) -> float | None:
+def _kill_time(text: str) -> float | str | None:
     if text.lower() in ("none", "never", "off"):
         return None
+    if text == "half":
+        return text
     try:
         return float(text)
     except ValueError:
@@ -32,8 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--interface", help="python-can interface (default: python-can config, else virtual)")
     p.add_argument("--channel", help="python-can channel (default: config, else 'vecu')")
     p.add_argument("--bitrate", type=int, help="bitrate for interfaces that need one")
-    p.add_argument("--kill-tps-at", type=_kill_time, default=5.0, metavar="T",
-                   help="inject the TPS fault at T s, or 'none' (default 5)")
+    p.add_argument("--kill-tps-at", type=_kill_time, default="half", metavar="T",
+                   help="inject the TPS fault at T s, or 'none' (default: half the duration)")
     p.add_argument("--fault", default="dead",
                    help="dead, short_supply, stuck, frames_stop, offset, gain, noise (default dead)")
     p.add_argument("--fault-value", type=float, metavar="X",
@@ -56,7 +58,7 @@ def main(args: argparse.Namespace) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     config = RunConfig(
         duration_s=args.duration, seed=args.seed, noise_scale=args.noise_scale,
-        kill_tps_at_s=args.kill_tps_at, fault=args.fault, fault_value=args.fault_value,
+        kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at, fault=args.fault, fault_value=args.fault_value,
         estimator=args.estimator, realtime=args.realtime, interface=args.interface,
         channel=args.channel, bitrate=args.bitrate, log_path=args.log,
         keep_series=bool(args.plot))

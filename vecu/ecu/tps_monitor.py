@@ -96,7 +96,8 @@ class TpsMonitor:
             elif self._fresh and self.angle is not None:
                 gate = cfg.plaus_sigma * est_std_deg + cfg.plaus_margin_deg
                 if abs(self.angle - est_deg) > gate:
-                    self._plaus += 1
+                    if self._plaus < cfg.plaus_debounce:  # saturating up/down counter
+                        self._plaus += 1
                 elif self._plaus > 0:
                     self._plaus -= 1
                 if self._plaus >= cfg.plaus_debounce:

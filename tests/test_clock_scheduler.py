@@ -1,0 +1,85 @@
+from __future__ import annotations
+
+import pytest
+
+from vecu.clock import NS_PER_MS, SimClock, WallClock
+from vecu.scheduler import Scheduler
+
+
+def test_periodic_tasks_run_at_exact_times_in_priority_order():
+    clock = SimClock()
+    sched = Scheduler(clock)
+    calls: list[tuple[str, int]] = []
+    sched.every(2 * NS_PER_MS, lambda t: calls.append(("b2ms", t)), name="b", priority=5)
+    sched.every(NS_PER_MS, lambda t: calls.append(("a1ms", t)), name="a", priority=0)
+    sched.at(3 * NS_PER_MS, lambda t: calls.append(("event", t)), name="e", priority=-1)
+    sched.run_until(5 * NS_PER_MS)
+    assert calls == [
+        ("a1ms", 0), ("b2ms", 0), ("a1ms", 1 * NS_PER_MS), ("a1ms", 2 * NS_PER_MS),
+        ("b2ms", 2 * NS_PER_MS), ("event", 3 * NS_PER_MS), ("a1ms", 3 * NS_PER_MS),
+        ("a1ms", 4 * NS_PER_MS), ("b2ms", 4 * NS_PER_MS),
+    ]
+    assert clock.now_ns() == 5 * NS_PER_MS
+    assert sched.overruns == 0
+
+
+def test_no_drift_over_a_simulated_hour():
+    clock = SimClock()
+    sched = Scheduler(clock)
+    stats = sched.every(NS_PER_MS, lambda t: None, name="tick")
+    last = []
+    sched.every(1000 * NS_PER_MS, lambda t: last.append(t), name="1s")
+    sched.run_until(3600 * 1000 * NS_PER_MS)
+    assert stats.runs == 3_600_000
+    assert last[-1] == 3599 * 1000 * NS_PER_MS  # integer ns: exact, no float accumulation
+
+
+class FakeTime:
+    """Monotonic time advanced by sleeps and by simulated work."""
+
+    def __init__(self) -> None:
+        self.t = 0
+        self.sleeps: list[float] = []
+
+    def mono(self) -> int:
+        self.t += 1_000  # each clock read costs 1 us
+        return self.t
+
+    def sleep(self, s: float) -> None:
+        self.sleeps.append(s)
+        self.t += int(s * 1e9)
+
+
+def test_wall_clock_waits_on_absolute_deadlines_and_counts_overruns():
+    ft = FakeTime()
+    clock = WallClock(spin_ns=200_000, sleep=ft.sleep, monotonic_ns=ft.mono)
+    sched = Scheduler(clock, record_lateness=True)
+    starts: list[int] = []
+
+    def work(t: int) -> None:
+        starts.append(t)
+        if t == 5 * NS_PER_MS:  # one release takes 3.5 periods
+            ft.t += 3_500_000
+
+    stats = sched.every(NS_PER_MS, work, name="tick")
+    sched.run_until(20 * NS_PER_MS)
+    assert stats.overruns == 1
+    assert stats.skipped == 3  # releases at 6, 7 and 8 ms dropped, no catch-up burst
+    assert 9 * NS_PER_MS in starts and 6 * NS_PER_MS not in starts
+    # deadlines stay on the 1 ms grid after the overrun (absolute, no drift)
+    assert all(t % NS_PER_MS == 0 for t in starts)
+    assert ft.sleeps, "the wall clock must sleep rather than only spin"
+    assert max(stats.lateness_ns) < 2 * NS_PER_MS
+
+
+def test_scheduler_rejects_bad_period():
+    with pytest.raises(ValueError):
+        Scheduler(SimClock()).every(0, lambda t: None, name="bad")
+
+
+def test_stop_returns_early():
+    clock = SimClock()
+    sched = Scheduler(clock)
+    sched.every(NS_PER_MS, lambda t: sched.stop() if t == 3 * NS_PER_MS else None, name="s")
+    sched.run_until(100 * NS_PER_MS)
+    assert clock.now_ns() == 3 * NS_PER_MS

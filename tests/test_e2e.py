@@ -1,0 +1,43 @@
+from __future__ import annotations
+
+import pytest
+
+from vecu.e2e import AliveCounterCheck, crc8_sae_j1850, e2e_crc
+
+
+@pytest.mark.parametrize("data,crc", [
+    # AUTOSAR SWS CRC Library, CRC8 SAE J1850 check values
+    (bytes.fromhex("00000000"), 0x59),
+    (bytes.fromhex("F20183"), 0x37),
+    (bytes.fromhex("0FAA0055"), 0x79),
+    (bytes.fromhex("00FF5511"), 0xB8),
+    (bytes.fromhex("332255AABBCCDDEEFF"), 0xCB),
+    (bytes.fromhex("926B55"), 0x8C),
+    (bytes.fromhex("FFFFFFFF"), 0x74),
+    (b"123456789", 0x4B),
+])
+def test_crc8_sae_j1850_reference_values(data, crc):
+    assert crc8_sae_j1850(data) == crc
+
+
+def test_e2e_crc_covers_data_id_and_skips_crc_byte():
+    payload = bytearray(b"\x00\x05\x10\x20")
+    c = e2e_crc(0x100, payload, 0)
+    assert c == crc8_sae_j1850(bytes([0x00, 0x01]) + payload[1:])
+    payload[0] = 0xAB  # the CRC byte itself is not covered
+    assert e2e_crc(0x100, payload, 0) == c
+    assert e2e_crc(0x101, payload, 0) != c  # a frame under another ID fails
+
+
+def test_alive_counter_accepts_increments_and_wraps():
+    chk = AliveCounterCheck()
+    assert all(chk.check(k % 16) for k in range(40))
+
+
+def test_alive_counter_flags_repeat_and_jump_then_resyncs():
+    chk = AliveCounterCheck()
+    assert chk.check(3) and chk.check(4)
+    assert not chk.check(4)      # repeated
+    assert chk.check(5)
+    assert not chk.check(9)      # jumped (frames lost or replayed)
+    assert chk.check(10)         # resynchronised

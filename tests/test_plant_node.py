@@ -1,0 +1,90 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vecu.bus import open_bus
+from vecu.clock import NS_PER_MS
+from vecu.codec import DbcCodec
+from vecu.faults import FaultInjector, FaultKind, FaultTarget, make_fault, parse_kind
+from vecu.plant.node import ThrottlePlantNode
+from vecu.plant.throttle import (InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig,
+                                 rng_streams)
+
+
+@pytest.fixture
+def rig():
+    codec = DbcCodec()
+    rngs = rng_streams(0, ("i", "p", "f"))
+    plant_bus, tester = open_bus(channel="plant-test"), open_bus(channel="plant-test")
+    inj = FaultInjector(rngs["f"])
+    node = ThrottlePlantNode(plant_bus, codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
+                             InputGenerator(InputConfig(), rngs["i"]), inj)
+    yield codec, node, tester, inj
+    plant_bus.shutdown()
+    tester.shutdown()
+
+
+def tps_voltages(codec, tester):
+    out = []
+    while (m := tester.recv(0.0)) is not None:
+        if m.arbitration_id == codec["TPS_Sensor"].frame_id:
+            out.append(codec["TPS_Sensor"].decode(m.data)["TPS_Voltage"])
+    return out
+
+
+def test_fault_command_frame_on_the_bus_kills_and_clears_the_tps(rig):
+    codec, node, tester, inj = rig
+    fi = codec["FI_Command"]
+    for k in range(5):
+        node.tick(k * NS_PER_MS)
+    assert len(tps_voltages(codec, tester)) == 5
+    tester.send(fi.frame({"FI_Target": 1, "FI_Kind": int(FaultKind.DEAD), "FI_Value": 0.0}, 0.005))
+    node.tick(5 * NS_PER_MS)
+    assert tps_voltages(codec, tester) == [0.0]
+    assert inj.events[-1].source == "can" and inj.active(FaultTarget.TPS) == FaultKind.DEAD
+    tester.send(fi.frame({"FI_Target": 1, "FI_Kind": int(FaultKind.FRAMES_STOP), "FI_Value": 0}, 0.006))
+    node.tick(6 * NS_PER_MS)
+    assert tps_voltages(codec, tester) == []
+    tester.send(fi.frame({"FI_Target": 1, "FI_Kind": 0, "FI_Value": 0}, 0.007))
+    node.tick(7 * NS_PER_MS)
+    assert len(tps_voltages(codec, tester)) == 1 and inj.active(FaultTarget.TPS) is None
+
+
+def test_bad_fault_commands_are_counted_not_fatal(rig):
+    codec, node, tester, inj = rig
+    fi = codec["FI_Command"]
+    tester.send(fi.frame({"FI_Target": 99, "FI_Kind": 1, "FI_Value": 0}, 0.0))
+    tester.send(fi.frame({"FI_Target": 1, "FI_Kind": 200, "FI_Value": 0}, 0.0))
+    tester.send(fi.frame({"FI_Target": 1, "FI_Kind": int(FaultKind.GAIN), "FI_Value": 5.0}, 0.0))
+    node.tick(0)
+    assert inj.rejected_commands == 3 and inj.active(FaultTarget.TPS) is None
+
+
+@pytest.mark.parametrize("kind,value,check", [
+    (FaultKind.DEAD, None, lambda out, v: out == 0.0),
+    (FaultKind.SHORT_SUPPLY, None, lambda out, v: out == 5.0),
+    (FaultKind.OFFSET, 0.3, lambda out, v: out == pytest.approx(v + 0.3)),
+    (FaultKind.GAIN, 0.25, lambda out, v: out == pytest.approx(0.25 * v)),
+    (FaultKind.FRAMES_STOP, None, lambda out, v: out is None),
+])
+def test_fault_kinds_transform_the_signal(kind, value, check):
+    f = make_fault(kind, value, np.random.default_rng(0))
+    for v in (0.7, 2.5, 4.1):
+        assert check(f.apply(v), v)
+
+
+def test_stuck_holds_first_value_and_noise_is_seeded():
+    f = make_fault(FaultKind.STUCK, None, np.random.default_rng(0))
+    assert [f.apply(v) for v in (1.0, 2.0, 3.0)] == [1.0, 1.0, 1.0]
+    a = make_fault(FaultKind.NOISE, 0.2, np.random.default_rng(4))
+    b = make_fault(FaultKind.NOISE, 0.2, np.random.default_rng(4))
+    xa = [a.apply(2.0) for _ in range(200)]
+    assert xa == [b.apply(2.0) for _ in range(200)]
+    assert 0.15 < float(np.std(xa)) < 0.25
+
+
+def test_parse_kind_accepts_cli_spellings_and_rejects_unknown():
+    assert parse_kind("frames-stop") == FaultKind.FRAMES_STOP
+    with pytest.raises(ValueError, match="unknown fault kind"):
+        parse_kind("explode")

@@ -1,0 +1,130 @@
+"""End to end: plant -> bus -> ECU -> bus, with the TPS killed part way through."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import can
+import pytest
+
+from vecu.cli import main as cli_main
+from vecu.codec import DbcCodec
+from vecu.runner import RunConfig, run
+
+
+@pytest.mark.parametrize("fault,value,max_latency_ms", [
+    ("dead", None, 10.0),
+    ("short_supply", None, 10.0),
+    ("stuck", None, 10.0),
+    ("frames_stop", None, 3.0),
+    ("gain", 0.0, 10.0),
+])
+def test_tps_kill_is_detected_in_time_and_broadcast_never_gaps(fault, value, max_latency_ms):
+    res = run(RunConfig(duration_s=1.5, seed=3, kill_tps_at_s=1.0, fault=fault, fault_value=value))
+    th = res.summary["throttle"]
+    assert th["detected"], th
+    assert not th["false_alarm"]
+    assert 0.0 <= th["detection_latency_ms"] <= max_latency_ms
+    assert th["final_source"] == "estimate" and th["dtc"] == "confirmed"
+    assert th["missing_broadcasts"] == 0 and th["nan_outputs"] == 0
+    assert res.summary["frames"]["rejected"] == 0
+
+
+def test_large_offset_is_caught_by_plausibility():
+    # +1.5 V = +34 deg: stays inside the electrical range where the angle is below ~43 deg
+    res = run(RunConfig(duration_s=3.0, seed=5, kill_tps_at_s=2.0, fault="offset", fault_value=1.5))
+    th = res.summary["throttle"]
+    assert th["detected"] and th["detected_as"] in ("implausible", "range_high")
+    assert th["detection_latency_ms"] <= 50.0
+
+
+def test_healthy_run_broadcasts_the_sensor_and_no_fault():
+    res = run(RunConfig(duration_s=3.0, seed=11, kill_tps_at_s=None))
+    th = res.summary["throttle"]
+    assert not th["false_alarm"] and th["detection_time_s"] is None
+    b = th["before_kill"]["broadcast_error_deg"]
+    assert b["n"] == 3000
+    assert abs(b["mean"]) < 0.05 and b["std"] < 0.1  # TPS noise 2 mV = 0.045 deg + 0.01 deg LSB
+
+
+def test_after_the_switch_the_broadcast_is_the_estimate_with_its_accuracy():
+    res = run(RunConfig(duration_s=40.0, seed=2, kill_tps_at_s=5.0, fault="dead"))
+    th = res.summary["throttle"]
+    after = th["after_kill"]
+    bc, est = after["broadcast_error_deg"], after["estimate_error_deg"]
+    assert bc["n"] == 35_000
+    assert abs(bc["std"] - est["std"]) < 0.1  # broadcast == estimate (but for the detection ms)
+    assert est["std"] < 10.0  # production estimator: ~6 deg at alpha = 1 (vecu eval throttle)
+    assert bc["non_finite"] == 0
+
+
+def _read(path):
+    with can.LogReader(str(path)) as reader:
+        return list(reader)
+
+
+def test_same_seed_gives_bit_identical_logs_and_another_seed_does_not(tmp_path):
+    paths = {}
+    for name, seed in (("a", 7), ("b", 7), ("c", 8)):
+        for suffix in (".log", ".blf"):
+            p = tmp_path / f"{name}{suffix}"
+            run(RunConfig(duration_s=0.5, seed=seed, kill_tps_at_s=0.25, log_path=str(p)))
+            paths[name + suffix] = p.read_bytes()
+    assert paths["a.log"] == paths["b.log"] and paths["a.blf"] == paths["b.blf"]
+    assert paths["a.log"] != paths["c.log"]
+
+
+def test_log_holds_every_frame_and_estimate_frames_never_gap(tmp_path):
+    log = tmp_path / "run.log"
+    res = run(RunConfig(duration_s=1.0, seed=1, kill_tps_at_s=0.5, fault="dead", log_path=str(log)))
+    frames = _read(log)
+    assert len(frames) == res.summary["frames"]["sent"] == res.summary["frames"]["logged"]
+    codec = DbcCodec()
+    est = codec["ECU_ThrottleEstimate"]
+    stamps, sources = [], []
+    for msg in frames:
+        if msg.arbitration_id == est.frame_id:
+            assert est.crc_ok(msg.data)
+            v = est.decode(msg.data)
+            assert math.isfinite(v["THR_Angle"])
+            stamps.append(msg.timestamp)
+            sources.append(v["THR_Source"])
+    assert len(stamps) == 1000
+    gaps = [b - a for a, b in zip(stamps, stamps[1:])]
+    assert max(gaps) == pytest.approx(1e-3, abs=1e-6)
+    switch = sources.index(1)
+    assert 500 <= switch <= 510 and set(sources[switch:]) == {1}
+
+
+def test_cli_run_writes_summary_plot_and_log(tmp_path, capsys):
+    s, p, log = tmp_path / "s.json", tmp_path / "p.png", tmp_path / "t.asc"
+    rc = cli_main(["run", "--duration", "1", "--kill-tps-at", "0.5", "--fault", "stuck",
+                   "--summary", str(s), "--plot", str(p), "--log", str(log)])
+    assert rc == 0
+    summary = json.loads(s.read_text())
+    th = summary["throttle"]
+    for key in ("detection_latency_ms", "detection_time_s", "before_kill", "after_kill"):
+        assert key in th
+    assert {"sent", "received", "rejected"} <= summary["frames"].keys()
+    assert summary["ticks"] == 1000 and summary["overruns"] == 0
+    assert p.stat().st_size > 10_000 and p.read_bytes()[:4] == b"\x89PNG"
+    assert len(_read(log)) == summary["frames"]["sent"]
+    out = capsys.readouterr().out
+    assert "detected as stuck" in out
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--kill-tps-at", "99"], "outside the run"),
+    (["--fault", "bogus"], "unknown fault kind"),
+    (["--log", "/nonexistent-dir/x.log"], "/nonexistent-dir/x.log"),
+    (["--interface", "no-such-bus"], "no-such-bus"),
+    (["--fault", "gain", "--fault-value", "3"], "G must be in [0, 1]"),
+    (["--log", "out.unknownsuffix"], "out.unknownsuffix"),
+])
+def test_cli_bad_input_is_one_line_error_exit_2(args, needle, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rc = cli_main(["run", "--duration", "1", "--quiet", *args])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert needle in err and len(err.splitlines()) == 1, err

@@ -1,0 +1,53 @@
+"""Benchmarks of the bus and of the whole `vecu run` pipeline, as ratios measured in one run."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+
+from vecu.bus import open_bus
+
+
+def bench_virtual_bus(frames: int = 20_000) -> dict[str, Any]:
+    """send + recv of one 8-byte frame: vecu's FastVirtualBus against python-can's VirtualBus."""
+    out: dict[str, Any] = {"name": "virtual bus send+recv", "frames": frames}
+    for label, factory in (("baseline_us", lambda ch: can.Bus(interface="virtual", channel=ch,
+                                                              preserve_timestamps=True)),
+                           ("vecu_us", lambda ch: open_bus(channel=ch))):
+        tx, rx = factory(f"bench-{label}"), factory(f"bench-{label}")
+        try:
+            msg = can.Message(arbitration_id=0x100, data=bytes(8), is_extended_id=False)
+            t0 = time.perf_counter()
+            for _ in range(frames):
+                tx.send(msg)
+                rx.recv(0.0)
+            out[label] = round((time.perf_counter() - t0) / frames * 1e6, 2)
+        finally:
+            tx.shutdown()
+            rx.shutdown()
+    out["speedup"] = round(out["baseline_us"] / out["vecu_us"], 2)
+    return out
+
+
+def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> list[dict[str, Any]]:
+    """Simulated-time `vecu run` (TPS killed half way) as x real time, without and with a log."""
+    from vecu.runner import RunConfig, run
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, log in (("no log", None), ("with .log", str(Path(tmp) / "run.log")),
+                           ("with .blf", str(Path(tmp) / "run.blf"))):
+            cfg = RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2,
+                            estimator=estimator, log_path=log)
+            t0 = time.perf_counter()
+            res = run(cfg)
+            wall = time.perf_counter() - t0
+            rows.append({"name": f"vecu run pipeline ({label})", "sim_s": duration_s,
+                         "wall_s": round(wall, 3), "x_realtime": round(duration_s / wall, 2),
+                         "us_per_tick": round(wall / res.summary["ticks"] * 1e6, 1),
+                         "target_x_realtime": 20.0})
+    return rows

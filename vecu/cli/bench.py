@@ -1,0 +1,55 @@
+"""`vecu bench`: speed benchmarks, each printed as a ratio against a baseline from the same run."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+from typing import Any
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="run the speed benchmarks (ratios against same-run baselines)",
+                       description="Benchmarks: paper UKF step (fast vs straightforward numpy), "
+                                   "virtual bus (vecu vs python-can), whole pipeline x real time.")
+    p.add_argument("--quick", action="store_true", help="shorter runs (noisier figures)")
+    p.add_argument("--only", choices=("ukf", "bus", "pipeline"), help="run one benchmark group")
+    p.add_argument("--estimator", default="production", help="ECU estimator for the pipeline run")
+    p.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    p.set_defaults(func=main)
+
+
+def collect(quick: bool, only: str | None, estimator: str) -> dict[str, Any]:
+    from vecu.bench.estimators import bench_throttle_ukf
+    from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
+
+    out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine()}
+    if only in (None, "ukf"):
+        out["ukf"] = bench_throttle_ukf(steps=5_000 if quick else 20_000)
+    if only in (None, "bus"):
+        out["bus"] = bench_virtual_bus(frames=5_000 if quick else 20_000)
+    if only in (None, "pipeline"):
+        out["pipeline"] = bench_pipeline(duration_s=2.0 if quick else 10.0, estimator=estimator)
+    return out
+
+
+def main(args: argparse.Namespace) -> int:
+    res = collect(args.quick, args.only, args.estimator)
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return 0
+    if "ukf" in res:
+        print("Paper UKF step (n = 3, scalar y): plain-Python vs straightforward numpy baseline")
+        print(f"  {'set':<6}{'points':>7}{'vecu us':>10}{'numpy us':>10}{'speedup':>9}  target <= 10 us, >= 10x")
+        for r in res["ukf"]:
+            print(f"  {r['sigma_set']:<6}{r['points']:>7}{r['fast_us']:>10.2f}{r['numpy_us']:>10.1f}"
+                  f"{r['ratio']:>8.1f}x")
+    if "bus" in res:
+        b = res["bus"]
+        print(f"Virtual bus send+recv: vecu {b['vecu_us']} us vs python-can VirtualBus "
+              f"{b['baseline_us']} us ({b['speedup']}x)")
+    if "pipeline" in res:
+        print("Whole pipeline, simulated clock (plant + injector + ECU + probe), target >= 20x:")
+        for r in res["pipeline"]:
+            print(f"  {r['name']:<32} {r['x_realtime']:>7.1f}x real time  ({r['us_per_tick']} us/tick)")
+    return 0
