@@ -1,0 +1,81 @@
+"""Throttle estimators by name (what `vecu run` / `vecu eval` accept)."""
+
+from __future__ import annotations
+
+from vecu.estimators.base import ThrottleEstimator
+
+_PAPER = ("ahsm", "arm", "agm")
+# Fast (plain-float) paper filters, their numpy reference versions, the model-only baseline and
+# the production estimator.
+THROTTLE_ESTIMATORS: tuple[str, ...] = (
+    *_PAPER, *(f"{s}-numpy" for s in _PAPER), "open-loop", "production",
+)
+
+
+class OpenLoopThrottle:
+    """Baseline: the AHSM filter's prediction only, y ignored (what the model alone knows).
+
+    Its error is what an estimator must beat for the wattmeter to be worth anything.
+    """
+
+    def __init__(self, noise_scale: float = 1.0) -> None:
+        from vecu.estimators.ukf_fast import FastThrottleUKF
+
+        self._ukf = FastThrottleUKF("ahsm", noise_scale)
+        self.name = "open-loop"
+
+    @property
+    def resets(self) -> int:
+        return self._ukf.resets
+
+    def step(self, u_prev: float, y: float | None) -> None:
+        self._ukf.step(u_prev, None)
+
+    @property
+    def theta_deg(self) -> float:
+        return self._ukf.theta_deg
+
+    @property
+    def theta_std_deg(self) -> float:
+        return self._ukf.theta_std_deg
+
+    def reset(self) -> None:
+        self._ukf.reset()
+
+
+class EstimatorUnavailableError(ValueError):
+    """A known estimator name whose implementation could not be imported.
+
+    A ValueError, like an unknown name, so callers that report bad --estimator values as one-line
+    errors (vecu run) handle it the same way.
+    """
+
+
+def make_throttle_estimator(name: str, noise_scale: float = 1.0) -> ThrottleEstimator:
+    """Build a fresh estimator. noise_scale is the alpha the filter assumes for F (Q = (alpha F)^2).
+
+    Raises ValueError for an unknown name, EstimatorUnavailableError if "production" cannot be
+    imported (the other names never depend on it).
+    """
+    if name in _PAPER:
+        from vecu.estimators.ukf_fast import FastThrottleUKF
+
+        return FastThrottleUKF(name, noise_scale)
+    if name.endswith("-numpy") and name[: -len("-numpy")] in _PAPER:
+        from vecu.estimators.throttle_model import NumpyThrottleUKF
+
+        return NumpyThrottleUKF(name[: -len("-numpy")], noise_scale)
+    if name == "open-loop":
+        return OpenLoopThrottle(noise_scale)
+    if name == "production":
+        try:
+            from vecu.estimators.throttle_production import make_production_estimator
+        except ImportError as exc:
+            raise EstimatorUnavailableError(
+                "throttle estimator 'production' is unavailable: cannot import "
+                f"make_production_estimator from vecu.estimators.throttle_production ({exc})"
+            ) from exc
+        return make_production_estimator(noise_scale)
+    raise ValueError(
+        f"unknown throttle estimator {name!r}; choose from {', '.join(THROTTLE_ESTIMATORS)}"
+    )

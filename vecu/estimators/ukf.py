@@ -1,0 +1,122 @@
+"""Generic unscented Kalman filter, exactly the paper's Step 3 (Vargas et al. 2015, Section II-A).
+
+Reference implementation and speed baseline (see ukf_fast.py for the n = 3 specialisation):
+
+- Step 2 / 2a / 2b: chi_j = x_hat + S Z_j with S = chol(P) and the fixed pattern of a SigmaSet.
+- Step 3, predict: chi_j <- f(chi_j, u); x_pred = sum w chi; Pxx = sum w (chi-x)(chi-x)^T + FF^T.
+- Step 3, update: gamma_j = h(chi_j) on the *propagated* points (no redraw after predict);
+  y_pred = sum w gamma; Pxy, Pyy = sum w (gamma-y)(gamma-y)^T + HH^T; G = Pxy Pyy^-1;
+  x = x_pred + G (y - y_pred); P = Pxx - G Pyy G^T.
+
+The same weights serve mean and covariance. Guards (vecu.estimators.covariance): P is
+symmetrised after each update, factorised with a fallback, and the filter resets to (x0, P0) when
+the state or covariance diverges (counted in `resets`). A non-finite y is treated as missing.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from vecu.estimators.covariance import DivergenceBounds, cholesky_lower, diverged, symmetrise
+from vecu.estimators.sigma_sets import SigmaSet
+
+TransitionFn = Callable[[np.ndarray, float], np.ndarray]
+MeasurementFn = Callable[[np.ndarray], np.ndarray]
+
+
+class UnscentedFilter:
+    """UKF with additive noise; predict() and update() kept separate (Stone Soup style)."""
+
+    def __init__(
+        self,
+        f: TransitionFn,
+        h: MeasurementFn,
+        Q: np.ndarray,
+        R: np.ndarray,
+        sigma_set: SigmaSet,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        bounds: DivergenceBounds = DivergenceBounds(),
+    ) -> None:
+        n = sigma_set.n
+        if np.shape(x0) != (n,) or np.shape(P0) != (n, n) or np.shape(Q) != (n, n):
+            raise ValueError("x0, P0, Q must match the sigma set dimension")
+        self.f = f
+        self.h = h
+        self.Q = np.array(Q, dtype=float)
+        self.R = np.atleast_2d(np.array(R, dtype=float))
+        self.sigma_set = sigma_set
+        self.x0 = np.array(x0, dtype=float)
+        self.P0 = np.array(P0, dtype=float)
+        self.bounds = bounds
+        self.resets = 0
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
+        self._chi: np.ndarray | None = None  # propagated sigma points of the last predict
+
+    # -- Step 2 -------------------------------------------------------------------------------
+    def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """chi = x + S Z (n x (N+1)), S = chol(P) with fallback."""
+        return x[:, None] + cholesky_lower(P) @ self.sigma_set.Z
+
+    def _restart(self) -> None:
+        self.x = self.x0.copy()
+        self.P = self.P0.copy()
+        # Prior points (not propagated) so that an update right after a reset is well defined.
+        self._chi = self.sigma_points(self.x, self.P)
+
+    def reset(self) -> None:
+        """Back to the prior (x0, P0) without counting a divergence."""
+        self._restart()
+        self._chi = None
+
+    def _diverge_reset(self) -> None:
+        self.resets += 1
+        self._restart()
+
+    # -- Step 3, first half ---------------------------------------------------------------------
+    def predict(self, u: float) -> None:
+        """Propagate the points of (x, P) through f with input u; x, P become the prediction."""
+        chi = self.sigma_points(self.x, self.P)
+        chi = np.column_stack([self.f(chi[:, j], u) for j in range(chi.shape[1])])
+        w = self.sigma_set.w
+        x = chi @ w
+        d = chi - x[:, None]
+        P = (d * w) @ d.T + self.Q
+        self._chi = chi
+        self.x, self.P = x, P
+        if diverged(x, P, self.bounds):
+            self._diverge_reset()
+
+    # -- Step 3, second half --------------------------------------------------------------------
+    def update(self, y: np.ndarray | float) -> bool:
+        """Correct with y using gamma = h(chi_{k|k-1}); returns False if y was not used."""
+        y = np.atleast_1d(np.asarray(y, dtype=float))
+        if not np.all(np.isfinite(y)):
+            return False
+        chi = self._chi if self._chi is not None else self.sigma_points(self.x, self.P)
+        w = self.sigma_set.w
+        gamma = np.column_stack([np.atleast_1d(self.h(chi[:, j])) for j in range(chi.shape[1])])
+        y_pred = gamma @ w
+        dx = chi - self.x[:, None]
+        dy = gamma - y_pred[:, None]
+        Pxy = (dx * w) @ dy.T
+        Pyy = (dy * w) @ dy.T + self.R
+        G = np.linalg.solve(Pyy.T, Pxy.T).T  # Pxy Pyy^-1 (Pyy symmetric)
+        x = self.x + G @ (y - y_pred)
+        P = symmetrise(self.P - G @ Pyy @ G.T)
+        self._chi = None
+        self.x, self.P = x, P
+        if diverged(x, P, self.bounds):
+            self._diverge_reset()
+            self._chi = None
+        return True
+
+    def step(self, u: float, y: np.ndarray | float | None) -> None:
+        """One Step-2/3 iteration: predict with u, then update with y (None: predict only)."""
+        self.predict(u)
+        if y is not None:
+            self.update(y)
+        self._chi = None

@@ -1,0 +1,214 @@
+"""The paper's UKF (Step 3 with any of the Step 2/2a/2b sigma sets) specialised to the throttle.
+
+Same algorithm, guards and reset semantics as ukf.UnscentedFilter + throttle_model, written for
+n = 3 and a scalar wattmeter reading in plain Python floats: unrolled 3x3 Cholesky, the sigma
+pattern pre-extracted into tuples, Table I pre-extracted per mode, eq. (3) inlined, and the Step-3
+sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated point.
+No numpy in the normal step; the (rare) Cholesky fallback reuses covariance.cholesky_lower so both
+implementations fall back identically. From the same (x, P) one step matches the numpy reference
+to < 1e-9 relative (tests/test_ukf.py; on free runs see docs/models.md for ARM/AGM at alpha = 1).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vecu.estimators.covariance import DivergenceBounds, cholesky_lower, diverged_floats
+from vecu.estimators.sigma_sets import SigmaSet, paper_set
+from vecu.estimators.throttle_model import (
+    THROTTLE_BOUNDS, X0, measurement_noise_var, process_noise_diag,
+)
+from vecu.plant.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG, THETA_MIN_DEG
+
+_MODES = tuple(
+    (p.a12, p.a21, p.a22, p.a23, p.a32, p.a33, p.b, p.c1, p.c2, p.c3) for p in TABLE_I
+)
+_B1, _B2 = MODE_BOUNDS_DEG
+_LO, _HI = THETA_MIN_DEG, THETA_MAX_DEG
+
+
+def _chol3(p: tuple[float, ...]) -> tuple[float, float, float, float, float, float]:
+    """Lower Cholesky factor (l00, l10, l11, l20, l21, l22) of P given as (p00,p01,p02,p11,p12,p22).
+
+    Unrolled; on a non-positive pivot falls back to covariance.cholesky_lower (jitter, clipping).
+    """
+    p00, p01, p02, p11, p12, p22 = p
+    if p00 > 0.0:
+        l00 = math.sqrt(p00)
+        l10 = p01 / l00
+        l20 = p02 / l00
+        d = p11 - l10 * l10
+        if d > 0.0:
+            l11 = math.sqrt(d)
+            l21 = (p12 - l20 * l10) / l11
+            d = (p22 - l20 * l20) - l21 * l21
+            if d > 0.0:
+                return l00, l10, l11, l20, l21, math.sqrt(d)
+    L = cholesky_lower(np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]))
+    return (float(L[0, 0]), float(L[1, 0]), float(L[1, 1]),
+            float(L[2, 0]), float(L[2, 1]), float(L[2, 2]))
+
+
+class FastThrottleUKF:
+    """ThrottleEstimator: the paper's UKF for the throttle, n = 3, scalar y, plain floats."""
+
+    def __init__(
+        self, sigma_set: SigmaSet | str, noise_scale: float = 1.0,
+        bounds: DivergenceBounds = THROTTLE_BOUNDS,
+    ) -> None:
+        s = paper_set(sigma_set) if isinstance(sigma_set, str) else sigma_set
+        if s.n != 3:
+            raise ValueError("FastThrottleUKF needs a 3-state sigma set")
+        self.name = s.name
+        self.sigma_set = s
+        self.noise_scale = float(noise_scale)
+        self.bounds = bounds
+        self._pattern = tuple(
+            (float(s.Z[0, j]), float(s.Z[1, j]), float(s.Z[2, j]), float(s.w[j]))
+            for j in range(s.points)
+        )
+        self._q = process_noise_diag(noise_scale)
+        self._r = measurement_noise_var()
+        self.resets = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to x0 = 0, P0 = I (not counted as a divergence)."""
+        self.x: tuple[float, float, float] = X0
+        self.p: tuple[float, ...] = (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)  # p00 p01 p02 p11 p12 p22
+
+    @property
+    def theta_deg(self) -> float:
+        return self.x[0]
+
+    @property
+    def theta_std_deg(self) -> float:
+        return math.sqrt(self.p[0]) if self.p[0] > 0.0 else 0.0
+
+    @property
+    def state(self) -> tuple[float, float, float]:
+        return self.x
+
+    @property
+    def covariance(self) -> np.ndarray:
+        p00, p01, p02, p11, p12, p22 = self.p
+        return np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
+
+    def set_state(self, x: tuple[float, float, float], P: np.ndarray) -> None:
+        """Overwrite the estimate (tests, warm starts); P is read as a symmetric 3x3 matrix."""
+        self.x = (float(x[0]), float(x[1]), float(x[2]))
+        Pa = np.asarray(P, dtype=float)
+        self.p = (float(Pa[0, 0]), float(Pa[0, 1]), float(Pa[0, 2]),
+                  float(Pa[1, 1]), float(Pa[1, 2]), float(Pa[2, 2]))
+
+    def _diverged(self) -> bool:
+        p00, p01, p02, p11, p12, p22 = self.p
+        return diverged_floats(self.x, p00 + p11 + p22, p01 + p02 + p12, self.bounds)
+
+    def _prior_moments(self) -> tuple[float, float, float, float, float]:
+        """Reset to (x0, P0) and return y_pred, Pxy, Pyy of its (unpropagated) sigma points."""
+        self.reset()
+        l00, l10, l11, l20, l21, l22 = _chol3(self.p)
+        x0, x1, x2 = self.x
+        pts = []
+        for z0, z1, z2, w in self._pattern:
+            c = x2 + ((l20 * z0 + l21 * z1) + l22 * z2)
+            pts.append((l00 * z0, l10 * z0 + l11 * z1, c - x2, c * c, w))
+        yp = sum(g * w for _, _, _, g, w in pts)
+        c0 = c1 = c2 = pyy = 0.0
+        for d0, d1, d2, g, w in pts:
+            ey = (g - yp) * w
+            c0 += d0 * ey
+            c1 += d1 * ey
+            c2 += d2 * ey
+            pyy += (g - yp) * ey
+        return yp, c0, c1, c2, pyy
+
+    def step(self, u_prev: float, y: float | None) -> None:
+        """Step 2 (draw) + Step 3 (predict with u_prev; update with y unless None / non-finite)."""
+        l00, l10, l11, l20, l21, l22 = _chol3(self.p)
+        x0, x1, x2 = self.x
+        m0, m1, m2 = _MODES
+        b1, b2, lo, hi = _B1, _B2, _LO, _HI
+        u = u_prev
+        first = True
+        r0 = r1 = r2 = ry = 0.0
+        s0 = s1 = s2 = sy = 0.0
+        p00 = p01 = p02 = p11 = p12 = p22 = c0 = c1 = c2 = pyy = 0.0
+        for z0, z1, z2, w in self._pattern:
+            t = x0 + l00 * z0
+            r = x1 + (l10 * z0 + l11 * z1)
+            c = x2 + ((l20 * z0 + l21 * z1) + l22 * z2)
+            a12, a21, a22, a23, a32, a33, b, k1, k2, k3 = m0 if t <= b1 else (m1 if t <= b2 else m2)
+            sr = 1.0 if r > 0.0 else (-1.0 if r < 0.0 else 0.0)
+            st = 1.0 if t > 1.0 else (-1.0 if t < 1.0 else 0.0)
+            tn = t + a12 * r
+            if tn < lo:
+                tn = lo
+            elif tn > hi:
+                tn = hi
+            rn = a21 * t + a22 * r + a23 * c + k1 * sr + k2 * st + k3
+            cn = a32 * r + a33 * c + b * u
+            if first:
+                # Moments are accumulated about the first propagated point (shifted one-pass).
+                r0, r1, r2, ry = tn, rn, cn, cn * cn
+                first = False
+                continue
+            d0 = tn - r0
+            d1 = rn - r1
+            d2 = cn - r2
+            dy = cn * cn - ry
+            e0 = d0 * w
+            e1 = d1 * w
+            e2 = d2 * w
+            ey = dy * w
+            s0 += e0
+            s1 += e1
+            s2 += e2
+            sy += ey
+            p00 += e0 * d0
+            p01 += e0 * d1
+            p02 += e0 * d2
+            p11 += e1 * d1
+            p12 += e1 * d2
+            p22 += e2 * d2
+            c0 += d0 * ey
+            c1 += d1 * ey
+            c2 += d2 * ey
+            pyy += dy * ey
+        q0, q1, q2 = self._q
+        self.x = (r0 + s0, r1 + s1, r2 + s2)
+        self.p = (p00 - s0 * s0 + q0, p01 - s0 * s1, p02 - s0 * s2,
+                  p11 - s1 * s1 + q1, p12 - s1 * s2, p22 - s2 * s2 + q2)
+        yp = ry + sy
+        c0 -= s0 * sy
+        c1 -= s1 * sy
+        c2 -= s2 * sy
+        pyy -= sy * sy
+        if self._diverged():
+            self.resets += 1
+            yp, c0, c1, c2, pyy = self._prior_moments()
+        if y is None or not (-math.inf < y < math.inf):
+            return
+        self._update(float(y), yp, c0, c1, c2, pyy)
+
+    def _update(self, y: float, yp: float, c0: float, c1: float, c2: float, pyy: float) -> None:
+        """Step 3, update with Pxy = (c0, c1, c2) and Pyy (before adding HH^T): scalar gain."""
+        pyy += self._r
+        g0 = c0 / pyy
+        g1 = c1 / pyy
+        g2 = c2 / pyy
+        v = y - yp
+        x0, x1, x2 = self.x
+        self.x = (x0 + g0 * v, x1 + g1 * v, x2 + g2 * v)
+        h0 = g0 * pyy
+        h1 = g1 * pyy
+        h2 = g2 * pyy
+        p00, p01, p02, p11, p12, p22 = self.p
+        self.p = (p00 - h0 * g0, p01 - h0 * g1, p02 - h0 * g2,
+                  p11 - h1 * g1, p12 - h1 * g2, p22 - h2 * g2)
+        if self._diverged():
+            self.resets += 1
+            self.reset()
