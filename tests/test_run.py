@@ -128,3 +128,17 @@ def test_cli_bad_input_is_one_line_error_exit_2(args, needle, capsys, tmp_path, 
     err = capsys.readouterr().err.strip()
     assert rc == 2
     assert needle in err and len(err.splitlines()) == 1, err
+
+
+def test_realtime_run_is_paced_by_the_wall_clock():
+    import time
+
+    t0 = time.perf_counter()
+    res = run(RunConfig(duration_s=0.3, seed=1, kill_tps_at_s=0.1, fault="frames_stop",
+                        realtime=True, estimator="arm"))
+    wall = time.perf_counter() - t0
+    assert res.summary["ticks"] == 300
+    assert wall >= 0.3 and res.summary["x_realtime"] <= 1.05
+    th = res.summary["throttle"]
+    # on a loaded machine ticks may be skipped (counted as overruns), but never silently
+    assert th["detected"] and th["missing_broadcasts"] <= res.summary["overruns"] * 5

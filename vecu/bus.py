@@ -54,6 +54,15 @@ class FastVirtualBus(VirtualBus):
     channels with it. Used by open_bus() whenever interface="virtual".
     """
 
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if timeout != 0:
+            return super()._recv_internal(timeout)
+        self._check_if_open()
+        try:  # a poll: skip the timed-wait machinery of queue.get(timeout=0)
+            return self.queue.get_nowait(), False
+        except queue.Empty:
+            return None, False
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
         timestamp = msg.timestamp if self.preserve_timestamps else time.time()

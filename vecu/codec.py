@@ -64,8 +64,18 @@ class FrameCodec:
         self.ranges: dict[str, tuple[float | None, float | None]] = {
             s.name: (s.minimum, s.maximum) for s in message.signals
         }
-        self._bounds = {name: _encode_bounds(message.get_signal_by_name(name), lo, hi)
-                        for name, (lo, hi) in self.ranges.items()}
+        # Only signals whose raw bits can leave the DBC range (or floats) need saturating on
+        # encode and range-checking on decode; counters, CRCs and full-range enums cannot.
+        self._saturate: list[tuple[str, float, float]] = []
+        self._checked: list[tuple[str, float | None, float | None]] = []
+        for sig in message.signals:
+            lo, hi = self.ranges[sig.name]
+            raw_lo, raw_hi = _raw_bounds(sig)
+            if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi) \
+                    or sig.scale != 1 or sig.offset != 0:
+                self._saturate.append((sig.name, *_encode_bounds(sig, lo, hi)))
+            if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi):
+                self._checked.append((sig.name, lo, hi))
         self.e2e = _e2e_layout(message)
         self._encode = message.encode
         self._decode_simple = message.decode_simple
@@ -75,10 +85,9 @@ class FrameCodec:
 
         The E2E CRC is filled in when the message has one.
         """
-        bounds = self._bounds
-        sat = {}
-        for name, v in values.items():
-            lo, hi = bounds[name]
+        sat = dict(values)
+        for name, lo, hi in self._saturate:
+            v = sat[name]
             sat[name] = lo if not v >= lo else (hi if v > hi else v)
         data = bytearray(self._encode(sat, scaling=True, padding=False, strict=False))
         if self.e2e is not None:
@@ -103,23 +112,31 @@ class FrameCodec:
     def bad_values(self, values: Mapping[str, float]) -> list[str]:
         """Names of signals that are NaN/inf or outside the DBC's [minimum, maximum]."""
         bad = []
-        for name, value in values.items():
-            lo, hi = self.ranges.get(name, (None, None))
+        for name, lo, hi in self._checked:
+            value = values.get(name)
+            if value is None:
+                continue
             if not math.isfinite(value) or (lo is not None and value < lo) or (
                     hi is not None and value > hi):
                 bad.append(name)
         return bad
 
 
-def _encode_bounds(sig, lo: float | None, hi: float | None) -> tuple[float, float]:
-    """Physical range a signal can carry: the DBC min/max, else what its raw bits allow."""
+def _raw_bounds(sig) -> tuple[float, float]:
+    """Physical values the signal's raw bits can express (floats: float32's range)."""
     if sig.is_float:
-        raw_lo, raw_hi = -3.0e38, 3.0e38
-    elif sig.is_signed:
+        return -3.0e38, 3.0e38
+    if sig.is_signed:
         raw_lo, raw_hi = -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
     else:
         raw_lo, raw_hi = 0, (1 << sig.length) - 1
     ends = sorted((raw_lo * sig.scale + sig.offset, raw_hi * sig.scale + sig.offset))
+    return ends[0], ends[1]
+
+
+def _encode_bounds(sig, lo: float | None, hi: float | None) -> tuple[float, float]:
+    """Physical range a signal can carry: the DBC min/max, else what its raw bits allow."""
+    ends = _raw_bounds(sig)
     return (ends[0] if lo is None else max(lo, ends[0]), ends[1] if hi is None else min(hi, ends[1]))
 
 

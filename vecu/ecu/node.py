@@ -21,6 +21,7 @@ from vecu.codec import DbcCodec, FrameCodec
 from vecu.e2e import AliveCounterCheck
 from vecu.ecu.tps_monitor import TpsMonitor, TpsMonitorConfig, TpsStatus
 from vecu.estimators.base import ThrottleEstimator
+from vecu.node import BusNode
 
 log = logging.getLogger(__name__)
 
@@ -60,17 +61,15 @@ class EcuConfig:
     calibration: TpsCalibration = field(default_factory=TpsCalibration)
 
 
-class EcuNode:
+class EcuNode(BusNode):
     """The virtual ECU; call tick(t_ns) from a 1 ms scheduler task."""
 
     def __init__(self, bus: can.BusABC, codec: DbcCodec, estimator: ThrottleEstimator,
                  config: EcuConfig = EcuConfig()) -> None:
-        self.bus = bus
+        super().__init__(bus, "ecu")
         self.codec = codec
         self.estimator = estimator
         self.rx = RxCounters()
-        self.frames_sent = 0
-        self.send_errors = 0
         self.overruns = 0  # set by the runner from the scheduler's count
         self.estimator_faults = 0  # non-finite estimator outputs caught here (should stay 0)
         self._tps = codec["TPS_Sensor"]
@@ -225,12 +224,3 @@ class EcuNode:
             "ECU_RxUnknownIds": sat8(rx.unknown_id), "ECU_RxTimeouts": sat8(rx.timeouts),
         }, ts))
         self._status_counter = (self._status_counter + 1) & 0xF
-
-    def _send(self, msg: can.Message) -> None:
-        try:
-            self.bus.send(msg)
-            self.frames_sent += 1
-        except can.CanError as exc:
-            self.send_errors += 1
-            if self.send_errors <= MAX_LOGGED_PER_KIND:
-                log.warning("ecu: send failed for 0x%X: %s", msg.arbitration_id, exc)

@@ -10,6 +10,7 @@ from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget
+from vecu.node import BusNode
 from vecu.plant.throttle import InputGenerator, ThrottlePlant
 
 log = logging.getLogger(__name__)
@@ -17,7 +18,7 @@ log = logging.getLogger(__name__)
 TPS_V_MIN, TPS_V_MAX = 0.0, 5.0  # sensor output saturates at ground and supply
 
 
-class ThrottlePlantNode:
+class ThrottlePlantNode(BusNode):
     """Sends TPS_Sensor (E2E) and ETB_Wattmeter each tick; obeys FI_Command frames.
 
     Per tick k: u_k from the input generator, y_k and the TPS voltage measured on x_k, faults
@@ -27,7 +28,7 @@ class ThrottlePlantNode:
     def __init__(self, bus: can.BusABC, codec: DbcCodec, plant: ThrottlePlant,
                  inputs: InputGenerator, injector: FaultInjector,
                  calibration: TpsCalibration = TpsCalibration()) -> None:
-        self.bus = bus
+        super().__init__(bus, "plant")
         self.plant = plant
         self.inputs = inputs
         self.injector = injector
@@ -37,8 +38,6 @@ class ThrottlePlantNode:
         self._fi = codec["FI_Command"]
         self._fi_key = (self._fi.frame_id, self._fi.is_extended)
         self._counter = 0
-        self.frames_sent = 0
-        self.send_errors = 0
         self.frames_received = 0
         # truth of the last tick, read by probes
         self.theta = 0.0
@@ -63,14 +62,6 @@ class ThrottlePlantNode:
         self.u = u
         self.tps_voltage = v
         plant.step(u)
-
-    def _send(self, msg: can.Message) -> None:
-        try:
-            self.bus.send(msg)
-            self.frames_sent += 1
-        except can.CanError as exc:
-            self.send_errors += 1
-            log.warning("plant: send failed for 0x%X: %s", msg.arbitration_id, exc)
 
     def _poll_commands(self, t_ns: int) -> None:
         """Drain the receive queue; act on FI_Command, ignore everything else."""
