@@ -140,5 +140,10 @@ def test_realtime_run_is_paced_by_the_wall_clock():
     assert res.summary["ticks"] == 300
     assert wall >= 0.3 and res.summary["x_realtime"] <= 1.05
     th = res.summary["throttle"]
-    # on a loaded machine ticks may be skipped (counted as overruns), but never silently
-    assert th["detected"] and th["missing_broadcasts"] <= res.summary["overruns"] * 5
+    ecu = res.summary["tasks"]["ecu"]
+    # a loaded machine may stall the process: stalled releases are skipped and counted, never lost
+    assert ecu["runs"] + ecu["skipped"] == 300
+    assert res.summary["frames"]["ecu_sent"] == ecu["runs"] + 3  # + status frames at 0/100/200 ms
+    assert th["detection_time_s"] is not None and th["final_source"] == "estimate"
+    if res.summary["overruns"] == 0:  # no stall: the kill itself is what was detected
+        assert th["detected"] and not th["false_alarm"] and th["detection_latency_ms"] <= 3.0

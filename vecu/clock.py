@@ -26,6 +26,10 @@ class Clock(Protocol):
         """Return at (wall) or jump to (simulated) the absolute deadline; never earlier."""
         ...
 
+    def start(self) -> None:
+        """Make 'now' the start of the run (t = 0); call right before the first deadline."""
+        ...
+
 
 class SimClock:
     """Deterministic simulated time: wait_until jumps forward, never backwards."""
@@ -34,6 +38,10 @@ class SimClock:
 
     def __init__(self, start_ns: int = 0) -> None:
         self._now = start_ns
+        self._start = start_ns
+
+    def start(self) -> None:
+        self._now = self._start
 
     def now_ns(self) -> int:
         return self._now
@@ -53,7 +61,7 @@ class WallClock:
 
     def __init__(
         self,
-        spin_ns: int = 200_000,
+        spin_ns: int = 500_000,
         sleep: Callable[[float], None] = time.sleep,
         monotonic_ns: Callable[[], int] = time.perf_counter_ns,
     ) -> None:
@@ -61,6 +69,9 @@ class WallClock:
         self._mono = monotonic_ns
         self._spin_ns = spin_ns
         self._t0 = monotonic_ns()
+
+    def start(self) -> None:
+        self._t0 = self._mono()
 
     def now_ns(self) -> int:
         return self._mono() - self._t0

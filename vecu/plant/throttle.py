@@ -20,6 +20,7 @@ THETA_MIN_DEG = 0.0
 THETA_MAX_DEG = 90.0
 MODE_BOUNDS_DEG = (8.0, 16.0)  # Theta_1 = [0, 8], Theta_2 = (8, 16], Theta_3 = (16, 90]
 DT_S = 1e-3  # the paper's sampling period
+INPUT_CHUNK = 1000  # input samples generated at a time
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ class ThrottlePlantConfig:
 
     noise_scale: float = 1.0
     tps_noise_v: float = 0.002  # TPS electrical noise, 1 sigma (V); 0.002 V = 0.036 deg
-    block: int = 10_000  # samples drawn per noise/input block (fixed: part of determinism)
+    block: int = 1_000  # noise rows drawn at a time (the stream does not depend on it)
 
 
 class ThrottlePlant:
@@ -155,32 +156,37 @@ class InputConfig:
 
 
 def input_blocks(config: InputConfig, rng: np.random.Generator) -> Iterator[list[float]]:
-    """Yield successive blocks of u (V), one per cutoff period, clipped to [0, u_max].
+    """Yield successive chunks of u (V), clipped to [0, u_max].
 
-    Second-order sections keep the 0.01 Hz filter stable at 1 kHz; the filter state is carried
-    across blocks so u is continuous when the cutoff changes.
+    The cutoff is redrawn every cutoff period; second-order sections keep the 0.01 Hz filter
+    stable at 1 kHz, and the filter state is carried across chunks and cutoff changes, so u is
+    continuous. Chunks are short (INPUT_CHUNK samples) so that live runs never stall on one.
     """
     zi = None
     level = 0.0
     remaining = 0
-    n = config.cutoff_period_ms
+    period = config.cutoff_period_ms
     while True:
         cutoff = rng.uniform(config.cutoff_min_hz, config.cutoff_max_hz)
         sos = signal.butter(4, cutoff, btype="low", fs=config.fs_hz, output="sos")
-        raw = np.empty(n)
-        k = 0
-        while k < n:
-            if remaining == 0:
-                remaining = int(rng.integers(config.pulse_min_ms, config.pulse_max_ms + 1))
-                level = float(rng.uniform(0.0, config.u_max_v))
-            take = min(remaining, n - k)
-            raw[k:k + take] = level
-            k += take
-            remaining -= take
-        if zi is None:
-            zi = signal.sosfilt_zi(sos) * raw[0]
-        filtered, zi = signal.sosfilt(sos, raw, zi=zi)
-        yield np.clip(filtered, 0.0, config.u_max_v).tolist()
+        done = 0
+        while done < period:
+            n = min(INPUT_CHUNK, period - done)
+            raw = np.empty(n)
+            k = 0
+            while k < n:
+                if remaining == 0:
+                    remaining = int(rng.integers(config.pulse_min_ms, config.pulse_max_ms + 1))
+                    level = float(rng.uniform(0.0, config.u_max_v))
+                take = min(remaining, n - k)
+                raw[k:k + take] = level
+                k += take
+                remaining -= take
+            if zi is None:
+                zi = signal.sosfilt_zi(sos) * raw[0]
+            filtered, zi = signal.sosfilt(sos, raw, zi=zi)
+            done += n
+            yield np.clip(filtered, 0.0, config.u_max_v).tolist()
 
 
 class InputGenerator:
