@@ -33,21 +33,62 @@ def bench_virtual_bus(frames: int = 20_000) -> dict[str, Any]:
     return out
 
 
+class _TimedEstimator:
+    """Wraps an estimator to time its step() inside the running pipeline."""
+
+    def __init__(self, inner: Any) -> None:
+        self._inner = inner
+        self.seconds = 0.0
+        self.steps = 0
+
+    def step(self, u_prev: float, y: float | None) -> None:
+        t0 = time.perf_counter()
+        self._inner.step(u_prev, y)
+        self.seconds += time.perf_counter() - t0
+        self.steps += 1
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+
 def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> list[dict[str, Any]]:
-    """Simulated-time `vecu run` (TPS killed half way) as x real time, without and with a log."""
-    from vecu.runner import RunConfig, run
+    """Simulated-time `vecu run` (TPS killed half way) as x real time, without and with a log.
+
+    Each row also gives the estimator's own us per step measured inside the same run, so the
+    pipeline's cost splits into estimator and everything else (CAN encode/decode, bus, scheduler).
+    """
+    from vecu import runner
+    from vecu.estimators.registry import make_throttle_estimator
+
+    timed: list[_TimedEstimator] = []
+
+    def make(name: str, noise_scale: float = 1.0) -> Any:
+        est = _TimedEstimator(make_throttle_estimator(name, noise_scale))
+        timed.append(est)
+        return est
 
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for label, log in (("no log", None), ("with .log", str(Path(tmp) / "run.log")),
-                           ("with .blf", str(Path(tmp) / "run.blf"))):
-            cfg = RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2,
-                            estimator=estimator, log_path=log)
-            t0 = time.perf_counter()
-            res = run(cfg)
-            wall = time.perf_counter() - t0
-            rows.append({"name": f"vecu run pipeline ({label})", "sim_s": duration_s,
-                         "wall_s": round(wall, 3), "x_realtime": round(duration_s / wall, 2),
-                         "us_per_tick": round(wall / res.summary["ticks"] * 1e6, 1),
-                         "target_x_realtime": 20.0})
+    original = runner.make_throttle_estimator
+    runner.make_throttle_estimator = make
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for label, log in (("no log", None), ("with .log", str(Path(tmp) / "run.log")),
+                               ("with .blf", str(Path(tmp) / "run.blf"))):
+                cfg = runner.RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2,
+                                       estimator=estimator, log_path=log)
+                t0 = time.perf_counter()
+                res = runner.run(cfg)
+                wall = time.perf_counter() - t0
+                est = timed[-1]
+                per_tick = wall / res.summary["ticks"] * 1e6
+                est_us = est.seconds / max(est.steps, 1) * 1e6
+                rows.append({"name": f"vecu run pipeline ({label})", "estimator": estimator,
+                             "sim_s": duration_s, "wall_s": round(wall, 3),
+                             "x_realtime": round(duration_s / wall, 2),
+                             "us_per_tick": round(per_tick, 1),
+                             "estimator_us_per_tick": round(est_us, 1),
+                             "rest_us_per_tick": round(per_tick - est_us, 1),
+                             "target_x_realtime": 20.0})
+    finally:
+        runner.make_throttle_estimator = original
     return rows

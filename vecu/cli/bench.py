@@ -14,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "virtual bus (vecu vs python-can), whole pipeline x real time.")
     p.add_argument("--quick", action="store_true", help="shorter runs (noisier figures)")
     p.add_argument("--only", choices=("ukf", "bus", "pipeline"), help="run one benchmark group")
-    p.add_argument("--estimator", default="production", help="ECU estimator for the pipeline run")
+    p.add_argument("--estimator", default="production",
+                   help="ECU estimator for the pipeline run (default production; try arm)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.set_defaults(func=main)
 
@@ -51,5 +52,6 @@ def main(args: argparse.Namespace) -> int:
     if "pipeline" in res:
         print("Whole pipeline, simulated clock (plant + injector + ECU + probe), target >= 20x:")
         for r in res["pipeline"]:
-            print(f"  {r['name']:<32} {r['x_realtime']:>7.1f}x real time  ({r['us_per_tick']} us/tick)")
+            print(f"  {r['name']:<32} {r['x_realtime']:>7.1f}x real time  ({r['us_per_tick']} us/tick: "
+                  f"estimator {r['estimator_us_per_tick']}, CAN/bus/scheduler {r['rest_us_per_tick']})")
     return 0
