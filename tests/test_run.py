@@ -144,6 +144,7 @@ def test_realtime_run_is_paced_by_the_wall_clock():
     # a loaded machine may stall the process: stalled releases are skipped and counted, never lost
     assert ecu["runs"] + ecu["skipped"] == 300
     assert res.summary["frames"]["ecu_sent"] == ecu["runs"] + 3  # + status frames at 0/100/200 ms
+    assert th["missing_broadcasts"] == ecu["skipped"]  # reported, not hidden
     assert th["detection_time_s"] is not None and th["final_source"] == "estimate"
     if res.summary["overruns"] == 0:  # no stall: the kill itself is what was detected
         assert th["detected"] and not th["false_alarm"] and th["detection_latency_ms"] <= 3.0

@@ -19,12 +19,14 @@ class BusNode:
         self.send_errors = 0
         self._log = logging.getLogger(f"vecu.{name}")
 
-    def _send(self, msg: can.Message) -> None:
+    def _send(self, msg: can.Message) -> bool:
         try:
             self.bus.send(msg)
             self.frames_sent += 1
+            return True
         except can.CanError as exc:
             self.send_errors += 1
             if self.send_errors <= MAX_LOGGED_SEND_ERRORS:
                 self._log.warning("%s: send failed for 0x%X: %s", self.node_name,
                                   msg.arbitration_id, exc)
+            return False

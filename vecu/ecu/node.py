@@ -70,6 +70,7 @@ class EcuNode(BusNode):
         self.codec = codec
         self.estimator = estimator
         self.rx = RxCounters()
+        self.estimates_sent = 0  # ECU_ThrottleEstimate frames on the bus (one per tick if healthy)
         self.overruns = 0  # set by the runner from the scheduler's count
         self.estimator_faults = 0  # non-finite estimator outputs caught here (should stay 0)
         self._tps = codec["TPS_Sensor"]
@@ -202,7 +203,7 @@ class EcuNode(BusNode):
             angle, source = theta_hat, SOURCE_ESTIMATE
         self.angle, self.source, self.status = angle, source, status
         ts = t_ns / NS_PER_S
-        self._send(self._est.frame({
+        self.estimates_sent += self._send(self._est.frame({
             "THR_CRC": 0, "THR_AliveCounter": self._tx_counter, "THR_Source": source,
             "THR_Angle": angle, "THR_AngleEst": theta_hat,
             "THR_AngleEstStd": min(std, 51.0), "THR_TpsStatus": int(status),
