@@ -12,6 +12,8 @@ from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS
 from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuNode
+from vecu.ecu.speed_function import SpeedFunction
+from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.ukf_fast import FastThrottleUKF
 
 
@@ -20,7 +22,8 @@ def setup():
     codec = DbcCodec()
     ecu_bus = open_bus(channel="ecu-rx-test")
     tester = open_bus(channel="ecu-rx-test")
-    ecu = EcuNode(ecu_bus, codec, FastThrottleUKF("arm"))
+    ecu = EcuNode(ecu_bus, codec, [ThrottleFunction(codec, FastThrottleUKF("arm")),
+                                   SpeedFunction(codec)])
     yield codec, ecu, tester
     ecu_bus.shutdown()
     tester.shutdown()
@@ -89,7 +92,7 @@ def test_ecu_keeps_broadcasting_through_garbage_and_reports_it_in_status(setup):
             tester.send(msg)
         tester.send(watt_frame(5.0, struct.pack("<f", math.inf if k % 7 == 0 else 12.0)))
         ecu.tick(t)
-    est_frames, status = 0, None
+    est_frames, speed_frames, status = 0, 0, None
     est = codec["ECU_ThrottleEstimate"]
     while (msg := tester.recv(0.0)) is not None:
         if msg.arbitration_id == est.frame_id:
@@ -97,9 +100,12 @@ def test_ecu_keeps_broadcasting_through_garbage_and_reports_it_in_status(setup):
             assert est.crc_ok(msg.data)
             v = est.decode(msg.data)
             assert math.isfinite(v["THR_Angle"])
+        elif msg.arbitration_id == codec["ECU_SpeedEstimate"].frame_id:
+            speed_frames += 1
         elif msg.arbitration_id == codec["ECU_Status"].frame_id:
             status = codec["ECU_Status"].decode(msg.data)
     assert est_frames == 200  # one per tick, no gap
+    assert speed_frames == 100  # every 2 ms, with or without ESC_Motion frames
     assert status is not None
     assert status["ECU_RxValueErrors"] > 0 and status["ECU_RxUnknownIds"] > 0
     assert status["ECU_RxDlcErrors"] > 0 and status["ECU_RxTimeouts"] == 1  # no TPS at all

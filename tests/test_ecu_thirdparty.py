@@ -7,6 +7,8 @@ import can
 from vecu.bus import open_bus
 from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuNode
+from vecu.ecu.speed_function import SpeedFunction
+from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
 
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".gz")
@@ -27,7 +29,8 @@ def test_every_third_party_log_goes_through_the_ecu_counted_and_without_error(th
         assert frames, path.name
         bus = open_bus(channel=f"thirdparty-{path.name}")
         try:
-            ecu = EcuNode(bus, codec, make_throttle_estimator("arm"))
+            ecu = EcuNode(bus, codec, [ThrottleFunction(codec, make_throttle_estimator("arm")),
+                                      SpeedFunction(codec)])
             for k, msg in enumerate(frames):
                 ecu.receive(msg, k * 1_000_000)
                 if k % 10 == 0:
@@ -51,7 +54,8 @@ def test_error_and_remote_frames_from_a_real_asc_are_binned(thirdparty):
     assert errors > 0
     bus = open_bus(channel="thirdparty-err")
     try:
-        ecu = EcuNode(bus, DbcCodec(), make_throttle_estimator("arm"))
+        codec = DbcCodec()
+        ecu = EcuNode(bus, codec, [ThrottleFunction(codec, make_throttle_estimator("arm"))])
         for msg in frames:
             ecu.receive(msg, 0)
         assert ecu.rx.error_frames == errors

@@ -7,7 +7,7 @@ from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultKind, FaultTarget, make_fault, parse_kind
-from vecu.plant.node import ThrottlePlantNode
+from vecu.plant.node import PlantNode, ThrottlePart
 from vecu.plant.throttle import (InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig,
                                  rng_streams)
 
@@ -18,8 +18,9 @@ def rig():
     rngs = rng_streams(0, ("i", "p", "f"))
     plant_bus, tester = open_bus(channel="plant-test"), open_bus(channel="plant-test")
     inj = FaultInjector(rngs["f"])
-    node = ThrottlePlantNode(plant_bus, codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
-                             InputGenerator(InputConfig(), rngs["i"]), inj)
+    part = ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
+                        InputGenerator(InputConfig(), rngs["i"]), inj)
+    node = PlantNode(plant_bus, codec, inj, [part])
     yield codec, node, tester, inj
     plant_bus.shutdown()
     tester.shutdown()

@@ -143,7 +143,6 @@ def test_realtime_run_is_paced_by_the_wall_clock():
     ecu = res.summary["tasks"]["ecu"]
     # a loaded machine may stall the process: stalled releases are skipped and counted, never lost
     assert ecu["runs"] + ecu["skipped"] == 300
-    assert res.summary["frames"]["ecu_sent"] == ecu["runs"] + 3  # + status frames at 0/100/200 ms
     assert th["missing_broadcasts"] == ecu["skipped"]  # reported, not hidden
     assert th["detection_time_s"] is not None and th["final_source"] == "estimate"
     if res.summary["overruns"] == 0:  # no stall: the kill itself is what was detected

@@ -10,14 +10,37 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vecu.runner import Series  # noqa: E402
+from vecu.probes import SpeedSeries, ThrottleSeries  # noqa: E402
+from vecu.runner import RunResult  # noqa: E402
 
 
-def plot_throttle_run(series: Series, summary: dict[str, Any], path: str) -> None:
-    """Two panels: angles (truth, TPS, broadcast, estimate ± 2 sigma) and the broadcast error."""
+def plot_run(result: RunResult, path: str) -> None:
+    """Throttle panels (angles, broadcast error) and, when present, a speed panel."""
+    series, summary = result.throttle_series, result.summary
+    speed = result.speed_series
+    n = 3 if speed is not None else 2
+    fig, axes = plt.subplots(n, 1, figsize=(11, 7 + 2.6 * (n - 2)), sharex=True,
+                             gridspec_kw={"height_ratios": [3, 1.3, 2][:n]})
+    _plot_throttle(series, summary, axes[0], axes[1])
+    if speed is not None:
+        _plot_speed(speed, axes[2])
+    axes[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_speed(sp: SpeedSeries, ax: Any) -> None:
+    ax.plot(sp.t_s, sp.v_wheel, color="tab:gray", lw=0.5, alpha=0.6, label="wheel-speed sensor")
+    ax.plot(sp.t_s, sp.v_true, color="black", lw=1.0, label="true speed")
+    ax.plot(sp.t_s, sp.v_est, color="tab:green", lw=0.9, ls="--", label="estimate (500 Hz KF)")
+    ax.set_ylabel("speed (km/h)")
+    ax.legend(loc="upper right", fontsize=8, ncol=3)
+
+
+def _plot_throttle(series: ThrottleSeries, summary: dict[str, Any], ax1: Any, ax2: Any) -> None:
+    """Angles (truth, TPS, broadcast, estimate ± 2 sigma) and the broadcast error."""
     t = series.t_s
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 7), sharex=True,
-                                   gridspec_kw={"height_ratios": [3, 1.3]})
     ax1.fill_between(t, series.theta_est - 2 * series.theta_est_std,
                      series.theta_est + 2 * series.theta_est_std, color="tab:orange", alpha=0.18,
                      lw=0, label="estimate ± 2σ")
@@ -42,10 +65,6 @@ def plot_throttle_run(series: Series, summary: dict[str, Any], path: str) -> Non
     ax2.plot(t, series.theta_broadcast - series.theta_true, color="tab:red", lw=0.6)
     ax2.axhline(0, color="black", lw=0.5)
     ax2.set_ylabel("broadcast − true (deg)")
-    ax2.set_xlabel("time (s)")
     err = np.abs(series.theta_broadcast - series.theta_true)
     ax2.set_ylim(-max(5.0, float(np.nanpercentile(err, 99.5)) * 1.2),
                  max(5.0, float(np.nanpercentile(err, 99.5)) * 1.2))
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -9,20 +9,22 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import can
-import numpy as np
 
 from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock
 from vecu.codec import DbcCodec
-from vecu.ecu.node import SOURCE_ESTIMATE, EcuConfig, EcuNode
+from vecu.ecu.node import EcuFunction, EcuNode
+from vecu.ecu.speed_function import SpeedFunction
+from vecu.ecu.throttle_function import (SOURCE_ESTIMATE, ThrottleFunction,
+                                        ThrottleFunctionConfig)
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, FaultKind, FaultTarget, parse_kind
-from vecu.plant.node import ThrottlePlantNode
+from vecu.plant.node import LongitudinalPart, PlantNode, PlantPart, ThrottlePart
 from vecu.plant.throttle import (InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig,
                                  rng_streams)
+from vecu.probes import SpeedProbe, SpeedSeries, ThrottleProbe, ThrottleSeries
 from vecu.recorder import Recorder
 from vecu.scheduler import Scheduler
-from vecu.stats import RunningStats
 
 TICK_NS = NS_PER_MS
 PRIO_PLANT, PRIO_ECU, PRIO_PROBE, PRIO_RECORD = 0, 10, 20, 30
@@ -45,7 +47,8 @@ class RunConfig:
     bitrate: int | None = None
     log_path: str | None = None
     keep_series: bool = False
-    ecu: EcuConfig = field(default_factory=EcuConfig)
+    speed: bool = True  # longitudinal plant part + ECU speed function (Hernandez 2005)
+    throttle: ThrottleFunctionConfig = field(default_factory=ThrottleFunctionConfig)
 
     def validate(self) -> None:
         if not (self.duration_s > 0 and math.isfinite(self.duration_s)):
@@ -60,61 +63,10 @@ class RunConfig:
 
 
 @dataclass(frozen=True)
-class Series:
-    """Per-tick signals (deg) for plots."""
-
-    t_s: np.ndarray
-    theta_true: np.ndarray
-    theta_sensor: np.ndarray  # NaN where no valid TPS frame
-    theta_broadcast: np.ndarray
-    theta_est: np.ndarray
-    theta_est_std: np.ndarray
-    source: np.ndarray
-    status: np.ndarray
-
-
-@dataclass(frozen=True)
 class RunResult:
     summary: dict[str, Any]
-    series: Series | None
-
-
-class ThrottleProbe:
-    """Reads truth and ECU output after each tick: error statistics split at the kill time."""
-
-    def __init__(self, plant: ThrottlePlantNode, ecu: EcuNode, kill_ns: int | None,
-                 n_ticks: int, keep_series: bool) -> None:
-        self.plant, self.ecu, self.kill_ns = plant, ecu, kill_ns
-        self.calibration = plant.calibration
-        self.bc = {"before_kill": RunningStats(), "after_kill": RunningStats()}
-        self.est = {"before_kill": RunningStats(), "after_kill": RunningStats()}
-        self.nan_outputs = 0
-        self._k = 0
-        self.series = np.full((8, n_ticks), np.nan) if keep_series else None
-
-    def tick(self, t_ns: int) -> None:
-        ecu = self.ecu
-        truth = self.plant.theta
-        angle = ecu.angle
-        est = ecu.estimator
-        if not math.isfinite(angle):
-            self.nan_outputs += 1
-        phase = "after_kill" if self.kill_ns is not None and t_ns >= self.kill_ns else "before_kill"
-        self.bc[phase].add(angle - truth)
-        self.est[phase].add(est.theta_deg - truth)
-        s = self.series
-        if s is not None and self._k < s.shape[1]:
-            k = self._k
-            s[0, k] = t_ns / NS_PER_S
-            s[1, k] = truth
-            v = self.plant.tps_voltage
-            s[2, k] = self.calibration.angle(v) if v is not None else np.nan
-            s[3, k] = angle
-            s[4, k] = est.theta_deg
-            s[5, k] = est.theta_std_deg
-            s[6, k] = ecu.source
-            s[7, k] = int(ecu.status)
-        self._k += 1
+    throttle_series: ThrottleSeries | None
+    speed_series: SpeedSeries | None = None
 
 
 def run(config: RunConfig) -> RunResult:
@@ -140,17 +92,31 @@ def run(config: RunConfig) -> RunResult:
         ecu_bus = open_bus(**bus_args)
         buses.append(ecu_bus)
         injector = FaultInjector(rngs["faults"])
-        plant = ThrottlePlantNode(
-            plant_bus, codec,
+        throttle_part = ThrottlePart(
+            codec,
             ThrottlePlant(ThrottlePlantConfig(noise_scale=config.noise_scale), rngs["throttle.plant"]),
             InputGenerator(InputConfig(), rngs["throttle.input"]), injector,
-            config.ecu.calibration)
+            config.throttle.calibration)
+        parts: list[PlantPart] = [throttle_part]
         estimator = make_throttle_estimator(config.estimator, noise_scale=config.noise_scale)
-        ecu = EcuNode(ecu_bus, codec, estimator, config.ecu)
-        probe = ThrottleProbe(plant, ecu, kill_ns, n_ticks, config.keep_series)
+        throttle_fn = ThrottleFunction(codec, estimator, config.throttle)
+        functions: list[EcuFunction] = [throttle_fn]
+        speed_probe = None
+        if config.speed:
+            speed_part = LongitudinalPart(codec, config.seed)
+            speed_fn = SpeedFunction(codec)
+            parts.append(speed_part)
+            functions.append(speed_fn)
+            speed_probe = SpeedProbe(speed_part, speed_fn, n_ticks // 2 + 1, config.keep_series)
+        plant = PlantNode(plant_bus, codec, injector, parts)
+        ecu = EcuNode(ecu_bus, codec, functions)
+        probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
         sched.every(TICK_NS, plant.tick, name="plant", priority=PRIO_PLANT)
         ecu_task = sched.every(TICK_NS, ecu.tick, name="ecu", priority=PRIO_ECU)
         sched.every(TICK_NS, probe.tick, name="probe", priority=PRIO_PROBE)
+        if speed_probe is not None:
+            sched.every(SpeedFunction.period_ns, speed_probe.tick, name="speed-probe",
+                        priority=PRIO_PROBE)
         if recorder is not None:
             sched.every(TICK_NS, recorder.drain, name="recorder", priority=PRIO_RECORD)
         if kill_ns is not None:
@@ -167,18 +133,17 @@ def run(config: RunConfig) -> RunResult:
         ecu.overruns = ecu_task.overruns
         if recorder is not None:
             recorder.drain(end_ns)
-        summary = _summary(config, sched, plant, ecu, probe, injector, kill_ns, n_ticks, wall,
-                           recorder)
+        summary = _summary(config, sched, plant, ecu, throttle_fn, probe, injector, kill_ns,
+                           n_ticks, wall, recorder)
+        if speed_probe is not None:
+            summary["speed"] = speed_probe.summary()
     finally:
         if recorder is not None:
             recorder.close()
         for bus in buses:
             bus.shutdown()
-    series = None
-    if probe.series is not None:
-        s = probe.series
-        series = Series(s[0], s[1], s[2], s[3], s[4], s[5], s[6].astype(int), s[7].astype(int))
-    return RunResult(summary=summary, series=series)
+    return RunResult(summary=summary, throttle_series=probe.series(),
+                     speed_series=speed_probe.series() if speed_probe else None)
 
 
 def _warm_up(config: RunConfig) -> None:
@@ -191,17 +156,18 @@ def _warm_up(config: RunConfig) -> None:
     gc.freeze()
 
 
-def _summary(config: RunConfig, sched: Scheduler, plant: ThrottlePlantNode, ecu: EcuNode,
-             probe: ThrottleProbe, injector: FaultInjector, kill_ns: int | None, n_ticks: int,
-             wall_s: float, recorder: Recorder | None) -> dict[str, Any]:
-    mon = ecu.monitor
+def _summary(config: RunConfig, sched: Scheduler, plant: PlantNode, ecu: EcuNode,
+             fn: ThrottleFunction, probe: ThrottleProbe, injector: FaultInjector,
+             kill_ns: int | None, n_ticks: int, wall_s: float,
+             recorder: Recorder | None) -> dict[str, Any]:
+    mon = fn.monitor
     detect_ns = mon.first_fault_ns
     false_alarm = detect_ns is not None and (kill_ns is None or detect_ns < kill_ns)
     detected = detect_ns is not None and kill_ns is not None and detect_ns >= kill_ns
     throttle: dict[str, Any] = {
-        "estimator": ecu.estimator.name,
-        "estimator_resets": ecu.estimator.resets,
-        "estimator_faults": ecu.estimator_faults,
+        "estimator": fn.estimator.name,
+        "estimator_resets": fn.estimator.resets,
+        "estimator_faults": fn.estimator_faults,
         "kill_time_s": None if kill_ns is None else kill_ns / NS_PER_S,
         "fault": config.fault if kill_ns is not None else None,
         "detected": detected,
@@ -209,19 +175,17 @@ def _summary(config: RunConfig, sched: Scheduler, plant: ThrottlePlantNode, ecu:
         "detection_latency_ms": (detect_ns - kill_ns) / NS_PER_MS if detected else None,
         "detected_as": mon.first_fault_status.name.lower() if mon.first_fault_status else None,
         "false_alarm": false_alarm,
-        "final_status": ecu.status.name.lower(),
-        "final_source": "estimate" if ecu.source == SOURCE_ESTIMATE else "sensor",
+        "final_status": fn.status.name.lower(),
+        "final_source": "estimate" if fn.source == SOURCE_ESTIMATE else "sensor",
         "dtc": mon.dtc.name.lower(),
         "nan_outputs": probe.nan_outputs,
         # ticks without an estimate frame on the bus (skipped releases in live runs, send errors)
-        "missing_broadcasts": n_ticks - ecu.estimates_sent,
+        "missing_broadcasts": n_ticks - fn.estimates_sent,
     }
-    for phase in ("before_kill", "after_kill"):
-        throttle[phase] = {"broadcast_error_deg": probe.bc[phase].as_dict(),
-                           "estimate_error_deg": probe.est[phase].as_dict()}
+    throttle.update(probe.summary())
     sim_s = n_ticks / 1000.0
     return {
-        "config": {k: v for k, v in asdict(config).items() if k != "ecu"},
+        "config": {k: v for k, v in asdict(config).items() if k != "throttle"},
         "ticks": n_ticks,
         "overruns": sched.overruns,
         "tasks": {t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,

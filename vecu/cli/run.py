@@ -71,9 +71,9 @@ def main(args: argparse.Namespace) -> int:
         raise UserInputError(str(exc).strip("'\"")) from exc
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
-    if args.plot and result.series is not None:
-        from vecu.plot import plot_throttle_run
-        plot_throttle_run(result.series, result.summary, args.plot)
+    if args.plot and result.throttle_series is not None:
+        from vecu.plot import plot_run
+        plot_run(result, args.plot)
     if not args.quiet:
         print(format_summary(result.summary))
     return 0
@@ -106,4 +106,16 @@ def format_summary(s: dict[str, Any]) -> str:
                  f"(dlc {rx['dlc_errors']}, crc {rx['crc_errors']}, counter {rx['counter_errors']}, "
                  f"value {rx['value_errors']}, unknown id {rx['unknown_id']})")
     lines.append(f"broadcast: {th['missing_broadcasts']} missing ticks, {th['nan_outputs']} NaN")
+    sp = s.get("speed")
+    if sp:
+        hi, lo, ac = sp["speed_ge_5kmh"], sp["speed_lt_5kmh"], sp["accel"]
+        parts = [f"speed >= 5 km/h: RMS {hi['estimate_error_kmh']['rms']:.2f} km/h "
+                 f"(raw wheel {hi['raw_wheel_error_kmh']['rms']:.2f}, {hi['gain_db']:+.1f} dB)"]
+        if lo["gain_db"] is not None:
+            parts.append(f"< 5 km/h: {lo['gain_db']:+.1f} dB")
+        if ac["gain_db"] is not None:
+            parts.append(f"accel RMS {ac['estimate_error_mps2']['rms']:.3f} m/s^2 "
+                         f"({ac['gain_db']:+.1f} dB vs accelerometer)")
+        lines.append("speed estimate: " + "; ".join(parts))
+    lines.append("options: add --plot FILE.png --log FILE.blf --summary FILE.json to keep them")
     return "\n".join(lines)

@@ -1,32 +1,29 @@
-"""Virtual ECU node: receive and validate frames, run the throttle estimator, broadcast estimates.
+"""Virtual ECU node: receive and validate frames, run its functions, broadcast status.
 
-Every tick (1 ms): drain the receive queue (each frame is checked for kind, known ID, DLC, E2E CRC
-and alive counter, NaN / out-of-range values, and counted when rejected), step the estimator from
-the wattmeter and commanded voltage only (hot standby), diagnose the TPS, and send
-ECU_ThrottleEstimate with the sensor angle while the TPS is healthy and the estimate otherwise.
-ECU_Status goes out at its DBC cycle time. Nothing a frame contains can raise out of tick().
+One 1 ms base task, like an ECU's OS: drain the receive queue (each frame is checked for kind,
+known ID, DLC, E2E CRC and alive counter, NaN / out-of-range values, and counted when rejected),
+hand validated values to the function that subscribed to the message, run every function whose
+period divides the current time (throttle 1 ms, speed 2 ms), and send ECU_Status at its DBC cycle
+time. Nothing a frame contains can raise out of tick().
 """
 
 from __future__ import annotations
 
 import logging
-import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
+from typing import Callable, Protocol
 
 import can
 
-from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec, FrameCodec
 from vecu.e2e import AliveCounterCheck
-from vecu.ecu.tps_monitor import TpsMonitor, TpsMonitorConfig, TpsStatus
-from vecu.estimators.base import ThrottleEstimator
 from vecu.node import BusNode
 
 log = logging.getLogger(__name__)
 
-SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1
 MAX_LOGGED_PER_KIND = 20  # rx problems logged individually before going quiet (still counted)
+Send = Callable[[can.Message], bool]
 
 
 @dataclass
@@ -44,7 +41,6 @@ class RxCounters:
     counter_errors: int = 0
     value_errors: int = 0      # NaN / inf / outside the DBC range
     malformed: int = 0         # anything else the decoder refused
-    timeouts: int = 0          # confirmed TPS timeouts
 
     @property
     def rejected(self) -> int:
@@ -56,49 +52,53 @@ class RxCounters:
 
 
 @dataclass(frozen=True)
-class EcuConfig:
-    tps_monitor: TpsMonitorConfig = field(default_factory=TpsMonitorConfig)
-    calibration: TpsCalibration = field(default_factory=TpsCalibration)
+class Subscription:
+    """A message a function consumes: validated values go to on_values(values, t_ns);
+    E2E failures (CRC or alive counter) to on_e2e_error(), when given."""
+
+    message: str
+    on_values: Callable[[dict[str, float], int], None]
+    on_e2e_error: Callable[[], None] | None = None
+
+
+class EcuFunction(Protocol):
+    """One job of the ECU (throttle, speed, ...), run every period_ns from the base tick."""
+
+    name: str
+    period_ns: int
+    timeouts: int
+
+    def subscriptions(self) -> list[Subscription]: ...
+
+    def run(self, t_ns: int, send: Send) -> None: ...
+
+    def status_signals(self) -> dict[str, int]: ...
 
 
 class EcuNode(BusNode):
     """The virtual ECU; call tick(t_ns) from a 1 ms scheduler task."""
 
-    def __init__(self, bus: can.BusABC, codec: DbcCodec, estimator: ThrottleEstimator,
-                 config: EcuConfig = EcuConfig()) -> None:
+    def __init__(self, bus: can.BusABC, codec: DbcCodec, functions: list[EcuFunction]) -> None:
         super().__init__(bus, "ecu")
         self.codec = codec
-        self.estimator = estimator
+        self.functions = functions
         self.rx = RxCounters()
-        self.estimates_sent = 0  # ECU_ThrottleEstimate frames on the bus (one per tick if healthy)
         self.overruns = 0  # set by the runner from the scheduler's count
-        self.estimator_faults = 0  # non-finite estimator outputs caught here (should stay 0)
-        self._tps = codec["TPS_Sensor"]
-        self._watt = codec["ETB_Wattmeter"]
-        self._est = codec["ECU_ThrottleEstimate"]
+        self._consumers: dict[tuple[int, bool], tuple[FrameCodec, Subscription,
+                                                      AliveCounterCheck | None]] = {}
+        for fn in functions:
+            for sub in fn.subscriptions():
+                fc = codec[sub.message]
+                counter = AliveCounterCheck() if fc.e2e is not None else None
+                self._consumers[(fc.frame_id, fc.is_extended)] = (fc, sub, counter)
         self._status = codec["ECU_Status"]
-        tps_cycle = self._tps.cycle_time_ms or config.tps_monitor.cycle_ms
-        monitor_cfg = config.tps_monitor
-        if monitor_cfg.cycle_ms != tps_cycle:
-            monitor_cfg = TpsMonitorConfig(**{**asdict(monitor_cfg), "cycle_ms": tps_cycle})
-        self.monitor = TpsMonitor(monitor_cfg, config.calibration)
-        self._tps_counter = AliveCounterCheck()
-        self._consumers = {
-            (self._tps.frame_id, self._tps.is_extended): self._on_tps,
-            (self._watt.frame_id, self._watt.is_extended): self._on_wattmeter,
-        }
         self._status_period_ns = int((self._status.cycle_time_ms or 100) * NS_PER_MS)
         self._next_status_ns = 0
-        self._tx_counter = 0
         self._status_counter = 0
         self._logged: dict[str, int] = {}
-        self._u_now = 0.0
-        self._u_prev = 0.0
-        self._y: float | None = None
-        # last broadcast, read by probes
-        self.angle = 0.0
-        self.source = SOURCE_SENSOR
-        self.status = TpsStatus.OK
+
+    def function(self, name: str) -> EcuFunction | None:
+        return next((f for f in self.functions if f.name == name), None)
 
     # ---------------------------------------------------------------- receive
     def _problem(self, kind: str, msg: can.Message, detail: str = "") -> None:
@@ -110,7 +110,7 @@ class EcuNode(BusNode):
                         " (further ones counted, not logged)" if n == MAX_LOGGED_PER_KIND else "")
 
     def receive(self, msg: can.Message, t_ns: int) -> None:
-        """Validate one frame and hand it to its consumer; never raises."""
+        """Validate one frame and hand its values to the subscribed function; never raises."""
         rx = self.rx
         rx.received += 1
         try:
@@ -119,8 +119,8 @@ class EcuNode(BusNode):
                 self._problem("error-frame", msg)
                 return
             key = (msg.arbitration_id, msg.is_extended_id)
-            consumer = self._consumers.get(key)
-            if consumer is None:
+            entry = self._consumers.get(key)
+            if entry is None:
                 if key in self.codec.by_id:
                     rx.ignored += 1
                 else:
@@ -131,97 +131,67 @@ class EcuNode(BusNode):
                 rx.remote_frames += 1
                 self._problem("remote-frame", msg)
                 return
-            consumer(msg, t_ns)
-        except Exception as exc:  # a decoder bug must not stop the ECU
+            self._validate_and_deliver(msg, t_ns, *entry)
+        except Exception as exc:  # a decoder or function bug must not stop the ECU
             rx.malformed += 1
             self._problem("malformed", msg, f"{type(exc).__name__}: {exc}")
 
-    def _checked_values(self, codec: FrameCodec, msg: can.Message) -> dict[str, float] | None:
+    def _validate_and_deliver(self, msg: can.Message, t_ns: int, fc: FrameCodec,
+                              sub: Subscription, counter: AliveCounterCheck | None) -> None:
         rx = self.rx
         data = msg.data
-        if len(data) != codec.length:
+        if len(data) != fc.length:
             rx.dlc_errors += 1
-            self._problem("dlc", msg, f"expected {codec.length} bytes")
-            return None
-        if codec.e2e is not None and not codec.crc_ok(data):
+            self._problem("dlc", msg, f"expected {fc.length} bytes")
+            return
+        if fc.e2e is not None and not fc.crc_ok(data):
             rx.crc_errors += 1
             self._problem("crc", msg)
-            return None
-        values = codec.decode(data)
-        bad = codec.bad_values(values)
+            if sub.on_e2e_error:
+                sub.on_e2e_error()
+            return
+        values = fc.decode(data)
+        # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
+        if counter is not None and not counter.check(int(values[fc.e2e.counter_signal])):
+            rx.counter_errors += 1
+            self._problem("alive-counter", msg)
+            if sub.on_e2e_error:
+                sub.on_e2e_error()
+            return
+        bad = fc.bad_values(values)
         if bad:
             rx.value_errors += 1
             self._problem("value", msg, f"bad {', '.join(bad)}")
-            return None
-        return values
-
-    def _on_tps(self, msg: can.Message, t_ns: int) -> None:
-        values = self._checked_values(self._tps, msg)
-        if values is None:
-            if self._tps.crc_ok(msg.data) is False and len(msg.data) == self._tps.length:
-                self.monitor.on_e2e_error()
             return
-        if not self._tps_counter.check(int(values["TPS_AliveCounter"])):
-            self.rx.counter_errors += 1
-            self._problem("alive-counter", msg)
-            self.monitor.on_e2e_error()
-            return
-        self.rx.accepted += 1
-        self.monitor.on_frame(t_ns, values["TPS_Voltage"])
-
-    def _on_wattmeter(self, msg: can.Message, t_ns: int) -> None:
-        values = self._checked_values(self._watt, msg)
-        if values is None:
-            return
-        self.rx.accepted += 1
-        self._u_now = values["ETB_Voltage"]
-        self._y = values["ETB_Power"]
+        rx.accepted += 1
+        sub.on_values(values, t_ns)
 
     # ------------------------------------------------------------------- tick
     def tick(self, t_ns: int) -> None:
         recv = self.bus.recv
         while (msg := recv(0.0)) is not None:
             self.receive(msg, t_ns)
-        est = self.estimator
-        est.step(self._u_prev, self._y)  # predict with u_{k-1}, update with y_k (or predict only)
-        self._u_prev = self._u_now
-        self._y = None
-        theta_hat = est.theta_deg
-        std = est.theta_std_deg
-        if not (math.isfinite(theta_hat) and math.isfinite(std)):  # last line of defence
-            self.estimator_faults += 1
-            est.reset()
-            theta_hat, std = self.angle, 51.0
-        was_ok = self.monitor.healthy
-        status = self.monitor.evaluate(t_ns, theta_hat, std)
-        if was_ok and status == TpsStatus.TIMEOUT:
-            self.rx.timeouts += 1
-        sensor = self.monitor.angle
-        if status == TpsStatus.OK and sensor is not None:
-            angle, source = sensor, SOURCE_SENSOR
-        else:
-            angle, source = theta_hat, SOURCE_ESTIMATE
-        self.angle, self.source, self.status = angle, source, status
-        ts = t_ns / NS_PER_S
-        self.estimates_sent += self._send(self._est.frame({
-            "THR_CRC": 0, "THR_AliveCounter": self._tx_counter, "THR_Source": source,
-            "THR_Angle": angle, "THR_AngleEst": theta_hat,
-            "THR_AngleEstStd": min(std, 51.0), "THR_TpsStatus": int(status),
-        }, ts))
-        self._tx_counter = (self._tx_counter + 1) & 0xF
+        for fn in self.functions:
+            if t_ns % fn.period_ns == 0:
+                fn.run(t_ns, self._send)
         if t_ns >= self._next_status_ns:
             self._next_status_ns += self._status_period_ns
-            self._send_status(ts)
+            self._send_status(t_ns / NS_PER_S)
 
     def _send_status(self, ts: float) -> None:
         rx = self.rx
-        sat8 = lambda v: min(v, 255)  # noqa: E731 - DBC counters saturate
+        signals = {"ECU_TpsDtc": 0}
+        for fn in self.functions:
+            signals.update(fn.status_signals())
+        timeouts = sum(fn.timeouts for fn in self.functions)
         self._send(self._status.frame({
-            "ECU_StatusCounter": self._status_counter, "ECU_TpsDtc": int(self.monitor.dtc),
+            **signals,
+            "ECU_StatusCounter": self._status_counter,
             "ECU_Overruns": min(self.overruns, 65535),
-            "ECU_RxDlcErrors": sat8(rx.dlc_errors),
-            "ECU_RxE2EErrors": sat8(rx.crc_errors + rx.counter_errors),
-            "ECU_RxValueErrors": sat8(rx.value_errors + rx.malformed),
-            "ECU_RxUnknownIds": sat8(rx.unknown_id), "ECU_RxTimeouts": sat8(rx.timeouts),
+            "ECU_RxDlcErrors": min(rx.dlc_errors, 255),
+            "ECU_RxE2EErrors": min(rx.crc_errors + rx.counter_errors, 255),
+            "ECU_RxValueErrors": min(rx.value_errors + rx.malformed, 255),
+            "ECU_RxUnknownIds": min(rx.unknown_id, 255),
+            "ECU_RxTimeouts": min(timeouts, 255),
         }, ts))
         self._status_counter = (self._status_counter + 1) & 0xF

@@ -1,67 +1,139 @@
-"""Plant node: steps the throttle body every 1 ms and puts its sensor frames on the bus."""
+"""Plant node: the simulated vehicle on the bus, one part per physical system.
+
+Each part steps its model at its own rate (a multiple of the 1 ms base tick) and sends its
+sensor frames; the node owns the bus and obeys FI_Command frames for the fault injector.
+"""
 
 from __future__ import annotations
 
 import logging
+from typing import Callable, Protocol
 
 import can
 
 from vecu.calibration import TpsCalibration
-from vecu.clock import NS_PER_S
+from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget
 from vecu.node import BusNode
+from vecu.plant.longitudinal import KMH, simulate_speed
+from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
 from vecu.plant.throttle import InputGenerator, ThrottlePlant
 
 log = logging.getLogger(__name__)
 
 TPS_V_MIN, TPS_V_MAX = 0.0, 5.0  # sensor output saturates at ground and supply
+Send = Callable[[can.Message], bool]
 
 
-class ThrottlePlantNode(BusNode):
-    """Sends TPS_Sensor (E2E) and ETB_Wattmeter each tick; obeys FI_Command frames.
+class PlantPart(Protocol):
+    name: str
+    period_ns: int
+
+    def tick(self, t_ns: int, send: Send) -> None: ...
+
+
+class ThrottlePart:
+    """Throttle body (Vargas 2015): TPS_Sensor (E2E) and ETB_Wattmeter every 1 ms.
 
     Per tick k: u_k from the input generator, y_k and the TPS voltage measured on x_k, faults
     applied, frames sent with timestamp t_k, then x_{k+1} = f(x_k, u_k) + F w_k (eq. 3).
     """
 
-    def __init__(self, bus: can.BusABC, codec: DbcCodec, plant: ThrottlePlant,
-                 inputs: InputGenerator, injector: FaultInjector,
-                 calibration: TpsCalibration = TpsCalibration()) -> None:
-        super().__init__(bus, "plant")
+    name = "throttle"
+    period_ns = NS_PER_MS
+
+    def __init__(self, codec: DbcCodec, plant: ThrottlePlant, inputs: InputGenerator,
+                 injector: FaultInjector, calibration: TpsCalibration = TpsCalibration()) -> None:
         self.plant = plant
         self.inputs = inputs
         self.injector = injector
         self.calibration = calibration
         self._tps = codec["TPS_Sensor"]
         self._watt = codec["ETB_Wattmeter"]
-        self._fi = codec["FI_Command"]
-        self._fi_key = (self._fi.frame_id, self._fi.is_extended)
         self._counter = 0
-        self.frames_received = 0
-        # truth of the last tick, read by probes
+        # truth and sensor of the last tick, read by probes
         self.theta = 0.0
         self.u = 0.0
         self.tps_voltage: float | None = None
 
-    def tick(self, t_ns: int) -> None:
-        self._poll_commands(t_ns)
+    def tick(self, t_ns: int, send: Send) -> None:
         plant = self.plant
         u = self.inputs.next()
         y = plant.wattmeter()
-        v_true = plant.tps_voltage(self.calibration)
-        v = self.injector.apply(FaultTarget.TPS, v_true)
+        v = self.injector.apply(FaultTarget.TPS, plant.tps_voltage(self.calibration))
         ts = t_ns / NS_PER_S
         if v is not None:
             v = TPS_V_MIN if v < TPS_V_MIN else (TPS_V_MAX if v > TPS_V_MAX else v)
-            self._send(self._tps.frame(
+            send(self._tps.frame(
                 {"TPS_CRC": 0, "TPS_AliveCounter": self._counter, "TPS_Voltage": v}, ts))
             self._counter = (self._counter + 1) & 0xF
-        self._send(self._watt.frame({"ETB_Voltage": u, "ETB_Power": y}, ts))
+        send(self._watt.frame({"ETB_Voltage": u, "ETB_Power": y}, ts))
         self.theta = plant.theta
         self.u = u
         self.tps_voltage = v
         plant.step(u)
+
+
+class LongitudinalPart:
+    """Longitudinal vehicle (Hernandez 2005): ESC_Motion (wheel speed, accelerometer) every 2 ms.
+
+    Plays seeded manoeuvres back to back: the paper's 84 km/h -> standstill braking first, then
+    launch-and-brake cycles (each starts and ends at rest, so speed is continuous).
+    """
+
+    name = "longitudinal"
+    period_ns = 2 * NS_PER_MS
+    SEQUENCE = ("paper", "launch_brake")
+
+    def __init__(self, codec: DbcCodec, seed: int) -> None:
+        self._msg = codec["ESC_Motion"]
+        self._seed = seed
+        self._index = 0
+        self._k = 0
+        self._trace = self._next_trace()
+        self.v = self.a = self.wheel = self.accel = 0.0  # truth and raw sensors of the last tick (SI)
+
+    def _next_trace(self):  # noqa: ANN202 - SpeedTrace
+        kind = self.SEQUENCE[min(self._index, len(self.SEQUENCE) - 1)]
+        trace = simulate_speed(seed=(self._seed << 16) + self._index,
+                               manoeuvre=SpeedManoeuvre(kind=kind))
+        self._index += 1
+        self._k = 0
+        self._cols = (trace.v.tolist(), trace.a.tolist(), trace.wheel.tolist(),
+                      trace.accel.tolist())
+        return trace
+
+    def tick(self, t_ns: int, send: Send) -> None:
+        if self._k >= len(self._cols[0]):
+            self._trace = self._next_trace()
+        k = self._k
+        self._k += 1
+        v, a, wheel, accel = (col[k] for col in self._cols)
+        self.v, self.a, self.wheel, self.accel = v, a, wheel, accel
+        send(self._msg.frame({"ESC_WheelSpeed": wheel / KMH, "ESC_LongAccel": accel},
+                             t_ns / NS_PER_S))
+
+
+class PlantNode(BusNode):
+    """Runs its parts at their rates from a 1 ms base tick; acts on FI_Command frames."""
+
+    def __init__(self, bus: can.BusABC, codec: DbcCodec, injector: FaultInjector,
+                 parts: list[PlantPart]) -> None:
+        super().__init__(bus, "plant")
+        self.injector = injector
+        self.parts = parts
+        self._fi = codec["FI_Command"]
+        self._fi_key = (self._fi.frame_id, self._fi.is_extended)
+        self.frames_received = 0
+        self.throttle = next((p for p in parts if isinstance(p, ThrottlePart)), None)
+        self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
+
+    def tick(self, t_ns: int) -> None:
+        self._poll_commands(t_ns)
+        for part in self.parts:
+            if t_ns % part.period_ns == 0:
+                part.tick(t_ns, self._send)
 
     def _poll_commands(self, t_ns: int) -> None:
         """Drain the receive queue; act on FI_Command, ignore everything else."""

@@ -1,0 +1,96 @@
+"""ECU throttle function: hot-standby angle estimate from the wattmeter, TPS diagnosis, broadcast.
+
+Every 1 ms: step the estimator from the wattmeter and commanded voltage only, diagnose the TPS,
+and send ECU_ThrottleEstimate carrying the sensor angle while the TPS is healthy and the
+estimate otherwise, with no gap.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from vecu.calibration import TpsCalibration
+from vecu.clock import NS_PER_MS, NS_PER_S
+from vecu.codec import DbcCodec
+from vecu.ecu.node import Send, Subscription
+from vecu.ecu.tps_monitor import TpsMonitor, TpsMonitorConfig, TpsStatus
+from vecu.estimators.base import ThrottleEstimator
+
+SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1
+
+
+@dataclass(frozen=True)
+class ThrottleFunctionConfig:
+    tps_monitor: TpsMonitorConfig = field(default_factory=TpsMonitorConfig)
+    calibration: TpsCalibration = field(default_factory=TpsCalibration)
+
+
+class ThrottleFunction:
+    name = "throttle"
+    period_ns = NS_PER_MS
+
+    def __init__(self, codec: DbcCodec, estimator: ThrottleEstimator,
+                 config: ThrottleFunctionConfig = ThrottleFunctionConfig()) -> None:
+        self.estimator = estimator
+        self._tps = codec["TPS_Sensor"]
+        self._watt = codec["ETB_Wattmeter"]
+        self._est = codec["ECU_ThrottleEstimate"]
+        monitor_cfg = config.tps_monitor
+        tps_cycle = self._tps.cycle_time_ms or monitor_cfg.cycle_ms
+        if monitor_cfg.cycle_ms != tps_cycle:
+            monitor_cfg = TpsMonitorConfig(**{**asdict(monitor_cfg), "cycle_ms": tps_cycle})
+        self.monitor = TpsMonitor(monitor_cfg, config.calibration)
+        self.timeouts = 0            # confirmed TPS timeouts
+        self.estimates_sent = 0      # ECU_ThrottleEstimate frames on the bus
+        self.estimator_faults = 0    # non-finite estimator outputs caught here (should stay 0)
+        self._tx_counter = 0
+        self._u_now = 0.0
+        self._u_prev = 0.0
+        self._y: float | None = None
+        # last broadcast, read by probes
+        self.angle = 0.0
+        self.source = SOURCE_SENSOR
+        self.status = TpsStatus.OK
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription("TPS_Sensor", self._on_tps, self.monitor.on_e2e_error),
+                Subscription("ETB_Wattmeter", self._on_wattmeter)]
+
+    def _on_tps(self, values: dict[str, float], t_ns: int) -> None:
+        self.monitor.on_frame(t_ns, values["TPS_Voltage"])
+
+    def _on_wattmeter(self, values: dict[str, float], t_ns: int) -> None:
+        self._u_now = values["ETB_Voltage"]
+        self._y = values["ETB_Power"]
+
+    def run(self, t_ns: int, send: Send) -> None:
+        est = self.estimator
+        est.step(self._u_prev, self._y)  # predict with u_{k-1}, update with y_k (or predict only)
+        self._u_prev = self._u_now
+        self._y = None
+        theta_hat = est.theta_deg
+        std = est.theta_std_deg
+        if not (math.isfinite(theta_hat) and math.isfinite(std)):  # last line of defence
+            self.estimator_faults += 1
+            est.reset()
+            theta_hat, std = self.angle, 51.0
+        was_ok = self.monitor.healthy
+        status = self.monitor.evaluate(t_ns, theta_hat, std)
+        if was_ok and status == TpsStatus.TIMEOUT:
+            self.timeouts += 1
+        sensor = self.monitor.angle
+        if status == TpsStatus.OK and sensor is not None:
+            angle, source = sensor, SOURCE_SENSOR
+        else:
+            angle, source = theta_hat, SOURCE_ESTIMATE
+        self.angle, self.source, self.status = angle, source, status
+        self.estimates_sent += send(self._est.frame({
+            "THR_CRC": 0, "THR_AliveCounter": self._tx_counter, "THR_Source": source,
+            "THR_Angle": angle, "THR_AngleEst": theta_hat,
+            "THR_AngleEstStd": std, "THR_TpsStatus": int(status),
+        }, t_ns / NS_PER_S))
+        self._tx_counter = (self._tx_counter + 1) & 0xF
+
+    def status_signals(self) -> dict[str, int]:
+        return {"ECU_TpsDtc": int(self.monitor.dtc)}

@@ -1,0 +1,144 @@
+"""Probes: read plant truth and ECU output after each tick, in constant memory (plus optional series)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from vecu.clock import NS_PER_S
+from vecu.ecu.speed_function import SpeedFunction
+from vecu.ecu.throttle_function import ThrottleFunction
+from vecu.plant.longitudinal import KMH
+from vecu.plant.node import LongitudinalPart, ThrottlePart
+from vecu.stats import RunningStats
+
+LOW_SPEED_KMH = 5.0  # the paper's split: the wheel-speed sensor is useless below 5 km/h
+SPEED_BURN_IN_NS = 500_000_000  # the filter starts at rest: skip its start-up, as vecu.eval.speed does
+
+
+@dataclass(frozen=True)
+class ThrottleSeries:
+    """Per-tick throttle signals (deg) for plots."""
+
+    t_s: np.ndarray
+    theta_true: np.ndarray
+    theta_sensor: np.ndarray  # NaN where no TPS frame was sent
+    theta_broadcast: np.ndarray
+    theta_est: np.ndarray
+    theta_est_std: np.ndarray
+    source: np.ndarray
+    status: np.ndarray
+
+
+@dataclass(frozen=True)
+class SpeedSeries:
+    """Per-2-ms speed signals (km/h, m/s^2) for plots."""
+
+    t_s: np.ndarray
+    v_true: np.ndarray
+    v_wheel: np.ndarray
+    v_est: np.ndarray
+    a_true: np.ndarray
+    a_est: np.ndarray
+
+
+class ThrottleProbe:
+    """Broadcast and estimator error against the true angle, split at the TPS kill time."""
+
+    def __init__(self, part: ThrottlePart, fn: ThrottleFunction, kill_ns: int | None,
+                 n_ticks: int, keep_series: bool) -> None:
+        self.part, self.fn, self.kill_ns = part, fn, kill_ns
+        self.bc = {"before_kill": RunningStats(), "after_kill": RunningStats()}
+        self.est = {"before_kill": RunningStats(), "after_kill": RunningStats()}
+        self.nan_outputs = 0
+        self._k = 0
+        self._series = np.full((8, n_ticks), np.nan) if keep_series else None
+
+    def tick(self, t_ns: int) -> None:
+        fn = self.fn
+        truth = self.part.theta
+        angle = fn.angle
+        est = fn.estimator
+        if not math.isfinite(angle):
+            self.nan_outputs += 1
+        phase = "after_kill" if self.kill_ns is not None and t_ns >= self.kill_ns else "before_kill"
+        self.bc[phase].add(angle - truth)
+        self.est[phase].add(est.theta_deg - truth)
+        s = self._series
+        if s is not None and self._k < s.shape[1]:
+            k = self._k
+            v = self.part.tps_voltage
+            s[:, k] = (t_ns / NS_PER_S, truth,
+                       self.part.calibration.angle(v) if v is not None else np.nan, angle,
+                       est.theta_deg, est.theta_std_deg, fn.source, int(fn.status))
+        self._k += 1
+
+    def series(self) -> ThrottleSeries | None:
+        s = self._series
+        if s is None:
+            return None
+        return ThrottleSeries(s[0], s[1], s[2], s[3], s[4], s[5], s[6].astype(int),
+                              s[7].astype(int))
+
+    def summary(self) -> dict[str, Any]:
+        return {phase: {"broadcast_error_deg": self.bc[phase].as_dict(),
+                        "estimate_error_deg": self.est[phase].as_dict()}
+                for phase in ("before_kill", "after_kill")}
+
+
+def _gain_db(raw: RunningStats, est: RunningStats) -> float | None:
+    if raw.n == 0 or est.n == 0 or est.rms == 0.0:
+        return None
+    return round(20.0 * math.log10(raw.rms / est.rms), 2)
+
+
+class SpeedProbe:
+    """Estimated vs true speed and acceleration, and the raw sensors' errors (the paper's dB)."""
+
+    def __init__(self, part: LongitudinalPart, fn: SpeedFunction, n_samples: int,
+                 keep_series: bool) -> None:
+        self.part, self.fn = part, fn
+        self.v_est = {"high": RunningStats(), "low": RunningStats()}
+        self.v_raw = {"high": RunningStats(), "low": RunningStats()}
+        self.a_est = RunningStats()
+        self.a_raw = RunningStats()
+        self._last_accel_raw = 0.0
+        self._k = 0
+        self._series = np.full((6, n_samples), np.nan) if keep_series else None
+
+    def tick(self, t_ns: int) -> None:
+        part, kf = self.part, self.fn.kf
+        v, a = part.v, part.a
+        s = self._series
+        if s is not None and self._k < s.shape[1]:
+            s[:, self._k] = (t_ns / NS_PER_S, v / KMH, part.wheel / KMH, kf.speed_mps / KMH, a,
+                             kf.accel_mps2)
+        self._k += 1
+        if t_ns < SPEED_BURN_IN_NS:
+            return
+        band = "high" if v / KMH >= LOW_SPEED_KMH else "low"
+        self.v_est[band].add((kf.speed_mps - v) / KMH)
+        self.v_raw[band].add((part.wheel - v) / KMH)
+        self.a_est.add(kf.accel_mps2 - a)
+        self.a_raw.add(part.accel - a)
+
+    def series(self) -> SpeedSeries | None:
+        s = self._series
+        return None if s is None else SpeedSeries(*s)
+
+    def summary(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"burn_in_s": SPEED_BURN_IN_NS / NS_PER_S}
+        for band, label in (("high", "speed_ge_5kmh"), ("low", "speed_lt_5kmh")):
+            out[label] = {"estimate_error_kmh": self.v_est[band].as_dict(),
+                          "raw_wheel_error_kmh": self.v_raw[band].as_dict(),
+                          "gain_db": _gain_db(self.v_raw[band], self.v_est[band])}
+        out["accel"] = {"estimate_error_mps2": self.a_est.as_dict(),
+                        "raw_accelerometer_error_mps2": self.a_raw.as_dict(),
+                        "gain_db": _gain_db(self.a_raw, self.a_est)}
+        out["filter"] = {"resets": self.fn.kf.resets, "rejected_wheel": self.fn.kf.rejected_wheel,
+                         "rejected_accel": self.fn.kf.rejected_accel}
+        out["estimates_sent"] = self.fn.estimates_sent
+        return out
