@@ -83,3 +83,33 @@ def test_stop_returns_early():
     sched.every(NS_PER_MS, lambda t: sched.stop() if t == 3 * NS_PER_MS else None, name="s")
     sched.run_until(100 * NS_PER_MS)
     assert clock.now_ns() == 3 * NS_PER_MS
+
+
+def test_chained_event_task_follows_a_varying_period_interleaved_with_fixed_ticks():
+    """Engine events every Ts = 120 / (8 N) s with N ramping, between 1 ms ticks."""
+    clock = SimClock()
+    sched = Scheduler(clock)
+    events: list[int] = []
+    order: list[str] = []
+
+    def engine_event(t: int) -> int | None:
+        events.append(t)
+        order.append("event")
+        rpm = 1000.0 + 100.0 * len(events)
+        return t + int(round(120.0 / (8.0 * rpm) * 1e9))
+
+    sched.every(NS_PER_MS, lambda t: order.append("tick"), name="tick", priority=5)
+    stats = sched.chain(0, engine_event, name="engine", priority=0)
+    sched.run_until(100 * NS_PER_MS)
+    gaps = [b - a for a, b in zip(events, events[1:])]
+    assert gaps == [int(round(120.0 / (8.0 * (1000.0 + 100.0 * k)) * 1e9))
+                    for k in range(1, len(events))]
+    assert stats.runs == len(events) and events[-1] < 100 * NS_PER_MS <= events[-1] + gaps[-1] + 1
+    assert order.count("tick") == 100
+
+
+def test_chained_task_must_move_forward():
+    sched = Scheduler(SimClock())
+    sched.chain(0, lambda t: t, name="stuck")
+    with pytest.raises(ValueError, match="not after"):
+        sched.run_until(NS_PER_MS)

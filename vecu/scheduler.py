@@ -53,6 +53,26 @@ class Scheduler:
         """Run fn(t_ns) once at t_ns."""
         return self._add(fn, name, None, t_ns, priority)
 
+    def chain(self, first_ns: int, fn: Callable[[int], int | None], *, name: str,
+              priority: int = 0) -> TaskStats:
+        """Event-driven task: fn(t_ns) returns its next release time (> t_ns), or None to stop.
+
+        For rates that follow the plant, e.g. engine events every Ts = 120 / (8 N) seconds.
+        """
+        stats = TaskStats(name=name, period_ns=None)
+        idx = len(self._tasks)
+
+        def release(t_ns: int) -> None:
+            nxt = fn(t_ns)
+            if nxt is not None:
+                if nxt <= t_ns:
+                    raise ValueError(f"task {name!r}: next release {nxt} ns is not after {t_ns} ns")
+                self._push(nxt, priority, idx)
+
+        self._tasks.append((release, stats, None, priority))
+        self._push(first_ns, priority, idx)
+        return stats
+
     def _add(self, fn: TaskFn, name: str, period: int | None, first_ns: int,
              priority: int) -> TaskStats:
         stats = TaskStats(name=name, period_ns=period)
