@@ -74,6 +74,27 @@ class SpeedFilterConfig:
     p0_offset: float = 0.25
 
 
+def scalar_update3(x: tuple[float, float, float], p: tuple[float, ...],
+                   h: tuple[float, float, float], e: float, r: float
+                   ) -> tuple[tuple[float, float, float], tuple[float, ...]]:
+    """Kalman update of a 3-state filter with one scalar measurement (plain floats).
+
+    x: state, p: upper triangle (p00, p01, p02, p11, p12, p22) of P, h: the measurement row H,
+    e: residual z - H x, r: measurement variance. c = P H^T, s = H c + r, x += c e / s,
+    P -= c c^T / s.
+    """
+    p00, p01, p02, p11, p12, p22 = p
+    h0, h1, h2 = h
+    c0 = p00 * h0 + p01 * h1 + p02 * h2
+    c1 = p01 * h0 + p11 * h1 + p12 * h2
+    c2 = p02 * h0 + p12 * h1 + p22 * h2
+    s = h0 * c0 + h1 * c1 + h2 * c2 + r
+    y = e / s
+    return ((x[0] + c0 * y, x[1] + c1 * y, x[2] + c2 * y),
+            (p00 - c0 * c0 / s, p01 - c0 * c1 / s, p02 - c0 * c2 / s,
+             p11 - c1 * c1 / s, p12 - c1 * c2 / s, p22 - c2 * c2 / s))
+
+
 class SpeedKalmanFilter:
     """step(wheel_speed_mps | None, accel_mps2 | None) every 2 ms; see the module docstring.
 
@@ -169,20 +190,10 @@ class SpeedKalmanFilter:
         elif not -c.max_accel_mps2 <= accel <= c.max_accel_mps2:  # NaN fails too
             self.rejected_accel += 1
         else:
-            c0, c1, c2 = p01 + p02, p11 + p12, p12 + p22
-            s = c1 + c2 + self._r_a
             e = accel - a - b
             self._innov_mean += self._still_alpha * (e - self._innov_mean)
-            y = e / s
-            v += c0 * y
-            a += c1 * y
-            b += c2 * y
-            p00 -= c0 * c0 / s
-            p01 -= c0 * c1 / s
-            p02 -= c0 * c2 / s
-            p11 -= c1 * c1 / s
-            p12 -= c1 * c2 / s
-            p22 -= c2 * c2 / s
+            (v, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
+                (v, a, b), (p00, p01, p02, p11, p12, p22), (0.0, 1.0, 1.0), e, self._r_a)
 
         # Wheel speed: H = [1, 0, 0].
         used = False
@@ -226,16 +237,8 @@ class SpeedKalmanFilter:
                 self.gated_wheel += 1
             else:
                 self._gated_run = 0
-                y = e / s
-                v += p00 * y
-                a += p01 * y
-                b += p02 * y
-                p11 -= p01 * p01 / s
-                p12 -= p01 * p02 / s
-                p22 -= p02 * p02 / s
-                p01 -= p00 * p01 / s
-                p02 -= p00 * p02 / s
-                p00 -= p00 * p00 / s
+                (v, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
+                    (v, a, b), (p00, p01, p02, p11, p12, p22), (1.0, 0.0, 0.0), e, r)
 
         # Standstill: entered when v_hat would go negative with no usable wheel reading; left on
         # a usable wheel reading or a sustained accelerometer innovation (the car moves off).
@@ -250,30 +253,15 @@ class SpeedKalmanFilter:
             self.abs_mode = False
         # Constraint v >= 0 / zero-velocity update: pseudo-measurement v = 0, then clip.
         if v < 0.0 or self.standstill:
-            s = p00 + self._r_zero
-            y = -v / s
-            a += p01 * y
-            b += p02 * y
-            p11 -= p01 * p01 / s
-            p12 -= p01 * p02 / s
-            p22 -= p02 * p02 / s
-            p01 -= p00 * p01 / s
-            p02 -= p00 * p02 / s
-            p00 -= p00 * p00 / s
+            (_, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
+                (v, a, b), (p00, p01, p02, p11, p12, p22), (1.0, 0.0, 0.0), -v, self._r_zero)
             v = 0.0
             if self.standstill:  # at rest a = 0 too: accelerometer readings go to b
-                s = p11 + self._r_still_a
-                y = -a / s
-                v += p01 * y
-                b += p12 * y
-                p00 -= p01 * p01 / s
-                p02 -= p01 * p12 / s
-                p22 -= p12 * p12 / s
-                p01 -= p01 * p11 / s
-                p12 -= p11 * p12 / s
-                p11 -= p11 * p11 / s
+                (_, _, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
+                    (v, a, b), (p00, p01, p02, p11, p12, p22), (0.0, 1.0, 0.0), -a,
+                    self._r_still_a)
                 a = 0.0
-                v = 0.0  # both pinned at rest (the update moved v by ~1e-5 m/s)
+                v = 0.0  # both pinned at rest (the update moves v by ~1e-5 m/s)
 
         if (diverged_floats((v, a, b), p00 + p11 + p22, p01 + p02 + p12, SPEED_BOUNDS)
                 or p00 <= 0.0 or p11 <= 0.0 or p22 <= 0.0):
