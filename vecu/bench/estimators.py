@@ -76,3 +76,71 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _best_us(make, feed, steps: int, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        est = make()
+        t0 = time.perf_counter()
+        feed(est, steps)
+        best = min(best, (time.perf_counter() - t0) / steps * 1e6)
+    return best
+
+
+def bench_speed_and_steering(steps: int = 5_000, repeats: int = 3) -> list[dict[str, float | str]]:
+    """us per step of the speed KF (budget 15 us at 500 Hz) and the steering UKF (budget 50 us),
+    each against a same-run baseline: a straightforward numpy Kalman step for the speed filter,
+    the (numpy-Jacobian) EKF for the steering UKF."""
+    import numpy as np
+
+    from vecu.estimators.speed_kf import SpeedKalmanFilter
+    from vecu.estimators.steering_filters import SteeringEKF, SteeringUKF
+    from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
+    from vecu.plant.longitudinal import simulate_speed
+
+    sp = simulate_speed(BENCH_SEED)
+    w, acc = sp.wheel.tolist(), sp.accel.tolist()
+    n_sp = min(steps, len(w))
+
+    def feed_speed(f: SpeedKalmanFilter, n: int) -> None:
+        for k in range(n):
+            f.step(w[k], acc[k])
+
+    dt = 0.002
+    F = np.array([[1.0, dt, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    Q = np.diag([1e-6, 1e-3, 1e-8])
+    H = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0]])
+    R = np.diag([0.1, 0.36])
+
+    class NumpyKF:  # the textbook matrix form of the same 3-state filter
+        def __init__(self) -> None:
+            self.x = np.zeros(3)
+            self.P = np.eye(3)
+
+        def step(self, wheel: float, a: float) -> None:
+            x = F @ self.x
+            P = F @ self.P @ F.T + Q
+            S = H @ P @ H.T + R
+            K = P @ H.T @ np.linalg.inv(S)
+            self.x = x + K @ (np.array([wheel, a]) - H @ x)
+            self.P = (np.eye(3) - K @ H) @ P
+
+    speed_us = _best_us(SpeedKalmanFilter, feed_speed, n_sp, repeats)
+    numpy_us = _best_us(NumpyKF, feed_speed, n_sp, repeats)
+    lat = simulate_lateral(BENCH_SEED, ManoeuvreConfig(duration_s=30.0))
+    vx, r, ay = lat.meas_vx.tolist(), lat.meas_r.tolist(), lat.meas_ay.tolist()
+    n_st = min(steps // 5, len(vx))
+
+    def feed_steer(f: SteeringUKF | SteeringEKF, n: int) -> None:
+        for k in range(n):
+            f.step(vx[k], r[k], ay[k])
+
+    ukf_us = _best_us(SteeringUKF, feed_steer, n_st, repeats)
+    ekf_us = _best_us(SteeringEKF, feed_steer, n_st, repeats)
+    return [
+        {"filter": "speed KF (plain floats)", "us": speed_us, "baseline": "numpy matrix KF",
+         "baseline_us": numpy_us, "ratio": numpy_us / speed_us, "budget_us": 15.0},
+        {"filter": "steering UKF (plain floats)", "us": ukf_us, "baseline": "steering EKF (numpy)",
+         "baseline_us": ekf_us, "ratio": ekf_us / ukf_us, "budget_us": 50.0},
+    ]
