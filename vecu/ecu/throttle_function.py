@@ -14,7 +14,7 @@ from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
-from vecu.ecu.tps_monitor import TpsMonitor, TpsMonitorConfig, TpsStatus
+from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
 from vecu.estimators.base import ThrottleEstimator
 
 SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1
@@ -22,7 +22,7 @@ SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1
 
 @dataclass(frozen=True)
 class ThrottleFunctionConfig:
-    tps_monitor: TpsMonitorConfig = field(default_factory=TpsMonitorConfig)
+    tps_monitor: SensorMonitorConfig = field(default_factory=SensorMonitorConfig)
     calibration: TpsCalibration = field(default_factory=TpsCalibration)
 
 
@@ -39,8 +39,8 @@ class ThrottleFunction:
         monitor_cfg = config.tps_monitor
         tps_cycle = self._tps.cycle_time_ms or monitor_cfg.cycle_ms
         if monitor_cfg.cycle_ms != tps_cycle:
-            monitor_cfg = TpsMonitorConfig(**{**asdict(monitor_cfg), "cycle_ms": tps_cycle})
-        self.monitor = TpsMonitor(monitor_cfg, config.calibration)
+            monitor_cfg = SensorMonitorConfig(**{**asdict(monitor_cfg), "cycle_ms": tps_cycle})
+        self.monitor = SensorMonitor.for_tps(monitor_cfg, config.calibration)
         self.timeouts = 0            # confirmed TPS timeouts
         self.estimates_sent = 0      # ECU_ThrottleEstimate frames on the bus
         self.estimator_faults = 0    # non-finite estimator outputs caught here (should stay 0)
@@ -51,7 +51,7 @@ class ThrottleFunction:
         # last broadcast, read by probes
         self.angle = 0.0
         self.source = SOURCE_SENSOR
-        self.status = TpsStatus.OK
+        self.status = SensorStatus.OK
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("TPS_Sensor", self._on_tps, self.monitor.on_e2e_error),
@@ -77,10 +77,10 @@ class ThrottleFunction:
             theta_hat, std = self.angle, 51.0
         was_ok = self.monitor.healthy
         status = self.monitor.evaluate(t_ns, theta_hat, std)
-        if was_ok and status == TpsStatus.TIMEOUT:
+        if was_ok and status == SensorStatus.TIMEOUT:
             self.timeouts += 1
-        sensor = self.monitor.angle
-        if status == TpsStatus.OK and sensor is not None:
+        sensor = self.monitor.value
+        if status == SensorStatus.OK and sensor is not None:
             angle, source = sensor, SOURCE_SENSOR
         else:
             angle, source = theta_hat, SOURCE_ESTIMATE

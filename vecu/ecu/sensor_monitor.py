@@ -1,19 +1,21 @@
-"""Throttle position sensor diagnosis: timeout, electrical range, E2E, stuck, plausibility.
+"""Sensor diagnosis: timeout, range, E2E, stuck, plausibility against an estimator.
 
-Each check is debounced; the first to confirm sets the status (codes = THR_TpsStatus in the DBC)
-and the ECU switches to the estimator. The status heals after `heal_ms` of clean samples.
+One monitor per safety-relevant sensor (TPS, steering-wheel angle). Each check is debounced; the
+first to confirm sets the status (codes = THR_TpsStatus / STE_SwaStatus in the DBC) and the ECU
+switches to the estimator. The status heals after `heal_ms` of clean samples.
 """
 
 from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import Callable
 
 from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS
 
 
-class TpsStatus(enum.IntEnum):
+class SensorStatus(enum.IntEnum):
     OK = 0
     TIMEOUT = 1
     RANGE_LOW = 2
@@ -30,30 +32,36 @@ class DtcState(enum.IntEnum):
 
 
 @dataclass(frozen=True)
-class TpsMonitorConfig:
-    cycle_ms: float = 1.0          # from the DBC (GenMsgCycleTime of TPS_Sensor)
+class SensorMonitorConfig:
+    cycle_ms: float = 1.0          # from the DBC (GenMsgCycleTime of the sensor's frame)
     timeout_cycles: int = 3        # frames stop: confirmed after 3 missed periods
     range_debounce: int = 2        # consecutive out-of-range samples
     e2e_debounce: int = 2          # consecutive CRC/counter errors
     stuck_samples: int = 8         # identical raw readings in a row (needs sensor noise)
     plaus_sigma: float = 5.0       # gate in estimator sigmas ...
-    plaus_margin_deg: float = 4.0  # ... plus a fixed margin
+    plaus_margin: float = 4.0      # ... plus a fixed margin (physical units, deg here)
     plaus_debounce: int = 5        # up/down counter threshold
     heal_ms: float = 500.0         # clean time before the sensor is trusted again
 
 
-class TpsMonitor:
-    """Feed on_frame()/on_e2e_error() as frames arrive, then evaluate() once per ECU tick."""
+class SensorMonitor:
+    """Feed on_frame()/on_e2e_error() as frames arrive, then evaluate() once per function run.
 
-    def __init__(self, config: TpsMonitorConfig, calibration: TpsCalibration) -> None:
+    raw_low/raw_high bound the valid raw signal (range checks run on the raw value, e.g. volts);
+    to_physical maps a raw value to the quantity compared with the estimator (deg).
+    """
+
+    def __init__(self, config: SensorMonitorConfig, raw_low: float, raw_high: float,
+                 to_physical: Callable[[float], float]) -> None:
         self.cfg = config
-        self.cal = calibration
-        self.status = TpsStatus.OK
+        self._low, self._high = raw_low, raw_high
+        self._to_physical = to_physical
+        self.status = SensorStatus.OK
         self.dtc = DtcState.NONE
         self.first_fault_ns: int | None = None
-        self.first_fault_status: TpsStatus | None = None
-        self.angle: float | None = None     # last valid sensor angle (deg)
-        self._voltage: float | None = None
+        self.first_fault_status: SensorStatus | None = None
+        self.value: float | None = None     # last valid sensor value (physical)
+        self._raw: float | None = None
         self._fresh = False
         self._last_rx_ns: int | None = None
         self._range_low = self._range_high = 0
@@ -63,62 +71,66 @@ class TpsMonitor:
         self._clean_since_ns: int | None = None
         self._timeout_ns = int(config.timeout_cycles * config.cycle_ms * NS_PER_MS)
 
-    def on_frame(self, t_ns: int, voltage: float) -> None:
+    @classmethod
+    def for_tps(cls, config: SensorMonitorConfig, cal: TpsCalibration) -> "SensorMonitor":
+        """Range checks on the voltage (open / short circuit), plausibility on the angle."""
+        return cls(config, cal.fault_low_v, cal.fault_high_v, cal.angle)
+
+    def on_frame(self, t_ns: int, raw: float) -> None:
         """A frame that passed DLC/E2E/value checks."""
-        self._same = self._same + 1 if voltage == self._voltage else 0
-        self._voltage = voltage
+        self._same = self._same + 1 if raw == self._raw else 0
+        self._raw = raw
         self._last_rx_ns = t_ns
         self._e2e_bad = 0
         self._fresh = True
-        cal = self.cal
-        self._range_low = self._range_low + 1 if voltage < cal.fault_low_v else 0
-        self._range_high = self._range_high + 1 if voltage > cal.fault_high_v else 0
-        self.angle = cal.angle(voltage)
+        self._range_low = self._range_low + 1 if raw < self._low else 0
+        self._range_high = self._range_high + 1 if raw > self._high else 0
+        self.value = self._to_physical(raw)
 
     def on_e2e_error(self) -> None:
         self._e2e_bad += 1
 
-    def evaluate(self, t_ns: int, est_deg: float, est_std_deg: float) -> TpsStatus:
+    def evaluate(self, t_ns: int, est: float, est_std: float) -> SensorStatus:
         cfg = self.cfg
-        finding = TpsStatus.OK
+        finding = SensorStatus.OK
         last_rx = 0 if self._last_rx_ns is None else self._last_rx_ns  # run start counts as rx
         if t_ns - last_rx >= self._timeout_ns:
-            finding = TpsStatus.TIMEOUT
+            finding = SensorStatus.TIMEOUT
         else:
             if self._e2e_bad >= cfg.e2e_debounce:
-                finding = TpsStatus.E2E_ERROR
+                finding = SensorStatus.E2E_ERROR
             elif self._range_low >= cfg.range_debounce:
-                finding = TpsStatus.RANGE_LOW
+                finding = SensorStatus.RANGE_LOW
             elif self._range_high >= cfg.range_debounce:
-                finding = TpsStatus.RANGE_HIGH
+                finding = SensorStatus.RANGE_HIGH
             elif self._same + 1 >= cfg.stuck_samples:
-                finding = TpsStatus.STUCK
-            elif self._fresh and self.angle is not None:
-                gate = cfg.plaus_sigma * est_std_deg + cfg.plaus_margin_deg
-                if abs(self.angle - est_deg) > gate:
+                finding = SensorStatus.STUCK
+            elif self._fresh and self.value is not None:
+                gate = cfg.plaus_sigma * est_std + cfg.plaus_margin
+                if abs(self.value - est) > gate:
                     if self._plaus < cfg.plaus_debounce:  # saturating up/down counter
                         self._plaus += 1
                 elif self._plaus > 0:
                     self._plaus -= 1
                 if self._plaus >= cfg.plaus_debounce:
-                    finding = TpsStatus.IMPLAUSIBLE
+                    finding = SensorStatus.IMPLAUSIBLE
         self._fresh = False
         return self._update(t_ns, finding)
 
-    def _update(self, t_ns: int, finding: TpsStatus) -> TpsStatus:
-        if finding != TpsStatus.OK:
-            if self.status == TpsStatus.OK:
+    def _update(self, t_ns: int, finding: SensorStatus) -> SensorStatus:
+        if finding != SensorStatus.OK:
+            if self.status == SensorStatus.OK:
                 self.status = finding
                 if self.first_fault_ns is None:
                     self.first_fault_ns = t_ns
                     self.first_fault_status = finding
             self.dtc = DtcState.CONFIRMED
             self._clean_since_ns = None
-        elif self.status != TpsStatus.OK:
+        elif self.status != SensorStatus.OK:
             if self._clean_since_ns is None:
                 self._clean_since_ns = t_ns
             elif t_ns - self._clean_since_ns >= self.cfg.heal_ms * NS_PER_MS:
-                self.status = TpsStatus.OK
+                self.status = SensorStatus.OK
                 self._plaus = 0
         if self.dtc != DtcState.CONFIRMED:  # confirmed is stored for the rest of the run
             suspicious = (self._plaus or self._e2e_bad or self._range_low or self._range_high
@@ -128,5 +140,5 @@ class TpsMonitor:
 
     @property
     def healthy(self) -> bool:
-        return self.status == TpsStatus.OK
+        return self.status == SensorStatus.OK
 

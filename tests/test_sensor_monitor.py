@@ -2,7 +2,8 @@ from __future__ import annotations
 
 from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS
-from vecu.ecu.tps_monitor import DtcState, TpsMonitor, TpsMonitorConfig, TpsStatus
+from vecu.ecu.sensor_monitor import DtcState, SensorMonitor, SensorMonitorConfig
+from vecu.ecu.sensor_monitor import SensorStatus
 
 CAL = TpsCalibration()
 
@@ -23,47 +24,47 @@ def noisy(n, base=2.0, step=0.003):
 
 
 def test_healthy_sensor_stays_ok_and_dtc_none():
-    mon = TpsMonitor(TpsMonitorConfig(), CAL)
-    assert set(feed(mon, noisy(500))) == {TpsStatus.OK}
+    mon = SensorMonitor.for_tps(SensorMonitorConfig(), CAL)
+    assert set(feed(mon, noisy(500))) == {SensorStatus.OK}
     assert mon.dtc == DtcState.NONE
 
 
 def test_frames_stop_is_confirmed_at_the_third_missed_period():
-    mon = TpsMonitor(TpsMonitorConfig(), CAL)
+    mon = SensorMonitor.for_tps(SensorMonitorConfig(), CAL)
     st = feed(mon, noisy(10) + [None] * 5)
-    assert st[10:] == [TpsStatus.OK, TpsStatus.OK, TpsStatus.TIMEOUT, TpsStatus.TIMEOUT,
-                       TpsStatus.TIMEOUT]
+    assert st[10:] == [SensorStatus.OK, SensorStatus.OK, SensorStatus.TIMEOUT, SensorStatus.TIMEOUT,
+                       SensorStatus.TIMEOUT]
     assert mon.first_fault_ns == 12 * NS_PER_MS  # last frame at 9 ms; 3 periods later
 
 
 def test_open_circuit_and_short_are_range_faults_within_debounce():
-    mon = TpsMonitor(TpsMonitorConfig(), CAL)
+    mon = SensorMonitor.for_tps(SensorMonitorConfig(), CAL)
     st = feed(mon, noisy(10) + [0.0] * 3)
-    assert st[10] == TpsStatus.OK and st[11] == TpsStatus.RANGE_LOW
-    mon2 = TpsMonitor(TpsMonitorConfig(), CAL)
-    assert feed(mon2, noisy(10) + [5.0] * 3)[11] == TpsStatus.RANGE_HIGH
+    assert st[10] == SensorStatus.OK and st[11] == SensorStatus.RANGE_LOW
+    mon2 = SensorMonitor.for_tps(SensorMonitorConfig(), CAL)
+    assert feed(mon2, noisy(10) + [5.0] * 3)[11] == SensorStatus.RANGE_HIGH
 
 
 def test_stuck_value_is_detected_after_configured_samples():
-    cfg = TpsMonitorConfig()
-    mon = TpsMonitor(cfg, CAL)
+    cfg = SensorMonitorConfig()
+    mon = SensorMonitor.for_tps(cfg, CAL)
     st = feed(mon, noisy(10) + [2.2] * 12)
-    first = st.index(TpsStatus.STUCK)
+    first = st.index(SensorStatus.STUCK)
     assert first == 10 + cfg.stuck_samples - 1
 
 
 def test_e2e_errors_debounced():
-    mon = TpsMonitor(TpsMonitorConfig(), CAL)
+    mon = SensorMonitor.for_tps(SensorMonitorConfig(), CAL)
     feed(mon, noisy(5))
     mon.on_e2e_error()
-    assert mon.evaluate(5 * NS_PER_MS, 27.0, 2.0) == TpsStatus.OK
+    assert mon.evaluate(5 * NS_PER_MS, 27.0, 2.0) == SensorStatus.OK
     mon.on_e2e_error()
-    assert mon.evaluate(6 * NS_PER_MS, 27.0, 2.0) == TpsStatus.E2E_ERROR
+    assert mon.evaluate(6 * NS_PER_MS, 27.0, 2.0) == SensorStatus.E2E_ERROR
 
 
 def test_implausible_against_estimate_then_heals_after_clean_period():
-    cfg = TpsMonitorConfig()
-    mon = TpsMonitor(cfg, CAL)
+    cfg = SensorMonitorConfig()
+    mon = SensorMonitor.for_tps(cfg, CAL)
     volts = noisy(3000)
     # estimator says 60 deg while the sensor says ~34 deg for 20 ms
     st = []
@@ -72,8 +73,8 @@ def test_implausible_against_estimate_then_heals_after_clean_period():
         mon.on_frame(t, v)
         est = 60.0 if 100 <= k < 120 else CAL.angle(v)
         st.append(mon.evaluate(t, est, 2.0))
-    assert st[100 + cfg.plaus_debounce - 1] == TpsStatus.IMPLAUSIBLE
-    assert st[99] == TpsStatus.OK
+    assert st[100 + cfg.plaus_debounce - 1] == SensorStatus.IMPLAUSIBLE
+    assert st[99] == SensorStatus.OK
     assert mon.dtc == DtcState.CONFIRMED
-    healed = st.index(TpsStatus.OK, 120)
+    healed = st.index(SensorStatus.OK, 120)
     assert abs(healed - (120 + cfg.heal_ms)) <= cfg.plaus_debounce + 1
