@@ -1,0 +1,119 @@
+"""Cylinder-air-charge (CAC) prediction 6 events ahead (Dutka 2006, Section IV, Table 1).
+
+The feedforward fuel controller needs the air charge of the cylinder whose fuel it injects now,
+HORIZON events later. At event n it takes a state x_n (measured or estimated), runs the model
+(actuator eq. 1 for the future throttle trajectory, manifold eq. 5-6, the plant's sub-stepped
+event map) over the next HORIZON events and returns
+    CAC_pred(n) = eta P_im V_cyl / (R T_im) at x_n+6 (kg per cylinder event),
+to be compared with the simulated CAC_actual(n + 6).
+
+What the controller knows at event n (decisions, docs/models.md "Manifold estimators"):
+- the throttle setpoints TA_SP,n..n+5 (known_setpoint=True, default): a drive-by-wire ECU delays
+  the pedal command by the prediction horizon, which is why a throttle model can predict the
+  throttle trajectory at all (the paper's ref. [1]); known_setpoint=False holds TA_SP,n;
+- the engine speed N_n only, held over the horizon (event period and eta_N from N_n);
+- nominal P_a, T_a, T_coolant.
+
+Four sources of x_n (the paper's Table 1 columns):
+- "direct": the readings: alpha = TA_n, alpha_prev = TA_n-1, u_prev = TA_SP,n-1, P_im = P_n,
+  T_im = T_im.meas = T_im.out,n (the slow IAT sensor, tau 8 s);
+- "direct_ol": the same, but T_im from an open-loop observer: the manifold model (P, T) run
+  without feedback, driven by the measured throttle angle (`OpenLoopTemperature`);
+- "ekf", "sdkf": the filter posteriors x_n|n (vecu/estimators/manifold_filters.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from vecu.estimators.manifold_model import f
+from vecu.plant.manifold import (
+    EngineInput,
+    cylinder_air_charge,
+    integrate_manifold,
+    sample_time,
+)
+from vecu.plant.manifold_params import V8_5L7, ManifoldParams
+
+HORIZON = 6
+METHODS = ("direct", "direct_ol", "ekf", "sdkf")
+
+
+@dataclass(frozen=True)
+class CacPredictionConfig:
+    horizon: int = HORIZON
+    known_setpoint: bool = True  # the setpoints of the horizon are known (delayed pedal)
+    stride: int = 1  # predict at every stride-th event (the sums are scaled back by stride)
+
+
+def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: ManifoldParams = V8_5L7,
+                   config: CacPredictionConfig = CacPredictionConfig()) -> list[EngineInput]:
+    """EngineInputs for events n..n+horizon-1: known (or held) setpoints, N_n held."""
+    last = len(ta_sp) - 1
+    out = []
+    for k in range(config.horizon):
+        sp = ta_sp[min(n + k, last)] if config.known_setpoint else ta_sp[n]
+        out.append(EngineInput(float(sp), n_rpm, params.p_a_kpa, params.t_a_k, params.t_cool_k))
+    return out
+
+
+def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
+                  params: ManifoldParams = V8_5L7) -> np.ndarray:
+    """x_n+len(inputs) from x_n through the noise-free event map."""
+    x = np.asarray(x, dtype=float)
+    for u in inputs:
+        x = f(x, u, params)
+    return x
+
+
+def predict_cac(x: np.ndarray, inputs: Sequence[EngineInput],
+                params: ManifoldParams = V8_5L7) -> float:
+    """Predicted CAC (kg per cylinder event) after the inputs, at the last input's speed."""
+    xe = predict_state(x, inputs, params)
+    return cylinder_air_charge(float(xe[3]), float(xe[4]), inputs[-1].n_rpm, params)
+
+
+def direct_state(y: Sequence[float], y_prev: Sequence[float], sp_prev: float) -> np.ndarray:
+    """x_n from the readings alone: (TA_SP,n-1, TA_n, TA_n-1, P_n, T_out,n, T_out,n)."""
+    return np.array([sp_prev, y[0], y_prev[0], y[1], y[2], y[2]], dtype=float)
+
+
+class OpenLoopTemperature:
+    """Open-loop manifold observer: (P, T) of eq. 5-6 driven by the measured throttle angle, no
+    feedback. step(TA_n, u_n) returns T_im,n and advances to n+1. Starts at the given state."""
+
+    def __init__(self, p0: float, t0: float, params: ManifoldParams = V8_5L7) -> None:
+        self.params = params
+        self.p = float(p0)
+        self.t = float(t0)
+        self._alpha = math.nan
+
+    def step(self, ta_meas: float, u: EngineInput) -> float:
+        t_now = self.t
+        a = ta_meas if math.isfinite(ta_meas) else self._alpha
+        if not math.isfinite(a):
+            return t_now
+        self._alpha = a
+        ts = sample_time(u.n_rpm, self.params.n_cyl)
+        self.p, self.t, _ = integrate_manifold(self.p, self.t, a, u, ts, self.params)
+        return t_now
+
+
+def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
+                      cac_actual: np.ndarray, params: ManifoldParams = V8_5L7,
+                      config: CacPredictionConfig = CacPredictionConfig()
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For events n = 0, stride, 2 stride, ... with n + horizon in range:
+    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg."""
+    hz = config.horizon
+    idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
+    pred = np.empty(len(idx))
+    sp = ta_sp.tolist()
+    for j, n in enumerate(idx):
+        inputs = horizon_inputs(sp, int(n), float(n_rpm[n]), params, config)
+        pred[j] = predict_cac(states[n], inputs, params)
+    return idx, pred, cac_actual[idx + hz]
