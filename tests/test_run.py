@@ -163,3 +163,35 @@ def test_speed_estimate_on_the_bus_beats_the_raw_sensors(tmp_path):
     stamps = [m.timestamp for m in _read(log) if m.arbitration_id == est.frame_id]
     assert len(stamps) == 7500
     assert max(b - a for a, b in zip(stamps, stamps[1:])) == pytest.approx(2e-3, abs=1e-6)
+
+
+def test_steering_on_the_bus_meets_accuracy_and_flags_the_lagged_output(tmp_path):
+    log = tmp_path / "steer.log"
+    res = run(RunConfig(duration_s=30.0, seed=5, kill_tps_at_s=None, log_path=str(log)))
+    st = res.summary["steering"]
+    assert st["swa_ukf_error_deg"]["rms"] <= 1.3  # incl. the UKF's start from 0 in a curve
+    assert st["swa_smoothed_error_deg"]["rms"] <= 0.4
+    assert not st["false_alarm"] and st["final_source"] == "sensor"
+    assert st["swa_broadcast_error_deg"]["before_kill"]["rms"] < 0.15  # the healthy sensor
+    codec = DbcCodec()
+    est, smo = codec["ECU_SteeringEstimate"], codec["ECU_SteeringSmoothed"]
+    frames = _read(log)
+    stamps = [m.timestamp for m in frames if m.arbitration_id == est.frame_id]
+    assert len(stamps) == 3000
+    assert max(b - a for a, b in zip(stamps, stamps[1:])) == pytest.approx(0.01, abs=1e-6)
+    assert all(est.crc_ok(m.data) for m in frames if m.arbitration_id == est.frame_id)
+    smoothed = [smo.decode(m.data) for m in frames if m.arbitration_id == smo.frame_id]
+    assert smoothed[0]["STS_Valid"] == 0  # nothing to smooth yet
+    assert smoothed[-1]["STS_Valid"] == 1 and smoothed[-1]["STS_LagMs"] == 250
+
+
+@pytest.mark.parametrize("fault,max_latency_ms", [("frames_stop", 30.0), ("stuck", 100.0),
+                                                  ("dead", 100.0)])
+def test_swa_sensor_fault_is_detected_and_the_estimate_substituted(fault, max_latency_ms):
+    res = run(RunConfig(duration_s=12.0, seed=6, kill_tps_at_s=None, kill_swa_at_s=8.0,
+                        swa_fault=fault))
+    st = res.summary["steering"]
+    assert st["detected"] and not st["false_alarm"], st
+    assert st["detection_latency_ms"] <= max_latency_ms
+    assert st["final_source"] == "estimate" and st["missing_broadcasts"] == 0
+    assert st["swa_broadcast_error_deg"]["after_kill"]["rms"] <= 1.5  # the UKF's accuracy

@@ -32,6 +32,7 @@ class FaultTarget(enum.IntEnum):
     """Values match FI_Target in dbc/vecu.dbc."""
 
     TPS = 1
+    SWA = 2
 
 
 DEFAULT_VALUES = {FaultKind.OFFSET: 0.5, FaultKind.GAIN: 0.5, FaultKind.NOISE: 0.3}

@@ -10,20 +10,22 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vecu.probes import SpeedSeries, ThrottleSeries  # noqa: E402
+from vecu.probes import SpeedSeries, SteeringSeries, ThrottleSeries  # noqa: E402
 from vecu.runner import RunResult  # noqa: E402
 
 
 def plot_run(result: RunResult, path: str) -> None:
     """Throttle panels (angles, broadcast error) and, when present, a speed panel."""
     series, summary = result.throttle_series, result.summary
-    speed = result.speed_series
-    n = 3 if speed is not None else 2
+    extra = [(plot, data) for plot, data in ((_plot_speed, result.speed_series),
+                                             (_plot_steering, result.steering_series))
+             if data is not None]
+    n = 2 + len(extra)
     fig, axes = plt.subplots(n, 1, figsize=(11, 7 + 2.6 * (n - 2)), sharex=True,
-                             gridspec_kw={"height_ratios": [3, 1.3, 2][:n]})
+                             gridspec_kw={"height_ratios": [3, 1.3] + [2] * len(extra)})
     _plot_throttle(series, summary, axes[0], axes[1])
-    if speed is not None:
-        _plot_speed(speed, axes[2])
+    for ax, (plot, data) in zip(axes[2:], extra):
+        plot(data, ax)
     axes[-1].set_xlabel("time (s)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -36,6 +38,19 @@ def _plot_speed(sp: SpeedSeries, ax: Any) -> None:
     ax.plot(sp.t_s, sp.v_est, color="tab:green", lw=0.9, ls="--", label="estimate (500 Hz KF)")
     ax.set_ylabel("speed (km/h)")
     ax.legend(loc="upper right", fontsize=8, ncol=3)
+
+
+def _plot_steering(st: SteeringSeries, ax: Any) -> None:
+    ax.plot(st.t_s, st.swa_sensor, color="tab:gray", lw=0.6, alpha=0.7, label="SWA sensor")
+    ax.plot(st.t_s, st.swa_true, color="black", lw=1.0, label="true SWA")
+    ax.plot(st.t_s, st.swa_est, color="tab:orange", lw=0.8, label="UKF estimate")
+    ax.plot(st.t_s, st.swa_broadcast, color="tab:red", lw=0.8, ls="--", label="broadcast")
+    on_est = st.source == 1
+    if on_est.any():
+        ax.fill_between(st.t_s, 0, 1, where=on_est, transform=ax.get_xaxis_transform(),
+                        color="tab:red", alpha=0.07, lw=0, label="broadcasting estimate")
+    ax.set_ylabel("steering wheel (deg)")
+    ax.legend(loc="upper right", fontsize=8, ncol=5)
 
 
 def _plot_throttle(series: ThrottleSeries, summary: dict[str, Any], ax1: Any, ax2: Any) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -10,9 +11,10 @@ import numpy as np
 
 from vecu.clock import NS_PER_S
 from vecu.ecu.speed_function import SpeedFunction
+from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.plant.longitudinal import KMH
-from vecu.plant.node import LongitudinalPart, ThrottlePart
+from vecu.plant.node import LateralPart, LongitudinalPart, ThrottlePart
 from vecu.stats import RunningStats
 
 LOW_SPEED_KMH = 5.0  # the paper's split: the wheel-speed sensor is useless below 5 km/h
@@ -43,6 +45,18 @@ class SpeedSeries:
     v_est: np.ndarray
     a_true: np.ndarray
     a_est: np.ndarray
+
+
+@dataclass(frozen=True)
+class SteeringSeries:
+    """Per-10-ms steering signals (deg) for plots."""
+
+    t_s: np.ndarray
+    swa_true: np.ndarray
+    swa_sensor: np.ndarray  # NaN where no SWA frame was sent
+    swa_broadcast: np.ndarray
+    swa_est: np.ndarray
+    source: np.ndarray
 
 
 class ThrottleProbe:
@@ -77,9 +91,9 @@ class ThrottleProbe:
         self._k += 1
 
     def series(self) -> ThrottleSeries | None:
-        s = self._series
-        if s is None:
+        if self._series is None:
             return None
+        s = self._series[:, :self._k]
         return ThrottleSeries(s[0], s[1], s[2], s[3], s[4], s[5], s[6].astype(int),
                               s[7].astype(int))
 
@@ -126,8 +140,7 @@ class SpeedProbe:
         self.a_raw.add(part.accel - a)
 
     def series(self) -> SpeedSeries | None:
-        s = self._series
-        return None if s is None else SpeedSeries(*s)
+        return None if self._series is None else SpeedSeries(*self._series[:, :self._k])
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"burn_in_s": SPEED_BURN_IN_NS / NS_PER_S}
@@ -142,3 +155,61 @@ class SpeedProbe:
                          "rejected_accel": self.fn.kf.rejected_accel}
         out["estimates_sent"] = self.fn.estimates_sent
         return out
+
+
+class SteeringProbe:
+    """Steering-wheel angle and side-slip errors (deg): broadcast, live UKF, and the fixed-lag
+    smoother against the truth of the time its estimate describes; split at the SWA kill time."""
+
+    def __init__(self, part: LateralPart, fn: SteeringFunction, kill_ns: int | None,
+                 n_samples: int, keep_series: bool) -> None:
+        self.part, self.fn, self.kill_ns = part, fn, kill_ns
+        self.bc = {"before_kill": RunningStats(), "after_kill": RunningStats()}
+        self.ukf = RunningStats()
+        self.smoothed = RunningStats()
+        self.beta_ukf = RunningStats()
+        self.beta_smoothed = RunningStats()
+        self._truth: deque[tuple[float, float]] = deque(maxlen=1000)
+        self._k = 0
+        self._series = np.full((6, n_samples), np.nan) if keep_series else None
+
+    def tick(self, t_ns: int) -> None:
+        part, fn = self.part, self.fn
+        swa, beta = part.swa, part.beta
+        self._truth.append((swa, beta))
+        phase = "after_kill" if self.kill_ns is not None and t_ns >= self.kill_ns else "before_kill"
+        self.bc[phase].add(fn.angle - swa)
+        ukf = fn.ukf
+        self.ukf.add(ukf.swa_rad * 180.0 / math.pi - swa)
+        self.beta_ukf.add(ukf.side_slip_rad * 180.0 / math.pi - beta)
+        if fn.lagged is not None:
+            lag_ms, swa_s, beta_s = fn.lagged
+            back = int(round(lag_ms * 1e6 / fn.period_ns))
+            if back < len(self._truth):
+                swa_then, beta_then = self._truth[-1 - back]
+                self.smoothed.add(swa_s - swa_then)
+                self.beta_smoothed.add(beta_s - beta_then)
+        s = self._series
+        if s is not None and self._k < s.shape[1]:
+            v = part.swa_sensor
+            s[:, self._k] = (t_ns / NS_PER_S, swa, np.nan if v is None else v, fn.angle,
+                             ukf.swa_rad * 180.0 / math.pi, fn.source)
+        self._k += 1
+
+    def series(self) -> SteeringSeries | None:
+        if self._series is None:
+            return None
+        s = self._series[:, :self._k]
+        return SteeringSeries(s[0], s[1], s[2], s[3], s[4], s[5].astype(int))
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "swa_broadcast_error_deg": {ph: st.as_dict() for ph, st in self.bc.items()},
+            "swa_ukf_error_deg": self.ukf.as_dict(),
+            "swa_smoothed_error_deg": self.smoothed.as_dict(),
+            "side_slip_ukf_error_deg": self.beta_ukf.as_dict(),
+            "side_slip_smoothed_error_deg": self.beta_smoothed.as_dict(),
+            "smoother_lag_ms": self.fn.lagged[0] if self.fn.lagged else None,
+            "estimates_sent": self.fn.estimates_sent,
+            "ukf_rejected": self.fn.ukf.rejected,
+        }

@@ -14,15 +14,18 @@ from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock
 from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuFunction, EcuNode
+from vecu.ecu.sensor_monitor import SensorMonitor
 from vecu.ecu.speed_function import SpeedFunction
+from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import (SOURCE_ESTIMATE, ThrottleFunction,
                                         ThrottleFunctionConfig)
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, FaultKind, FaultTarget, parse_kind
-from vecu.plant.node import LongitudinalPart, PlantNode, PlantPart, ThrottlePart
+from vecu.plant.node import LateralPart, LongitudinalPart, PlantNode, PlantPart, ThrottlePart
 from vecu.plant.throttle import (InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig,
                                  rng_streams)
-from vecu.probes import SpeedProbe, SpeedSeries, ThrottleProbe, ThrottleSeries
+from vecu.probes import (SpeedProbe, SpeedSeries, SteeringProbe, SteeringSeries, ThrottleProbe,
+                         ThrottleSeries)
 from vecu.recorder import Recorder
 from vecu.scheduler import Scheduler
 
@@ -48,6 +51,10 @@ class RunConfig:
     log_path: str | None = None
     keep_series: bool = False
     speed: bool = True  # longitudinal plant part + ECU speed function (Hernandez 2005)
+    steering: bool = True  # lateral plant part + ECU steering function (Khalid)
+    kill_swa_at_s: float | None = None
+    swa_fault: str = "dead"
+    swa_fault_value: float | None = None
     throttle: ThrottleFunctionConfig = field(default_factory=ThrottleFunctionConfig)
 
     def validate(self) -> None:
@@ -57,9 +64,14 @@ class RunConfig:
             raise ValueError(f"kill time {self.kill_tps_at_s} s is outside the run (0..{self.duration_s} s)")
         if self.noise_scale < 0:
             raise ValueError(f"noise scale must be >= 0, got {self.noise_scale}")
-        kind = parse_kind(self.fault)
-        if kind == FaultKind.CLEAR:
-            raise ValueError("fault kind 'clear' cannot be injected")
+        if self.kill_swa_at_s is not None and not 0 <= self.kill_swa_at_s < self.duration_s:
+            raise ValueError(f"SWA kill time {self.kill_swa_at_s} s is outside the run "
+                             f"(0..{self.duration_s} s)")
+        if self.kill_swa_at_s is not None and not self.steering:
+            raise ValueError("an SWA fault needs the steering part (steering=True)")
+        for name in (self.fault, self.swa_fault):
+            if parse_kind(name) == FaultKind.CLEAR:
+                raise ValueError("fault kind 'clear' cannot be injected")
 
 
 @dataclass(frozen=True)
@@ -67,6 +79,7 @@ class RunResult:
     summary: dict[str, Any]
     throttle_series: ThrottleSeries | None
     speed_series: SpeedSeries | None = None
+    steering_series: SteeringSeries | None = None
 
 
 def run(config: RunConfig) -> RunResult:
@@ -108,6 +121,16 @@ def run(config: RunConfig) -> RunResult:
             parts.append(speed_part)
             functions.append(speed_fn)
             speed_probe = SpeedProbe(speed_part, speed_fn, n_ticks // 2 + 1, config.keep_series)
+        steering_probe = None
+        swa_kill_ns = (None if config.kill_swa_at_s is None
+                       else int(round(config.kill_swa_at_s * NS_PER_S)))
+        if config.steering:
+            lateral_part = LateralPart(codec, config.seed, config.duration_s, injector)
+            steering_fn = SteeringFunction(codec)
+            parts.append(lateral_part)
+            functions.append(steering_fn)
+            steering_probe = SteeringProbe(lateral_part, steering_fn, swa_kill_ns,
+                                           n_ticks // 10 + 1, config.keep_series)
         plant = PlantNode(plant_bus, codec, injector, parts)
         ecu = EcuNode(ecu_bus, codec, functions)
         probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
@@ -117,6 +140,9 @@ def run(config: RunConfig) -> RunResult:
         if speed_probe is not None:
             sched.every(SpeedFunction.period_ns, speed_probe.tick, name="speed-probe",
                         priority=PRIO_PROBE)
+        if steering_probe is not None:
+            sched.every(SteeringFunction.period_ns, steering_probe.tick, name="steering-probe",
+                        priority=PRIO_PROBE)
         if recorder is not None:
             sched.every(TICK_NS, recorder.drain, name="recorder", priority=PRIO_RECORD)
         if kill_ns is not None:
@@ -124,6 +150,12 @@ def run(config: RunConfig) -> RunResult:
             sched.at(kill_ns, lambda t: injector.inject(t, FaultTarget.TPS, kind, config.fault_value,
                                                         source="schedule"),
                      name="kill-tps", priority=PRIO_PLANT - 1)
+        if swa_kill_ns is not None:
+            swa_kind = parse_kind(config.swa_fault)
+            sched.at(swa_kill_ns, lambda t: injector.inject(t, FaultTarget.SWA, swa_kind,
+                                                            config.swa_fault_value,
+                                                            source="schedule"),
+                     name="kill-swa", priority=PRIO_PLANT - 1)
         if config.realtime:
             _warm_up(config)
         wall0 = time.perf_counter()
@@ -137,13 +169,21 @@ def run(config: RunConfig) -> RunResult:
                            n_ticks, wall, recorder)
         if speed_probe is not None:
             summary["speed"] = speed_probe.summary()
+        if steering_probe is not None:
+            summary["steering"] = {**steering_probe.summary(),
+                                   **detection(steering_fn.monitor, swa_kill_ns),
+                                   "fault": config.swa_fault if swa_kill_ns is not None else None,
+                                   "final_source": ("estimate" if steering_fn.source == 1
+                                                    else "sensor"),
+                                   "missing_broadcasts": n_ticks // 10 - steering_fn.estimates_sent}
     finally:
         if recorder is not None:
             recorder.close()
         for bus in buses:
             bus.shutdown()
     return RunResult(summary=summary, throttle_series=probe.series(),
-                     speed_series=speed_probe.series() if speed_probe else None)
+                     speed_series=speed_probe.series() if speed_probe else None,
+                     steering_series=steering_probe.series() if steering_probe else None)
 
 
 def _warm_up(config: RunConfig) -> None:
@@ -156,28 +196,34 @@ def _warm_up(config: RunConfig) -> None:
     gc.freeze()
 
 
+def detection(mon: SensorMonitor, kill_ns: int | None) -> dict[str, Any]:
+    """Kill time, first confirmed fault, latency, and whether it came before any kill."""
+    detect_ns = mon.first_fault_ns
+    detected = detect_ns is not None and kill_ns is not None and detect_ns >= kill_ns
+    return {
+        "kill_time_s": None if kill_ns is None else kill_ns / NS_PER_S,
+        "detected": detected,
+        "detection_time_s": detect_ns / NS_PER_S if detect_ns is not None else None,
+        "detection_latency_ms": (detect_ns - kill_ns) / NS_PER_MS if detected else None,
+        "detected_as": mon.first_fault_status.name.lower() if mon.first_fault_status else None,
+        "false_alarm": detect_ns is not None and (kill_ns is None or detect_ns < kill_ns),
+        "dtc": mon.dtc.name.lower(),
+    }
+
+
 def _summary(config: RunConfig, sched: Scheduler, plant: PlantNode, ecu: EcuNode,
              fn: ThrottleFunction, probe: ThrottleProbe, injector: FaultInjector,
              kill_ns: int | None, n_ticks: int, wall_s: float,
              recorder: Recorder | None) -> dict[str, Any]:
     mon = fn.monitor
-    detect_ns = mon.first_fault_ns
-    false_alarm = detect_ns is not None and (kill_ns is None or detect_ns < kill_ns)
-    detected = detect_ns is not None and kill_ns is not None and detect_ns >= kill_ns
     throttle: dict[str, Any] = {
         "estimator": fn.estimator.name,
         "estimator_resets": fn.estimator.resets,
         "estimator_faults": fn.estimator_faults,
-        "kill_time_s": None if kill_ns is None else kill_ns / NS_PER_S,
+        **detection(mon, kill_ns),
         "fault": config.fault if kill_ns is not None else None,
-        "detected": detected,
-        "detection_time_s": detect_ns / NS_PER_S if detect_ns is not None else None,
-        "detection_latency_ms": (detect_ns - kill_ns) / NS_PER_MS if detected else None,
-        "detected_as": mon.first_fault_status.name.lower() if mon.first_fault_status else None,
-        "false_alarm": false_alarm,
         "final_status": fn.status.name.lower(),
         "final_source": "estimate" if fn.source == SOURCE_ESTIMATE else "sensor",
-        "dtc": mon.dtc.name.lower(),
         "nan_outputs": probe.nan_outputs,
         # ticks without an estimate frame on the bus (skipped releases in live runs, send errors)
         "missing_broadcasts": n_ticks - fn.estimates_sent,

@@ -40,6 +40,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="dead, short_supply, stuck, frames_stop, offset, gain, noise (default dead)")
     p.add_argument("--fault-value", type=float, metavar="X",
                    help="offset in V (default 0.5), gain G in [0,1] (0.5), noise sigma in V (0.3)")
+    p.add_argument("--kill-swa-at", type=_kill_time, default=None, metavar="T",
+                   help="inject a steering-wheel-angle sensor fault at T s (default: none)")
+    p.add_argument("--swa-fault", default="dead", metavar="KIND",
+                   help="SWA fault kind, as --fault (offset/noise in deg, default dead)")
+    p.add_argument("--swa-fault-value", type=float, metavar="X", help="SWA fault value")
     p.add_argument("--noise-scale", type=float, default=1.0, metavar="A",
                    help="process-noise scale alpha of the throttle model (1 = paper)")
     p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
@@ -61,7 +66,9 @@ def main(args: argparse.Namespace) -> int:
         kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at, fault=args.fault, fault_value=args.fault_value,
         estimator=args.estimator, realtime=args.realtime, interface=args.interface,
         channel=args.channel, bitrate=args.bitrate, log_path=args.log,
-        keep_series=bool(args.plot))
+        keep_series=bool(args.plot),
+        kill_swa_at_s=None if args.kill_swa_at == "half" else args.kill_swa_at,
+        swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value)
     for path in (args.log, args.summary, args.plot):
         if path and not Path(path).resolve().parent.is_dir():
             raise UserInputError(f"{path}: directory does not exist")
@@ -117,5 +124,19 @@ def format_summary(s: dict[str, Any]) -> str:
             parts.append(f"accel RMS {ac['estimate_error_mps2']['rms']:.3f} m/s^2 "
                          f"({ac['gain_db']:+.1f} dB vs accelerometer)")
         lines.append("speed estimate: " + "; ".join(parts))
+    st = s.get("steering")
+    if st:
+        line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, fixed-lag smoother "
+                f"({st['smoother_lag_ms']} ms behind) {st['swa_smoothed_error_deg']['rms']:.2f} deg, "
+                f"side-slip {st['side_slip_ukf_error_deg']['rms']:.3f} deg")
+        if st["kill_time_s"] is not None:
+            after = st["swa_broadcast_error_deg"]["after_kill"]
+            line += (f"; SWA fault '{st['fault']}' at {st['kill_time_s']:.2f} s "
+                     + (f"detected as {st['detected_as']} after {st['detection_latency_ms']:.0f} ms"
+                        if st["detected"] else "NOT detected")
+                     + f", broadcast error after {after['rms']:.2f} deg RMS")
+        if st["false_alarm"]:
+            line += f"; WARNING: SWA fault reported before any injection ({st['detection_time_s']} s)"
+        lines.append(line)
     lines.append("options: add --plot FILE.png --log FILE.blf --summary FILE.json to keep them")
     return "\n".join(lines)

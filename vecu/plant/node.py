@@ -7,6 +7,7 @@ sensor frames; the node owns the bus and obeys FI_Command frames for the fault i
 from __future__ import annotations
 
 import logging
+import math
 from typing import Callable, Protocol
 
 import can
@@ -16,6 +17,8 @@ from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget
 from vecu.node import BusNode
+from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
+from vecu.plant.lateral import simulate_lateral
 from vecu.plant.longitudinal import KMH, simulate_speed
 from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
 from vecu.plant.throttle import InputGenerator, ThrottlePlant
@@ -115,6 +118,44 @@ class LongitudinalPart:
                              t_ns / NS_PER_S))
 
 
+class LateralPart:
+    """Single-track vehicle (Khalid): CHS_Lateral (gyro, lateral accelerometer, speed) and the
+    E2E-protected SWA_Sensor every 10 ms. The fault injector acts on the SWA sensor (deg)."""
+
+    name = "lateral"
+    period_ns = 10 * NS_PER_MS
+
+    def __init__(self, codec: DbcCodec, seed: int, duration_s: float,
+                 injector: FaultInjector) -> None:
+        self._lat = codec["CHS_Lateral"]
+        self._swa = codec["SWA_Sensor"]
+        self.injector = injector
+        tr = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)))
+        deg = 180.0 / math.pi
+        self._cols = ((tr.swa * deg).tolist(), (tr.beta * deg).tolist(),
+                      (tr.meas_r * deg).tolist(), tr.meas_ay.tolist(), (tr.meas_vx / KMH).tolist(),
+                      (tr.meas_swa * deg).tolist())
+        self._k = 0
+        self._counter = 0
+        # truth and sensor of the last tick (deg), read by probes
+        self.swa = self.beta = 0.0
+        self.swa_sensor: float | None = None
+
+    def tick(self, t_ns: int, send: Send) -> None:
+        k = min(self._k, len(self._cols[0]) - 1)  # the trace covers the run; hold at its end
+        self._k += 1
+        swa, beta, r, ay, vx, swa_meas = (col[k] for col in self._cols)
+        self.swa, self.beta = swa, beta
+        ts = t_ns / NS_PER_S
+        send(self._lat.frame({"LAT_YawRate": r, "LAT_LatAccel": ay, "LAT_VehSpeed": vx}, ts))
+        v = self.injector.apply(FaultTarget.SWA, swa_meas)
+        self.swa_sensor = v
+        if v is not None:
+            send(self._swa.frame({"SWA_CRC": 0, "SWA_AliveCounter": self._counter,
+                                  "SWA_Angle": v}, ts))
+            self._counter = (self._counter + 1) & 0xF
+
+
 class PlantNode(BusNode):
     """Runs its parts at their rates from a 1 ms base tick; acts on FI_Command frames."""
 
@@ -128,6 +169,7 @@ class PlantNode(BusNode):
         self.frames_received = 0
         self.throttle = next((p for p in parts if isinstance(p, ThrottlePart)), None)
         self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
+        self.lateral = next((p for p in parts if isinstance(p, LateralPart)), None)
 
     def tick(self, t_ns: int) -> None:
         self._poll_commands(t_ns)
