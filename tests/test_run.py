@@ -195,3 +195,29 @@ def test_swa_sensor_fault_is_detected_and_the_estimate_substituted(fault, max_la
     assert st["detection_latency_ms"] <= max_latency_ms
     assert st["final_source"] == "estimate" and st["missing_broadcasts"] == 0
     assert st["swa_broadcast_error_deg"]["after_kill"]["rms"] <= 1.5  # the UKF's accuracy
+
+
+def test_manifold_runs_on_engine_events_with_accurate_estimates(tmp_path):
+    log = tmp_path / "engine.log"
+    res = run(RunConfig(duration_s=10.0, seed=3, kill_tps_at_s=None, speed=False, steering=False,
+                        log_path=str(log)))
+    mf = res.summary["manifold"]
+    assert mf["events"] > 1500 and mf["lost_events"] == 0 and mf["filter_resets"] == 0
+    assert mf["p_im_error_kpa"]["rms"] < 0.3 and mf["t_im_error_k"]["rms"] < 1.0
+    lo, hi = mf["p_im_estimate_range_kpa"]
+    assert 15.0 <= lo and hi <= 105.0
+    assert mf["cac_pred6_abs_error_pct"]["mean"] < 5.0
+    codec = DbcCodec()
+    ev, out = codec["ENG_Event"], codec["ECU_ManifoldEstimate"]
+    frames = _read(log)
+    events = [(m.timestamp, ev.decode(m.data)) for m in frames if m.arbitration_id == ev.frame_id]
+    assert len(events) == mf["events"]
+    # event-based sampling on the shared clock: Ts = 120 / (8 N) after each event's own N
+    # (N travels with 0.25 rpm resolution: allow its +-0.125 rpm, plus 1 us of timestamp rounding)
+    for (t0, v0), (t1, _) in zip(events, events[1:]):
+        n = v0["ENG_Speed"]
+        ts = 120.0 / (8.0 * n)
+        assert t1 - t0 == pytest.approx(ts, abs=ts * 0.125 / n + 1e-6)
+    estimates = [out.decode(m.data) for m in frames if m.arbitration_id == out.frame_id]
+    assert len(estimates) == mf["events"]
+    assert all(15.0 <= e["MFD_Pressure"] <= 105.0 for e in estimates)

@@ -18,8 +18,9 @@ def plot_run(result: RunResult, path: str) -> None:
     """Throttle panels (angles, broadcast error) and, when present, a speed panel."""
     series, summary = result.throttle_series, result.summary
     extra = [(plot, data) for plot, data in ((_plot_speed, result.speed_series),
-                                             (_plot_steering, result.steering_series))
-             if data is not None]
+                                             (_plot_steering, result.steering_series),
+                                             (_plot_manifold, result.manifold_series))
+             if data is not None and not (isinstance(data, np.ndarray) and data.size == 0)]
     n = 2 + len(extra)
     fig, axes = plt.subplots(n, 1, figsize=(11, 7 + 2.6 * (n - 2)), sharex=True,
                              gridspec_kw={"height_ratios": [3, 1.3] + [2] * len(extra)})
@@ -38,6 +39,14 @@ def _plot_speed(sp: SpeedSeries, ax: Any) -> None:
     ax.plot(sp.t_s, sp.v_est, color="tab:green", lw=0.9, ls="--", label="estimate (500 Hz KF)")
     ax.set_ylabel("speed (km/h)")
     ax.legend(loc="upper right", fontsize=8, ncol=3)
+
+
+def _plot_manifold(rows: np.ndarray, ax: Any) -> None:
+    ax.plot(rows[:, 0], rows[:, 1], color="black", lw=1.0, label="true manifold pressure")
+    ax.plot(rows[:, 0], rows[:, 2], color="tab:purple", lw=0.8, ls="--",
+            label="SDKF estimate (per engine event)")
+    ax.set_ylabel("P_im (kPa)")
+    ax.legend(loc="upper right", fontsize=8, ncol=2)
 
 
 def _plot_steering(st: SteeringSeries, ax: Any) -> None:

@@ -10,11 +10,12 @@ from typing import Any
 import numpy as np
 
 from vecu.clock import NS_PER_S
+from vecu.ecu.manifold_function import ManifoldFunction
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.plant.longitudinal import KMH
-from vecu.plant.node import LateralPart, LongitudinalPart, ThrottlePart
+from vecu.plant.node import LateralPart, LongitudinalPart, ManifoldPart, ThrottlePart
 from vecu.stats import RunningStats
 
 LOW_SPEED_KMH = 5.0  # the paper's split: the wheel-speed sensor is useless below 5 km/h
@@ -212,4 +213,67 @@ class SteeringProbe:
             "smoother_lag_ms": self.fn.lagged[0] if self.fn.lagged else None,
             "estimates_sent": self.fn.estimates_sent,
             "ukf_rejected": self.fn.ukf.rejected,
+        }
+
+
+class ManifoldProbe:
+    """Per engine event: posterior P_im / T_im and CAC against the plant's truth at that event,
+    and each 6-event CAC prediction against the truth when that event comes."""
+
+    def __init__(self, part: ManifoldPart, fn: ManifoldFunction, keep_series: bool,
+                 horizon: int = 6) -> None:
+        self.part, self.fn, self.horizon = part, fn, horizon
+        self._series: list[tuple[float, float, float]] | None = [] if keep_series else None
+        self.p_err = RunningStats()
+        self.t_err = RunningStats()
+        self.cac_err = RunningStats()
+        self.pred_err = RunningStats()
+        self.pred_rel = RunningStats()
+        self.p_min, self.p_max = math.inf, -math.inf
+        self._pending: dict[int, float] = {}
+        self._seen = -1
+
+    def tick(self, t_ns: int) -> None:
+        last = self.fn.last
+        if last is None or last[0] == self._seen:
+            return
+        idx, p, t, cac, cac6 = last
+        self._seen = idx
+        truth = self.part.truth.get(idx)
+        if truth is not None:
+            p_true, t_true, cac_true = truth
+            self.p_err.add(p - p_true)
+            self.t_err.add(t - t_true)
+            self.cac_err.add((cac - cac_true) * 1e6)
+            self.p_min, self.p_max = min(self.p_min, p), max(self.p_max, p)
+            if self._series is not None:
+                self._series.append((t_ns / NS_PER_S, p_true, p))
+            pred = self._pending.pop(idx, None)
+            if pred is not None:
+                self.pred_err.add((pred - cac_true) * 1e6)
+                self.pred_rel.add(100.0 * abs(pred - cac_true) / cac_true)
+        self._pending[idx + self.horizon] = cac6
+        for old in [k for k in self._pending if k < idx]:
+            del self._pending[old]
+
+    def series(self) -> np.ndarray | None:
+        """Rows (t_s, true P_im, estimated P_im), one per engine event."""
+        return None if self._series is None else np.array(self._series).reshape(-1, 3)
+
+    def summary(self) -> dict[str, Any]:
+        fn = self.fn
+        return {
+            "filter": fn.filter_name,
+            "events": fn.events,
+            "lost_events": fn.lost_events,
+            "filter_us_per_event": round(fn.filter_seconds / max(fn.events, 1) * 1e6, 1),
+            "cac_prediction_us_per_event": round(fn.predict_seconds / max(fn.events, 1) * 1e6, 1),
+            "p_im_error_kpa": self.p_err.as_dict(),
+            "t_im_error_k": self.t_err.as_dict(),
+            "cac_error_mg": self.cac_err.as_dict(),
+            "cac_pred6_error_mg": self.pred_err.as_dict(),
+            "cac_pred6_abs_error_pct": self.pred_rel.as_dict(),
+            "p_im_estimate_range_kpa": ([round(self.p_min, 2), round(self.p_max, 2)]
+                                        if self.p_err.n else None),
+            "filter_resets": fn.filter.resets,
         }

@@ -9,10 +9,12 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import can
+import numpy as np
 
 from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock
 from vecu.codec import DbcCodec
+from vecu.ecu.manifold_function import ManifoldFunction
 from vecu.ecu.node import EcuFunction, EcuNode
 from vecu.ecu.sensor_monitor import SensorMonitor
 from vecu.ecu.speed_function import SpeedFunction
@@ -21,10 +23,11 @@ from vecu.ecu.throttle_function import (SOURCE_ESTIMATE, ThrottleFunction,
                                         ThrottleFunctionConfig)
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, FaultKind, FaultTarget, parse_kind
-from vecu.plant.node import LateralPart, LongitudinalPart, PlantNode, PlantPart, ThrottlePart
+from vecu.plant.node import (LateralPart, LongitudinalPart, ManifoldPart, PlantNode, PlantPart,
+                             ThrottlePart)
 from vecu.plant.throttle import (InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig,
                                  rng_streams)
-from vecu.probes import (SpeedProbe, SpeedSeries, SteeringProbe, SteeringSeries, ThrottleProbe,
+from vecu.probes import (ManifoldProbe, SpeedProbe, SpeedSeries, SteeringProbe, SteeringSeries, ThrottleProbe,
                          ThrottleSeries)
 from vecu.recorder import Recorder
 from vecu.scheduler import Scheduler
@@ -52,6 +55,8 @@ class RunConfig:
     keep_series: bool = False
     speed: bool = True  # longitudinal plant part + ECU speed function (Hernandez 2005)
     steering: bool = True  # lateral plant part + ECU steering function (Khalid)
+    manifold: bool = True  # engine-event manifold part + ECU manifold function (Dutka 2006)
+    manifold_filter: str = "sdkf"  # "sdkf" (live, one Riccati iteration per event) or "ekf"
     kill_swa_at_s: float | None = None
     swa_fault: str = "dead"
     swa_fault_value: float | None = None
@@ -80,6 +85,7 @@ class RunResult:
     throttle_series: ThrottleSeries | None
     speed_series: SpeedSeries | None = None
     steering_series: SteeringSeries | None = None
+    manifold_series: np.ndarray | None = None  # rows (t_s, true P_im, estimated P_im) per event
 
 
 def run(config: RunConfig) -> RunResult:
@@ -131,7 +137,15 @@ def run(config: RunConfig) -> RunResult:
             functions.append(steering_fn)
             steering_probe = SteeringProbe(lateral_part, steering_fn, swa_kill_ns,
                                            n_ticks // 10 + 1, config.keep_series)
+        manifold_probe = None
+        manifold_part = None
+        if config.manifold:
+            manifold_part = ManifoldPart(codec, config.seed)
+            manifold_fn = ManifoldFunction(codec, config.manifold_filter)
+            functions.append(manifold_fn)
+            manifold_probe = ManifoldProbe(manifold_part, manifold_fn, config.keep_series)
         plant = PlantNode(plant_bus, codec, injector, parts)
+        plant.manifold = manifold_part
         ecu = EcuNode(ecu_bus, codec, functions)
         probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
         sched.every(TICK_NS, plant.tick, name="plant", priority=PRIO_PLANT)
@@ -143,6 +157,9 @@ def run(config: RunConfig) -> RunResult:
         if steering_probe is not None:
             sched.every(SteeringFunction.period_ns, steering_probe.tick, name="steering-probe",
                         priority=PRIO_PROBE)
+        if manifold_probe is not None:
+            sched.chain(0, plant.engine_event, name="engine-events", priority=PRIO_PLANT)
+            sched.every(TICK_NS, manifold_probe.tick, name="manifold-probe", priority=PRIO_PROBE)
         if recorder is not None:
             sched.every(TICK_NS, recorder.drain, name="recorder", priority=PRIO_RECORD)
         if kill_ns is not None:
@@ -169,6 +186,8 @@ def run(config: RunConfig) -> RunResult:
                            n_ticks, wall, recorder)
         if speed_probe is not None:
             summary["speed"] = speed_probe.summary()
+        if manifold_probe is not None:
+            summary["manifold"] = manifold_probe.summary()
         if steering_probe is not None:
             summary["steering"] = {**steering_probe.summary(),
                                    **detection(steering_fn.monitor, swa_kill_ns),
@@ -183,7 +202,8 @@ def run(config: RunConfig) -> RunResult:
             bus.shutdown()
     return RunResult(summary=summary, throttle_series=probe.series(),
                      speed_series=speed_probe.series() if speed_probe else None,
-                     steering_series=steering_probe.series() if steering_probe else None)
+                     steering_series=steering_probe.series() if steering_probe else None,
+                     manifold_series=manifold_probe.series() if manifold_probe else None)
 
 
 def _warm_up(config: RunConfig) -> None:

@@ -144,3 +144,23 @@ def bench_speed_and_steering(steps: int = 5_000, repeats: int = 3) -> list[dict[
         {"filter": "steering UKF (plain floats)", "us": ukf_us, "baseline": "steering EKF (numpy)",
          "baseline_us": ekf_us, "ratio": ekf_us / ukf_us, "budget_us": 50.0},
     ]
+
+
+def bench_manifold(duration_s: float = 10.0) -> list[dict[str, float | str]]:
+    """us per engine event of the live SDKF (one warm-started Riccati iteration) and the EKF,
+    against the SDKF that solves the DARE every event (doubling), on one simulated profile."""
+    from vecu.eval.manifold import run_filter, trace_inputs
+    from vecu.plant.drive_profile import DriveProfile, us06_like
+    from vecu.plant.manifold import simulate
+
+    prof = us06_like(BENCH_SEED)
+    k = round(duration_s / prof.dt_s) + 1
+    trace = simulate(DriveProfile(prof.dt_s, prof.n_rpm[:k], prof.ta_sp[:k]), seed=BENCH_SEED)
+    inputs = trace_inputs(trace)
+    n = len(trace.t)
+    us = {name: 1e6 * run_filter(name, trace, inputs)[1] / n
+          for name in ("sdkf", "ekf", "sdkf_doubling")}
+    base = us["sdkf_doubling"]
+    return [{"filter": name, "us_per_event": us[name], "baseline": "SDKF with a DARE per event",
+             "baseline_us": base, "ratio": base / us[name], "budget_us": 200.0, "events": n}
+            for name in ("sdkf", "ekf")]

@@ -21,13 +21,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def collect(quick: bool, only: str | None, estimator: str) -> dict[str, Any]:
-    from vecu.bench.estimators import bench_speed_and_steering, bench_throttle_ukf
+    from vecu.bench.estimators import (bench_manifold, bench_speed_and_steering,
+                                       bench_throttle_ukf)
     from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
 
     out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine()}
     if only in (None, "ukf"):
         out["ukf"] = bench_throttle_ukf(steps=5_000 if quick else 20_000)
         out["filters"] = bench_speed_and_steering(steps=2_000 if quick else 5_000)
+        out["manifold"] = bench_manifold(duration_s=4.0 if quick else 10.0)
     if only in (None, "bus"):
         out["bus"] = bench_virtual_bus(frames=5_000 if quick else 20_000)
     if only in (None, "pipeline"):
@@ -51,6 +53,11 @@ def main(args: argparse.Namespace) -> int:
         for r in res["filters"]:
             print(f"  {r['filter']:<28}{r['us']:>7.1f} us  vs {r['baseline']} {r['baseline_us']:.1f} us "
                   f"({r['ratio']:.1f}x), budget {r['budget_us']:.0f} us")
+    if "manifold" in res:
+        print("Manifold filters per engine event (same-run baseline: SDKF solving the DARE every event):")
+        for r in res["manifold"]:
+            print(f"  {r['filter']:<8}{r['us_per_event']:>8.0f} us  vs {r['baseline_us']:.0f} us "
+                  f"({r['ratio']:.1f}x), budget {r['budget_us']:.0f} us, {r['events']} events")
     if "bus" in res:
         b = res["bus"]
         print(f"Virtual bus send+recv: vecu {b['vecu_us']} us vs python-can VirtualBus "

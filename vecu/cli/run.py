@@ -124,6 +124,14 @@ def format_summary(s: dict[str, Any]) -> str:
             parts.append(f"accel RMS {ac['estimate_error_mps2']['rms']:.3f} m/s^2 "
                          f"({ac['gain_db']:+.1f} dB vs accelerometer)")
         lines.append("speed estimate: " + "; ".join(parts))
+    mf = s.get("manifold")
+    if mf:
+        lines.append(
+            f"manifold ({mf['filter']}, {mf['events']} engine events, {mf['lost_events']} lost): "
+            f"P_im RMS {mf['p_im_error_kpa']['rms']:.3f} kPa, T_im {mf['t_im_error_k']['rms']:.2f} K, "
+            f"CAC {mf['cac_error_mg']['rms']:.2f} mg, 6-event CAC prediction "
+            f"{mf['cac_pred6_abs_error_pct']['mean']:.2f} % mean |error|; "
+            f"{mf['filter_us_per_event']:.0f} us/event")
     st = s.get("steering")
     if st:
         line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, fixed-lag smoother "

@@ -17,11 +17,15 @@ from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget
 from vecu.node import BusNode
+from vecu.plant.drive_profile import us06_like
 from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
 from vecu.plant.lateral import simulate_lateral
 from vecu.plant.longitudinal import KMH, simulate_speed
 from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
-from vecu.plant.throttle import InputGenerator, ThrottlePlant
+from vecu.plant.manifold import (ManifoldPlant, ManifoldPlantConfig, cylinder_air_charge,
+                                 nominal_input, sample_time, steady_state_vector)
+from vecu.plant.manifold_params import V8_5L7
+from vecu.plant.throttle import InputGenerator, ThrottlePlant, rng_streams
 
 log = logging.getLogger(__name__)
 
@@ -156,6 +160,54 @@ class LateralPart:
             self._counter = (self._counter + 1) & 0xF
 
 
+class ManifoldPart:
+    """Engine intake (Dutka 2006) stepped once per engine event, Ts = 120 / (8 N): sends
+    ENG_Event (counter, N, throttle setpoint and angle, MAP) and ENG_Intake (IAT) at each event.
+    Plays seeded 80 s US06-like profiles back to back (each starts where the last ended: idle)."""
+
+    name = "manifold"
+
+    def __init__(self, codec: DbcCodec, seed: int) -> None:
+        self._ev = codec["ENG_Event"]
+        self._iat = codec["ENG_Intake"]
+        self._seed = seed
+        self._profile_index = 0
+        self._profile = us06_like(seed)
+        self._t0_ns = 0
+        n0, sp0 = self._profile.at(0.0)
+        rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
+        self.plant = ManifoldPlant(V8_5L7, ManifoldPlantConfig(), rng,
+                                   steady_state_vector(nominal_input(sp0, n0), V8_5L7))
+        self.events = 0
+        # truth of the events so far (absolute event index -> P_im kPa, T_im K, CAC kg)
+        self.truth: dict[int, tuple[float, float, float]] = {}
+
+    def event(self, t_ns: int, send: Send) -> int:
+        """One engine event at t_ns; returns the time of the next one."""
+        t_s = (t_ns - self._t0_ns) / NS_PER_S
+        if t_s >= self._profile.duration_s:  # next profile, continuing from the current state
+            self._profile_index += 1
+            self._profile = us06_like((self._seed << 8) + self._profile_index)
+            self._t0_ns, t_s = t_ns, 0.0
+        n, sp = self._profile.at(t_s)
+        plant = self.plant
+        ta, p_kpa, t_meas = plant.measure()
+        k = self.events
+        self.truth[k] = (plant.p_im, plant.t_im,
+                         cylinder_air_charge(plant.p_im, plant.t_im, n, V8_5L7))
+        self.truth.pop(k - 64, None)  # bounded: probes look back a few events only
+        ts = t_ns / NS_PER_S
+        deg = 180.0 / math.pi
+        send(self._ev.frame({"ENG_EventCounter": k & 0xFF, "ENG_Speed": n,
+                             "ENG_ThrottleSetpoint": sp * deg, "ENG_ThrottleAngle": ta * deg,
+                             "ENG_MAP": p_kpa}, ts))
+        send(self._iat.frame({"ENG_IntakeCounter": k & 0xFF, "ENG_IAT": t_meas - 273.15}, ts))
+        dt = sample_time(n, V8_5L7.n_cyl)
+        plant.step(nominal_input(sp, n), dt)
+        self.events += 1
+        return t_ns + max(1, int(round(dt * NS_PER_S)))
+
+
 class PlantNode(BusNode):
     """Runs its parts at their rates from a 1 ms base tick; acts on FI_Command frames."""
 
@@ -170,6 +222,13 @@ class PlantNode(BusNode):
         self.throttle = next((p for p in parts if isinstance(p, ThrottlePart)), None)
         self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
         self.lateral = next((p for p in parts if isinstance(p, LateralPart)), None)
+        self.manifold: ManifoldPart | None = None
+
+    def engine_event(self, t_ns: int) -> int | None:
+        """Scheduler.chain task: one engine event of the manifold part, if there is one."""
+        if self.manifold is None:
+            return None
+        return self.manifold.event(t_ns, self._send)
 
     def tick(self, t_ns: int) -> None:
         self._poll_commands(t_ns)
