@@ -146,7 +146,7 @@ def bench_speed_and_steering(steps: int = 5_000, repeats: int = 3) -> list[dict[
     ]
 
 
-def bench_manifold(duration_s: float = 10.0) -> list[dict[str, float | str]]:
+def bench_manifold(duration_s: float = 80.0) -> list[dict[str, float | str]]:
     """us per engine event of the live SDKF (one warm-started Riccati iteration) and the EKF,
     against the SDKF that solves the DARE every event (doubling), on one simulated profile."""
     from vecu.eval.manifold import run_filter, trace_inputs

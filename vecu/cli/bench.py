@@ -29,7 +29,7 @@ def collect(quick: bool, only: str | None, estimator: str) -> dict[str, Any]:
     if only in (None, "ukf"):
         out["ukf"] = bench_throttle_ukf(steps=5_000 if quick else 20_000)
         out["filters"] = bench_speed_and_steering(steps=2_000 if quick else 5_000)
-        out["manifold"] = bench_manifold(duration_s=4.0 if quick else 10.0)
+        out["manifold"] = bench_manifold(duration_s=10.0 if quick else 80.0)
     if only in (None, "bus"):
         out["bus"] = bench_virtual_bus(frames=5_000 if quick else 20_000)
     if only in (None, "pipeline"):
