@@ -78,3 +78,21 @@ def test_implausible_against_estimate_then_heals_after_clean_period():
     assert mon.dtc == DtcState.CONFIRMED
     healed = st.index(SensorStatus.OK, 120)
     assert abs(healed - (120 + cfg.heal_ms)) <= cfg.plaus_debounce + 1
+
+
+def test_select_broadcasts_sensor_while_ok_then_estimate_and_counts_one_timeout():
+    from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SOURCE_SENSOR
+
+    mon = SensorMonitor.for_tps(SensorMonitorConfig(), CAL)
+    out = []
+    for k in range(20):
+        t = k * NS_PER_MS
+        if k < 10:
+            mon.on_frame(t, 2.0 + 0.001 * (k % 3))
+        out.append(mon.select(t, 40.0, 3.0))
+    # frames stop after 9 ms: the last valid angle is held until the timeout confirms at 12 ms
+    assert [src for _, src, _ in out[:12]] == [SOURCE_SENSOR] * 12
+    assert out[9][0] == out[11][0] == CAL.angle(2.0)
+    assert [src for _, src, _ in out[12:]] == [SOURCE_ESTIMATE] * 8
+    assert all(v == 40.0 for v, _, _ in out[12:])
+    assert mon.timeouts == 1

@@ -16,11 +16,10 @@ from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock
 from vecu.codec import DbcCodec
 from vecu.ecu.manifold_function import ManifoldFunction
 from vecu.ecu.node import EcuFunction, EcuNode
-from vecu.ecu.sensor_monitor import SensorMonitor
+from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
-from vecu.ecu.throttle_function import (SOURCE_ESTIMATE, ThrottleFunction,
-                                        ThrottleFunctionConfig)
+from vecu.ecu.throttle_function import ThrottleFunction, ThrottleFunctionConfig
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, FaultKind, FaultTarget, parse_kind
 from vecu.plant.node import (LateralPart, LongitudinalPart, ManifoldPart, PlantNode, PlantPart,
@@ -192,7 +191,8 @@ def run(config: RunConfig) -> RunResult:
             summary["steering"] = {**steering_probe.summary(),
                                    **detection(steering_fn.monitor, swa_kill_ns),
                                    "fault": config.swa_fault if swa_kill_ns is not None else None,
-                                   "final_source": ("estimate" if steering_fn.source == 1
+                                   "final_source": ("estimate"
+                                                    if steering_fn.source == SOURCE_ESTIMATE
                                                     else "sensor"),
                                    "missing_broadcasts": n_ticks // 10 - steering_fn.estimates_sent}
     finally:

@@ -15,6 +15,9 @@ from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS
 
 
+SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1  # THR_Source / STE_Source in the DBC
+
+
 class SensorStatus(enum.IntEnum):
     OK = 0
     TIMEOUT = 1
@@ -57,6 +60,7 @@ class SensorMonitor:
         self._low, self._high = raw_low, raw_high
         self._to_physical = to_physical
         self.status = SensorStatus.OK
+        self.timeouts = 0  # confirmed timeouts (select())
         self.dtc = DtcState.NONE
         self.first_fault_ns: int | None = None
         self.first_fault_status: SensorStatus | None = None
@@ -137,6 +141,18 @@ class SensorMonitor:
                           or self._same >= self.cfg.stuck_samples // 2)
             self.dtc = DtcState.PENDING if suspicious else DtcState.NONE
         return self.status
+
+    def select(self, t_ns: int, est: float, est_std: float) -> tuple[float, int, SensorStatus]:
+        """Diagnose (evaluate) and pick what to broadcast: (value, source, status), the sensor's
+        last valid value while it is healthy (SOURCE_SENSOR), else the estimate (SOURCE_ESTIMATE).
+        A newly confirmed timeout is counted in `timeouts`."""
+        was_ok = self.status == SensorStatus.OK
+        status = self.evaluate(t_ns, est, est_std)
+        if was_ok and status == SensorStatus.TIMEOUT:
+            self.timeouts += 1
+        if status == SensorStatus.OK and self.value is not None:
+            return self.value, SOURCE_SENSOR, status
+        return est, SOURCE_ESTIMATE, status
 
     @property
     def healthy(self) -> bool:

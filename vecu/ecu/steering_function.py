@@ -15,12 +15,12 @@ from dataclasses import dataclass, field, replace
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
-from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
+from vecu.ecu.sensor_monitor import (SOURCE_SENSOR, SensorMonitor,
+                                     SensorMonitorConfig, SensorStatus)
 from vecu.estimators.steering_smoothers import FixedLagSmoother
 from vecu.plant.longitudinal import KMH
 
 DEG = 180.0 / math.pi
-SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1
 SWA_LIMIT_DEG = 780.0  # lock to lock of a passenger car, about 2.2 turns each way
 
 
@@ -46,7 +46,6 @@ class SteeringFunction:
         cycle = codec["SWA_Sensor"].cycle_time_ms or config.monitor.cycle_ms
         self.monitor = SensorMonitor(replace(config.monitor, cycle_ms=cycle), -SWA_LIMIT_DEG,
                                      SWA_LIMIT_DEG, float)
-        self.timeouts = 0
         self.estimates_sent = 0
         self._tx_counter = 0
         self._vx: float | None = None
@@ -57,6 +56,10 @@ class SteeringFunction:
         self.source = SOURCE_SENSOR
         self.status = SensorStatus.OK
         self.lagged: tuple[int, float, float] | None = None  # (lag in ms, SWA, side-slip)
+
+    @property
+    def timeouts(self) -> int:
+        return self.monitor.timeouts
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("CHS_Lateral", self._on_lateral),
@@ -75,15 +78,7 @@ class SteeringFunction:
         self._vx = self._r = self._ay = None
         ukf = self.ukf
         est, std, beta = ukf.swa_rad * DEG, ukf.swa_std_rad * DEG, ukf.side_slip_rad * DEG
-        was_ok = self.monitor.healthy
-        status = self.monitor.evaluate(t_ns, est, std)
-        if was_ok and status == SensorStatus.TIMEOUT:
-            self.timeouts += 1
-        sensor = self.monitor.value
-        if status == SensorStatus.OK and sensor is not None:
-            angle, source = sensor, SOURCE_SENSOR
-        else:
-            angle, source = est, SOURCE_ESTIMATE
+        angle, source, status = self.monitor.select(t_ns, est, std)
         self.angle, self.source, self.status = angle, source, status
         ts = t_ns / NS_PER_S
         self.estimates_sent += send(self._est.frame({

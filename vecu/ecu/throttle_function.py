@@ -14,10 +14,10 @@ from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
-from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
+from vecu.ecu.sensor_monitor import (SOURCE_SENSOR, SensorMonitor,
+                                     SensorMonitorConfig, SensorStatus)
 from vecu.estimators.base import ThrottleEstimator
 
-SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,6 @@ class ThrottleFunction:
         if monitor_cfg.cycle_ms != tps_cycle:
             monitor_cfg = SensorMonitorConfig(**{**asdict(monitor_cfg), "cycle_ms": tps_cycle})
         self.monitor = SensorMonitor.for_tps(monitor_cfg, config.calibration)
-        self.timeouts = 0            # confirmed TPS timeouts
         self.estimates_sent = 0      # ECU_ThrottleEstimate frames on the bus
         self.estimator_faults = 0    # non-finite estimator outputs caught here (should stay 0)
         self._tx_counter = 0
@@ -52,6 +51,10 @@ class ThrottleFunction:
         self.angle = 0.0
         self.source = SOURCE_SENSOR
         self.status = SensorStatus.OK
+
+    @property
+    def timeouts(self) -> int:
+        return self.monitor.timeouts
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("TPS_Sensor", self._on_tps, self.monitor.on_e2e_error),
@@ -75,15 +78,7 @@ class ThrottleFunction:
             self.estimator_faults += 1
             est.reset()
             theta_hat, std = self.angle, 51.0
-        was_ok = self.monitor.healthy
-        status = self.monitor.evaluate(t_ns, theta_hat, std)
-        if was_ok and status == SensorStatus.TIMEOUT:
-            self.timeouts += 1
-        sensor = self.monitor.value
-        if status == SensorStatus.OK and sensor is not None:
-            angle, source = sensor, SOURCE_SENSOR
-        else:
-            angle, source = theta_hat, SOURCE_ESTIMATE
+        angle, source, status = self.monitor.select(t_ns, theta_hat, std)
         self.angle, self.source, self.status = angle, source, status
         self.estimates_sent += send(self._est.frame({
             "THR_CRC": 0, "THR_AliveCounter": self._tx_counter, "THR_Source": source,
