@@ -132,10 +132,11 @@ class _SteeringFilter:
 
     # -- state access (subclasses store x and P as they like) -----------------------------------
     def _set(self, x: tuple[float, ...], p: P10) -> None:
-        raise NotImplementedError
+        self._x = x
+        self._p = p
 
     def _get(self) -> tuple[tuple[float, ...], P10]:
-        raise NotImplementedError
+        return self._x, self._p
 
     # -- outputs --------------------------------------------------------------------------------
     @property
@@ -308,13 +309,6 @@ class SteeringUKF(_SteeringFilter):
         self._pts = tuple((z, w) for z, w in cols if w != 0.0)
         super().__init__(model, record, history_maxlen)
 
-    def _set(self, x: tuple[float, ...], p: P10) -> None:
-        self._x = x
-        self._p = p
-
-    def _get(self) -> tuple[tuple[float, ...], P10]:
-        return self._x, self._p
-
     def _sigma(self, x: tuple[float, ...], p: P10) -> list[tuple[tuple[float, ...], float,
                                                                   tuple[float, ...]]]:
         """[(chi_j, w_j, S z_j)] with S = chol(P)."""
@@ -405,13 +399,6 @@ class SteeringEKF(_SteeringFilter):
                  history_maxlen: int | None = None) -> None:
         self._Q = sm.process_noise(model)
         super().__init__(model, record, history_maxlen)
-
-    def _set(self, x: tuple[float, ...], p: P10) -> None:
-        self._x = x
-        self._p = p
-
-    def _get(self) -> tuple[tuple[float, ...], P10]:
-        return self._x, self._p
 
     def _predict(self, vx: float) -> tuple[tuple[float, ...], P10, list[float] | None]:
         x = self._x
