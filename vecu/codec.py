@@ -8,10 +8,10 @@ encode() fills the CRC, check() verifies it (vecu.e2e).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import can
 import cantools
@@ -20,6 +20,7 @@ from cantools.database.can import Message
 from vecu.e2e import e2e_crc
 
 DEFAULT_DBC = "vecu.dbc"
+TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
 
 
 class DbcLoadError(Exception):
@@ -151,10 +152,14 @@ def _e2e_layout(message: Message) -> E2ELayout | None:
 
 
 class DbcCodec:
-    """All messages of one or more DBC files, compiled once; lookup by name or by CAN ID."""
+    """All messages of one or more DBC files, compiled once; lookup by name or by CAN ID.
+
+    The default is vecu's own DBC plus its truth DBC (the ECU knows the truth IDs and ignores them).
+    """
 
     def __init__(self, paths: Iterable[str | Path] | None = None, strict: bool = True) -> None:
-        paths = list(paths) if paths is not None else [builtin_dbc_path()]
+        paths = (list(paths) if paths is not None
+                 else [builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC)])
         self.paths = [str(p) for p in paths]
         self.db = load_database(paths, strict=strict)
         self._by_name = {m.name: FrameCodec(m) for m in self.db.messages}

@@ -3,79 +3,53 @@
 from __future__ import annotations
 
 import gc
-import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
 import numpy as np
 
+from vecu.assembly import (
+    PRIO_PLANT,
+    PRIO_PROBE,
+    PRIO_RECORD,
+    TICK_NS,
+    build_functions,
+    build_plant,
+    schedule_ecu,
+    schedule_plant,
+)
 from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock
 from vecu.codec import DbcCodec
-from vecu.ecu.manifold_function import ManifoldFunction
-from vecu.ecu.node import EcuFunction, EcuNode
+from vecu.config import RunConfig
+from vecu.ecu.node import EcuNode
 from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
-from vecu.ecu.throttle_function import ThrottleFunction, ThrottleFunctionConfig
+from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
-from vecu.faults import FaultInjector, FaultKind, FaultTarget, parse_kind
-from vecu.plant.node import (LateralPart, LongitudinalPart, ManifoldPart, PlantNode, PlantPart,
-                             ThrottlePart)
-from vecu.plant.throttle import (InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig,
-                                 rng_streams)
-from vecu.probes import (ManifoldProbe, SpeedProbe, SpeedSeries, SteeringProbe, SteeringSeries, ThrottleProbe,
-                         ThrottleSeries)
+from vecu.faults import FaultInjector, FaultTarget, parse_kind
+from vecu.plant.node import (
+    PlantNode,
+)
+from vecu.plant.throttle import (
+    rng_streams,
+)
+from vecu.probes import (
+    ManifoldProbe,
+    SpeedProbe,
+    SpeedSeries,
+    SteeringProbe,
+    SteeringSeries,
+    ThrottleProbe,
+    ThrottleSeries,
+)
 from vecu.recorder import Recorder
 from vecu.scheduler import Scheduler
 
-TICK_NS = NS_PER_MS
-PRIO_PLANT, PRIO_ECU, PRIO_PROBE, PRIO_RECORD = 0, 10, 20, 30
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """Everything `vecu run` needs; defaults are the demo (10 s, TPS dead at 5 s)."""
-
-    duration_s: float = 10.0
-    seed: int = 0
-    noise_scale: float = 1.0
-    kill_tps_at_s: float | None = 5.0
-    fault: str = "dead"
-    fault_value: float | None = None
-    estimator: str = "production"
-    realtime: bool = False
-    interface: str | None = None
-    channel: str | None = None
-    bitrate: int | None = None
-    log_path: str | None = None
-    keep_series: bool = False
-    speed: bool = True  # longitudinal plant part + ECU speed function (Hernandez 2005)
-    steering: bool = True  # lateral plant part + ECU steering function (Khalid)
-    manifold: bool = True  # engine-event manifold part + ECU manifold function (Dutka 2006)
-    manifold_filter: str = "sdkf"  # "sdkf" (live, one Riccati iteration per event) or "ekf"
-    kill_swa_at_s: float | None = None
-    swa_fault: str = "dead"
-    swa_fault_value: float | None = None
-    throttle: ThrottleFunctionConfig = field(default_factory=ThrottleFunctionConfig)
-
-    def validate(self) -> None:
-        if not (self.duration_s > 0 and math.isfinite(self.duration_s)):
-            raise ValueError(f"duration must be a positive number of seconds, got {self.duration_s}")
-        if self.kill_tps_at_s is not None and not 0 <= self.kill_tps_at_s < self.duration_s:
-            raise ValueError(f"kill time {self.kill_tps_at_s} s is outside the run (0..{self.duration_s} s)")
-        if self.noise_scale < 0:
-            raise ValueError(f"noise scale must be >= 0, got {self.noise_scale}")
-        if self.kill_swa_at_s is not None and not 0 <= self.kill_swa_at_s < self.duration_s:
-            raise ValueError(f"SWA kill time {self.kill_swa_at_s} s is outside the run "
-                             f"(0..{self.duration_s} s)")
-        if self.kill_swa_at_s is not None and not self.steering:
-            raise ValueError("an SWA fault needs the steering part (steering=True)")
-        for name in (self.fault, self.swa_fault):
-            if parse_kind(name) == FaultKind.CLEAR:
-                raise ValueError("fault kind 'clear' cannot be injected")
+__all__ = ["RunConfig", "RunResult", "detection", "run"]
 
 
 @dataclass(frozen=True)
@@ -110,45 +84,30 @@ def run(config: RunConfig) -> RunResult:
         ecu_bus = open_bus(**bus_args)
         buses.append(ecu_bus)
         injector = FaultInjector(rngs["faults"])
-        throttle_part = ThrottlePart(
-            codec,
-            ThrottlePlant(ThrottlePlantConfig(noise_scale=config.noise_scale), rngs["throttle.plant"]),
-            InputGenerator(InputConfig(), rngs["throttle.input"]), injector,
-            config.throttle.calibration)
-        parts: list[PlantPart] = [throttle_part]
-        estimator = make_throttle_estimator(config.estimator, noise_scale=config.noise_scale)
-        throttle_fn = ThrottleFunction(codec, estimator, config.throttle)
-        functions: list[EcuFunction] = [throttle_fn]
+        plant = build_plant(config, codec, plant_bus, injector,
+                            truth=config.truth and recorder is not None)
+        fns = build_functions(config, codec)
+        throttle_fn = fns.throttle
+        throttle_part = plant.throttle
+        assert throttle_part is not None
         speed_probe = None
-        if config.speed:
-            speed_part = LongitudinalPart(codec, config.seed)
-            speed_fn = SpeedFunction(codec)
-            parts.append(speed_part)
-            functions.append(speed_fn)
-            speed_probe = SpeedProbe(speed_part, speed_fn, n_ticks // 2 + 1, config.keep_series)
+        if fns.speed is not None and plant.longitudinal is not None:
+            speed_probe = SpeedProbe(plant.longitudinal, fns.speed, n_ticks // 2 + 1,
+                                     config.keep_series)
         steering_probe = None
+        steering_fn = fns.steering
         swa_kill_ns = (None if config.kill_swa_at_s is None
                        else int(round(config.kill_swa_at_s * NS_PER_S)))
-        if config.steering:
-            lateral_part = LateralPart(codec, config.seed, config.duration_s, injector)
-            steering_fn = SteeringFunction(codec)
-            parts.append(lateral_part)
-            functions.append(steering_fn)
-            steering_probe = SteeringProbe(lateral_part, steering_fn, swa_kill_ns,
+        if steering_fn is not None and plant.lateral is not None:
+            steering_probe = SteeringProbe(plant.lateral, steering_fn, swa_kill_ns,
                                            n_ticks // 10 + 1, config.keep_series)
         manifold_probe = None
-        manifold_part = None
-        if config.manifold:
-            manifold_part = ManifoldPart(codec, config.seed)
-            manifold_fn = ManifoldFunction(codec, config.manifold_filter)
-            functions.append(manifold_fn)
-            manifold_probe = ManifoldProbe(manifold_part, manifold_fn, config.keep_series)
-        plant = PlantNode(plant_bus, codec, injector, parts)
-        plant.manifold = manifold_part
-        ecu = EcuNode(ecu_bus, codec, functions)
+        if fns.manifold is not None and plant.manifold is not None:
+            manifold_probe = ManifoldProbe(plant.manifold, fns.manifold, config.keep_series)
+        ecu = EcuNode(ecu_bus, codec, fns.enabled())
         probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
-        sched.every(TICK_NS, plant.tick, name="plant", priority=PRIO_PLANT)
-        ecu_task = sched.every(TICK_NS, ecu.tick, name="ecu", priority=PRIO_ECU)
+        schedule_plant(sched, plant)
+        ecu_task = schedule_ecu(sched, ecu)
         sched.every(TICK_NS, probe.tick, name="probe", priority=PRIO_PROBE)
         if speed_probe is not None:
             sched.every(SpeedFunction.period_ns, speed_probe.tick, name="speed-probe",
@@ -157,7 +116,6 @@ def run(config: RunConfig) -> RunResult:
             sched.every(SteeringFunction.period_ns, steering_probe.tick, name="steering-probe",
                         priority=PRIO_PROBE)
         if manifold_probe is not None:
-            sched.chain(0, plant.engine_event, name="engine-events", priority=PRIO_PLANT)
             sched.every(TICK_NS, manifold_probe.tick, name="manifold-probe", priority=PRIO_PROBE)
         if recorder is not None:
             sched.every(TICK_NS, recorder.drain, name="recorder", priority=PRIO_RECORD)

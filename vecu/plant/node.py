@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 import can
 
@@ -22,8 +23,14 @@ from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
 from vecu.plant.lateral import simulate_lateral
 from vecu.plant.longitudinal import KMH, simulate_speed
 from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
-from vecu.plant.manifold import (ManifoldPlant, ManifoldPlantConfig, cylinder_air_charge,
-                                 nominal_input, sample_time, steady_state_vector)
+from vecu.plant.manifold import (
+    ManifoldPlant,
+    ManifoldPlantConfig,
+    cylinder_air_charge,
+    nominal_input,
+    sample_time,
+    steady_state_vector,
+)
 from vecu.plant.manifold_params import V8_5L7
 from vecu.plant.throttle import InputGenerator, ThrottlePlant, rng_streams
 
@@ -59,6 +66,7 @@ class ThrottlePart:
         self._tps = codec["TPS_Sensor"]
         self._watt = codec["ETB_Wattmeter"]
         self._counter = 0
+        self.truth_msg = None  # TRUTH_Throttle codec when recording truth (PlantNode.enable_truth)
         # truth and sensor of the last tick, read by probes
         self.theta = 0.0
         self.u = 0.0
@@ -71,11 +79,13 @@ class ThrottlePart:
         v = self.injector.apply(FaultTarget.TPS, plant.tps_voltage(self.calibration))
         ts = t_ns / NS_PER_S
         if v is not None:
-            v = TPS_V_MIN if v < TPS_V_MIN else (TPS_V_MAX if v > TPS_V_MAX else v)
+            v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
             send(self._tps.frame(
                 {"TPS_CRC": 0, "TPS_AliveCounter": self._counter, "TPS_Voltage": v}, ts))
             self._counter = (self._counter + 1) & 0xF
         send(self._watt.frame({"ETB_Voltage": u, "ETB_Power": y}, ts))
+        if self.truth_msg is not None:
+            send(self.truth_msg.frame({"TRU_ThrottleAngle": plant.theta, "TRU_MotorVoltage": u}, ts))
         self.theta = plant.theta
         self.u = u
         self.tps_voltage = v
@@ -99,9 +109,10 @@ class LongitudinalPart:
         self._index = 0
         self._k = 0
         self._trace = self._next_trace()
+        self.truth_msg = None  # TRUTH_Speed codec when recording truth
         self.v = self.a = self.wheel = self.accel = 0.0  # truth and raw sensors of the last tick (SI)
 
-    def _next_trace(self):  # noqa: ANN202 - SpeedTrace
+    def _next_trace(self):
         kind = self.SEQUENCE[min(self._index, len(self.SEQUENCE) - 1)]
         trace = simulate_speed(seed=(self._seed << 16) + self._index,
                                manoeuvre=SpeedManoeuvre(kind=kind))
@@ -118,8 +129,10 @@ class LongitudinalPart:
         self._k += 1
         v, a, wheel, accel = (col[k] for col in self._cols)
         self.v, self.a, self.wheel, self.accel = v, a, wheel, accel
-        send(self._msg.frame({"ESC_WheelSpeed": wheel / KMH, "ESC_LongAccel": accel},
-                             t_ns / NS_PER_S))
+        ts = t_ns / NS_PER_S
+        send(self._msg.frame({"ESC_WheelSpeed": wheel / KMH, "ESC_LongAccel": accel}, ts))
+        if self.truth_msg is not None:
+            send(self.truth_msg.frame({"TRU_VehSpeed": v / KMH, "TRU_VehAccel": a}, ts))
 
 
 class LateralPart:
@@ -141,6 +154,7 @@ class LateralPart:
                       (tr.meas_swa * deg).tolist())
         self._k = 0
         self._counter = 0
+        self.truth_msg = None  # TRUTH_Steering codec when recording truth
         # truth and sensor of the last tick (deg), read by probes
         self.swa = self.beta = 0.0
         self.swa_sensor: float | None = None
@@ -152,6 +166,8 @@ class LateralPart:
         self.swa, self.beta = swa, beta
         ts = t_ns / NS_PER_S
         send(self._lat.frame({"LAT_YawRate": r, "LAT_LatAccel": ay, "LAT_VehSpeed": vx}, ts))
+        if self.truth_msg is not None:
+            send(self.truth_msg.frame({"TRU_SwAngle": swa, "TRU_SideSlip": beta}, ts))
         v = self.injector.apply(FaultTarget.SWA, swa_meas)
         self.swa_sensor = v
         if v is not None:
@@ -179,6 +195,7 @@ class ManifoldPart:
         self.plant = ManifoldPlant(V8_5L7, ManifoldPlantConfig(), rng,
                                    steady_state_vector(nominal_input(sp0, n0), V8_5L7))
         self.events = 0
+        self.truth_msg = None  # TRUTH_Manifold codec when recording truth
         # truth of the events so far (absolute event index -> P_im kPa, T_im K, CAC kg)
         self.truth: dict[int, tuple[float, float, float]] = {}
 
@@ -202,6 +219,10 @@ class ManifoldPart:
                              "ENG_ThrottleSetpoint": sp * deg, "ENG_ThrottleAngle": ta * deg,
                              "ENG_MAP": p_kpa}, ts))
         send(self._iat.frame({"ENG_IntakeCounter": k & 0xFF, "ENG_IAT": t_meas - 273.15}, ts))
+        if self.truth_msg is not None:
+            p_true, t_true, cac_true = self.truth[k]
+            send(self.truth_msg.frame({"TRU_EventCounter": k & 0xFF, "TRU_MAP": p_true,
+                                       "TRU_IMT": t_true - 273.15, "TRU_CAC": cac_true * 1e6}, ts))
         dt = sample_time(n, V8_5L7.n_cyl)
         plant.step(nominal_input(sp, n), dt)
         self.events += 1
@@ -223,6 +244,14 @@ class PlantNode(BusNode):
         self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
         self.lateral = next((p for p in parts if isinstance(p, LateralPart)), None)
         self.manifold: ManifoldPart | None = None
+
+    def enable_truth(self, codec: DbcCodec) -> None:
+        """Send the debug truth frames of dbc/vecu_truth.dbc next to each part's sensor frames."""
+        names = {ThrottlePart: "TRUTH_Throttle", LongitudinalPart: "TRUTH_Speed",
+                 LateralPart: "TRUTH_Steering", ManifoldPart: "TRUTH_Manifold"}
+        for part in [*self.parts, self.manifold]:
+            if part is not None and type(part) in names:
+                part.truth_msg = codec[names[type(part)]]
 
     def engine_event(self, t_ns: int) -> int | None:
         """Scheduler.chain task: one engine event of the manifold part, if there is one."""

@@ -1,0 +1,97 @@
+"""Build the plant and the ECU from a RunConfig, each on its own bus.
+
+One place that knows which parts and functions exist, used by the in-process run, the separate
+plant / ECU processes, trace replay (ECU only) and scenarios.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import can
+
+from vecu.clock import NS_PER_MS
+from vecu.codec import DbcCodec
+from vecu.config import RunConfig
+from vecu.ecu.manifold_function import ManifoldFunction
+from vecu.ecu.node import EcuFunction, EcuNode
+from vecu.ecu.speed_function import SpeedFunction
+from vecu.ecu.steering_function import SteeringFunction
+from vecu.ecu.throttle_function import ThrottleFunction
+from vecu.estimators.registry import make_throttle_estimator
+from vecu.faults import FaultInjector
+from vecu.plant.node import (
+    LateralPart,
+    LongitudinalPart,
+    ManifoldPart,
+    PlantNode,
+    PlantPart,
+    ThrottlePart,
+)
+from vecu.plant.throttle import (
+    InputConfig,
+    InputGenerator,
+    ThrottlePlant,
+    ThrottlePlantConfig,
+    rng_streams,
+)
+from vecu.scheduler import Scheduler
+
+TICK_NS = NS_PER_MS
+PRIO_PLANT, PRIO_ECU, PRIO_PROBE, PRIO_RECORD = 0, 10, 20, 30
+
+
+@dataclass(frozen=True)
+class EcuFunctions:
+    """The ECU's functions by name (None where the configuration leaves one out)."""
+
+    throttle: ThrottleFunction
+    speed: SpeedFunction | None
+    steering: SteeringFunction | None
+    manifold: ManifoldFunction | None
+
+    def enabled(self) -> list[EcuFunction]:
+        return [f for f in (self.throttle, self.speed, self.steering, self.manifold)
+                if f is not None]
+
+
+def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
+                injector: FaultInjector | None = None, truth: bool = False) -> PlantNode:
+    """The simulated vehicle with the parts config asks for; truth=True adds the debug truth
+    frames (dbc/vecu_truth.dbc) so that a recorded trace can be scored on its own."""
+    rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
+    injector = injector if injector is not None else FaultInjector(rngs["faults"])
+    parts: list[PlantPart] = [ThrottlePart(
+        codec, ThrottlePlant(ThrottlePlantConfig(noise_scale=config.noise_scale),
+                             rngs["throttle.plant"]),
+        InputGenerator(InputConfig(), rngs["throttle.input"]), injector,
+        config.throttle.calibration)]
+    if config.speed:
+        parts.append(LongitudinalPart(codec, config.seed))
+    if config.steering:
+        parts.append(LateralPart(codec, config.seed, config.duration_s, injector))
+    plant = PlantNode(bus, codec, injector, parts)
+    if config.manifold:
+        plant.manifold = ManifoldPart(codec, config.seed)
+    if truth:
+        plant.enable_truth(codec)
+    return plant
+
+
+def build_functions(config: RunConfig, codec: DbcCodec) -> EcuFunctions:
+    estimator = make_throttle_estimator(config.estimator, noise_scale=config.noise_scale)
+    return EcuFunctions(
+        throttle=ThrottleFunction(codec, estimator, config.throttle),
+        speed=SpeedFunction(codec) if config.speed else None,
+        steering=SteeringFunction(codec) if config.steering else None,
+        manifold=ManifoldFunction(codec, config.manifold_filter) if config.manifold else None)
+
+
+def schedule_plant(sched: Scheduler, plant: PlantNode) -> None:
+    sched.every(TICK_NS, plant.tick, name="plant", priority=PRIO_PLANT)
+    if plant.manifold is not None:
+        sched.chain(0, plant.engine_event, name="engine-events", priority=PRIO_PLANT)
+
+
+def schedule_ecu(sched: Scheduler, ecu: EcuNode):
+    return sched.every(TICK_NS, ecu.tick, name="ecu", priority=PRIO_ECU)
