@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import can
 
@@ -17,12 +18,15 @@ class BusNode:
         self.node_name = name
         self.frames_sent = 0
         self.send_errors = 0
+        self.tap: Callable[[can.Message], None] | None = None  # sees every frame sent (replay --out)
         self._log = logging.getLogger(f"vecu.{name}")
 
     def _send(self, msg: can.Message) -> bool:
         try:
             self.bus.send(msg)
             self.frames_sent += 1
+            if self.tap is not None:
+                self.tap(msg)
             return True
         except can.CanError as exc:
             self.send_errors += 1

@@ -18,12 +18,15 @@ import can
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec, FrameCodec
 from vecu.e2e import AliveCounterCheck
+from vecu.ecu.sensor_monitor import Dtc, SensorMonitor
 from vecu.node import BusNode
 
 log = logging.getLogger(__name__)
 
 MAX_LOGGED_PER_KIND = 20  # rx problems logged individually before going quiet (still counted)
 Send = Callable[[can.Message], bool]
+BUS_ERROR_LIMIT = 10  # error frames per ECU_Status period (100 ms) that confirm the bus DTC
+BUS_DTC_HEAL_MS = 5000.0
 
 
 @dataclass
@@ -75,27 +78,75 @@ class EcuFunction(Protocol):
     def status_signals(self) -> dict[str, int]: ...
 
 
+@dataclass(frozen=True)
+class Route:
+    """How one received CAN ID reaches the functions: its codec, the subscription, the alive
+    counter check (E2E messages) and the functions it feeds (armed by its first frame)."""
+
+    codec: FrameCodec
+    subscription: Subscription
+    counter: AliveCounterCheck | None
+    feeds: tuple[EcuFunction, ...]
+
+
+def native_routes(codec: DbcCodec, functions: list[EcuFunction]) -> dict[tuple[int, bool], Route]:
+    """Each function consumes its subscribed messages of vecu's own DBC."""
+    routes = {}
+    for fn in functions:
+        for sub in fn.subscriptions():
+            fc = codec[sub.message]
+            counter = AliveCounterCheck() if fc.e2e is not None else None
+            routes[(fc.frame_id, fc.is_extended)] = Route(fc, sub, counter, (fn,))
+    return routes
+
+
 class EcuNode(BusNode):
     """The virtual ECU; call tick(t_ns) from a 1 ms scheduler task."""
 
-    def __init__(self, bus: can.BusABC, codec: DbcCodec, functions: list[EcuFunction]) -> None:
+    def __init__(self, bus: can.BusABC, codec: DbcCodec, functions: list[EcuFunction], *,
+                 routes: dict[tuple[int, bool], Route] | None = None,
+                 rx_codec: DbcCodec | None = None, arm_on_input: bool = False) -> None:
+        """codec encodes the ECU's own frames. By default the functions consume their messages
+        of that codec; `routes` (trace replay with a signal map) replaces that table, and
+        `rx_codec` is the database that tells an ignored (known) ID from an unknown one.
+
+        Functions run from boot (a missing sensor is then a timeout); with arm_on_input (trace
+        replay) each one starts at its first accepted input, so a trace without a function's
+        inputs gives no estimates from nothing."""
         super().__init__(bus, "ecu")
         self.codec = codec
+        self.rx_codec = rx_codec if rx_codec is not None else codec
         self.functions = functions
         self.rx = RxCounters()
         self.overruns = 0  # set by the runner from the scheduler's count
-        self._consumers: dict[tuple[int, bool], tuple[FrameCodec, Subscription,
-                                                      AliveCounterCheck | None]] = {}
-        for fn in functions:
-            for sub in fn.subscriptions():
-                fc = codec[sub.message]
-                counter = AliveCounterCheck() if fc.e2e is not None else None
-                self._consumers[(fc.frame_id, fc.is_extended)] = (fc, sub, counter)
+        self._consumers = routes if routes is not None else native_routes(codec, functions)
+        self._armed: list[EcuFunction] = [] if arm_on_input else list(functions)
+        self._armed_by: set[int] = set() if arm_on_input else {id(r) for r in self._consumers.values()}
         self._status = codec["ECU_Status"]
         self._status_period_ns = int((self._status.cycle_time_ms or 100) * NS_PER_MS)
         self._next_status_ns = 0
         self._status_counter = 0
+        # diagnostics (ECU_Diag): the functions' sensor monitors and the bus-error DTC
+        self.monitors: dict[str, SensorMonitor] = {}
+        for fn in functions:
+            self.monitors.update(getattr(fn, "monitors", dict)())
+        self.bus_dtc = Dtc(heal_ms=BUS_DTC_HEAL_MS)
+        self._diag = codec["ECU_Diag"] if "ECU_Diag" in codec else None
+        self._diag_dirty = False
+        self._diag_counter = 0
+        self._errors_seen = 0
+        for dtc in [m.dtc_item for m in self.monitors.values()] + [self.bus_dtc]:
+            dtc.on_change = self._mark_diag
         self._logged: dict[str, int] = {}
+
+    @property
+    def armed(self) -> list[EcuFunction]:
+        """Functions that run (all, unless arm_on_input and no input has arrived yet)."""
+        return list(self._armed)
+
+    def _arm(self, route: Route) -> None:
+        self._armed_by.add(id(route))
+        self._armed = [f for f in self.functions if f in self._armed or f in route.feeds]
 
     def function(self, name: str) -> EcuFunction | None:
         return next((f for f in self.functions if f.name == name), None)
@@ -119,9 +170,9 @@ class EcuNode(BusNode):
                 self._problem("error-frame", msg)
                 return
             key = (msg.arbitration_id, msg.is_extended_id)
-            entry = self._consumers.get(key)
-            if entry is None:
-                if key in self.codec.by_id:
+            route = self._consumers.get(key)
+            if route is None:
+                if key in self.rx_codec.by_id:
                     rx.ignored += 1
                 else:
                     rx.unknown_id += 1
@@ -131,14 +182,14 @@ class EcuNode(BusNode):
                 rx.remote_frames += 1
                 self._problem("remote-frame", msg)
                 return
-            self._validate_and_deliver(msg, t_ns, *entry)
+            self._validate_and_deliver(msg, t_ns, route)
         except Exception as exc:  # a decoder or function bug must not stop the ECU
             rx.malformed += 1
             self._problem("malformed", msg, f"{type(exc).__name__}: {exc}")
 
-    def _validate_and_deliver(self, msg: can.Message, t_ns: int, fc: FrameCodec,
-                              sub: Subscription, counter: AliveCounterCheck | None) -> None:
+    def _validate_and_deliver(self, msg: can.Message, t_ns: int, route: Route) -> None:
         rx = self.rx
+        fc, sub, counter = route.codec, route.subscription, route.counter
         data = msg.data
         if len(data) != fc.length:
             rx.dlc_errors += 1
@@ -165,18 +216,51 @@ class EcuNode(BusNode):
             return
         rx.accepted += 1
         sub.on_values(values, t_ns)
+        if id(route) not in self._armed_by:
+            self._arm(route)
 
     # ------------------------------------------------------------------- tick
     def tick(self, t_ns: int) -> None:
         recv = self.bus.recv
         while (msg := recv(0.0)) is not None:
             self.receive(msg, t_ns)
-        for fn in self.functions:
+        for fn in self._armed:
             if t_ns % fn.period_ns == 0:
                 fn.run(t_ns, self._send)
         if t_ns >= self._next_status_ns:
             self._next_status_ns += self._status_period_ns
             self._send_status(t_ns / NS_PER_S)
+            self._bus_diagnosis(t_ns)
+            self._send_diag(t_ns, on_change=False)
+        elif self._diag_dirty:
+            self._send_diag(t_ns, on_change=True)
+
+    def _mark_diag(self) -> None:
+        self._diag_dirty = True
+
+    def _bus_diagnosis(self, t_ns: int) -> None:
+        """Error frames per status period: pending on any, confirmed at BUS_ERROR_LIMIT."""
+        errors = self.rx.error_frames - self._errors_seen
+        self._errors_seen = self.rx.error_frames
+        self.bus_dtc.report(t_ns, errors >= BUS_ERROR_LIMIT, errors > 0, errors == 0)
+
+    def _send_diag(self, t_ns: int, on_change: bool) -> None:
+        """ECU_Diag: DTC state and status per monitored sensor (0 when not configured)."""
+        self._diag_dirty = False
+        if self._diag is None:
+            return
+        signals = {"DIAG_Counter": self._diag_counter, "DIAG_BusDtc": int(self.bus_dtc.state),
+                   "DIAG_ErrorFrames": min(self.rx.error_frames, 255),
+                   "DIAG_OnChange": int(on_change)}
+        confirmations = self.bus_dtc.confirmations
+        for name, prefix in (("tps", "Tps"), ("swa", "Swa"), ("wheel", "Wheel")):
+            mon = self.monitors.get(name)
+            signals[f"DIAG_{prefix}Dtc"] = int(mon.dtc) if mon else 0
+            signals[f"DIAG_{prefix}Status"] = int(mon.status) if mon else 0
+            confirmations += mon.dtc_item.confirmations if mon else 0
+        signals["DIAG_Confirmations"] = min(confirmations, 255)
+        self._send(self._diag.frame(signals, t_ns / NS_PER_S))
+        self._diag_counter = (self._diag_counter + 1) & 0xF
 
     def _send_status(self, ts: float) -> None:
         rx = self.rx

@@ -1,0 +1,122 @@
+"""`vecu replay`: the ECU on a recorded trace, fast (simulated clock) or live onto a bus."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from vecu.bus import BusOpenError
+from vecu.cli import UserInputError
+from vecu.codec import DbcLoadError
+from vecu.recorder import TraceWriteError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "replay", help="run the ECU's estimators on a recorded trace (candump .log, .asc, .blf, ...)",
+        description="Feed a recorded trace (any format python-can reads: .log .asc .blf .trc .csv "
+                    ".mf4, also .gz) into the virtual ECU and write its estimate frames. Fast "
+                    "(default): simulated clock, faster than real time, bit-identical across runs. "
+                    "--speed X: send the trace onto a python-can bus at X times the recorded pace "
+                    "with the ECU listening, and report the schedule error.")
+    p.add_argument("trace", help="trace file")
+    p.add_argument("--dbc", action="append", default=[], metavar="FILE",
+                   help="the trace's DBC (repeatable; default: vecu's own DBCs)")
+    p.add_argument("--map", dest="signal_map", metavar="MAP.toml",
+                   help="signal map: which message.signal of --dbc feeds each ECU input")
+    p.add_argument("--out", metavar="FILE", help="write the ECU's frames; format by suffix")
+    p.add_argument("--with-inputs", action="store_true", help="also copy the trace's frames to --out")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--fast", action="store_true", help="simulated clock (default)")
+    mode.add_argument("--speed", type=float, metavar="X", help="live: replay onto a bus at X times")
+    p.add_argument("--interface", help="python-can interface for --speed (default: config, else virtual)")
+    p.add_argument("--channel", help="python-can channel for --speed")
+    p.add_argument("--format", dest="fmt", metavar="FMT",
+                   help="reader when the suffix does not tell (asc, blf, log, trc, csv, mf4)")
+    p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
+    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
+    p.add_argument("--plot", metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
+    prog = p.add_mutually_exclusive_group()
+    prog.add_argument("--progress", action="store_true", default=None, help="always show progress")
+    prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show progress")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from vecu.replay.engine import ReplayConfig, replay
+    from vecu.replay.signal_map import SignalMapError
+    from vecu.replay.source import TraceReadError
+
+    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    for path in (args.out, args.summary, args.plot):
+        if path and not Path(path).resolve().parent.is_dir():
+            raise UserInputError(f"{path}: directory does not exist")
+    config = ReplayConfig(
+        trace=args.trace, dbc=tuple(args.dbc), signal_map=args.signal_map, out=args.out,
+        with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
+        channel=args.channel, fmt=args.fmt, estimator=args.estimator, progress=args.progress,
+        keep_series=bool(args.plot))
+    try:
+        result = replay(config)
+    except (TraceReadError, SignalMapError, DbcLoadError, TraceWriteError, BusOpenError) as exc:
+        raise UserInputError(str(exc)) from exc
+    except (ValueError, KeyError) as exc:
+        raise UserInputError(f"{args.trace}: {str(exc).strip(chr(39))}") from exc
+    if args.summary:
+        Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
+    if args.plot and result.series is not None:
+        from vecu.replay.plot import plot_replay
+        plot_replay(result.series, args.plot, f"vecu replay {Path(args.trace).name}")
+    if not args.quiet:
+        print(format_summary(result.summary))
+    if result.error:
+        raise UserInputError(result.error)
+    return 0
+
+
+def format_summary(s: dict[str, Any]) -> str:
+    fr = s["frames"]
+    lines = [f"vecu replay ({s['mode']}): {s['trace']}: {s['trace_duration_s']:.3f} s of trace in "
+             f"{s['wall_time_s']:.2f} s ({s['x_realtime']}x real time, {s['frames_per_s']} frames/s)",
+             f"frames: read {fr['read']}, decoded {fr['decoded']} (truth {fr['truth']}), unknown id "
+             f"{fr['unknown_id']}, error frames {fr['error_frames']}, remote {fr['remote_frames']}, "
+             f"rejected {fr['rejected']}"
+             + (f" ({', '.join(f'{k} {v}' for k, v in fr['rejected_by_reason'].items())})"
+                if fr["rejected"] else "")
+             + (f"; out of order {fr['out_of_order']} (re-ordered), late {fr['late']}"
+                if fr["out_of_order"] or fr["late"] else "")]
+    for name, f in s["functions"].items():
+        if not f["enabled"] or not f["ran"]:
+            lines.append(f"{name}: {f['reason']}")
+        else:
+            lines.append(f"{name}: {f['estimates_sent']} estimates")
+    lines += [f"note: {n}" for n in s["map"]["notes"]]
+    score = s.get("score")
+    if score:
+        th, sp, st, mf = (score.get(k) for k in ("throttle", "speed", "steering", "manifold"))
+        if th:
+            lines.append(f"score throttle: broadcast RMS {th['broadcast_error_deg']['rms']:.2f} deg, "
+                         f"estimator {th['estimate_error_deg']['rms']:.2f} deg, after fallback "
+                         f"{th['fallback_error_deg']['rms']:.2f} deg ({th['fallback_error_deg']['n']} ticks)")
+        if sp:
+            lines.append(f"score speed: RMS {sp['speed_error_kmh']['rms']:.3f} km/h, "
+                         f"accel {sp['accel_error_mps2']['rms']:.3f} m/s^2")
+        if st:
+            lines.append(f"score steering: SWA broadcast RMS {st['swa_broadcast_error_deg']['rms']:.2f} "
+                         f"deg, UKF {st['swa_estimate_error_deg']['rms']:.2f} deg, side-slip "
+                         f"{st['side_slip_error_deg']['rms']:.3f} deg")
+        if mf:
+            lines.append(f"score manifold: MAP RMS {mf['map_error_kpa']['rms']:.3f} kPa, "
+                         f"IMT {mf['imt_error_k']['rms']:.2f} K, CAC {mf['cac_error_mg']['rms']:.2f} mg")
+    if "schedule_error_ms" in s:
+        e = s["schedule_error_ms"]
+        lines.append(f"schedule error: p50 {e['p50']} ms, p99 {e['p99']} ms, max {e['max']} ms "
+                     f"over {e['n']} frames")
+    if s.get("frames_written"):
+        lines.append(f"wrote {s['frames_written']} frames to {s['config']['out']}")
+    return "\n".join(lines)

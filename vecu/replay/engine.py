@@ -1,0 +1,364 @@
+"""Trace replay: the ECU (alone, no plant) on the scheduler, fed by a recorded trace.
+
+Fast mode (default): the simulated clock; the trace's frames reach EcuNode.receive() at their
+timestamps, in order, ahead of the ECU's 1 ms tick due at the same time (as in a live run, where
+the plant sends before the ECU runs), so a trace recorded by `vecu run --log` replays to the same
+estimates. Live mode (speed X): the wall clock; a player bus sends every frame at X times its
+recorded pace onto a python-can bus, the ECU listens on its own bus; each frame's schedule error
+is measured. One event loop either way: vecu.scheduler.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import can
+
+from vecu.assembly import PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
+from vecu.bus import open_bus
+from vecu.clock import NS_PER_S, SimClock, WallClock
+from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
+from vecu.config import RunConfig
+from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
+from vecu.recorder import TraceWriteError
+from vecu.replay.scoring import TruthScorer
+from vecu.replay.signal_map import SignalMap, identity_map, load_signal_map, mapped_routes
+from vecu.replay.source import TraceReadError, TraceSource
+from vecu.scheduler import Scheduler
+from vecu.stats import LatencyHistogram
+
+log = logging.getLogger(__name__)
+
+CHUNK_NS = NS_PER_S  # fast mode runs the scheduler a simulated second at a time (progress)
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    trace: str
+    dbc: tuple[str, ...] = ()          # the trace's databases; default: vecu's own (+ truth)
+    signal_map: str | None = None       # TOML: which message.signal feeds which ECU input
+    out: str | None = None              # estimate frames (python-can writer by suffix)
+    with_inputs: bool = False           # also copy the trace's frames into `out`
+    speed: float | None = None          # None: fast (simulated clock); X: live at X times
+    interface: str | None = None
+    channel: str | None = None
+    fmt: str | None = None              # reader format when the suffix does not tell
+    estimator: str = "production"
+    manifold_filter: str = "sdkf"
+    progress: bool | None = None        # None: when stderr is a terminal
+    keep_series: bool = False           # estimate/truth rows for a plot (ReplayResult.series)
+
+    def validate(self) -> None:
+        if self.speed is not None and not (self.speed > 0 and self.speed < 1e4):
+            raise ValueError(f"--speed must be in (0, 10000), got {self.speed}")
+
+
+@dataclass
+class FrameTally:
+    """What happened to each frame of the trace (each lands in exactly one of the bins)."""
+
+    to_ecu: int = 0          # handed to the ECU: its rx counters say accepted / ignored / why not
+    truth: int = 0           # debug truth frames (scoring)
+    decoded_other: int = 0   # known to the trace's database, not an ECU input, decoded fine
+    decode_errors: dict[str, int] = field(default_factory=dict)  # known, not decodable: reason
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    summary: dict[str, Any]
+    error: str | None  # a read error (the summary covers everything before it)
+    series: dict[str, list[tuple[float, float, float]]] | None = None
+
+
+def replay(config: ReplayConfig) -> ReplayResult:
+    """Replay config.trace through the ECU; see the module docstring."""
+    config.validate()
+    ecu_codec = DbcCodec()
+    trace_db = _trace_database(config.dbc, ecu_codec)
+    smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
+            else identity_map(trace_db))
+    run_cfg = RunConfig(estimator=config.estimator, manifold_filter=config.manifold_filter,
+                        kill_tps_at_s=None)
+    functions = [f for f in build_functions(run_cfg, ecu_codec).enabled()
+                 if f.name not in smap.disabled]
+    routes = _routes(config, smap, trace_db, ecu_codec, functions)
+    source = TraceSource(config.trace, config.fmt)
+    live = config.speed is not None
+    writer = _open_writer(config.out)
+    buses: list[can.BusABC] = []
+    try:
+        clock = WallClock() if live else SimClock()
+        sched = Scheduler(clock)
+        scorer = TruthScorer(ecu_codec, keep_series=config.keep_series)
+        if live:
+            bus_args = dict(interface=config.interface, channel=config.channel)
+            player_bus = open_bus(**bus_args)
+            ecu_bus = open_bus(**bus_args)
+            buses += [player_bus, ecu_bus]
+        else:
+            ecu_bus = _SinkBus()
+        ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
+                      arm_on_input=True)
+        t0_holder: list[float] = []
+        written = [0]
+
+        def on_sent(msg: can.Message) -> None:
+            t_ns = clock.now_ns() if not live else int(round(msg.timestamp * NS_PER_S))
+            scorer.on_estimate(msg, t_ns)
+            if writer is not None:
+                msg.timestamp += t0_holder[0] if t0_holder else 0.0
+                writer.on_message_received(msg)
+                written[0] += 1
+        ecu.tap = on_sent
+        tally = FrameTally()
+        feeder = _Feeder(source, ecu, trace_db, scorer, tally, routes, t0_holder,
+                         writer if config.with_inputs else None, written)
+        if live:
+            feeder.player = player_bus
+            feeder.speed = config.speed
+            feeder.clock = clock
+        sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
+        ecu_task = schedule_ecu(sched, ecu)
+        show = config.progress if config.progress is not None else sys.stderr.isatty()
+        wall0 = time.perf_counter()
+        clock.start()
+        end_ns = 0
+        while not feeder.done:
+            end_ns += CHUNK_NS
+            sched.run_until(int(end_ns / (config.speed or 1.0)) if live else end_ns)
+            if show:
+                _progress(source, feeder, wall0)
+        # up to the first tick at or after the last frame, so that its estimates go out
+        last = feeder.last_ns if not live else int(feeder.last_ns / config.speed)
+        sched.run_until(-(-last // TICK_NS) * TICK_NS + 1)
+        wall = time.perf_counter() - wall0
+        if show:
+            sys.stderr.write("\n")
+        ecu.overruns = ecu_task.overruns
+    finally:
+        if writer is not None:
+            try:
+                writer.stop()
+            except Exception as exc:  # noqa: BLE001
+                log.error("%s: closing the output failed: %s", config.out, exc)
+        for bus in buses:
+            bus.shutdown()
+        if not live:
+            ecu_bus.shutdown()
+    summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
+                       written[0])
+    return ReplayResult(summary, source.error, scorer.series)
+
+
+# ------------------------------------------------------------------ pieces
+class _SinkBus(can.BusABC):
+    """The fast-mode ECU's bus: nothing to receive (frames are handed in), sends go to the tap."""
+
+    def __init__(self) -> None:
+        super().__init__(channel="replay")
+        self.channel_info = "vecu replay sink"
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        pass
+
+    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+        return None, False
+
+    def recv(self, timeout: float | None = None) -> None:  # type: ignore[override]
+        return None
+
+
+class _Feeder:
+    """Scheduler chain task: hands every frame due by now to the ECU (fast) or the bus (live)."""
+
+    def __init__(self, source: TraceSource, ecu: EcuNode, db: DbcCodec, scorer: TruthScorer,
+                 tally: FrameTally, routes: dict[tuple[int, bool], Route], t0: list[float],
+                 copy_to: can.Listener | None, written: list[int]) -> None:
+        self.frames: Iterator[tuple[int, can.Message]] = iter(source)
+        self.source, self.ecu, self.db, self.scorer, self.tally = source, ecu, db, scorer, tally
+        self.routes = routes
+        self.t0 = t0
+        self.copy_to = copy_to
+        self.written = written
+        self.done = False
+        self.last_ns = 0
+        self.player: can.BusABC | None = None
+        self.speed = 1.0
+        self.clock: WallClock | None = None
+        self.schedule_error = LatencyHistogram()
+        self._pending = next(self.frames, None)
+        if self._pending is None:
+            self.done = True
+
+    def release(self, now_ns: int) -> int | None:
+        pending = self._pending
+        frames = self.frames
+        live = self.player is not None
+        while pending is not None:
+            t_ns, msg = pending
+            due = int(t_ns / self.speed) if live else t_ns
+            if due > now_ns:
+                break
+            if not self.t0 and self.source.t0_s is not None:
+                self.t0.append(self.source.t0_s)
+            if live:
+                self._send_live(msg, due)
+            else:
+                self._deliver(msg, t_ns)
+            if self.copy_to is not None:
+                self.copy_to.on_message_received(msg)
+                self.written[0] += 1
+            self.last_ns = t_ns
+            pending = next(frames, None)
+        self._pending = pending
+        if pending is None:
+            self.done = True
+            return None
+        return max(now_ns + 1, int(pending[0] / self.speed) if live else pending[0])
+
+    def _deliver(self, msg: can.Message, t_ns: int) -> None:
+        key = (msg.arbitration_id, msg.is_extended_id)
+        tally = self.tally
+        if key in self.scorer.truth_ids and not msg.is_error_frame and not msg.is_remote_frame:
+            tally.truth += 1
+            self.scorer.on_truth(msg, t_ns)
+            return
+        if key in self.routes or key not in self.db.by_id or msg.is_error_frame \
+                or msg.is_remote_frame:
+            tally.to_ecu += 1
+            self.ecu.receive(msg, t_ns)
+            return
+        fc = self.db.by_id[key]  # known, not an input: decode it to count it honestly
+        reason = None
+        if len(msg.data) != fc.length:
+            reason = "dlc"
+        else:
+            try:
+                fc.decode(msg.data)
+            except Exception as exc:  # noqa: BLE001
+                reason = type(exc).__name__
+        if reason is None:
+            tally.decoded_other += 1
+        else:
+            tally.decode_errors[reason] = tally.decode_errors.get(reason, 0) + 1
+
+    def _send_live(self, msg: can.Message, due_ns: int) -> None:
+        assert self.player is not None and self.clock is not None
+        try:
+            self.player.send(msg)
+            self.tally.to_ecu += 1
+        except can.CanError as exc:
+            self.tally.decode_errors["send_failed"] = self.tally.decode_errors.get(
+                "send_failed", 0) + 1
+            log.warning("replay: send failed: %s", exc)
+        self.schedule_error.add(self.clock.now_ns() - due_ns)
+
+
+def _trace_database(paths: tuple[str, ...], ecu_codec: DbcCodec) -> DbcCodec:
+    """The user's DBCs (plus vecu's truth DBC when its IDs are free), or vecu's own."""
+    if not paths:
+        return ecu_codec
+    db = DbcCodec(list(paths))
+    truth = DbcCodec([builtin_dbc_path(TRUTH_DBC)])
+    if not any(key in db.by_id for key in truth.by_id):
+        db = DbcCodec([*paths, builtin_dbc_path(TRUTH_DBC)])
+    return db
+
+
+def _routes(config: ReplayConfig, smap: SignalMap, trace_db: DbcCodec, ecu_codec: DbcCodec,
+            functions: list[EcuFunction]) -> dict[tuple[int, bool], Route]:
+    if config.signal_map:
+        return mapped_routes(smap, trace_db, ecu_codec, {f.name: f for f in functions})
+    # vecu's own messages: the ECU's native table (E2E checks included), for the messages the
+    # trace's database has
+    routes = native_routes(ecu_codec, functions)
+    return {k: r for k, r in routes.items() if r.codec.name in trace_db
+            and (trace_db[r.codec.name].frame_id, trace_db[r.codec.name].is_extended) == k}
+
+
+def _open_writer(path: str | None) -> can.Listener | None:
+    if path is None:
+        return None
+    try:
+        return can.Logger(path)
+    except (ValueError, OSError, ImportError) as exc:
+        raise TraceWriteError(f"{path}: cannot write: {exc}") from exc
+
+
+def _progress(source: TraceSource, feeder: _Feeder, wall0: float) -> None:
+    done = source.bytes_read()
+    size = source.size_bytes
+    sim = feeder.last_ns / NS_PER_S
+    wall = time.perf_counter() - wall0
+    rate = f"{sim / wall:6.1f}x" if wall > 0 else ""
+    if done is not None and size:
+        frac = min(done / size, 1.0)
+        bar = "#" * int(frac * 30)
+        sys.stderr.write(f"\r[{bar:<30}] {frac * 100:5.1f}%  {sim:8.1f} s  {rate}")
+    else:
+        sys.stderr.write(f"\r{source.stats.frames_read} frames  {sim:8.1f} s  {rate}")
+    sys.stderr.flush()
+
+
+def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: FrameTally,
+             ecu: EcuNode, smap: SignalMap, functions: list[EcuFunction], scorer: TruthScorer,
+             wall_s: float, written: int) -> dict[str, Any]:
+    rx = ecu.rx.as_dict()
+    sim_s = feeder.last_ns / NS_PER_S
+    st = source.stats
+    rejected = {k: v for k, v in rx.items()
+                if k in ("dlc_errors", "crc_errors", "counter_errors", "value_errors",
+                         "malformed") and v}
+    rejected.update({f"decode_{k}": v for k, v in tally.decode_errors.items()})
+    armed = {f.name for f in ecu.armed}
+    fn_report: dict[str, Any] = {}
+    for name in ("throttle", "speed", "steering", "manifold"):
+        if name in smap.disabled:
+            fn_report[name] = {"enabled": False, "reason": smap.disabled[name]}
+        else:
+            fn = next((f for f in functions if f.name == name), None)
+            fn_report[name] = {"enabled": True, "ran": name in armed,
+                               "estimates_sent": getattr(fn, "estimates_sent", None)}
+            if name not in armed:
+                fn_report[name]["reason"] = "no input frames in the trace"
+    out: dict[str, Any] = {
+        "trace": config.trace,
+        "mode": "live" if config.speed is not None else "fast",
+        "config": {k: v for k, v in asdict(config).items() if k not in ("progress", "keep_series")},
+        "error": source.error,
+        "frames": {
+            "read": st.frames_read,
+            "decoded": rx["accepted"] + tally.truth + tally.decoded_other,
+            "ignored_known": rx["ignored"],
+            "unknown_id": rx["unknown_id"],
+            "error_frames": rx["error_frames"],
+            "remote_frames": rx["remote_frames"],
+            "rejected": sum(rejected.values()),
+            "rejected_by_reason": rejected,
+            "truth": tally.truth,
+            "out_of_order": st.out_of_order,
+            "late": st.late,
+            "non_finite_time": st.non_finite_time,
+            "ecu_rx": rx,
+        },
+        "functions": fn_report,
+        "map": {"file": config.signal_map, "notes": list(smap.notes)},
+        "trace_duration_s": round(sim_s, 6),
+        "wall_time_s": round(wall_s, 4),
+        "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
+        "frames_per_s": round(st.frames_read / wall_s) if wall_s > 0 else None,
+        "frames_written": written,
+        "ecu_overruns": ecu.overruns,
+        "score": scorer.summary() if scorer.active else None,
+    }
+    if config.speed is not None:
+        out["schedule_error_ms"] = feeder.schedule_error.summary_ms()
+    return out
+
+
+__all__ = ["ReplayConfig", "ReplayResult", "replay", "TraceReadError", "FrameTally"]

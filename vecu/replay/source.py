@@ -1,0 +1,201 @@
+"""Trace input: python-can's readers (chosen by suffix) behind one iterator that never raises
+mid-run, puts frames on a relative nanosecond time base, orders them by timestamp within a window,
+and finds truncated files.
+
+Out-of-order timestamps (decision, docs/replay.md): frames are re-ordered inside a sliding window of
+REORDER_WINDOW_NS; a frame older than what has already been released is delivered at the current
+time and counted as `late`. Every backwards step in the file is counted as `out_of_order`.
+"""
+
+from __future__ import annotations
+
+import gzip
+import heapq
+import logging
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+
+from vecu.clock import NS_PER_S
+
+log = logging.getLogger(__name__)
+
+REORDER_WINDOW_NS = 50_000_000  # 50 ms: covers multi-channel loggers that flush per channel
+TEXT_SUFFIXES = {".asc", ".log", ".trc", ".csv"}
+
+
+class TraceReadError(Exception):
+    """The trace cannot be read (further); the message names the file and the position."""
+
+
+@dataclass
+class SourceStats:
+    frames_read: int = 0
+    out_of_order: int = 0   # timestamp lower than the previous frame's in the file
+    late: int = 0           # so late that it fell outside the re-order window (delivered now)
+    non_finite_time: int = 0  # NaN/inf timestamps: delivered at the current time
+
+
+def reader_formats() -> list[str]:
+    """File formats python-can reads here (suffixes without the dot), e.g. for --format."""
+    player = can.io.player
+    if hasattr(player, "_update_reader_plugins"):
+        player._update_reader_plugins()
+    return sorted(s.lstrip(".") for s in getattr(player, "MESSAGE_READERS", {}))
+
+
+def open_reader(path: str | Path, fmt: str | None = None) -> can.io.generic.MessageReader:
+    """python-can reader for path: by suffix (.asc .blf .log .trc .csv .mf4, + .gz), or fmt."""
+    path = str(path)
+    if not os.path.exists(path):
+        raise TraceReadError(f"{path}: no such file")
+    try:
+        if fmt is None:
+            return can.LogReader(path)
+        readers = {f: can.io.player.MESSAGE_READERS["." + f] for f in reader_formats()}
+        if fmt not in readers:
+            raise ValueError(f"unknown format {fmt!r} (python-can reads: {', '.join(readers)})")
+        cls = readers[fmt]
+        if path.endswith(".gz"):
+            text = issubclass(cls, can.io.generic.TextIOMessageReader)
+            return cls(gzip.open(path, mode="rt" if text else "rb"))
+        return cls(file=path)
+    except ImportError as exc:
+        raise TraceReadError(f"{path}: this format needs an optional package: {exc}") from exc
+    except Exception as exc:  # noqa: BLE001 - python-can raises many kinds; one line each
+        raise TraceReadError(f"{path}: cannot open trace: {_one_line(exc)}") from exc
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
+
+
+class TraceSource:
+    """Frames of one trace file as (t_ns, message), t_ns relative to the first frame.
+
+    Iterate once. A read error stops the iteration after everything read before it; `error` then
+    holds a one-line description naming the file and the position (frame count, last timestamp).
+    """
+
+    def __init__(self, path: str | Path, fmt: str | None = None,
+                 window_ns: int = REORDER_WINDOW_NS) -> None:
+        self.path = str(path)
+        self.fmt = fmt
+        self.window_ns = window_ns
+        self.stats = SourceStats()
+        self.error: str | None = None
+        self.t0_s: float | None = None  # timestamp of the first frame (the time origin)
+        self._reader = open_reader(self.path, fmt)
+        self.size_bytes = _file_size(self.path)
+
+    # ---------------------------------------------------------------- progress
+    def bytes_read(self) -> int | None:
+        """Best-effort position in the (uncompressed) file for progress display."""
+        f = getattr(self._reader, "file", None)
+        for obj in (getattr(f, "buffer", None), f):
+            try:
+                return int(obj.tell())  # type: ignore[union-attr]
+            except (AttributeError, OSError, ValueError, TypeError):
+                continue
+        return None
+
+    # ---------------------------------------------------------------- iteration
+    def _raw(self) -> Iterator[can.Message]:
+        stats = self.stats
+        it = iter(self._reader)
+        while True:
+            try:
+                msg = next(it)
+            except StopIteration:
+                break
+            except Exception as exc:  # noqa: BLE001 - a corrupt file must not crash the run
+                self.error = (f"{self.path}: unreadable after frame {stats.frames_read}"
+                              f"{self._where()}: {_one_line(exc)}")
+                break
+            stats.frames_read += 1
+            self._last_ts = msg.timestamp
+            yield msg
+        if self.error is None:
+            self.error = self._truncation()
+        try:
+            self._reader.stop()
+        except Exception:  # noqa: BLE001
+            pass
+
+    def _where(self) -> str:
+        ts = getattr(self, "_last_ts", None)
+        return "" if ts is None else f" (last timestamp {ts:.6f} s)"
+
+    def _truncation(self) -> str | None:
+        """Files python-can reads without complaint although they were cut off."""
+        path, suffix = self.path, Path(self.path).suffix.lower()
+        fmt = self.fmt or suffix.lstrip(".")
+        try:
+            if fmt in {s.lstrip(".") for s in TEXT_SUFFIXES} and not path.endswith(".gz"):
+                with open(path, "rb") as f:
+                    f.seek(0, os.SEEK_END)
+                    if f.tell() == 0:
+                        return None
+                    f.seek(-1, os.SEEK_END)
+                    if f.read(1) not in (b"\n", b"\r"):
+                        return (f"{path}: truncated: the last line is incomplete (after frame "
+                                f"{self.stats.frames_read}{self._where()}, byte {f.tell()})")
+            if fmt == "blf":
+                declared = getattr(self._reader, "file_size", 0)
+                actual = self.size_bytes
+                if declared and actual is not None and actual < declared:
+                    return (f"{path}: truncated: {actual} of {declared} bytes the BLF header "
+                            f"declares (after frame {self.stats.frames_read}{self._where()})")
+        except OSError as exc:
+            return f"{path}: {_one_line(exc)}"
+        return None
+
+    def __iter__(self) -> Iterator[tuple[int, can.Message]]:
+        """(t_ns, msg) in timestamp order (within the re-order window)."""
+        stats = self.stats
+        heap: list[tuple[int, int, can.Message]] = []
+        window = self.window_ns
+        released = None  # t_ns of the last frame handed out
+        prev_ts = None
+        seq = 0
+        for msg in self._raw():
+            ts = msg.timestamp
+            if self.t0_s is None:
+                self.t0_s = ts if _finite(ts) else 0.0
+            if not _finite(ts):
+                stats.non_finite_time += 1
+                t_ns = released if released is not None else 0
+            else:
+                if prev_ts is not None and ts < prev_ts:
+                    stats.out_of_order += 1
+                prev_ts = ts
+                t_ns = int(round((ts - self.t0_s) * NS_PER_S))
+                if t_ns < 0:  # earlier than the first frame: deliver at the start
+                    stats.late += 1
+                    t_ns = 0
+            if released is not None and t_ns < released:
+                stats.late += 1
+                t_ns = released
+            heapq.heappush(heap, (t_ns, seq, msg))
+            seq += 1
+            while heap and heap[0][0] <= t_ns - window:
+                released, _, out = heapq.heappop(heap)
+                yield released, out
+        while heap:
+            released, _, out = heapq.heappop(heap)
+            yield released, out
+
+
+def _finite(x: float) -> bool:
+    return x == x and x not in (float("inf"), float("-inf"))
+
+
+def _file_size(path: str) -> int | None:
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return None
