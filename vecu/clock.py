@@ -73,6 +73,13 @@ class WallClock:
     def start(self) -> None:
         self._t0 = self._mono()
 
+    def sibling(self, spin_ns: int) -> WallClock:
+        """A clock on the same time origin with another final spin, for a second thread
+        (spin_ns=0 sleeps the whole wait and so leaves the GIL to the other thread)."""
+        twin = WallClock(spin_ns, self._sleep, self._mono)
+        twin._t0 = self._t0
+        return twin
+
     def now_ns(self) -> int:
         return self._mono() - self._t0
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -34,6 +35,7 @@ from vecu.stats import LatencyHistogram
 
 log = logging.getLogger(__name__)
 
+OUT_CHANNEL = "vecu"  # channel name of the ECU's frames in --out
 CHUNK_NS = NS_PER_S  # fast mode runs the scheduler a simulated second at a time (progress)
 
 
@@ -90,6 +92,8 @@ def replay(config: ReplayConfig) -> ReplayResult:
     source = TraceSource(config.trace, config.fmt)
     live = config.speed is not None
     writer = _open_writer(config.out)
+    if writer is not None and live:  # the player thread copies inputs, the ECU thread estimates
+        writer = _Locked(writer)
     buses: list[can.BusABC] = []
     try:
         clock = WallClock() if live else SimClock()
@@ -112,6 +116,8 @@ def replay(config: ReplayConfig) -> ReplayResult:
             scorer.on_estimate(msg, t_ns)
             if writer is not None:
                 msg.timestamp += t0_holder[0] if t0_holder else 0.0
+                if msg.channel is None:
+                    msg.channel = OUT_CHANNEL
                 writer.on_message_received(msg)
                 written[0] += 1
         ecu.tap = on_sent
@@ -121,21 +127,21 @@ def replay(config: ReplayConfig) -> ReplayResult:
         if live:
             feeder.player = player_bus
             feeder.speed = config.speed
-            feeder.clock = clock
-        sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
         ecu_task = schedule_ecu(sched, ecu)
         show = config.progress if config.progress is not None else sys.stderr.isatty()
         wall0 = time.perf_counter()
-        clock.start()
-        end_ns = 0
-        while not feeder.done:
-            end_ns += CHUNK_NS
-            sched.run_until(int(end_ns / (config.speed or 1.0)) if live else end_ns)
-            if show:
-                _progress(source, feeder, wall0)
-        # up to the first tick at or after the last frame, so that its estimates go out
-        last = feeder.last_ns if not live else int(feeder.last_ns / config.speed)
-        sched.run_until(-(-last // TICK_NS) * TICK_NS + 1)
+        if live:
+            _run_live(sched, clock, feeder, config.speed or 1.0)
+        else:
+            sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
+            end_ns = 0
+            while not feeder.done:
+                end_ns += CHUNK_NS
+                sched.run_until(end_ns)
+                if show:
+                    _progress(source, feeder, wall0)
+            # up to the first tick at or after the last frame, so that its estimates go out
+            sched.run_until(-(-feeder.last_ns // TICK_NS) * TICK_NS + 1)
         wall = time.perf_counter() - wall0
         if show:
             sys.stderr.write("\n")
@@ -171,6 +177,22 @@ class _SinkBus(can.BusABC):
 
     def recv(self, timeout: float | None = None) -> None:  # type: ignore[override]
         return None
+
+
+class _Locked(can.Listener):
+    """A writer shared by the player and ECU threads of a live replay."""
+
+    def __init__(self, inner: can.Listener) -> None:
+        self.inner = inner
+        self.lock = threading.Lock()
+
+    def on_message_received(self, msg: can.Message) -> None:
+        with self.lock:
+            self.inner.on_message_received(msg)
+
+    def stop(self) -> None:
+        with self.lock:
+            self.inner.stop()
 
 
 class _Feeder:
@@ -257,6 +279,45 @@ class _Feeder:
                 "send_failed", 0) + 1
             log.warning("replay: send failed: %s", exc)
         self.schedule_error.add(self.clock.now_ns() - due_ns)
+
+
+def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float) -> None:
+    """The player in its own thread on its own scheduler (same clock origin, sleeping waits) and
+    the ECU on this one: a long ECU tick does not hold back the frames due meanwhile. The GIL
+    switch interval drops to 0.1 ms for the run so that the player gets it within that."""
+    clock.start()
+    player_clock = clock.sibling(spin_ns=0)
+    player = Scheduler(player_clock)
+    player.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
+    feeder.clock = player_clock
+    failure: list[BaseException] = []
+
+    def play() -> None:
+        try:
+            end = 0
+            while not feeder.done:
+                end += CHUNK_NS // 10
+                player.run_until(end)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
+            failure.append(exc)
+            feeder.done = True
+
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)
+    thread = threading.Thread(target=play, name="vecu-replay-player", daemon=True)
+    try:
+        thread.start()
+        end = 0
+        while not feeder.done:
+            end += CHUNK_NS // 10
+            sched.run_until(end)
+        thread.join()
+        last = int(feeder.last_ns / speed)
+        sched.run_until(-(-last // TICK_NS) * TICK_NS + 1)
+    finally:
+        sys.setswitchinterval(previous)
+    if failure:
+        raise failure[0]
 
 
 def _trace_database(paths: tuple[str, ...], ecu_codec: DbcCodec) -> DbcCodec:

@@ -82,8 +82,10 @@ _UNITS: dict[str, tuple[str, float, float]] = {
     "V": ("voltage", 1.0, 0.0), "mV": ("voltage", 1e-3, 0.0),
     "W": ("power", 1.0, 0.0), "kW": ("power", 1e3, 0.0),
 }
-_ALIASES = {"km/hr": "km/h", "kmh": "km/h", "m/sec^2": "m/s^2", "degree": "deg", "degrees": "deg",
-            "deg/sec": "deg/s", "rev/min": "rpm", "kpa": "kPa", "celsius": "degC", "volt": "V"}
+_ALIASES = {"km/hr": "km/h", "kmh": "km/h", "m/sec^2": "m/s^2", "m/s/s": "m/s^2",
+            "degree": "deg", "degrees": "deg", "deg/sec": "deg/s", "degrees/s": "deg/s",
+            "degree/s": "deg/s", "dps": "deg/s", "rev/min": "rpm", "kpa": "kPa",
+            "celsius": "degC", "°c": "degC", "volt": "V", "volts": "V", "watt": "W"}
 
 
 def unit_conversion(src: str, dst: str) -> tuple[float, float]:

@@ -24,7 +24,11 @@ from vecu.clock import NS_PER_S
 log = logging.getLogger(__name__)
 
 REORDER_WINDOW_NS = 50_000_000  # 50 ms: covers multi-channel loggers that flush per channel
-TEXT_SUFFIXES = {".asc", ".log", ".trc", ".csv"}
+# Text formats whose writers end every line (candump -L, CANoe ASC, python-can CSV): a last line
+# without a newline there is a cut-off file, and python-can would read its stub as a short frame.
+# (TRC is left out: PCAN writers may omit the final newline, and python-can's TRC reader skips
+# lines it cannot parse, with its own warning.)
+LINE_TERMINATED = {"asc", "log", "csv"}
 
 
 class TraceReadError(Exception):
@@ -135,7 +139,7 @@ class TraceSource:
         path, suffix = self.path, Path(self.path).suffix.lower()
         fmt = self.fmt or suffix.lstrip(".")
         try:
-            if fmt in {s.lstrip(".") for s in TEXT_SUFFIXES} and not path.endswith(".gz"):
+            if fmt in LINE_TERMINATED and not path.endswith(".gz"):
                 with open(path, "rb") as f:
                     f.seek(0, os.SEEK_END)
                     if f.tell() == 0:

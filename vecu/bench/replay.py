@@ -1,0 +1,122 @@
+"""Replay benchmarks: fast replay x real time against reading the same file with python-can alone,
+and live replay schedule error against python-can's MessageSync player, both in the same run."""
+
+from __future__ import annotations
+
+import hashlib
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+
+from vecu.bus import open_bus
+from vecu.config import RunConfig
+from vecu.replay.engine import ReplayConfig, replay
+from vecu.stats import LatencyHistogram
+
+
+def record_trace(path: str, duration_s: float, seed: int = 0) -> float:
+    """A drive with all four functions, TPS dead at half time, truth frames; returns wall s."""
+    from vecu.runner import run
+    t = time.perf_counter()
+    run(RunConfig(duration_s=duration_s, seed=seed, kill_tps_at_s=duration_s / 2, log_path=path))
+    return time.perf_counter() - t
+
+
+def read_only_seconds(path: str) -> tuple[float, int]:
+    t = time.perf_counter()
+    n = sum(1 for _ in can.LogReader(path))
+    return time.perf_counter() - t, n
+
+
+def bench_fast(path: str, estimator: str) -> dict[str, Any]:
+    read_s, frames = read_only_seconds(path)
+    digests, results = [], []
+    for k in range(2):
+        with tempfile.TemporaryDirectory() as d:
+            out = str(Path(d) / "est.log")
+            res = replay(ReplayConfig(trace=path, out=out, estimator=estimator, progress=False))
+            digests.append(hashlib.sha256(Path(out).read_bytes()).hexdigest())
+        results.append(res.summary)
+    s = min(results, key=lambda r: r["wall_time_s"])
+    return {"trace": Path(path).name, "frames": frames, "trace_s": s["trace_duration_s"],
+            "wall_s": s["wall_time_s"], "x_realtime": s["x_realtime"],
+            "frames_per_s": s["frames_per_s"], "read_only_s": round(read_s, 4),
+            "read_only_frames_per_s": round(frames / read_s),
+            "read_share": round(read_s / s["wall_time_s"], 3),
+            "bit_identical": digests[0] == digests[1], "estimator": estimator}
+
+
+def bench_player_baseline(path: str, seconds: float, channel: str) -> dict[str, Any]:
+    """python-can's MessageSync (what can.player uses) on the same frames, same bus kind: the
+    error of each send against its recorded time."""
+    frames = [m for m in can.LogReader(path) if m.timestamp - 0.0 < seconds]
+    hist = LatencyHistogram()
+    bus = open_bus(interface="virtual", channel=channel)
+    try:
+        t0_rec = frames[0].timestamp
+        start = None
+        for msg in can.MessageSync(frames, timestamps=True, gap=0.0001, skip=60):
+            if start is None:
+                start = time.perf_counter_ns()
+            bus.send(msg)
+            due = start + int((msg.timestamp - t0_rec) * 1e9)
+            hist.add(time.perf_counter_ns() - due)
+    finally:
+        bus.shutdown()
+    return hist.summary_ms()
+
+
+def bench_live(path: str, seconds: float, estimator: str) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as d:
+        short = str(Path(d) / "short.blf")
+        with can.Logger(short) as w:
+            for m in can.LogReader(path):
+                if m.timestamp < seconds:
+                    w.on_message_received(m)
+        baseline = bench_player_baseline(short, seconds, "vecu-bench-player")
+        res = replay(ReplayConfig(trace=short, speed=1.0, channel="vecu-bench-replay",
+                                  estimator=estimator, progress=False))
+    s = res.summary
+    ours = s["schedule_error_ms"]
+    return {"seconds": seconds, "frames": s["frames"]["read"], "vecu": ours,
+            "python_can_player": baseline,
+            "p99_ratio": (round(baseline["p99"] / ours["p99"], 1)
+                          if ours["p99"] and baseline["p99"] else None),
+            "ecu_overruns": s["ecu_overruns"],
+            "ecu_accepted": s["frames"]["ecu_rx"]["accepted"]}
+
+
+def bench_replay(duration_s: float, live_seconds: float, estimator: str) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as d:
+        out: dict[str, Any] = {"duration_s": duration_s}
+        blf = str(Path(d) / "drive.blf")
+        out["record_wall_s"] = round(record_trace(blf, duration_s), 2)
+        log = str(Path(d) / "drive.log")
+        with can.Logger(log) as w:
+            for m in can.LogReader(blf):
+                w.on_message_received(m)
+        out["fast"] = [bench_fast(blf, estimator), bench_fast(log, estimator)]
+        out["live"] = bench_live(blf, live_seconds, estimator)
+    return out
+
+
+def format_replay(r: dict[str, Any]) -> str:
+    lines = [f"Trace replay (recorded {r['duration_s']:.0f} s drive, all four functions, truth "
+             f"frames), target >= 20x; baseline: reading the file with python-can alone:"]
+    for f in r["fast"]:
+        lines.append(f"  {f['trace']:<12} {f['frames']:>8} frames  {f['x_realtime']:>6.1f}x real "
+                     f"time, {f['frames_per_s']:>7} frames/s  (read-only {f['read_only_frames_per_s']}"
+                     f" frames/s = {f['read_share'] * 100:.0f}% of the replay time); "
+                     f"bit-identical: {f['bit_identical']}")
+    lv = r["live"]
+    v, b = lv["vecu"], lv["python_can_player"]
+    lines.append(f"Live replay at 1x on the virtual bus, {lv['seconds']:.0f} s, {lv['frames']} frames "
+                 f"(target p99 <= 1 ms):")
+    lines.append(f"  vecu replay        schedule error p50 {v['p50']} ms, p99 {v['p99']} ms, max "
+                 f"{v['max']} ms; ECU overruns {lv['ecu_overruns']}")
+    lines.append(f"  python-can player  schedule error p50 {b['p50']} ms, p99 {b['p99']} ms, max "
+                 f"{b['max']} ms  (vecu p99 {lv['p99_ratio']}x lower)")
+    return "\n".join(lines)
