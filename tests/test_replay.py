@@ -223,3 +223,13 @@ def test_cantools_decodes_and_python_can_plays_our_log(recorded, tmp_path):
                             timeout=60)
     assert played.returncode == 0, played.stderr
 
+
+
+def test_run_log_carries_truth_frames_unless_told_not_to(tmp_path):
+    truth_ids = {0x7A0, 0x7A1, 0x7A2, 0x7A3}
+    for truth in (True, False):
+        path = tmp_path / f"t{truth}.log"
+        run(RunConfig(duration_s=0.1, kill_tps_at_s=None, log_path=str(path), truth=truth))
+        ids = {m.arbitration_id for m in can.LogReader(str(path))}
+        assert (truth_ids <= ids) is truth and bool(truth_ids & ids) is truth
+        assert {0x100, 0x101, 0x120, 0x130, 0x131, 0x200} <= ids

@@ -50,6 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
+    p.add_argument("--no-truth", dest="truth", action="store_false",
+                   help="leave the debug truth frames (dbc/vecu_truth.dbc) out of --log")
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", metavar="FILE.png", help="write a truth-vs-estimate plot")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -65,7 +67,7 @@ def main(args: argparse.Namespace) -> int:
         duration_s=args.duration, seed=args.seed, noise_scale=args.noise_scale,
         kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at, fault=args.fault, fault_value=args.fault_value,
         estimator=args.estimator, realtime=args.realtime, interface=args.interface,
-        channel=args.channel, bitrate=args.bitrate, log_path=args.log,
+        channel=args.channel, bitrate=args.bitrate, log_path=args.log, truth=args.truth,
         keep_series=bool(args.plot),
         kill_swa_at_s=None if args.kill_swa_at == "half" else args.kill_swa_at,
         swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value)
