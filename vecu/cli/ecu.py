@@ -1,0 +1,190 @@
+"""`vecu ecu`: the virtual ECU alone in its process on a python-can bus, paced by the wall clock."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from collections import deque
+from dataclasses import replace
+from typing import Any
+
+from vecu.cli import UserInputError
+from vecu.live.args import add_live_arguments, check_paths, live_options
+
+MAX_STATUS_CHANGES = 64
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("ecu", help="run the virtual ECU alone, live, on a CAN bus",
+                       description="The virtual ECU in its own process: 1 ms base tick on the wall "
+                                   "clock, estimates broadcast on the bus (see docs/live.md).")
+    add_live_arguments(p)
+    p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
+    p.add_argument("--manifold-filter", default="sdkf", choices=("sdkf", "ekf"),
+                   help="manifold filter (default sdkf)")
+    p.add_argument("--sync-timeout", type=float, default=10.0, metavar="S",
+                   help="wait up to S s for the plant's ETB_Wattmeter frames to put the 1 ms grid "
+                        "just after their arrival; 0: start at once, unaligned (default 10)")
+    p.add_argument("--sync-margin-us", type=float, default=150.0, metavar="US",
+                   help="start each tick US after the late edge of the arrivals (default 150)")
+    p.add_argument("--tps-timeout-cycles", type=int, metavar="N",
+                   help="TPS frames missing for N periods is a timeout fault (default: the "
+                        "monitor's, 3); raise it on a machine that stalls processes")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from vecu.assembly import build_functions, schedule_ecu
+    from vecu.bus import BusOpenError
+    from vecu.codec import DbcCodec
+    from vecu.config import RunConfig
+    from vecu.ecu.node import EcuNode
+    from vecu.ecu.sensor_monitor import SOURCE_SENSOR, SensorStatus
+    from vecu.ecu.throttle_function import ThrottleFunctionConfig
+    from vecu.estimators.registry import EstimatorUnavailableError
+    from vecu.live.process import LiveProcess, warm_up
+    from vecu.live.stats import RunningStats
+    from vecu.live.sync import PhaseSync, sync_to_trigger
+    from vecu.recorder import TraceWriteError
+
+    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    problem = check_paths(args.log, args.summary, args.ready_file)
+    if problem:
+        raise UserInputError(problem)
+    if not 0.0 <= args.sync_timeout <= 3600.0:
+        raise UserInputError(f"--sync-timeout: expected 0..3600 s, got {args.sync_timeout}")
+    throttle_cfg = ThrottleFunctionConfig()
+    if args.tps_timeout_cycles is not None:
+        if not 1 <= args.tps_timeout_cycles <= 10_000:
+            raise UserInputError(f"--tps-timeout-cycles: expected 1..10000, got "
+                                 f"{args.tps_timeout_cycles}")
+        throttle_cfg = replace(throttle_cfg, tps_monitor=replace(
+            throttle_cfg.tps_monitor, timeout_cycles=args.tps_timeout_cycles))
+    config = RunConfig(duration_s=args.duration or 1.0, seed=args.seed, throttle=throttle_cfg,
+                       noise_scale=args.noise_scale, kill_tps_at_s=None, estimator=args.estimator,
+                       speed=not args.no_speed, steering=not args.no_steering,
+                       manifold=not args.no_manifold, manifold_filter=args.manifold_filter)
+    codec = DbcCodec()
+    try:
+        config.validate()
+        fns = build_functions(config, codec)
+        proc = LiveProcess(live_options(args, "ecu"), codec, "VECU",
+                           latency=("ETB_Wattmeter", "ECU_ThrottleEstimate"))
+    except (ValueError, KeyError, BusOpenError, TraceWriteError, EstimatorUnavailableError) as exc:
+        raise UserInputError(str(exc).strip("'\"")) from exc
+    summary: dict[str, Any] | None = None
+    try:
+        ecu = EcuNode(proc.bus, codec, fns.enabled())
+        thr = fns.throttle
+        accuracy = RunningStats()
+        meter = proc.meter("ecu")
+        node_tick = ecu.tick
+        ok = SensorStatus.OK
+
+        changes: deque[tuple[int, str]] = deque(maxlen=MAX_STATUS_CHANGES)
+        last = [ok]
+
+        def tick(t_ns: int) -> None:
+            node_tick(t_ns)
+            status = thr.status
+            if status is not last[0]:
+                last[0] = status
+                changes.append((t_ns, status.name.lower()))
+            if thr.source == SOURCE_SENSOR and status == ok:
+                accuracy.add(thr.estimator.theta_deg - thr.angle)
+
+        ecu.tick = meter.wrap(tick)  # type: ignore[method-assign]
+        task = meter.stats = schedule_ecu(proc.sched, ecu)
+        proc.sched.every(10_000_000, lambda t: setattr(ecu, "overruns", task.overruns),
+                         name="overrun-count", priority=45)  # ECU_Status reports them
+        proc.status_lines = lambda: [(
+            f"  throttle: {'sensor' if thr.source == SOURCE_SENSOR else 'ESTIMATE'}, TPS "
+            f"{thr.status.name.lower()}, DTC {thr.monitor.dtc.name.lower()}; rx accepted "
+            f"{ecu.rx.accepted}, rejected {ecu.rx.rejected}, ignored {ecu.rx.ignored}")]
+        warm_up(config)
+        proc.signal_ready()
+        sync = PhaseSync(0, None, None, args.sync_margin_us, None)
+        if args.sync_timeout > 0:
+            watt = codec["ETB_Wattmeter"]
+            sync = sync_to_trigger(proc.bus, (watt.frame_id, watt.is_extended),
+                                   timeout_s=args.sync_timeout, margin_us=args.sync_margin_us,
+                                   arrival_timestamps=proc.bus.latency.arrival_timestamps,
+                                   stop=lambda: proc.stop.is_set)
+        try:
+            proc.run(sync.start_at_perf_ns)
+        finally:
+            ecu.overruns = task.overruns
+            summary = proc.summary(_ecu_summary(proc, ecu, fns, accuracy, sync, changes))
+            proc.write_summary(summary)
+    finally:
+        proc.close()
+    if not args.quiet and summary is not None:
+        print(format_ecu_summary(summary))
+    return 0
+
+
+def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
+    from vecu.clock import NS_PER_S
+
+    thr = fns.throttle
+    mon = thr.monitor
+    meter = proc.meters[0]
+    releases = (meter.stats.runs + meter.stats.skipped) if meter.stats else 0
+    elapsed = max(proc.elapsed_s, 1e-9)
+    first = mon.first_fault_ns
+    lat = proc.bus.latency
+    estimates = {f.name: f.estimates_sent for f in fns.enabled()}
+    return {
+        "sync": sync.as_dict(),
+        "latency_us": {
+            **lat.hist.summary(),
+            "measures": ("ETB_Wattmeter " + ("kernel receive timestamp" if lat.arrival_timestamps
+                                             else "taken from the bus by the ECU")
+                         + " -> return of send() of the next ECU_ThrottleEstimate"),
+        },
+        "rx": ecu.rx.as_dict(),
+        "frames": {"ecu_sent": ecu.frames_sent, "send_errors": ecu.send_errors,
+                   "decoded_per_s": round(ecu.rx.accepted / elapsed, 1),
+                   "answered_per_s": round(ecu.frames_sent / elapsed, 1)},
+        "estimates": estimates,
+        # 1 ms releases without an ECU_ThrottleEstimate (skipped after a stall, or send failed)
+        "lost_throttle_estimates": releases - thr.estimates_sent,
+        "throttle": {
+            "estimator": thr.estimator.name,
+            "estimator_resets": thr.estimator.resets,
+            "estimator_faults": thr.estimator_faults,
+            "estimate_vs_sensor_deg": accuracy.summary(),
+            "first_fault_s": None if first is None else first / NS_PER_S,
+            "first_fault_epoch_s": (None if first is None or proc.start_epoch_s is None
+                                    else proc.start_epoch_s + first / NS_PER_S),
+            "detected_as": mon.first_fault_status.name.lower() if mon.first_fault_status else None,
+            "dtc": mon.dtc.name.lower(),
+            "final_source": "sensor" if thr.source == 0 else "estimate",
+            "final_status": thr.status.name.lower(),
+            # the last TPS status changes: [ECU time s, epoch s, status]
+            "status_changes": [[t / NS_PER_S, None if proc.start_epoch_s is None
+                                else round(proc.start_epoch_s + t / NS_PER_S, 6), name]
+                               for t, name in changes],
+        },
+    }
+
+
+def format_ecu_summary(s: dict[str, Any]) -> str:
+    t = s["ticks"]["ecu"]
+    j, lat, th = t["jitter_us"], s["latency_us"], s["throttle"]
+    fault = ("none" if th["first_fault_s"] is None
+             else f"first {th['detected_as']} at {th['first_fault_s']:.3f} s")
+    lines = [
+        (f"vecu ecu: {s['elapsed_s']:.1f} s on {s['interface']} {s['channel']}, stopped by "
+         f"{s['stopped_by']}; {t['releases']} ticks, {t['overruns']} overruns "
+         f"({t['overrun_pct'] or 0:.3f} %), {s['lost_throttle_estimates']} throttle estimates lost"),
+        (f"  tick jitter p50 {j['p50_us']} p99 {j['p99_us']} max {j['max_us']} us; frame-in -> "
+         f"estimate-out p50 {lat['p50_us']} p99 {lat['p99_us']} max {lat['max_us']} us"),
+        (f"  rx {s['rx']['received']} frames ({s['frames']['decoded_per_s']}/s decoded), rejected "
+         f"{s['rx']['rejected']}, own echo {s['bus']['own_echo']}, rx errors "
+         f"{s['bus']['rx_errors']}; sent {s['frames']['ecu_sent']}"),
+        (f"  throttle: estimate - sensor {th['estimate_vs_sensor_deg']}; TPS fault {fault}; "
+         f"broadcasting the {th['final_source']}"),
+    ]
+    return "\n".join(lines)

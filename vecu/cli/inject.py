@@ -1,0 +1,90 @@
+"""`vecu inject`: send one FI_Command frame to a running plant (fault on, or 'clear')."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from vecu.cli import UserInputError
+from vecu.live.args import add_bus_arguments
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("inject", help="send a fault command (FI_Command) to a running plant",
+                       description="Send one FI_Command frame on the bus; the plant applies it to "
+                                   "the sensor at its next 1 ms tick.")
+    add_bus_arguments(p)
+    p.add_argument("--target", required=True, help="sensor: tps or swa")
+    p.add_argument("--kind", required=True,
+                   help="dead, short_supply, stuck, frames_stop, offset, gain, noise, or clear")
+    p.add_argument("--value", type=float, metavar="X",
+                   help="offset (V for TPS, deg for SWA; default 0.5), gain G in [0,1] (0.5), "
+                        "noise sigma (0.3)")
+    p.add_argument("--at", type=float, default=0.0, metavar="S",
+                   help="send S seconds after this command starts (default: at once)")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=main)
+
+
+def command_values(target: str, kind: str, value: float | None) -> dict[str, float]:
+    """FI_Command signal values; raises ValueError with a clear message on bad input."""
+    import numpy as np
+
+    from vecu.faults import (
+        DEFAULT_VALUES,
+        FaultKind,
+        FaultTarget,
+        make_fault,
+        parse_kind,
+    )
+
+    try:
+        tgt = FaultTarget[target.strip().upper()]
+    except KeyError:
+        raise ValueError(f"unknown target {target!r} (known: "
+                         f"{', '.join(t.name.lower() for t in FaultTarget)})") from None
+    k = FaultKind.CLEAR if kind.strip().lower() == "clear" else parse_kind(kind)
+    if value is not None and not (math.isfinite(value) and -32.768 <= value <= 32.767):
+        raise ValueError(f"--value must be within -32.768..32.767, got {value}")
+    if k != FaultKind.CLEAR:
+        make_fault(k, value, np.random.default_rng(0))  # same checks as the plant applies
+    if value is None:
+        value = DEFAULT_VALUES.get(k, 0.0)
+    return {"FI_Target": int(tgt), "FI_Kind": int(k), "FI_Value": value}
+
+
+def main(args: argparse.Namespace) -> int:
+    from vecu.bus import BusOpenError, open_bus
+    from vecu.clock import NS_PER_S, WallClock
+    from vecu.codec import DbcCodec
+    from vecu.live.options import LiveOptions, bus_config
+
+    if not (math.isfinite(args.at) and 0.0 <= args.at <= 86_400.0):
+        raise UserInputError(f"--at: expected 0..86400 s, got {args.at}")
+    try:
+        values = command_values(args.target, args.kind, args.value)
+    except ValueError as exc:
+        raise UserInputError(str(exc)) from exc
+    try:
+        cfg = bus_config(LiveOptions(role="inject", interface=args.interface,
+                                     channel=args.channel, bitrate=args.bitrate))
+        bus = open_bus(**cfg)
+    except BusOpenError as exc:
+        raise UserInputError(str(exc)) from exc
+    try:
+        clock = WallClock()
+        clock.start()
+        clock.wait_until(round(args.at * NS_PER_S))
+        frame = DbcCodec()["FI_Command"].frame(values, 0.0)
+        try:
+            bus.send(frame, timeout=1.0)
+        except Exception as exc:  # python-can raises CanError subclasses, some interfaces OSError
+            raise UserInputError(f"cannot send FI_Command on {cfg['interface']} "
+                                 f"{cfg['channel']}: {exc}") from exc
+    finally:
+        bus.shutdown()
+    if not args.quiet:
+        print(f"vecu inject: sent FI_Command {args.target} {args.kind}"
+              f"{'' if args.value is None else f' {args.value:g}'} on {cfg['interface']} "
+              f"{cfg['channel']}")
+    return 0

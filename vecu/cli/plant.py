@@ -1,0 +1,140 @@
+"""`vecu plant`: the simulated vehicle alone in its process, sending sensor frames live."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from typing import Any
+
+from vecu.cli import UserInputError
+from vecu.live.args import add_live_arguments, check_paths, live_options
+
+# without --duration the precomputed steering manoeuvre covers this much, then holds its end
+STEERING_HORIZON_S = 900.0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plant", help="run the plant simulator alone, live, on a CAN bus",
+                       description="The plant in its own process: sensor frames on the wall clock "
+                                   "(1 ms base tick), obeying FI_Command frames (see docs/live.md).")
+    add_live_arguments(p)
+    p.add_argument("--truth", action="store_true",
+                   help="also send the debug truth frames (dbc/vecu_truth.dbc)")
+    p.add_argument("--extra-load", type=float, default=0.0, metavar="FRAMES_PER_S",
+                   help="pad the bus with this many extra ESC_Motion frames per second (copies of "
+                        "the current one), for throughput tests; needs the speed part")
+    p.add_argument("--steering-horizon", type=float, default=STEERING_HORIZON_S, metavar="S",
+                   help="without --duration: the precomputed steering manoeuvre covers S s, then "
+                        f"holds its last sample (default {STEERING_HORIZON_S:g})")
+    p.set_defaults(func=main)
+
+
+class ExtraLoad:
+    """Sends copies of the current ESC_Motion frame at a mean rate, spread over the 1 ms ticks."""
+
+    def __init__(self, codec, plant, per_s: float) -> None:
+        from vecu.plant.longitudinal import KMH
+
+        self._msg = codec["ESC_Motion"]
+        self._part = plant.longitudinal
+        self._send = plant._send
+        self._per_tick = per_s / 1000.0
+        self._owed = 0.0
+        self._kmh = KMH
+        self.sent = 0
+
+    def tick(self, t_ns: int) -> None:
+        self._owed += self._per_tick
+        n = int(self._owed)
+        if n <= 0:
+            return
+        self._owed -= n
+        part = self._part
+        frame = self._msg.frame({"ESC_WheelSpeed": part.wheel / self._kmh,
+                                 "ESC_LongAccel": part.accel}, t_ns / 1e9)
+        for _ in range(n):
+            self.sent += self._send(frame)
+
+
+def main(args: argparse.Namespace) -> int:
+    from vecu.assembly import build_plant, schedule_plant
+    from vecu.bus import BusOpenError
+    from vecu.codec import DbcCodec
+    from vecu.config import RunConfig
+    from vecu.live.process import LiveProcess, warm_up
+    from vecu.recorder import TraceWriteError
+
+    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    problem = check_paths(args.log, args.summary, args.ready_file)
+    if problem:
+        raise UserInputError(problem)
+    if not 0.0 <= args.extra_load <= 100_000.0:
+        raise UserInputError(f"--extra-load: expected 0..100000 frames/s, got {args.extra_load}")
+    if args.extra_load and args.no_speed:
+        raise UserInputError("--extra-load sends ESC_Motion copies: it needs the speed part")
+    if not 1.0 <= args.steering_horizon <= 86_400.0:
+        raise UserInputError(f"--steering-horizon: expected 1..86400 s, got {args.steering_horizon}")
+    horizon = args.duration if args.duration is not None else args.steering_horizon
+    config = RunConfig(duration_s=horizon, seed=args.seed, noise_scale=args.noise_scale,
+                       kill_tps_at_s=None, speed=not args.no_speed, steering=not args.no_steering,
+                       manifold=not args.no_manifold)
+    codec = DbcCodec()
+    try:
+        config.validate()
+        proc = LiveProcess(live_options(args, "plant"), codec, "PLANT")
+    except (ValueError, KeyError, BusOpenError, TraceWriteError) as exc:
+        raise UserInputError(str(exc).strip("'\"")) from exc
+    summary: dict[str, Any] | None = None
+    try:
+        plant = build_plant(config, codec, proc.bus, truth=args.truth)
+        extra = ExtraLoad(codec, plant, args.extra_load) if args.extra_load else None
+        meter = proc.meter("plant")
+        node_tick = plant.tick
+
+        def tick(t_ns: int) -> None:
+            node_tick(t_ns)
+            if extra is not None:
+                extra.tick(t_ns)
+
+        plant.tick = meter.wrap(tick)  # type: ignore[method-assign]
+        schedule_plant(proc.sched, plant)
+        meter.stats = next(t for t in proc.sched.stats if t.name == "plant")
+        inj = plant.injector
+        proc.status_lines = lambda: [(
+            f"  faults: TPS {_active(inj, 'TPS')}, SWA {_active(inj, 'SWA')}; commands "
+            f"{sum(e.source == 'can' for e in inj.events)} obeyed, {inj.rejected_commands} rejected")]
+        warm_up(config)
+        proc.signal_ready()
+        try:
+            proc.run()
+        finally:
+            summary = proc.summary({
+                "frames": {"plant_sent": plant.frames_sent, "send_errors": plant.send_errors,
+                           "extra_load_sent": extra.sent if extra else 0,
+                           "sent_per_s": round(plant.frames_sent / max(proc.elapsed_s, 1e-9), 1),
+                           "received": plant.frames_received},
+                "steering_horizon_s": None if args.no_steering else horizon,
+                "fault_events": [{"t_s": e.t_ns / 1e9, "target": e.target.name.lower(),
+                                  "kind": e.kind.name.lower(), "value": e.value,
+                                  "source": e.source} for e in inj.events],
+                "rejected_fault_commands": inj.rejected_commands,
+            })
+            proc.write_summary(summary)
+    finally:
+        proc.close()
+    if not args.quiet and summary is not None:
+        t = summary["ticks"]["plant"]
+        print(f"vecu plant: {summary['elapsed_s']:.1f} s on {summary['interface']} "
+              f"{summary['channel']}, stopped by {summary['stopped_by']}; {t['releases']} ticks, "
+              f"{t['overruns']} overruns, jitter p99 {t['jitter_us']['p99_us']} us; sent "
+              f"{summary['frames']['plant_sent']} frames, {len(summary['fault_events'])} fault "
+              f"commands obeyed, own echo {summary['bus']['own_echo']}")
+    return 0
+
+
+def _active(inj, target: str) -> str:
+    from vecu.faults import FaultTarget
+
+    kind = inj.active(FaultTarget[target])
+    return "ok" if kind is None else kind.name.lower()
