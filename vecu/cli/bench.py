@@ -13,14 +13,22 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Benchmarks: paper UKF step (fast vs straightforward numpy), "
                                    "virtual bus (vecu vs python-can), whole pipeline x real time.")
     p.add_argument("--quick", action="store_true", help="shorter runs (noisier figures)")
-    p.add_argument("--only", choices=("ukf", "bus", "pipeline"), help="run one benchmark group")
+    p.add_argument("--only", choices=("ukf", "bus", "pipeline", "live", "replay", "ecu",
+                                        "breakdown"), help="run one benchmark group")
+    p.add_argument("--live-seconds", type=float, default=10.0, metavar="S",
+                   help="live group: seconds of the plant + ECU processes run (target: 60)")
+    p.add_argument("--memory-minutes", type=float, default=10.0, metavar="M",
+                   help="live group: simulated minutes of the memory-flatness run (target: 60)")
+    p.add_argument("--replay-seconds", type=float, default=60.0, metavar="S",
+                   help="replay group: length of the recorded drive replayed (default 60)")
     p.add_argument("--estimator", default="production",
                    help="ECU estimator for the pipeline run (default production; try arm)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.set_defaults(func=main)
 
 
-def collect(quick: bool, only: str | None, estimator: str) -> dict[str, Any]:
+def collect(quick: bool, only: str | None, estimator: str, live_seconds: float = 10.0,
+            memory_minutes: float = 10.0, replay_seconds: float = 60.0) -> dict[str, Any]:
     from vecu.bench.estimators import (bench_manifold, bench_speed_and_steering,
                                        bench_throttle_ukf)
     from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
@@ -30,15 +38,36 @@ def collect(quick: bool, only: str | None, estimator: str) -> dict[str, Any]:
         out["ukf"] = bench_throttle_ukf(steps=5_000 if quick else 20_000)
         out["filters"] = bench_speed_and_steering(steps=2_000 if quick else 5_000)
         out["manifold"] = bench_manifold(duration_s=10.0 if quick else 80.0)
+        from vecu.bench.estimators import (bench_manifold_function, bench_steering_smoother,
+                                           bench_throttle_production)
+        out["estimators"] = [  # the four ECU estimators against straightforward numpy versions
+            bench_throttle_production(steps=5_000 if quick else 20_000),
+            out["filters"][0],
+            bench_steering_smoother(steps=500 if quick else 2_000),
+            bench_manifold_function(duration_s=10.0 if quick else 40.0)]
     if only in (None, "bus"):
         out["bus"] = bench_virtual_bus(frames=5_000 if quick else 20_000)
     if only in (None, "pipeline"):
         out["pipeline"] = bench_pipeline(duration_s=2.0 if quick else 10.0, estimator=estimator)
+    if only in (None, "ecu"):
+        from vecu.bench.ecu import bench_ecu
+        out["ecu"] = bench_ecu(duration_s=3.0 if quick else 10.0)
+    if only in (None, "breakdown"):
+        from vecu.bench.breakdown import breakdown
+        out["breakdown"] = breakdown(duration_s=2.0 if quick else 5.0)
+    if only in (None, "replay"):
+        from vecu.bench.replay import bench_replay
+        out["replay"] = bench_replay(10.0 if quick else replay_seconds,
+                                     3.0 if quick else 10.0, estimator)
+    if only in (None, "live"):
+        from vecu.bench.live import bench_live
+        out["live"] = bench_live(live_seconds, memory_minutes, 2.0 if quick else 5.0)
     return out
 
 
 def main(args: argparse.Namespace) -> int:
-    res = collect(args.quick, args.only, args.estimator)
+    res = collect(args.quick, args.only, args.estimator, args.live_seconds, args.memory_minutes,
+                  args.replay_seconds)
     if args.json:
         print(json.dumps(res, indent=2))
         return 0
@@ -58,6 +87,11 @@ def main(args: argparse.Namespace) -> int:
         for r in res["manifold"]:
             print(f"  {r['filter']:<8}{r['us_per_event']:>8.0f} us  vs {r['baseline_us']:.0f} us "
                   f"({r['ratio']:.1f}x), budget {r['budget_us']:.0f} us, {r['events']} events")
+    if "estimators" in res:
+        print("ECU estimators, us per step (per engine event for the manifold) vs straightforward numpy:")
+        for r in res["estimators"]:
+            print(f"  {r['filter']:<40}{r['us']:>8.1f} us  vs {r['baseline']} {r['baseline_us']:.1f} us "
+                  f"({r['ratio']:.1f}x)")
     if "bus" in res:
         b = res["bus"]
         print(f"Virtual bus send+recv: vecu {b['vecu_us']} us vs python-can VirtualBus "
@@ -67,4 +101,16 @@ def main(args: argparse.Namespace) -> int:
         for r in res["pipeline"]:
             print(f"  {r['name']:<32} {r['x_realtime']:>7.1f}x real time  ({r['us_per_tick']} us/tick: "
                   f"estimator {r['estimator_us_per_tick']}, CAN/bus/scheduler {r['rest_us_per_tick']})")
+    if "ecu" in res:
+        from vecu.bench.ecu import format_ecu
+        print(format_ecu(res["ecu"]))
+    if "breakdown" in res:
+        from vecu.bench.breakdown import format_breakdown
+        print(format_breakdown(res["breakdown"]))
+    if "replay" in res:
+        from vecu.bench.replay import format_replay
+        print(format_replay(res["replay"]))
+    if "live" in res:
+        from vecu.bench.live import format_live
+        print(format_live(res["live"]))
     return 0

@@ -77,7 +77,11 @@ class ManifoldFunction:
         x = self.filter.step(y, u)
         t1 = time.perf_counter()
         cac = cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, V8_5L7)
-        cac6 = predict_cac(x, [u] * HORIZON, V8_5L7)
+        first = self.filter.last_prediction  # the filter already ran event n+1 from x
+        if first is not None and first[0] is u and self.filter.params is V8_5L7:
+            cac6 = predict_cac(first[1], [u] * (HORIZON - 1), V8_5L7)
+        else:
+            cac6 = predict_cac(x, [u] * HORIZON, V8_5L7)
         self.filter_seconds += t1 - t0
         self.predict_seconds += time.perf_counter() - t1
         self.events += 1

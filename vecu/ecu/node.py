@@ -169,6 +169,10 @@ class EcuNode(BusNode):
                 rx.error_frames += 1
                 self._problem("error-frame", msg)
                 return
+            if msg.is_remote_frame:  # no payload to use, whatever its ID
+                rx.remote_frames += 1
+                self._problem("remote-frame", msg)
+                return
             key = (msg.arbitration_id, msg.is_extended_id)
             route = self._consumers.get(key)
             if route is None:
@@ -177,10 +181,6 @@ class EcuNode(BusNode):
                 else:
                     rx.unknown_id += 1
                     self._problem("unknown-id", msg)
-                return
-            if msg.is_remote_frame:
-                rx.remote_frames += 1
-                self._problem("remote-frame", msg)
                 return
             self._validate_and_deliver(msg, t_ns, route)
         except Exception as exc:  # a decoder or function bug must not stop the ECU

@@ -30,10 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.manifold_model import f
 from vecu.plant.manifold import (
     EngineInput,
+    actuator_coeffs,
     cylinder_air_charge,
+    iat_coeffs,
     integrate_manifold,
     sample_time,
 )
@@ -63,11 +64,22 @@ def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: Manifol
 
 def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
                   params: ManifoldParams = V8_5L7) -> np.ndarray:
-    """x_n+len(inputs) from x_n through the noise-free event map."""
-    x = np.asarray(x, dtype=float)
+    """x_n+len(inputs) from x_n through the noise-free event map (manifold_model.f, written out
+    on plain floats with the event coefficients computed once per event period: same result)."""
+    vals = [float(v) for v in np.asarray(x, dtype=float)]
+    ts_prev = math.nan
     for u in inputs:
-        x = f(x, u, params)
-    return x
+        ts = sample_time(u.n_rpm, params.n_cyl)
+        if ts != ts_prev:
+            a1, a2, b1, b2 = actuator_coeffs(ts, params)
+            a_t, b_t = iat_coeffs(ts, params)
+            ts_prev = ts
+        u_prev, alpha, alpha_prev, p, t, tm = vals
+        p_n, t_n, _ = integrate_manifold(p, t, alpha, u, ts, params)
+        sp = u.ta_sp
+        vals = [sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha, p_n, t_n,
+                a_t * tm + b_t * t]
+    return np.array(vals)
 
 
 def predict_cac(x: np.ndarray, inputs: Sequence[EngineInput],

@@ -128,6 +128,7 @@ class _ManifoldKF:
         self.Q = q_matrix(c.noise)
         self.R = r_matrix(c.noise)
         self._r_diag = np.diag(self.R).copy()
+        self._r_diag_l = self._r_diag.tolist()
         self._P0 = np.diag(np.array(c.p0_diag, dtype=float))
         self._y_idx = np.array(Y_INDEX)
         self._full = np.array([0, 1, 2])
@@ -143,6 +144,7 @@ class _ManifoldKF:
         self._gated_run = [0, 0, 0]
         self._last_u: EngineInput | None = None
         self._last_y = [math.nan, math.nan, math.nan]
+        self.last_prediction: tuple[EngineInput, np.ndarray] | None = None
         self.reset(count=False)
 
     # ---------------------------------------------------------------- state handling
@@ -222,12 +224,16 @@ class _ManifoldKF:
         if not chans:
             return x, P.copy()
         c = self.config
-        yi = self._y_idx
+        yi = Y_INDEX
+        xl = x.tolist()
+        yl = [float(y[i]) for i in range(3)]
+        gate2 = c.gate_sigma * c.gate_sigma
         use = []
         for i in chans:
-            e = float(y[i]) - x[yi[i]]
-            s = P[yi[i], yi[i]] + self._r_diag[i]
-            if e * e > c.gate_sigma * c.gate_sigma * s and self._gated_run[i] < c.max_gated_in_row:
+            j = yi[i]
+            e = yl[i] - xl[j]
+            s = float(P[j, j]) + self._r_diag_l[i]
+            if e * e > gate2 * s and self._gated_run[i] < c.max_gated_in_row:
                 self.gated[i] += 1
                 self._gated_run[i] += 1
             else:
@@ -235,17 +241,55 @@ class _ManifoldKF:
                 use.append(i)
         if not use:
             return x, P.copy()
+        if len(use) == 3 and yi == (1, 3, 5):
+            gain = self._gain_all(P)
+            if gain is not None:  # the usual case: all three channels, S positive definite
+                K, PCt = gain
+                e3 = np.array([yl[0] - xl[1], yl[1] - xl[3], yl[2] - xl[5]])
+                P_post = P - K @ PCt.T
+                return x + K @ e3, 0.5 * (P_post + P_post.T)
         ch = self._full if len(use) == 3 else np.array(use)
-        idx = yi[ch]
+        idx = self._y_idx[ch]
         PCt = P[:, idx]
         S = PCt[idx] + self.R[np.ix_(ch, ch)]
         L = cholesky_lower(S)
         Linv = np.linalg.inv(L)
         K = PCt @ (Linv.T @ Linv)
-        e = np.array([float(y[i]) for i in ch]) - x[idx]
+        e = np.array([yl[i] for i in ch]) - x[idx]
         x = x + K @ e
         P_post = symmetrise(P - K @ PCt.T)
         return x, P_post
+
+    def _gain_all(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(K, P C^T) for all three channels with S^-1 = L^-T L^-1 from an unrolled 3x3 Cholesky
+        in plain floats (what cholesky_lower + inv do, without their per-call overhead); None
+        when S is not finite or not positive definite (the general path then decides)."""
+        PCt = P[:, 1::2]  # columns (1, 3, 5) = Y_INDEX
+        (s00, _, _), (s10, s11, _), (s20, s21, s22) = (PCt[1::2] + self.R).tolist()
+        if not (math.isfinite(s00 + s10 + s11 + s20 + s21 + s22) and s00 > 0.0):
+            return None
+        l00 = math.sqrt(s00)
+        l10, l20 = s10 / l00, s20 / l00
+        d1 = s11 - l10 * l10
+        if not d1 > 0.0:
+            return None
+        l11 = math.sqrt(d1)
+        l21 = (s21 - l20 * l10) / l11
+        d2 = s22 - l20 * l20 - l21 * l21
+        if not d2 > 0.0:
+            return None
+        m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / math.sqrt(d2)  # M = L^-1 (lower)
+        m10 = -l10 * m00 * m11
+        m21 = -l21 * m11 * m22
+        m20 = -(l20 * m00 + l21 * m10) * m22
+        i00 = m00 * m00 + m10 * m10 + m20 * m20  # S^-1 = M^T M
+        i01 = m10 * m11 + m20 * m21
+        i02 = m20 * m22
+        i11 = m11 * m11 + m21 * m21
+        i12 = m21 * m22
+        i22 = m22 * m22
+        s_inv = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
+        return PCt @ s_inv, PCt
 
     def _diverged(self, x: np.ndarray, P: np.ndarray) -> bool:
         """covariance.diverged's criterion, via diverged_floats (cheaper on a 6x6)."""
@@ -261,8 +305,11 @@ class _ManifoldKF:
     # ---------------------------------------------------------------- public
     def step(self, y, u: EngineInput) -> np.ndarray:
         """One engine event: update with y_n (None: predict only), predict with u_n.
-        Returns the posterior x_n|n (a copy)."""
+        Returns the posterior x_n|n (a copy). Afterwards `last_prediction` is (u, f(x_n|n, u))
+        with the event map's output before clamping, or None when the step reset the filter
+        (lets a caller that runs the same model ahead from x_n|n skip that first event)."""
         self.events += 1
+        self.last_prediction = None
         u = self._check_input(u)
         ts = event_dt(u, self.params)
         chans = self._valid_channels(y)
@@ -280,6 +327,7 @@ class _ManifoldKF:
         except (FloatingPointError, ValueError, np.linalg.LinAlgError):
             self.reset(count=True)
             self._initialised = True
+            self.last_prediction = None
         return self.x_post.copy()
 
     @property
@@ -302,6 +350,7 @@ class ManifoldEKF(_ManifoldKF):
 
     def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
         x_n, F = f_and_jacobian(x_post, u, self.params, ts)
+        self.last_prediction = (u, x_n.copy())
         self._clamp(x_n)
         self.x = x_n
         self.P = symmetrise(F @ P_post @ F.T + self.Q)
@@ -347,6 +396,7 @@ class ManifoldSDKF(_ManifoldKF):
 
     def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
         x_n = f(x_post, u, self.params, ts)
+        self.last_prediction = (u, x_n.copy())
         self._clamp(x_n)
         self.x = x_n
 

@@ -222,7 +222,7 @@ def systematic_counts(b: Bank, w: np.ndarray, n_new: int, u0: float) -> np.ndarr
     """Systematic resampling of b.n weighted particles into n_new: the copy count of each
     (floor differences of the scaled cumulative weights; no binary search, no Python loop)."""
     cs, ics, counts = b.cs, b.ics, b.counts
-    np.cumsum(w, out=cs)
+    w.cumsum(out=cs)
     np.multiply(cs, n_new / float(cs[-1]), out=cs)
     cs += u0
     np.floor(cs, out=ics, casting="unsafe")

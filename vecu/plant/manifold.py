@@ -28,11 +28,17 @@ from typing import Protocol
 import numpy as np
 from scipy.optimize import brentq
 
-from vecu.plant.manifold_params import PAPER_NOISE, V8_5L7, ManifoldNoise, ManifoldParams
+from vecu.plant.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA  # noqa: F401 (re-exported)
+from vecu.plant.manifold_integrator import integrate_manifold as _integrate_fast
+from vecu.plant.manifold_params import (
+    PAPER_NOISE,
+    V8_5L7,
+    ManifoldNoise,
+    ManifoldParams,
+)
 from vecu.plant.throttle import rng_streams
 
 N_STATE = 6
-P_FLOOR_KPA = 0.5  # lower guard for P_im inside eta and the integrator (never reached in use)
 
 
 @dataclass(frozen=True)
@@ -290,40 +296,21 @@ def _substeps(dp: float, dtt: float, jpp: float, jtt: float, dt: float, prm: Man
     return min(max(math.ceil(m), 1), prm.max_substeps)
 
 
-ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
-
-
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
     """Advance (P_im, T_im) by dt with alpha and u held (zero-order hold over the event).
 
     M sub-steps (chosen once per event from the stiffness and the rates, `_substeps`), each a
     two-stage Rosenbrock step (ROS2, gamma = 1 + 1/sqrt 2; second order for any W) with the
-    diagonal Jacobian W = diag(min(J_PP, 0), min(J_TT, 0)):
+    diagonal Jacobian W = diag(min(J_PP, 0), min(J_TT, 0)) of `_rhs`:
         k1 = f(x) / (1 - gamma h W),  k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W),
         x += h (1.5 k1 + 0.5 k2).
     The throttle-flow pole (up to ~5000 1/s near pr = 1) is then damped for any h, and the
     steady state of eq. 5-6 is an exact fixed point. Returns (P_im, T_im, M).
+    Implemented in vecu.plant.manifold_integrator (per-event constants hoisted, loop inlined;
+    bit-identical to the same steps written with `_rhs`).
     """
-    g = ROS2_GAMMA
-    p, t = p_im, t_im
-    dp, dtt, jpp, jtt = _rhs(p, t, alpha, u, params)
-    m = _substeps(dp, dtt, jpp, jtt, dt, params)
-    h = dt / m
-    for i in range(m):
-        if i:
-            dp, dtt, jpp, jtt = _rhs(p, t, alpha, u, params)
-        wp = 1.0 - g * h * min(jpp, 0.0)
-        wt = 1.0 - g * h * min(jtt, 0.0)
-        k1p = dp / wp
-        k1t = dtt / wt
-        dp2, dt2, _, _ = _rhs(max(p + h * k1p, P_FLOOR_KPA), t + h * k1t, alpha, u, params)
-        k2p = (dp2 - 2.0 * k1p) / wp
-        k2t = (dt2 - 2.0 * k1t) / wt
-        p += h * (1.5 * k1p + 0.5 * k2p)
-        t += h * (1.5 * k1t + 0.5 * k2t)
-        p = max(p, P_FLOOR_KPA)
-    return p, t, m
+    return _integrate_fast(p_im, t_im, alpha, u, dt, params)
 
 
 def steady_state(
