@@ -67,7 +67,7 @@ def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
         InputGenerator(InputConfig(), rngs["throttle.input"]), injector,
         config.throttle.calibration)]
     if config.speed:
-        parts.append(LongitudinalPart(codec, config.seed))
+        parts.append(LongitudinalPart(codec, config.seed, config.speed_manoeuvres))
     if config.steering:
         parts.append(LateralPart(codec, config.seed, config.duration_s, injector))
     plant = PlantNode(bus, codec, injector, parts)
@@ -82,8 +82,8 @@ def build_functions(config: RunConfig, codec: DbcCodec) -> EcuFunctions:
     estimator = make_throttle_estimator(config.estimator, noise_scale=config.noise_scale)
     return EcuFunctions(
         throttle=ThrottleFunction(codec, estimator, config.throttle),
-        speed=SpeedFunction(codec) if config.speed else None,
-        steering=SteeringFunction(codec) if config.steering else None,
+        speed=SpeedFunction(codec, config=config.speed_fn) if config.speed else None,
+        steering=SteeringFunction(codec, config.steering_fn) if config.steering else None,
         manifold=ManifoldFunction(codec, config.manifold_filter) if config.manifold else None)
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from vecu.ecu.speed_function import SpeedFunctionConfig
+from vecu.ecu.steering_function import SteeringFunctionConfig
 from vecu.ecu.throttle_function import ThrottleFunctionConfig
-from vecu.faults import FaultKind, parse_kind
+from vecu.faults import FaultKind, ScheduledFault, parse_kind
 
 
 @dataclass(frozen=True)
@@ -35,6 +37,10 @@ class RunConfig:
     swa_fault: str = "dead"
     swa_fault_value: float | None = None
     throttle: ThrottleFunctionConfig = field(default_factory=ThrottleFunctionConfig)
+    steering_fn: SteeringFunctionConfig = field(default_factory=SteeringFunctionConfig)
+    speed_fn: SpeedFunctionConfig = field(default_factory=SpeedFunctionConfig)
+    speed_manoeuvres: tuple[str, ...] | None = None  # longitudinal plant sequence (None: default)
+    faults: tuple[ScheduledFault, ...] = ()  # fault timeline (scenarios), on top of the kills
 
     def validate(self) -> None:
         if not (self.duration_s > 0 and math.isfinite(self.duration_s)):
@@ -48,6 +54,13 @@ class RunConfig:
                              f"(0..{self.duration_s} s)")
         if self.kill_swa_at_s is not None and not self.steering:
             raise ValueError("an SWA fault needs the steering part (steering=True)")
-        for name in (self.fault, self.swa_fault):
+        for name in (self.fault, self.swa_fault, *(f.kind for f in self.faults)):
             if parse_kind(name) == FaultKind.CLEAR:
                 raise ValueError("fault kind 'clear' cannot be injected")
+        for f in self.faults:
+            if not 0 <= f.start_s < self.duration_s:
+                raise ValueError(f"fault {f.kind} on {f.target}: start {f.start_s} s is outside "
+                                 f"the run (0..{self.duration_s} s)")
+            if f.end_s is not None and not f.start_s < f.end_s:
+                raise ValueError(f"fault {f.kind} on {f.target}: end {f.end_s} s is not after "
+                                 f"its start {f.start_s} s")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import gc
 import time
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Callable
 
 import can
 import numpy as np
@@ -30,7 +30,7 @@ from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
-from vecu.faults import FaultInjector, FaultTarget, parse_kind
+from vecu.faults import FaultInjector, FaultTarget, ScheduledFault, parse_kind
 from vecu.plant.node import (
     PlantNode,
 )
@@ -61,8 +61,9 @@ class RunResult:
     manifold_series: np.ndarray | None = None  # rows (t_s, true P_im, estimated P_im) per event
 
 
-def run(config: RunConfig) -> RunResult:
-    """Run plant + injector + ECU (+ recorder) for config.duration_s on one scheduler."""
+def run(config: RunConfig, progress: Callable[[float, float], None] | None = None) -> RunResult:
+    """Run plant + injector + ECU (+ recorder) for config.duration_s on one scheduler;
+    progress(t_s, duration_s), when given, is called after each simulated second."""
     config.validate()
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     codec = DbcCodec()
@@ -130,19 +131,30 @@ def run(config: RunConfig) -> RunResult:
                                                             config.swa_fault_value,
                                                             source="schedule"),
                      name="kill-swa", priority=PRIO_PLANT - 1)
+        for f in config.faults:  # the scenario timeline
+            _schedule_fault(sched, injector, f)
         if config.realtime:
             _warm_up(config)
         wall0 = time.perf_counter()
         clock.start()  # set-up time must not count against the first deadlines
-        sched.run_until(end_ns)
+        if progress is None:
+            sched.run_until(end_ns)
+        else:
+            for chunk_end in range(NS_PER_S, end_ns + NS_PER_S, NS_PER_S):
+                sched.run_until(min(chunk_end, end_ns))
+                progress(min(chunk_end, end_ns) / NS_PER_S, config.duration_s)
         wall = time.perf_counter() - wall0
         ecu.overruns = ecu_task.overruns
         if recorder is not None:
             recorder.drain(end_ns)
         summary = _summary(config, sched, plant, ecu, throttle_fn, probe, injector, kill_ns,
                            n_ticks, wall, recorder)
+        summary["diagnostics"] = {**{name: mon.report() for name, mon in ecu.monitors.items()},
+                                  "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
+                                          "confirmations": ecu.bus_dtc.confirmations}}
         if speed_probe is not None:
             summary["speed"] = speed_probe.summary()
+            summary["speed"]["coast_steps"] = fns.speed.coast_steps
         if manifold_probe is not None:
             summary["manifold"] = manifold_probe.summary()
         if steering_probe is not None:
@@ -162,6 +174,19 @@ def run(config: RunConfig) -> RunResult:
                      speed_series=speed_probe.series() if speed_probe else None,
                      steering_series=steering_probe.series() if steering_probe else None,
                      manifold_series=manifold_probe.series() if manifold_probe else None)
+
+
+def _schedule_fault(sched: Scheduler, injector: FaultInjector, f: ScheduledFault) -> None:
+    """Start (and end) one timeline fault; the target is checked against the DBC now."""
+    kind = parse_kind(f.kind)
+    injector.check(f.target, kind, f.value)
+    sched.at(int(round(f.start_s * NS_PER_S)),
+             lambda t: injector.inject(t, f.target, kind, f.value, source="scenario"),
+             name=f"fault-{f.kind}-{f.target}", priority=PRIO_PLANT - 1)
+    if f.end_s is not None:
+        sched.at(int(round(f.end_s * NS_PER_S)),
+                 lambda t: injector.clear(t, f.target, kind, source="scenario"),
+                 name=f"end-{f.kind}-{f.target}", priority=PRIO_PLANT - 1)
 
 
 def _warm_up(config: RunConfig) -> None:
@@ -231,7 +256,8 @@ def _summary(config: RunConfig, sched: Scheduler, plant: PlantNode, ecu: EcuNode
             "rejected_fault_commands": injector.rejected_commands,
         },
         "fault_events": [
-            {"t_s": e.t_ns / NS_PER_S, "target": e.target.name.lower(), "kind": e.kind.name.lower(),
-             "value": e.value, "source": e.source} for e in injector.events
+            {"t_s": e.t_ns / NS_PER_S, "target": e.target.name, "kind": e.kind.name.lower(),
+             "value": e.value, "source": e.source,
+             "ended": [k.name.lower() for k in e.cleared]} for e in injector.events
         ],
     }

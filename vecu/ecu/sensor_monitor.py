@@ -1,19 +1,21 @@
-"""Sensor diagnosis: timeout, range, E2E, stuck, plausibility against an estimator.
+"""Sensor diagnosis: timeout, range, E2E, stuck, plausibility against an estimator; DTCs.
 
-One monitor per safety-relevant sensor (TPS, steering-wheel angle). Each check is debounced; the
-first to confirm sets the status (codes = THR_TpsStatus / STE_SwaStatus in the DBC) and the ECU
-switches to the estimator. The status heals after `heal_ms` of clean samples.
+One monitor per safety-relevant sensor (TPS, steering-wheel angle, wheel speed). Each check is
+debounced; the first to confirm sets the status (codes = THR_TpsStatus / STE_SwaStatus /
+DIAG_*Status in the DBC) and the ECU substitutes the estimate. The status heals after `heal_ms` of
+clean samples. The DTC follows its own lifecycle (Dtc): none -> pending (a check failing, not yet
+debounced) -> confirmed (debounced) -> healed (`dtc_heal_ms` clean after the status healed) ->
+confirmed again if the fault comes back. docs/scenarios.md describes it.
 """
 
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS
-
 
 SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1  # THR_Source / STE_Source in the DBC
 
@@ -29,9 +31,58 @@ class SensorStatus(enum.IntEnum):
 
 
 class DtcState(enum.IntEnum):
+    """Values of ECU_TpsDtc / DIAG_*Dtc in the DBC."""
+
     NONE = 0
     PENDING = 1
     CONFIRMED = 2
+    HEALED = 3
+
+
+class Dtc:
+    """DTC lifecycle of one monitored item; report() once per evaluation.
+
+    failed: a debounced fault is present; suspicious: a check fails but is not yet debounced;
+    healthy: the item's status is ok again (healing clock runs only then). Transitions are kept in
+    `history` as (t_ns, state); `on_change` (if set) is called on every transition.
+    """
+
+    def __init__(self, heal_ms: float) -> None:
+        self.state = DtcState.NONE
+        self.confirmations = 0
+        self.history: list[tuple[int, DtcState]] = []
+        self.on_change: Callable[[], None] | None = None
+        self._heal_ns = int(heal_ms * NS_PER_MS)
+        self._healthy_since: int | None = None
+        self._was_confirmed = False
+
+    def report(self, t_ns: int, failed: bool, suspicious: bool, healthy: bool) -> DtcState:
+        state = self.state
+        if failed:
+            new = DtcState.CONFIRMED
+            self._healthy_since = None
+        elif state == DtcState.CONFIRMED:
+            new = state
+            if healthy:
+                if self._healthy_since is None:
+                    self._healthy_since = t_ns
+                elif t_ns - self._healthy_since >= self._heal_ns:
+                    new = DtcState.HEALED
+            else:
+                self._healthy_since = None
+        elif suspicious:
+            new = DtcState.PENDING
+        else:
+            new = DtcState.HEALED if self._was_confirmed else DtcState.NONE
+        if new != state:
+            if new == DtcState.CONFIRMED:
+                self.confirmations += 1
+                self._was_confirmed = True
+            self.state = new
+            self.history.append((t_ns, new))
+            if self.on_change is not None:
+                self.on_change()
+        return new
 
 
 @dataclass(frozen=True)
@@ -45,6 +96,8 @@ class SensorMonitorConfig:
     plaus_margin: float = 4.0      # ... plus a fixed margin (physical units, deg here)
     plaus_debounce: int = 5        # up/down counter threshold
     heal_ms: float = 500.0         # clean time before the sensor is trusted again
+    dtc_heal_ms: float = 5000.0    # healthy time after that before the DTC reads 'healed'
+    enabled: bool = True           # False: no checks at all (a broken ECU, for scenario tests)
 
 
 class SensorMonitor:
@@ -61,7 +114,8 @@ class SensorMonitor:
         self._to_physical = to_physical
         self.status = SensorStatus.OK
         self.timeouts = 0  # confirmed timeouts (select())
-        self.dtc = DtcState.NONE
+        self.dtc_item = Dtc(config.dtc_heal_ms)
+        self.status_history: list[tuple[int, SensorStatus]] = []  # (t_ns, status) transitions
         self.first_fault_ns: int | None = None
         self.first_fault_status: SensorStatus | None = None
         self.value: float | None = None     # last valid sensor value (physical)
@@ -76,7 +130,7 @@ class SensorMonitor:
         self._timeout_ns = int(config.timeout_cycles * config.cycle_ms * NS_PER_MS)
 
     @classmethod
-    def for_tps(cls, config: SensorMonitorConfig, cal: TpsCalibration) -> "SensorMonitor":
+    def for_tps(cls, config: SensorMonitorConfig, cal: TpsCalibration) -> SensorMonitor:
         """Range checks on the voltage (open / short circuit), plausibility on the angle."""
         return cls(config, cal.fault_low_v, cal.fault_high_v, cal.angle)
 
@@ -98,7 +152,9 @@ class SensorMonitor:
         cfg = self.cfg
         finding = SensorStatus.OK
         last_rx = 0 if self._last_rx_ns is None else self._last_rx_ns  # run start counts as rx
-        if t_ns - last_rx >= self._timeout_ns:
+        if not cfg.enabled:
+            pass
+        elif t_ns - last_rx >= self._timeout_ns:
             finding = SensorStatus.TIMEOUT
         else:
             if self._e2e_bad >= cfg.e2e_debounce:
@@ -107,7 +163,7 @@ class SensorMonitor:
                 finding = SensorStatus.RANGE_LOW
             elif self._range_high >= cfg.range_debounce:
                 finding = SensorStatus.RANGE_HIGH
-            elif self._same + 1 >= cfg.stuck_samples:
+            elif cfg.stuck_samples and self._same + 1 >= cfg.stuck_samples:
                 finding = SensorStatus.STUCK
             elif self._fresh and self.value is not None:
                 gate = cfg.plaus_sigma * est_std + cfg.plaus_margin
@@ -122,25 +178,42 @@ class SensorMonitor:
         return self._update(t_ns, finding)
 
     def _update(self, t_ns: int, finding: SensorStatus) -> SensorStatus:
+        status = self.status
         if finding != SensorStatus.OK:
-            if self.status == SensorStatus.OK:
-                self.status = finding
+            if status == SensorStatus.OK:
+                status = self.status = finding
+                self.status_history.append((t_ns, finding))
                 if self.first_fault_ns is None:
                     self.first_fault_ns = t_ns
                     self.first_fault_status = finding
-            self.dtc = DtcState.CONFIRMED
             self._clean_since_ns = None
-        elif self.status != SensorStatus.OK:
+        elif status != SensorStatus.OK:
             if self._clean_since_ns is None:
                 self._clean_since_ns = t_ns
             elif t_ns - self._clean_since_ns >= self.cfg.heal_ms * NS_PER_MS:
-                self.status = SensorStatus.OK
+                status = self.status = SensorStatus.OK
+                self.status_history.append((t_ns, status))
                 self._plaus = 0
-        if self.dtc != DtcState.CONFIRMED:  # confirmed is stored for the rest of the run
-            suspicious = (self._plaus or self._e2e_bad or self._range_low or self._range_high
-                          or self._same >= self.cfg.stuck_samples // 2)
-            self.dtc = DtcState.PENDING if suspicious else DtcState.NONE
-        return self.status
+        suspicious = (self._plaus or self._e2e_bad or self._range_low or self._range_high
+                      or (self.cfg.stuck_samples and self._same >= self.cfg.stuck_samples // 2))
+        self.dtc_item.report(t_ns, finding != SensorStatus.OK, bool(suspicious),
+                             status == SensorStatus.OK)
+        return status
+
+    @property
+    def dtc(self) -> DtcState:
+        return self.dtc_item.state
+
+    def report(self) -> dict:
+        """Diagnosis record for the run summary (times in s)."""
+        dtc = self.dtc_item
+        return {"status": self.status.name.lower(), "dtc": dtc.state.name.lower(),
+                "confirmations": dtc.confirmations, "timeouts": self.timeouts,
+                "first_fault_s": None if self.first_fault_ns is None else self.first_fault_ns / 1e9,
+                "first_fault_status": (self.first_fault_status.name.lower()
+                                       if self.first_fault_status else None),
+                "status_history": [(t / 1e9, st.name.lower()) for t, st in self.status_history],
+                "dtc_history": [(t / 1e9, st.name.lower()) for t, st in dtc.history]}
 
     def select(self, t_ns: int, est: float, est_std: float) -> tuple[float, int, SensorStatus]:
         """Diagnose (evaluate) and pick what to broadcast: (value, source, status), the sensor's

@@ -1,44 +1,93 @@
-"""ECU speed function: vehicle speed and acceleration at 500 Hz (Hernandez 2005).
+"""ECU speed function: vehicle speed and acceleration at 500 Hz (Hernandez 2005), wheel-speed
+diagnosis.
 
-Every 2 ms: feed the latest ESC_Motion sample (wheel speed, accelerometer; None when no new
-frame arrived) to the Kalman filter and send ECU_SpeedEstimate (km/h, m/s^2 at the boundary).
+Every 2 ms: diagnose the wheel-speed reading of the latest ESC_Motion frame (receive deadline from
+the DBC cycle time, range, plausibility against the filter's speed), feed the Kalman filter the
+wheel speed only while the sensor is healthy and the accelerometer always (no new frame: None,
+predict only), and send ECU_SpeedEstimate (km/h, m/s^2 at the boundary). While the wheel sensor is
+faulty the filter coasts on the accelerometer and SPD_Mode reads 3 (coast).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field, replace
+
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
+from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
 from vecu.estimators.speed_kf import SpeedKalmanFilter
 from vecu.plant.longitudinal import KMH
 
-MODE_NORMAL, MODE_STANDSTILL, MODE_ABS = 0, 1, 2
+MODE_NORMAL, MODE_STANDSTILL, MODE_ABS, MODE_COAST = 0, 1, 2, 3
+WHEEL_MAX_KMH = 280.0  # above: a short to supply / garbage (the car cannot go faster)
+
+
+@dataclass(frozen=True)
+class SpeedFunctionConfig:
+    # Wheel speed reads exactly 0 below ~5 km/h (no pulses) and at rest, so the stuck check is off
+    # (stuck_samples=0); a dead sensor at speed is caught by plausibility: |wheel - v_hat| beyond
+    # 5 sigma + 10 km/h (ABS slip reaches 20 % of 84 km/h; below ~10 km/h a dead sensor looks like
+    # a normal dropout and cannot be told apart).
+    wheel_monitor: SensorMonitorConfig = field(default_factory=lambda: SensorMonitorConfig(
+        cycle_ms=2.0, stuck_samples=0, plaus_sigma=5.0, plaus_margin=10.0, plaus_debounce=5))
 
 
 class SpeedFunction:
     name = "speed"
     period_ns = 2 * NS_PER_MS
 
-    def __init__(self, codec: DbcCodec, kf: SpeedKalmanFilter | None = None) -> None:
+    def __init__(self, codec: DbcCodec, kf: SpeedKalmanFilter | None = None,
+                 config: SpeedFunctionConfig = SpeedFunctionConfig()) -> None:
         self.kf = kf if kf is not None else SpeedKalmanFilter()
         self._out = codec["ECU_SpeedEstimate"]
-        self.timeouts = 0
+        cycle = codec["ESC_Motion"].cycle_time_ms or config.wheel_monitor.cycle_ms
+        self.monitor = SensorMonitor(replace(config.wheel_monitor, cycle_ms=cycle), 0.0,
+                                     WHEEL_MAX_KMH, float)
         self.estimates_sent = 0
+        self.coast_steps = 0  # filter steps without the wheel speed (sensor faulty)
         self._wheel: float | None = None
         self._accel: float | None = None
+        self.mode = MODE_NORMAL
+
+    # ECU_RxTimeouts keeps counting the TPS and SWA deadlines only (as before this monitor
+    # existed); wheel-speed timeouts are in ECU_Diag (DIAG_WheelStatus/Dtc) and the run summary.
+    timeouts = 0
+
+    def monitors(self) -> dict[str, SensorMonitor]:
+        return {"wheel": self.monitor}
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("ESC_Motion", self._on_motion)]
 
     def _on_motion(self, values: dict[str, float], t_ns: int) -> None:
-        self._wheel = values["ESC_WheelSpeed"] * KMH
+        wheel_kmh = values["ESC_WheelSpeed"]
+        self.monitor.on_frame(t_ns, wheel_kmh)
+        self._wheel = wheel_kmh * KMH
         self._accel = values["ESC_LongAccel"]
 
     def run(self, t_ns: int, send: Send) -> None:
         kf = self.kf
-        kf.step(self._wheel, self._accel)
+        # diagnose against the filter's speed before this reading is used (innovation gate)
+        mon = self.monitor
+        was_ok = mon.status == SensorStatus.OK
+        # until the filter has taken its first wheel reading its speed means nothing: no gate
+        std = kf.speed_std_mps / KMH if getattr(kf, "_initialised", True) else math.inf
+        status = mon.evaluate(t_ns, kf.speed_mps / KMH, std)
+        if was_ok and status == SensorStatus.TIMEOUT:
+            mon.timeouts += 1
+        wheel = self._wheel
+        if status != SensorStatus.OK:
+            wheel = None
+            self.coast_steps += 1
+        kf.step(wheel, self._accel)
         self._wheel = self._accel = None
-        mode = MODE_STANDSTILL if kf.standstill else (MODE_ABS if kf.abs_mode else MODE_NORMAL)
+        if status != SensorStatus.OK:
+            mode = MODE_COAST
+        else:
+            mode = MODE_STANDSTILL if kf.standstill else (MODE_ABS if kf.abs_mode else MODE_NORMAL)
+        self.mode = mode
         self.estimates_sent += send(self._out.frame({
             "SPD_VehSpeed": kf.speed_mps / KMH, "SPD_VehAccel": kf.accel_mps2,
             "SPD_VehSpeedStd": kf.speed_std_mps / KMH, "SPD_AccelOffset": kf.offset_mps2,

@@ -61,6 +61,9 @@ class SteeringFunction:
     def timeouts(self) -> int:
         return self.monitor.timeouts
 
+    def monitors(self) -> dict[str, SensorMonitor]:
+        return {"swa": self.monitor}
+
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("CHS_Lateral", self._on_lateral),
                 Subscription("SWA_Sensor", self._on_swa, self.monitor.on_e2e_error)]

@@ -22,7 +22,11 @@ from vecu.estimators.base import ThrottleEstimator
 
 @dataclass(frozen=True)
 class ThrottleFunctionConfig:
-    tps_monitor: SensorMonitorConfig = field(default_factory=SensorMonitorConfig)
+    # plausibility 5 sigma + 15 deg over 40 ms: the estimator's error is heavy-tailed (particle
+    # filter "throws"), 5 sigma + 4 deg over 5 ms gave false DTCs within minutes (docs/models.md,
+    # Diagnostics); offsets are still caught (by range or by this gate) and kills by range/stuck/timeout
+    tps_monitor: SensorMonitorConfig = field(default_factory=lambda: SensorMonitorConfig(
+        plaus_margin=15.0, plaus_debounce=40))
     calibration: TpsCalibration = field(default_factory=TpsCalibration)
 
 
@@ -55,6 +59,9 @@ class ThrottleFunction:
     @property
     def timeouts(self) -> int:
         return self.monitor.timeouts
+
+    def monitors(self) -> dict[str, SensorMonitor]:
+        return {"tps": self.monitor}
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("TPS_Sensor", self._on_tps, self.monitor.on_e2e_error),

@@ -16,7 +16,7 @@ import can
 from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
-from vecu.faults import FaultInjector, FaultTarget
+from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
 from vecu.node import BusNode
 from vecu.plant.drive_profile import us06_like
 from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
@@ -103,9 +103,11 @@ class LongitudinalPart:
     period_ns = 2 * NS_PER_MS
     SEQUENCE = ("paper", "launch_brake")
 
-    def __init__(self, codec: DbcCodec, seed: int) -> None:
+    def __init__(self, codec: DbcCodec, seed: int, sequence: tuple[str, ...] | None = None) -> None:
         self._msg = codec["ESC_Motion"]
         self._seed = seed
+        if sequence:
+            self.SEQUENCE = tuple(sequence)
         self._index = 0
         self._k = 0
         self._trace = self._next_trace()
@@ -239,6 +241,10 @@ class PlantNode(BusNode):
         self.parts = parts
         self._fi = codec["FI_Command"]
         self._fi_key = (self._fi.frame_id, self._fi.is_extended)
+        injector.bind(codec)
+        self._fi_event = codec["FI_Event"] if "FI_Event" in codec else None
+        self._codec = codec
+        self._announced = 0  # injector events already sent as FI_Event frames
         self.frames_received = 0
         self.throttle = next((p for p in parts if isinstance(p, ThrottlePart)), None)
         self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
@@ -257,13 +263,42 @@ class PlantNode(BusNode):
         """Scheduler.chain task: one engine event of the manifold part, if there is one."""
         if self.manifold is None:
             return None
-        return self.manifold.event(t_ns, self._send)
+        return self.manifold.event(
+            t_ns, self._send_via_faults if self.injector.frame_stage_active else self._send)
 
     def tick(self, t_ns: int) -> None:
+        inj = self.injector
+        inj.now_ns = t_ns
         self._poll_commands(t_ns)
+        if len(inj.events) != self._announced:
+            self._announce_faults()
+        send = self._send_via_faults if inj.frame_stage_active else self._send
         for part in self.parts:
             if t_ns % part.period_ns == 0:
-                part.tick(t_ns, self._send)
+                part.tick(t_ns, send)
+        if inj.frame_stage_active:
+            for msg in inj.per_tick(t_ns):
+                self._send(msg)
+
+    def _send_via_faults(self, msg: can.Message) -> bool:
+        """Send stage while frame faults are active: the injector transforms, drops, delays or
+        repeats each outgoing frame (vecu.faults)."""
+        for out in self.injector.process(msg):
+            self._send(out)
+        return True
+
+    def _announce_faults(self) -> None:
+        """One FI_Event frame (dbc/vecu.dbc) per fault start / end, so a trace carries them."""
+        events = self.injector.events
+        new, self._announced = events[self._announced:], len(events)
+        if self._fi_event is None:
+            return
+        for ev in new:
+            for kind, active in ([(ev.kind, 1)] if not ev.cleared and ev.kind != 0
+                                 else [(k, 0) for k in ev.cleared] or [(ev.kind, 0)]):
+                self._send(self._fi_event.frame(fault_event_signals(
+                    self._codec, ev.target, int(kind), active, ev.source, ev.value),
+                    ev.t_ns / NS_PER_S))
 
     def _poll_commands(self, t_ns: int) -> None:
         """Drain the receive queue; act on FI_Command, ignore everything else."""

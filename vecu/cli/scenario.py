@@ -1,0 +1,64 @@
+"""`vecu scenario run FILE...`: declarative fault-injection scenarios with pass/fail for CI."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from vecu.cli import UserInputError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("scenario", help="run fault-injection scenarios (TOML) and judge them",
+                       description="Declarative fault-injection scenarios (docs/scenarios.md).")
+    ssub = p.add_subparsers(dest="scenario_command", required=True)
+    r = ssub.add_parser("run", help="run scenario files on the simulated clock",
+                        description="Run each scenario, evaluate its criteria, write reports; "
+                                    "exit 1 when any criterion fails.")
+    r.add_argument("files", nargs="+", metavar="FILE", help="scenario .toml files")
+    r.add_argument("--junit", metavar="OUT.xml", help="write JUnit XML")
+    r.add_argument("--report", metavar="DIR", help="write DIR/index.html with PNG plots")
+    r.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="run N scenarios in parallel processes (default 1)")
+    r.add_argument("--quiet", action="store_true", help="print nothing but errors and the verdict")
+    r.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from vecu.scenario.loader import ScenarioError, load_scenario
+    from vecu.scenario.report import write_html, write_junit
+    from vecu.scenario.runner import run_scenarios
+
+    logging.basicConfig(level=logging.ERROR, format="%(levelname)s %(name)s: %(message)s")
+    if args.jobs < 1:
+        raise UserInputError(f"--jobs must be >= 1, got {args.jobs}")
+    for path in (args.junit,):
+        if path and not Path(path).resolve().parent.is_dir():
+            raise UserInputError(f"{path}: directory does not exist")
+    try:
+        scenarios = [load_scenario(f) for f in args.files]
+    except ScenarioError as exc:
+        raise UserInputError(str(exc)) from exc
+    names = [s.name for s in scenarios]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise UserInputError(f"scenario names must be unique, repeated: {', '.join(dup)}")
+    if args.report:
+        try:
+            Path(args.report).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UserInputError(f"{args.report}: cannot create directory: {exc.strerror}") from exc
+    outcomes = run_scenarios(scenarios, jobs=args.jobs, report_dir=args.report,
+                             stream=None if args.quiet else sys.stderr)
+    if args.junit:
+        write_junit(outcomes, args.junit)
+    if args.report:
+        index = write_html(outcomes, args.report)
+        if not args.quiet:
+            print(f"report: {index}")
+    failed = [o.name for o in outcomes if not o.passed]
+    print(f"vecu scenario: {len(outcomes) - len(failed)}/{len(outcomes)} passed"
+          + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0

@@ -1,0 +1,256 @@
+"""Scenario files (TOML): load, validate, turn into a RunConfig plus pass criteria.
+
+Every problem is one ScenarioError line naming the file, the key and the reason, e.g.
+``scenarios/x.toml: key 'faults[1].start_s': 5 s is outside the run (0..3 s)``.
+The format is documented in docs/scenarios.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+import numpy as np
+
+from vecu.codec import DbcCodec
+from vecu.config import RunConfig
+from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
+from vecu.ecu.speed_function import SpeedFunctionConfig
+from vecu.ecu.steering_function import SteeringFunctionConfig
+from vecu.ecu.throttle_function import ThrottleFunctionConfig
+from vecu.estimators.registry import THROTTLE_ESTIMATORS
+from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
+from vecu.plant.longitudinal import MANOEUVRES
+
+SENSORS = {"tps": "TPS_Sensor", "swa": "SWA_Sensor", "wheel": "ESC_Motion"}
+# which plant part sends a message (a fault on a message nobody sends would do nothing)
+MESSAGE_PART = {"ESC_Motion": "speed", "CHS_Lateral": "steering", "SWA_Sensor": "steering",
+                "ENG_Event": "manifold", "ENG_Intake": "manifold"}
+SENSOR_PART = {"swa": "steering", "wheel": "speed"}
+MAX_SERIES_S = 600.0  # longer runs keep no per-tick series (memory): no plots, no error criteria
+NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
+
+TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
+            "plant": dict, "ecu": dict, "faults": list, "criteria": dict}
+PLANT_KEYS = {"noise_scale": NUMBER, "speed": BOOL, "steering": BOOL, "manifold": BOOL,
+              "speed_manoeuvres": list}
+ECU_KEYS = {"estimator": STR, "manifold_filter": STR, "tps": dict, "swa": dict, "wheel": dict}
+FAULT_KEYS = {"target": STR, "kind": STR, "start_s": NUMBER, "end_s": NUMBER, "value": NUMBER}
+MONITOR_KEYS = {f.name: {float: NUMBER, int: INT, bool: BOOL}[type(f.default)]
+                for f in fields(SensorMonitorConfig) if f.name != "cycle_ms"}
+GLOBAL_CRITERIA = {"no_nan": BOOL, "no_overruns": BOOL, "no_false_dtc": BOOL}
+SENSOR_CRITERIA = {"detect_within_ms": NUMBER, "detected_as": list, "fallback_within_ms": NUMBER,
+                   "max_error_after_fallback": NUMBER, "rms_error_after_fallback": NUMBER,
+                   "dtc": STR, "fault_at_s": NUMBER, "not_detected": BOOL}
+BUS_CRITERIA = {"dtc": STR}
+
+
+class ScenarioError(ValueError):
+    """A bad scenario file: one line naming the file, the key and the reason."""
+
+
+@dataclass(frozen=True)
+class SensorCriteria:
+    sensor: str
+    detect_within_ms: float | None = None
+    detected_as: tuple[str, ...] | None = None
+    fallback_within_ms: float | None = None
+    max_error_after_fallback: float | None = None
+    rms_error_after_fallback: float | None = None
+    dtc: str | None = None
+    fault_at_s: float | None = None
+    not_detected: bool = False  # the sensor must never leave 'ok'
+
+
+@dataclass(frozen=True)
+class Criteria:
+    no_nan: bool = True
+    no_overruns: bool = True
+    no_false_dtc: bool = True
+    sensors: tuple[SensorCriteria, ...] = ()
+    bus_dtc: str | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    path: str
+    name: str
+    description: str
+    config: RunConfig
+    criteria: Criteria
+
+
+class _Checker:
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def fail(self, key: str, reason: str) -> ScenarioError:
+        return ScenarioError(f"{self.path}: key '{key}': {reason}")
+
+    def table(self, data: Any, schema: dict[str, Any], prefix: str) -> dict[str, Any]:
+        if not isinstance(data, dict):
+            raise self.fail(prefix.rstrip("."), f"expected a table, got {_tname(data)}")
+        for key, value in data.items():
+            if key not in schema:
+                raise self.fail(prefix + key, f"unknown key (known: {', '.join(schema)})")
+            self.typed(value, schema[key], prefix + key)
+        return data
+
+    def typed(self, value: Any, want: Any, key: str) -> None:
+        ok = {NUMBER: isinstance(value, (int, float)) and not isinstance(value, bool),
+              INT: isinstance(value, int) and not isinstance(value, bool),
+              BOOL: isinstance(value, bool), STR: isinstance(value, str),
+              dict: isinstance(value, dict), list: isinstance(value, list)}[want]
+        if not ok:
+            name = {dict: "a table", list: "an array"}.get(want, want)
+            raise self.fail(key, f"expected {name}, got {_tname(value)}")
+        if want == NUMBER and not math.isfinite(value):
+            raise self.fail(key, f"expected a finite number, got {value}")
+
+
+def _tname(value: Any) -> str:
+    return {bool: "a boolean", int: "an integer", float: "a number", str: "a string",
+            dict: "a table", list: "an array"}.get(type(value), type(value).__name__)
+
+
+def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
+    """Read and validate one scenario file; raises ScenarioError (one line) on any problem."""
+    path = str(path)
+    chk = _Checker(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: TOML syntax error: {exc}".splitlines()[0]) from None
+    chk.table(data, TOP_KEYS, "")
+    if "duration_s" not in data:
+        raise chk.fail("duration_s", "required key missing")
+    duration = float(data["duration_s"])
+    if not 0 < duration <= 24 * 3600:
+        raise chk.fail("duration_s", f"must be in (0, 86400] s, got {duration}")
+    seed = data.get("seed", 0)
+    if seed < 0:
+        raise chk.fail("seed", f"must be >= 0, got {seed}")
+    plant = chk.table(data.get("plant", {}), PLANT_KEYS, "plant.")
+    ecu = chk.table(data.get("ecu", {}), ECU_KEYS, "ecu.")
+    parts = {"speed": plant.get("speed", False), "steering": plant.get("steering", False),
+             "manifold": plant.get("manifold", False)}
+    noise = float(plant.get("noise_scale", 1.0))
+    if noise < 0:
+        raise chk.fail("plant.noise_scale", f"must be >= 0, got {noise}")
+    manoeuvres = plant.get("speed_manoeuvres")
+    if manoeuvres is not None:
+        bad = [m for m in manoeuvres if m not in MANOEUVRES]
+        if not manoeuvres or bad:
+            raise chk.fail("plant.speed_manoeuvres",
+                           f"expected names from {', '.join(MANOEUVRES)}, got {manoeuvres}")
+    estimator = ecu.get("estimator", "production")
+    if estimator not in THROTTLE_ESTIMATORS:
+        raise chk.fail("ecu.estimator", f"unknown estimator {estimator!r} "
+                                        f"(known: {', '.join(THROTTLE_ESTIMATORS)})")
+    filt = ecu.get("manifold_filter", "sdkf")
+    if filt not in ("sdkf", "ekf"):
+        raise chk.fail("ecu.manifold_filter", f"expected 'sdkf' or 'ekf', got {filt!r}")
+    monitors = {}
+    for sensor in ("tps", "swa", "wheel"):
+        over = chk.table(ecu.get(sensor, {}), MONITOR_KEYS, f"ecu.{sensor}.")
+        for key, value in over.items():
+            if key != "enabled" and value < 0:
+                raise chk.fail(f"ecu.{sensor}.{key}", f"must be >= 0, got {value}")
+        monitors[sensor] = over
+    faults = _faults(chk, data.get("faults", []), duration, parts, codec)
+    criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
+    thr, ste, spd = ThrottleFunctionConfig(), SteeringFunctionConfig(), SpeedFunctionConfig()
+    config = RunConfig(
+        duration_s=duration, seed=seed, noise_scale=noise, kill_tps_at_s=None,
+        estimator=estimator, manifold_filter=filt, keep_series=duration <= MAX_SERIES_S,
+        speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
+        throttle=replace(thr, tps_monitor=replace(thr.tps_monitor, **monitors["tps"])),
+        steering_fn=replace(ste, monitor=replace(ste.monitor, **monitors["swa"])),
+        speed_fn=replace(spd, wheel_monitor=replace(spd.wheel_monitor, **monitors["wheel"])),
+        **parts)
+    return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
+                    config, criteria)
+
+
+def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
+            codec: DbcCodec | None) -> tuple[ScheduledFault, ...]:
+    injector = FaultInjector(np.random.default_rng(0), codec)
+    out = []
+    for i, item in enumerate(items):
+        pre = f"faults[{i}]."
+        chk.table(item, FAULT_KEYS, pre)
+        for req in ("target", "kind", "start_s"):
+            if req not in item:
+                raise chk.fail(pre + req, "required key missing")
+        try:
+            kind = parse_kind(item["kind"])
+        except ValueError as exc:
+            raise chk.fail(pre + "kind", str(exc)) from None
+        if kind == 0:
+            raise chk.fail(pre + "kind", "'clear' is not a fault (use end_s)")
+        start, end = float(item["start_s"]), item.get("end_s")
+        if not 0 <= start < duration:
+            raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
+        if end is not None and not start < end:
+            raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
+        try:
+            site = injector.check(item["target"], kind, item.get("value"))
+        except ValueError as exc:
+            key = "value" if "must be" in str(exc) or "G must" in str(exc) else "target"
+            raise chk.fail(pre + key, str(exc)) from None
+        part = MESSAGE_PART.get(parse_site(site).message)
+        if part is not None and not parts[part]:
+            raise chk.fail(pre + "target", f"{site.message} is sent by the {part} part: set "
+                                           f"plant.{part} = true")
+        out.append(ScheduledFault(item["target"], item["kind"], start,
+                                  None if end is None else float(end), item.get("value")))
+    return tuple(out)
+
+
+def _criteria(chk: _Checker, data: dict, duration: float, parts: dict[str, bool]) -> Criteria:
+    schema = {**GLOBAL_CRITERIA, "tps": dict, "swa": dict, "wheel": dict, "bus": dict}
+    chk.table(data, schema, "criteria.")
+    dtc_names = [s.name.lower() for s in DtcState]
+    status_names = [s.name.lower() for s in SensorStatus if s != SensorStatus.OK]
+    sensors = []
+    for sensor in ("tps", "swa", "wheel"):
+        if sensor not in data:
+            continue
+        pre = f"criteria.{sensor}."
+        c = chk.table(data[sensor], SENSOR_CRITERIA, pre)
+        part = SENSOR_PART.get(sensor)
+        if part is not None and not parts[part]:
+            raise chk.fail(pre.rstrip("."), f"needs the {part} part: set plant.{part} = true")
+        if "dtc" in c and c["dtc"] not in dtc_names:
+            raise chk.fail(pre + "dtc", f"expected one of {', '.join(dtc_names)}, got {c['dtc']!r}")
+        if "detected_as" in c and (not c["detected_as"]
+                                   or any(s not in status_names for s in c["detected_as"])):
+            raise chk.fail(pre + "detected_as",
+                           f"expected names from {', '.join(status_names)}, got {c['detected_as']}")
+        if "fault_at_s" in c and not 0 <= c["fault_at_s"] < duration:
+            raise chk.fail(pre + "fault_at_s",
+                           f"{c['fault_at_s']:g} s is outside the run (0..{duration:g} s)")
+        for key in ("detect_within_ms", "fallback_within_ms", "max_error_after_fallback",
+                    "rms_error_after_fallback"):
+            if key in c and c[key] < 0:
+                raise chk.fail(pre + key, f"must be >= 0, got {c[key]}")
+        sensors.append(SensorCriteria(sensor, **{
+            **c, **({"detected_as": tuple(c["detected_as"])} if "detected_as" in c else {})}))
+    bus = chk.table(data.get("bus", {}), BUS_CRITERIA, "criteria.bus.")
+    if "dtc" in bus and bus["dtc"] not in dtc_names:
+        raise chk.fail("criteria.bus.dtc", f"expected one of {', '.join(dtc_names)}")
+    return Criteria(no_nan=data.get("no_nan", True), no_overruns=data.get("no_overruns", True),
+                    no_false_dtc=data.get("no_false_dtc", True), sensors=tuple(sensors),
+                    bus_dtc=bus.get("dtc"))
