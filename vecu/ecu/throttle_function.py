@@ -8,6 +8,7 @@ estimate otherwise, with no gap.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict, dataclass, field
 
 from vecu.calibration import TpsCalibration
@@ -18,6 +19,9 @@ from vecu.ecu.sensor_monitor import (SOURCE_SENSOR, SensorMonitor,
                                      SensorMonitorConfig, SensorStatus)
 from vecu.estimators.base import ThrottleEstimator
 
+
+
+MAX_BACKLOG = 20  # wattmeter samples the estimator catches up on in one run (20 ms of stall)
 
 
 @dataclass(frozen=True)
@@ -48,9 +52,12 @@ class ThrottleFunction:
         self.estimates_sent = 0      # ECU_ThrottleEstimate frames on the bus
         self.estimator_faults = 0    # non-finite estimator outputs caught here (should stay 0)
         self._tx_counter = 0
-        self._u_now = 0.0
         self._u_prev = 0.0
-        self._y: float | None = None
+        # wattmeter samples (u_k, y_k) since the last run: normally one; after a stall of a live
+        # ECU process several, and the estimator steps once per sample to stay in step with the
+        # plant (bounded: a backlog beyond MAX_BACKLOG drops the oldest, counted)
+        self._samples: deque[tuple[float, float]] = deque()
+        self.samples_dropped = 0
         # last broadcast, read by probes
         self.angle = 0.0
         self.source = SOURCE_SENSOR
@@ -71,14 +78,21 @@ class ThrottleFunction:
         self.monitor.on_frame(t_ns, values["TPS_Voltage"])
 
     def _on_wattmeter(self, values: dict[str, float], t_ns: int) -> None:
-        self._u_now = values["ETB_Voltage"]
-        self._y = values["ETB_Power"]
+        samples = self._samples
+        if len(samples) >= MAX_BACKLOG:
+            samples.popleft()
+            self.samples_dropped += 1
+        samples.append((values["ETB_Voltage"], values["ETB_Power"]))
 
     def run(self, t_ns: int, send: Send) -> None:
         est = self.estimator
-        est.step(self._u_prev, self._y)  # predict with u_{k-1}, update with y_k (or predict only)
-        self._u_prev = self._u_now
-        self._y = None
+        samples = self._samples
+        if not samples:
+            est.step(self._u_prev, None)  # no new measurement: predict only, with the last u
+        while samples:  # predict with u_{k-1}, update with y_k
+            u, y = samples.popleft()
+            est.step(self._u_prev, y)
+            self._u_prev = u
         theta_hat = est.theta_deg
         std = est.theta_std_deg
         if not (math.isfinite(theta_hat) and math.isfinite(std)):  # last line of defence
