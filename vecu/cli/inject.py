@@ -30,13 +30,8 @@ def command_values(target: str, kind: str, value: float | None) -> dict[str, flo
     """FI_Command signal values; raises ValueError with a clear message on bad input."""
     import numpy as np
 
-    from vecu.faults import (
-        DEFAULT_VALUES,
-        FaultKind,
-        FaultTarget,
-        make_fault,
-        parse_kind,
-    )
+    from vecu.codec import DbcCodec
+    from vecu.faults import DEFAULT_VALUES, FaultInjector, FaultKind, FaultTarget, parse_kind
 
     try:
         tgt = FaultTarget[target.strip().upper()]
@@ -46,8 +41,8 @@ def command_values(target: str, kind: str, value: float | None) -> dict[str, flo
     k = FaultKind.CLEAR if kind.strip().lower() == "clear" else parse_kind(kind)
     if value is not None and not (math.isfinite(value) and -32.768 <= value <= 32.767):
         raise ValueError(f"--value must be within -32.768..32.767, got {value}")
-    if k != FaultKind.CLEAR:
-        make_fault(k, value, np.random.default_rng(0))  # same checks as the plant applies
+    if k != FaultKind.CLEAR:  # the plant's own checks, signal and frame faults alike
+        FaultInjector(np.random.default_rng(0), DbcCodec()).check(tgt, k, value)
     if value is None:
         value = DEFAULT_VALUES.get(k, 0.0)
     return {"FI_Target": int(tgt), "FI_Kind": int(k), "FI_Value": value}
