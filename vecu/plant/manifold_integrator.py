@@ -104,81 +104,52 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
     floor = P_FLOOR_KPA
     sqrt = math.sqrt
 
-    # --- right-hand side and diagonal Jacobian at (p, t) (reference: manifold._rhs)
+    # --- M ROS2 sub-steps; M is fixed on the first pass from the rates at the start
     p, t = p_im, t_im
-    pr = p / p_a
-    if pr <= prc:
-        psi, dpsi = psic, 0.0
-    elif pr < pr_reg:
-        root = sqrt(c * (1.0 - pr ** e2))
-        pe1 = pr ** e1
-        psi = pe1 * root
-        dpsi = e1 * pr ** e1m1 * root - pe1 * c * e2 * pr ** e2m1 / (2.0 * root)
-    else:
-        s = 1.0 - pr
-        if s < ms0:
-            psi, dpsi = mpsi0, 0.0
+    m = 0
+    h = gh = 0.0
+    i = 0
+    while True:
+        # stage 1 at (p, t): right-hand side and diagonal Jacobian (reference: manifold._rhs)
+        pr = p / p_a
+        if pr <= prc:
+            psi, dpsi = psic, 0.0
+        elif pr < pr_reg:
+            root = sqrt(c * (1.0 - pr ** e2))
+            pe1 = pr ** e1
+            psi = pe1 * root
+            dpsi = e1 * pr ** e1m1 * root - pe1 * c * e2 * pr ** e2m1 / (2.0 * root)
         else:
-            sa = abs(s)
-            psi, dpsi = qa * s + qb * s * sa, -(qa + 2.0 * qb * sa)
-    pc = prs0 if prs0 > pr else pr
-    pc = prs_hi if prs_hi < pc else pc
-    j = bisect_right(prs, pc) - 1
-    j = nseg if nseg < j else j
-    cd = cdv[j] + cds[j] * (pc - prs[j])
-    dcd = cds[j] if prs0 < pr < prs_hi else 0.0
-    mdot = xi0 * cd * psi
-    dmdot = xi0 * (dcd * psi + cd * dpsi) / p_a
-    pp = floor if floor > p else p
-    resid = (p_exh / pp) ** e_eta
-    deta = scale * e_eta * resid / pp if p > floor else 0.0
-    eta = scale * (r_c - resid)
-    q = h1 * (t_cool - t) + h2 * (t_a - t)
-    pv = pp * v
-    dp = krta * mdot / v - kkp * eta * p + km1 * q / v
-    dtt = (r * t * mdot * (kta - t) + km1 * t * q) / pv - km1kp * eta * t
-    jpp = krta * dmdot / v - kkp * (eta + p * deta)
-    jtt = (r * mdot * (kta - 2.0 * t) + km1 * (q - hsum * t)) / pv - km1kp * eta
-
-    m = max(dt * (abs(jpp) + abs(jtt)) / lam_max, dt * abs(dp) / dp_max, dt * abs(dtt) / dt_max)
-    m = min(max(math.ceil(m), 1), max_sub)
-    h = dt / m
-    gh = ROS2_GAMMA * h
-    for i in range(m):
-        if i:  # stage 1 at (p, t): rates and diagonal Jacobian (same code as above)
-            pr = p / p_a
-            if pr <= prc:
-                psi, dpsi = psic, 0.0
-            elif pr < pr_reg:
-                root = sqrt(c * (1.0 - pr ** e2))
-                pe1 = pr ** e1
-                psi = pe1 * root
-                dpsi = e1 * pr ** e1m1 * root - pe1 * c * e2 * pr ** e2m1 / (2.0 * root)
+            s = 1.0 - pr
+            if s < ms0:
+                psi, dpsi = mpsi0, 0.0
             else:
-                s = 1.0 - pr
-                if s < ms0:
-                    psi, dpsi = mpsi0, 0.0
-                else:
-                    sa = abs(s)
-                    psi, dpsi = qa * s + qb * s * sa, -(qa + 2.0 * qb * sa)
-            pc = prs0 if prs0 > pr else pr
-            pc = prs_hi if prs_hi < pc else pc
-            j = bisect_right(prs, pc) - 1
-            j = nseg if nseg < j else j
-            cd = cdv[j] + cds[j] * (pc - prs[j])
-            dcd = cds[j] if prs0 < pr < prs_hi else 0.0
-            mdot = xi0 * cd * psi
-            dmdot = xi0 * (dcd * psi + cd * dpsi) / p_a
-            pp = floor if floor > p else p
-            resid = (p_exh / pp) ** e_eta
-            deta = scale * e_eta * resid / pp if p > floor else 0.0
-            eta = scale * (r_c - resid)
-            q = h1 * (t_cool - t) + h2 * (t_a - t)
-            pv = pp * v
-            dp = krta * mdot / v - kkp * eta * p + km1 * q / v
-            dtt = (r * t * mdot * (kta - t) + km1 * t * q) / pv - km1kp * eta * t
-            jpp = krta * dmdot / v - kkp * (eta + p * deta)
-            jtt = (r * mdot * (kta - 2.0 * t) + km1 * (q - hsum * t)) / pv - km1kp * eta
+                sa = abs(s)
+                psi, dpsi = qa * s + qb * s * sa, -(qa + 2.0 * qb * sa)
+        pc = prs0 if prs0 > pr else pr
+        pc = prs_hi if prs_hi < pc else pc
+        j = bisect_right(prs, pc) - 1
+        j = nseg if nseg < j else j
+        cd = cdv[j] + cds[j] * (pc - prs[j])
+        dcd = cds[j] if prs0 < pr < prs_hi else 0.0
+        mdot = xi0 * cd * psi
+        dmdot = xi0 * (dcd * psi + cd * dpsi) / p_a
+        pp = floor if floor > p else p
+        resid = (p_exh / pp) ** e_eta
+        deta = scale * e_eta * resid / pp if p > floor else 0.0
+        eta = scale * (r_c - resid)
+        q = h1 * (t_cool - t) + h2 * (t_a - t)
+        pv = pp * v
+        dp = krta * mdot / v - kkp * eta * p + km1 * q / v
+        dtt = (r * t * mdot * (kta - t) + km1 * t * q) / pv - km1kp * eta * t
+        jpp = krta * dmdot / v - kkp * (eta + p * deta)
+        jtt = (r * mdot * (kta - 2.0 * t) + km1 * (q - hsum * t)) / pv - km1kp * eta
+        if i == 0:
+            m = max(dt * (abs(jpp) + abs(jtt)) / lam_max, dt * abs(dp) / dp_max,
+                    dt * abs(dtt) / dt_max)
+            m = min(max(math.ceil(m), 1), max_sub)
+            h = dt / m
+            gh = ROS2_GAMMA * h
         wp = 1.0 - gh * (0.0 if 0.0 < jpp else jpp)
         wt = 1.0 - gh * (0.0 if 0.0 < jtt else jtt)
         k1p = dp / wp
@@ -210,4 +181,6 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
         p += h * (1.5 * k1p + 0.5 * k2p)
         t += h * (1.5 * k1t + 0.5 * k2t)
         p = floor if floor > p else p
-    return p, t, m
+        i += 1
+        if i >= m:
+            return p, t, m
