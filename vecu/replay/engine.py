@@ -10,6 +10,7 @@ is measured. One event loop either way: vecu.scheduler.
 
 from __future__ import annotations
 
+import gc
 import logging
 import sys
 import threading
@@ -36,6 +37,8 @@ from vecu.stats import LatencyHistogram
 log = logging.getLogger(__name__)
 
 OUT_CHANNEL = "vecu"  # channel name of the ECU's frames in --out
+PLAYER_SPIN_NS = 100_000
+SWITCH_INTERVAL_S = 2e-5
 CHUNK_NS = NS_PER_S  # fast mode runs the scheduler a simulated second at a time (progress)
 
 
@@ -96,7 +99,9 @@ def replay(config: ReplayConfig) -> ReplayResult:
         writer = _Locked(writer)
     buses: list[can.BusABC] = []
     try:
-        clock = WallClock() if live else SimClock()
+        # live: the ECU thread sleeps its whole waits (no spin holding the GIL); the player spins
+        # the last PLAYER_SPIN_NS (sleep overshoots ~0.1 ms here)
+        clock = WallClock(spin_ns=0) if live else SimClock()
         sched = Scheduler(clock)
         scorer = TruthScorer(ecu_codec, keep_series=config.keep_series)
         if live:
@@ -282,11 +287,11 @@ class _Feeder:
 
 
 def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float) -> None:
-    """The player in its own thread on its own scheduler (same clock origin, sleeping waits) and
-    the ECU on this one: a long ECU tick does not hold back the frames due meanwhile. The GIL
-    switch interval drops to 0.1 ms for the run so that the player gets it within that."""
+    """The player in its own thread on its own scheduler (same clock origin) and the ECU on this
+    one: a long ECU tick does not hold back the frames due meanwhile. The GIL switch interval
+    drops to SWITCH_INTERVAL_S for the run so that the player gets the GIL within that."""
     clock.start()
-    player_clock = clock.sibling(spin_ns=0)
+    player_clock = clock.sibling(spin_ns=PLAYER_SPIN_NS)
     player = Scheduler(player_clock)
     player.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
     feeder.clock = player_clock
@@ -303,7 +308,9 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float)
             feeder.done = True
 
     previous = sys.getswitchinterval()
-    sys.setswitchinterval(1e-4)
+    gc.collect()
+    gc.freeze()  # set-up objects out of the collector's way: no long pauses mid-run
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     thread = threading.Thread(target=play, name="vecu-replay-player", daemon=True)
     try:
         thread.start()
@@ -316,6 +323,7 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float)
         sched.run_until(-(-last // TICK_NS) * TICK_NS + 1)
     finally:
         sys.setswitchinterval(previous)
+        gc.unfreeze()
     if failure:
         raise failure[0]
 
