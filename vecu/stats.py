@@ -1,8 +1,13 @@
-"""Running statistics in constant memory (Welford), for hour-long runs."""
+"""Running statistics in constant memory, for hour-long runs: Welford moments of a stream and
+fixed-size histograms of durations (1 us bins up to a limit, overflow counted, exact maximum)."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
+
+NS_PER_US = 1_000
+COARSE_US = 100  # second-level bins of DurationHistogram (fast percentile queries)
 
 
 class RunningStats:
@@ -45,45 +50,73 @@ class RunningStats:
                 "non_finite": self.non_finite}
 
 
-class LatencyHistogram:
-    """Percentiles of a stream of non-negative durations (ns) in constant memory: 1 µs bins up to
-    max_us, beyond that only counted and the maximum kept."""
+class DurationHistogram:
+    """Counts of durations in 1 us bins; record() takes nanoseconds."""
 
-    def __init__(self, max_us: int = 100_000) -> None:
-        self._bins = [0] * (max_us + 1)
-        self._max_us = max_us
-        self.n = 0
-        self.over = 0
+    def __init__(self, limit_us: int = 20_000) -> None:
+        if limit_us <= 0:
+            raise ValueError(f"histogram limit must be positive, got {limit_us} us")
+        self.limit_us = limit_us
+        self._bins = [0] * limit_us
+        self._coarse = [0] * (limit_us // COARSE_US + 1)
+        self.count = 0
+        self.overflow = 0
+        self.negative = 0  # values below 0 (clock offsets between hosts), counted in bin 0
         self.max_ns = 0
         self._sum_ns = 0
 
-    def add(self, ns: int) -> None:
-        ns = max(ns, 0)
-        self.n += 1
+    def record(self, ns: int) -> None:
+        self.count += 1
+        if ns < 0:
+            self.negative += 1
+            ns = 0
         self._sum_ns += ns
-        if ns > self.max_ns:
-            self.max_ns = ns
-        us = ns // 1000
-        if us > self._max_us:
-            self.over += 1
-        else:
+        self.max_ns = max(self.max_ns, ns)
+        us = ns // NS_PER_US
+        if us < self.limit_us:
             self._bins[us] += 1
+            self._coarse[us // COARSE_US] += 1
+        else:
+            self.overflow += 1
 
     def percentile_us(self, q: float) -> float | None:
-        """Upper edge of the 1 µs bin holding the q-th percentile (None when empty)."""
-        if self.n == 0:
+        """Upper edge of the bin holding the q-quantile (0 < q <= 1), in us; None when empty."""
+        if self.count == 0:
             return None
-        rank = q / 100.0 * self.n
+        if not 0.0 < q <= 1.0:
+            raise ValueError(f"quantile must be in (0, 1], got {q}")
+        rank = max(1, int(-(-q * self.count // 1)))  # ceil(q * n): the rank-th smallest value
+        max_us = self.max_ns / NS_PER_US
         seen = 0
-        for us, count in enumerate(self._bins):
-            seen += count
-            if count and seen >= rank:
-                return float(us + 1)
-        return self.max_ns / 1000.0
+        for block, n in enumerate(self._coarse):
+            if seen + n >= rank:
+                first = block * COARSE_US
+                for us in range(first, min(first + COARSE_US, self.limit_us)):
+                    seen += self._bins[us]
+                    if seen >= rank:
+                        return min(float(us + 1), max_us)
+            seen += n
+        return max_us
 
-    def summary_ms(self) -> dict[str, float | int | None]:
-        p = self.percentile_us
-        to_ms = (lambda v: None if v is None else round(v / 1000.0, 3))
-        return {"n": self.n, "p50": to_ms(p(50)), "p99": to_ms(p(99)),
-                "max": round(self.max_ns / 1e6, 3), "mean": round(self._sum_ns / self.n / 1e6, 3)
-                if self.n else None, "over_100ms": self.over}
+    def fraction_above_us(self, limit_us: float) -> float:
+        """Share of values at or above limit_us (resolution 1 us)."""
+        if self.count == 0:
+            return 0.0
+        first = int(limit_us)
+        above = sum(self._bins[first:]) + self.overflow if first < self.limit_us else self.overflow
+        return above / self.count
+
+    def summary(self) -> dict[str, Any]:
+        """count, mean, p50, p90, p99, p99.9 and max in us (None when nothing was recorded)."""
+        empty = self.count == 0
+        return {
+            "count": self.count,
+            "mean_us": None if empty else round(self._sum_ns / self.count / NS_PER_US, 1),
+            "p50_us": self.percentile_us(0.5),
+            "p90_us": self.percentile_us(0.9),
+            "p99_us": self.percentile_us(0.99),
+            "p999_us": self.percentile_us(0.999),
+            "max_us": None if empty else round(self.max_ns / NS_PER_US, 1),
+            "over_limit": self.overflow,
+            "negative": self.negative,
+        }

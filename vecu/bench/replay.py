@@ -13,8 +13,8 @@ import can
 
 from vecu.bus import open_bus
 from vecu.config import RunConfig
-from vecu.replay.engine import ReplayConfig, replay
-from vecu.stats import LatencyHistogram
+from vecu.replay.engine import SCHEDULE_ERROR_LIMIT_US, ReplayConfig, replay
+from vecu.stats import DurationHistogram
 
 
 def record_trace(path: str, duration_s: float, seed: int = 0) -> float:
@@ -53,7 +53,7 @@ def bench_player_baseline(path: str, seconds: float, channel: str) -> dict[str, 
     """python-can's MessageSync (what can.player uses) on the same frames, same bus kind: the
     error of each send against its recorded time."""
     frames = [m for m in can.LogReader(path) if m.timestamp - 0.0 < seconds]
-    hist = LatencyHistogram()
+    hist = DurationHistogram(limit_us=SCHEDULE_ERROR_LIMIT_US)
     bus = open_bus(interface="virtual", channel=channel)
     try:
         t0_rec = frames[0].timestamp
@@ -63,10 +63,10 @@ def bench_player_baseline(path: str, seconds: float, channel: str) -> dict[str, 
                 start = time.perf_counter_ns()
             bus.send(msg)
             due = start + int((msg.timestamp - t0_rec) * 1e9)
-            hist.add(time.perf_counter_ns() - due)
+            hist.record(time.perf_counter_ns() - due)
     finally:
         bus.shutdown()
-    return hist.summary_ms()
+    return hist.summary()
 
 
 def bench_live(path: str, seconds: float, estimator: str) -> dict[str, Any]:
@@ -80,11 +80,11 @@ def bench_live(path: str, seconds: float, estimator: str) -> dict[str, Any]:
         res = replay(ReplayConfig(trace=short, speed=1.0, channel="vecu-bench-replay",
                                   estimator=estimator, progress=False))
     s = res.summary
-    ours = s["schedule_error_ms"]
+    ours = s["schedule_error"]
     return {"seconds": seconds, "frames": s["frames"]["read"], "vecu": ours,
             "python_can_player": baseline,
-            "p99_ratio": (round(baseline["p99"] / ours["p99"], 1)
-                          if ours["p99"] and baseline["p99"] else None),
+            "p99_ratio": (round(baseline["p99_us"] / ours["p99_us"], 1)
+                          if ours["p99_us"] and baseline["p99_us"] else None),
             "ecu_overruns": s["ecu_overruns"],
             "ecu_accepted": s["frames"]["ecu_rx"]["accepted"]}
 
@@ -115,8 +115,8 @@ def format_replay(r: dict[str, Any]) -> str:
     v, b = lv["vecu"], lv["python_can_player"]
     lines.append(f"Live replay at 1x on the virtual bus, {lv['seconds']:.0f} s, {lv['frames']} frames "
                  f"(target p99 <= 1 ms):")
-    lines.append(f"  vecu replay        schedule error p50 {v['p50']} ms, p99 {v['p99']} ms, max "
-                 f"{v['max']} ms; ECU overruns {lv['ecu_overruns']}")
-    lines.append(f"  python-can player  schedule error p50 {b['p50']} ms, p99 {b['p99']} ms, max "
-                 f"{b['max']} ms  (vecu p99 {lv['p99_ratio']}x lower)")
+    lines.append(f"  vecu replay        schedule error p50 {v['p50_us']} us, p99 {v['p99_us']} us, "
+                 f"max {v['max_us']} us; ECU overruns {lv['ecu_overruns']}")
+    lines.append(f"  python-can player  schedule error p50 {b['p50_us']} us, p99 {b['p99_us']} us, "
+                 f"max {b['max_us']} us  (vecu p99 {lv['p99_ratio']}x lower)")
     return "\n".join(lines)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
+from pathlib import Path
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario")
 
@@ -31,6 +33,19 @@ def main(argv: list[str] | None = None) -> int:
 
 class UserInputError(Exception):
     """A bad file or argument given by the user: reported as one line, exit code 2."""
+
+
+def configure_logging(quiet: bool) -> None:
+    """Warnings (rx problems, send failures) on stderr; with --quiet errors only."""
+    logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+
+
+def require_output_dirs(*paths: str | None) -> None:
+    """Fail before a run, not after it, when an output file's directory does not exist."""
+    for path in paths:
+        if path and not Path(path).resolve().parent.is_dir():
+            raise UserInputError(f"{path}: directory does not exist")
 
 
 if __name__ == "__main__":

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import logging
 from collections import deque
 from dataclasses import replace
 from typing import Any
 
-from vecu.cli import UserInputError
-from vecu.live.args import add_live_arguments, check_paths, live_options
+from vecu.cli import UserInputError, configure_logging, require_output_dirs
+from vecu.live.args import add_live_arguments, live_options
 
 MAX_STATUS_CHANGES = 64
 
@@ -43,15 +42,12 @@ def main(args: argparse.Namespace) -> int:
     from vecu.ecu.throttle_function import ThrottleFunctionConfig
     from vecu.estimators.registry import EstimatorUnavailableError
     from vecu.live.process import LiveProcess, warm_up
-    from vecu.live.stats import RunningStats
+    from vecu.stats import RunningStats
     from vecu.live.sync import PhaseSync, sync_to_trigger
     from vecu.recorder import TraceWriteError
 
-    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    problem = check_paths(args.log, args.summary, args.ready_file)
-    if problem:
-        raise UserInputError(problem)
+    configure_logging(args.quiet)
+    require_output_dirs(args.log, args.summary, args.ready_file)
     if not 0.0 <= args.sync_timeout <= 3600.0:
         raise UserInputError(f"--sync-timeout: expected 0..3600 s, got {args.sync_timeout}")
     throttle_cfg = ThrottleFunctionConfig()
@@ -154,7 +150,7 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
             "estimator": thr.estimator.name,
             "estimator_resets": thr.estimator.resets,
             "estimator_faults": thr.estimator_faults,
-            "estimate_vs_sensor_deg": accuracy.summary(),
+            "estimate_vs_sensor_deg": accuracy.as_dict(),
             "first_fault_s": None if first is None else first / NS_PER_S,
             "first_fault_epoch_s": (None if first is None or proc.start_epoch_s is None
                                     else proc.start_epoch_s + first / NS_PER_S),

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import logging
 from typing import Any
 
-from vecu.cli import UserInputError
-from vecu.live.args import add_live_arguments, check_paths, live_options
+from vecu.cli import UserInputError, configure_logging, require_output_dirs
+from vecu.live.args import add_live_arguments, live_options
 
 # without --duration the precomputed steering manoeuvre covers this much, then holds its end
 STEERING_HORIZON_S = 900.0
@@ -64,11 +63,8 @@ def main(args: argparse.Namespace) -> int:
     from vecu.live.process import LiveProcess, warm_up
     from vecu.recorder import TraceWriteError
 
-    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    problem = check_paths(args.log, args.summary, args.ready_file)
-    if problem:
-        raise UserInputError(problem)
+    configure_logging(args.quiet)
+    require_output_dirs(args.log, args.summary, args.ready_file)
     if not 0.0 <= args.extra_load <= 100_000.0:
         raise UserInputError(f"--extra-load: expected 0..100000 frames/s, got {args.extra_load}")
     if args.extra_load and args.no_speed:

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 from pathlib import Path
 from typing import Any
 
 from vecu.bus import BusOpenError
-from vecu.cli import UserInputError
+from vecu.cli import UserInputError, configure_logging, require_output_dirs
 from vecu.codec import DbcLoadError
 from vecu.recorder import TraceWriteError
 
@@ -51,11 +50,8 @@ def main(args: argparse.Namespace) -> int:
     from vecu.replay.signal_map import SignalMapError
     from vecu.replay.source import TraceReadError
 
-    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    for path in (args.out, args.summary, args.plot):
-        if path and not Path(path).resolve().parent.is_dir():
-            raise UserInputError(f"{path}: directory does not exist")
+    configure_logging(args.quiet)
+    require_output_dirs(args.out, args.summary, args.plot)
     config = ReplayConfig(
         trace=args.trace, dbc=tuple(args.dbc), signal_map=args.signal_map, out=args.out,
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
@@ -113,10 +109,10 @@ def format_summary(s: dict[str, Any]) -> str:
         if mf:
             lines.append(f"score manifold: MAP RMS {mf['map_error_kpa']['rms']:.3f} kPa, "
                          f"IMT {mf['imt_error_k']['rms']:.2f} K, CAC {mf['cac_error_mg']['rms']:.2f} mg")
-    if "schedule_error_ms" in s:
-        e = s["schedule_error_ms"]
-        lines.append(f"schedule error: p50 {e['p50']} ms, p99 {e['p99']} ms, max {e['max']} ms "
-                     f"over {e['n']} frames")
+    if "schedule_error" in s:
+        e = s["schedule_error"]
+        lines.append(f"schedule error: p50 {e['p50_us']} us, p99 {e['p99_us']} us, max "
+                     f"{e['max_us']} us over {e['count']} frames")
     if s.get("frames_written"):
         lines.append(f"wrote {s['frames_written']} frames to {s['config']['out']}")
     return "\n".join(lines)

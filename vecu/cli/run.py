@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 from pathlib import Path
 from typing import Any
 
 from vecu.bus import BusOpenError
-from vecu.cli import UserInputError
+from vecu.cli import UserInputError, configure_logging, require_output_dirs
 from vecu.recorder import TraceWriteError
 
 
@@ -61,8 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     from vecu.runner import RunConfig, run
 
-    logging.basicConfig(level=logging.ERROR if args.quiet else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(args.quiet)
     config = RunConfig(
         duration_s=args.duration, seed=args.seed, noise_scale=args.noise_scale,
         kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at, fault=args.fault, fault_value=args.fault_value,
@@ -71,9 +69,7 @@ def main(args: argparse.Namespace) -> int:
         keep_series=bool(args.plot),
         kill_swa_at_s=None if args.kill_swa_at == "half" else args.kill_swa_at,
         swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value)
-    for path in (args.log, args.summary, args.plot):
-        if path and not Path(path).resolve().parent.is_dir():
-            raise UserInputError(f"{path}: directory does not exist")
+    require_output_dirs(args.log, args.summary, args.plot)
     try:
         result = run(config)
     except (ValueError, KeyError, BusOpenError, TraceWriteError) as exc:

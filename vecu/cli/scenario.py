@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 from pathlib import Path
 
-from vecu.cli import UserInputError
+from vecu.cli import UserInputError, configure_logging, require_output_dirs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,12 +30,10 @@ def main(args: argparse.Namespace) -> int:
     from vecu.scenario.report import write_html, write_junit
     from vecu.scenario.runner import run_scenarios
 
-    logging.basicConfig(level=logging.ERROR, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(quiet=True)  # errors only: the scenario lines are the output
     if args.jobs < 1:
         raise UserInputError(f"--jobs must be >= 1, got {args.jobs}")
-    for path in (args.junit,):
-        if path and not Path(path).resolve().parent.is_dir():
-            raise UserInputError(f"{path}: directory does not exist")
+    require_output_dirs(args.junit)
     try:
         scenarios = [load_scenario(f) for f in args.files]
     except ScenarioError as exc:

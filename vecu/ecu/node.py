@@ -121,7 +121,8 @@ class EcuNode(BusNode):
         self.overruns = 0  # set by the runner from the scheduler's count
         self._consumers = routes if routes is not None else native_routes(codec, functions)
         self._armed: list[EcuFunction] = [] if arm_on_input else list(functions)
-        self._armed_by: set[int] = set() if arm_on_input else {id(r) for r in self._consumers.values()}
+        # routes whose first accepted frame has not come yet (arm_on_input only)
+        self._unarmed: set[int] = {id(r) for r in self._consumers.values()} if arm_on_input else set()
         self._status = codec["ECU_Status"]
         self._status_period_ns = int((self._status.cycle_time_ms or 100) * NS_PER_MS)
         self._next_status_ns = 0
@@ -145,7 +146,7 @@ class EcuNode(BusNode):
         return list(self._armed)
 
     def _arm(self, route: Route) -> None:
-        self._armed_by.add(id(route))
+        self._unarmed.discard(id(route))
         self._armed = [f for f in self.functions if f in self._armed or f in route.feeds]
 
     def function(self, name: str) -> EcuFunction | None:
@@ -197,17 +198,13 @@ class EcuNode(BusNode):
             return
         if fc.e2e is not None and not fc.crc_ok(data):
             rx.crc_errors += 1
-            self._problem("crc", msg)
-            if sub.on_e2e_error:
-                sub.on_e2e_error()
+            self._e2e_failure("crc", msg, sub)
             return
         values = fc.decode(data)
         # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
         if counter is not None and not counter.check(int(values[fc.e2e.counter_signal])):
             rx.counter_errors += 1
-            self._problem("alive-counter", msg)
-            if sub.on_e2e_error:
-                sub.on_e2e_error()
+            self._e2e_failure("alive-counter", msg, sub)
             return
         bad = fc.bad_values(values)
         if bad:
@@ -216,8 +213,13 @@ class EcuNode(BusNode):
             return
         rx.accepted += 1
         sub.on_values(values, t_ns)
-        if id(route) not in self._armed_by:
+        if self._unarmed and id(route) in self._unarmed:
             self._arm(route)
+
+    def _e2e_failure(self, kind: str, msg: can.Message, sub: Subscription) -> None:
+        self._problem(kind, msg)
+        if sub.on_e2e_error:
+            sub.on_e2e_error()
 
     # ------------------------------------------------------------------- tick
     def tick(self, t_ns: int) -> None:

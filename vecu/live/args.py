@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 from vecu.live.options import LiveOptions
 
@@ -49,14 +48,6 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     status.add_argument("--no-status", dest="status", action="store_false",
                         help="never show the status panel")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
-
-
-def check_paths(*paths: str | None) -> str | None:
-    """The first path whose directory does not exist, as an error message."""
-    for path in paths:
-        if path and not Path(path).resolve().parent.is_dir():
-            return f"{path}: directory does not exist"
-    return None
 
 
 def live_options(args: argparse.Namespace, role: str) -> LiveOptions:

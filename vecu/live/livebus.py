@@ -20,7 +20,7 @@ from typing import Any
 import can
 
 from vecu.codec import DbcCodec
-from vecu.live.stats import DurationHistogram
+from vecu.stats import DurationHistogram
 
 log = logging.getLogger(__name__)
 

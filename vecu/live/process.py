@@ -30,7 +30,7 @@ from vecu.live.livebus import (
     sent_ids,
 )
 from vecu.live.options import LiveOptions, bus_config
-from vecu.live.stats import DurationHistogram
+from vecu.stats import DurationHistogram
 from vecu.recorder import Recorder
 from vecu.scheduler import Scheduler, TaskStats
 

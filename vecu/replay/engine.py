@@ -32,12 +32,13 @@ from vecu.replay.scoring import TruthScorer
 from vecu.replay.signal_map import SignalMap, identity_map, load_signal_map, mapped_routes
 from vecu.replay.source import TraceReadError, TraceSource
 from vecu.scheduler import Scheduler
-from vecu.stats import LatencyHistogram
+from vecu.stats import DurationHistogram
 
 log = logging.getLogger(__name__)
 
 OUT_CHANNEL = "vecu"  # channel name of the ECU's frames in --out
 PLAYER_SPIN_NS = 100_000
+SCHEDULE_ERROR_LIMIT_US = 200_000  # 1 us bins up to 200 ms; beyond: counted, max kept
 SWITCH_INTERVAL_S = 2e-5
 CHUNK_NS = NS_PER_S  # fast mode runs the scheduler a simulated second at a time (progress)
 
@@ -217,7 +218,7 @@ class _Feeder:
         self.player: can.BusABC | None = None
         self.speed = 1.0
         self.clock: WallClock | None = None
-        self.schedule_error = LatencyHistogram()
+        self.schedule_error = DurationHistogram(limit_us=SCHEDULE_ERROR_LIMIT_US)
         self._pending = next(self.frames, None)
         if self._pending is None:
             self.done = True
@@ -283,7 +284,7 @@ class _Feeder:
             self.tally.decode_errors["send_failed"] = self.tally.decode_errors.get(
                 "send_failed", 0) + 1
             log.warning("replay: send failed: %s", exc)
-        self.schedule_error.add(self.clock.now_ns() - due_ns)
+        self.schedule_error.record(self.clock.now_ns() - due_ns)
 
 
 def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float) -> None:
@@ -426,7 +427,7 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: 
         "score": scorer.summary() if scorer.active else None,
     }
     if config.speed is not None:
-        out["schedule_error_ms"] = feeder.schedule_error.summary_ms()
+        out["schedule_error"] = feeder.schedule_error.summary()
     return out
 
 

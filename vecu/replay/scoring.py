@@ -113,20 +113,19 @@ class TruthScorer:
         fc, ch = entry
         latest = self._latest.get(ch.truth)
         matched = latest is not None and 0 <= t_ns - latest[0] <= ch.max_age_ns
+        scored = matched and t_ns >= ch.burn_in_ns  # matched: truth frames seen
+        if self.truth_frames and not matched:
+            self.unmatched[ch.estimate] += 1
+        if not scored and self.series is None:
+            return
+        est = fc.decode(msg.data)
         if self.series is not None:
             first = ch.pairs[0]
-            est = fc.decode(msg.data)
             self.series[GROUP[ch.estimate]].append(
                 (t_ns / 1e9, est[first.estimate_signal],
                  latest[1][first.truth_signal] if matched else math.nan))
-        if not self.truth_frames:
+        if not scored:
             return
-        if not matched:
-            self.unmatched[ch.estimate] += 1
-            return
-        if t_ns < ch.burn_in_ns:
-            return
-        est = fc.decode(msg.data)
         truth = latest[1]
         stats = self.stats[ch.estimate]
         for p in ch.pairs:
