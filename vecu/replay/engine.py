@@ -68,7 +68,6 @@ class ReplayConfig:
 class FrameTally:
     """What happened to each frame of the trace (each lands in exactly one of the bins)."""
 
-    to_ecu: int = 0          # handed to the ECU: its rx counters say accepted / ignored / why not
     truth: int = 0           # debug truth frames (scoring)
     decoded_other: int = 0   # known to the trace's database, not an ECU input, decoded fine
     decode_errors: dict[str, int] = field(default_factory=dict)  # known, not decodable: reason
@@ -95,9 +94,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
     routes = _routes(config, smap, trace_db, ecu_codec, functions)
     source = TraceSource(config.trace, config.fmt)
     live = config.speed is not None
-    writer = _open_writer(config.out)
-    if writer is not None and live:  # the player thread copies inputs, the ECU thread estimates
-        writer = _Locked(writer)
+    writer = _open_writer(config.out, locked=live)
     buses: list[can.BusABC] = []
     try:
         # live: the ECU thread sleeps its whole waits (no spin holding the GIL); the player spins
@@ -114,22 +111,18 @@ def replay(config: ReplayConfig) -> ReplayResult:
             ecu_bus = _SinkBus()
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
                       arm_on_input=True)
-        t0_holder: list[float] = []
-        written = [0]
-
         def on_sent(msg: can.Message) -> None:
             t_ns = clock.now_ns() if not live else int(round(msg.timestamp * NS_PER_S))
             scorer.on_estimate(msg, t_ns)
             if writer is not None:
-                msg.timestamp += t0_holder[0] if t0_holder else 0.0
+                msg.timestamp += source.t0_s or 0.0  # back on the trace's time base
                 if msg.channel is None:
                     msg.channel = OUT_CHANNEL
                 writer.on_message_received(msg)
-                written[0] += 1
         ecu.tap = on_sent
         tally = FrameTally()
-        feeder = _Feeder(source, ecu, trace_db, scorer, tally, routes, t0_holder,
-                         writer if config.with_inputs else None, written)
+        feeder = _Feeder(source, ecu, trace_db, scorer, tally, routes,
+                         writer if config.with_inputs else None)
         if live:
             feeder.player = player_bus
             feeder.speed = config.speed
@@ -163,7 +156,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
         if not live:
             ecu_bus.shutdown()
     summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
-                       written[0])
+                       writer.frames if writer is not None else 0)
     return ReplayResult(summary, source.error, scorer.series)
 
 
@@ -185,34 +178,38 @@ class _SinkBus(can.BusABC):
         return None
 
 
-class _Locked(can.Listener):
-    """A writer shared by the player and ECU threads of a live replay."""
+class _OutputWriter(can.Listener):
+    """The --out writer: counts frames; locked in a live replay, where the player thread copies
+    inputs and the ECU thread writes estimates."""
 
-    def __init__(self, inner: can.Listener) -> None:
+    def __init__(self, inner: can.Listener, locked: bool) -> None:
         self.inner = inner
-        self.lock = threading.Lock()
+        self.lock = threading.Lock() if locked else None
+        self.frames = 0
 
     def on_message_received(self, msg: can.Message) -> None:
-        with self.lock:
+        if self.lock is None:
             self.inner.on_message_received(msg)
+            self.frames += 1
+        else:
+            with self.lock:
+                self.inner.on_message_received(msg)
+                self.frames += 1
 
     def stop(self) -> None:
-        with self.lock:
-            self.inner.stop()
+        self.inner.stop()
 
 
 class _Feeder:
     """Scheduler chain task: hands every frame due by now to the ECU (fast) or the bus (live)."""
 
     def __init__(self, source: TraceSource, ecu: EcuNode, db: DbcCodec, scorer: TruthScorer,
-                 tally: FrameTally, routes: dict[tuple[int, bool], Route], t0: list[float],
-                 copy_to: can.Listener | None, written: list[int]) -> None:
+                 tally: FrameTally, routes: dict[tuple[int, bool], Route],
+                 copy_to: can.Listener | None) -> None:
         self.frames: Iterator[tuple[int, can.Message]] = iter(source)
         self.source, self.ecu, self.db, self.scorer, self.tally = source, ecu, db, scorer, tally
         self.routes = routes
-        self.t0 = t0
         self.copy_to = copy_to
-        self.written = written
         self.done = False
         self.last_ns = 0
         self.player: can.BusABC | None = None
@@ -232,15 +229,12 @@ class _Feeder:
             due = int(t_ns / self.speed) if live else t_ns
             if due > now_ns:
                 break
-            if not self.t0 and self.source.t0_s is not None:
-                self.t0.append(self.source.t0_s)
             if live:
                 self._send_live(msg, due)
             else:
                 self._deliver(msg, t_ns)
             if self.copy_to is not None:
                 self.copy_to.on_message_received(msg)
-                self.written[0] += 1
             self.last_ns = t_ns
             pending = next(frames, None)
         self._pending = pending
@@ -258,8 +252,7 @@ class _Feeder:
             return
         if key in self.routes or key not in self.db.by_id or msg.is_error_frame \
                 or msg.is_remote_frame:
-            tally.to_ecu += 1
-            self.ecu.receive(msg, t_ns)
+            self.ecu.receive(msg, t_ns)  # its rx counters say accepted / ignored / why not
             return
         fc = self.db.by_id[key]  # known, not an input: decode it to count it honestly
         reason = None
@@ -279,7 +272,6 @@ class _Feeder:
         assert self.player is not None and self.clock is not None
         try:
             self.player.send(msg)
-            self.tally.to_ecu += 1
         except can.CanError as exc:
             self.tally.decode_errors["send_failed"] = self.tally.decode_errors.get(
                 "send_failed", 0) + 1
@@ -351,11 +343,11 @@ def _routes(config: ReplayConfig, smap: SignalMap, trace_db: DbcCodec, ecu_codec
             and (trace_db[r.codec.name].frame_id, trace_db[r.codec.name].is_extended) == k}
 
 
-def _open_writer(path: str | None) -> can.Listener | None:
+def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
     if path is None:
         return None
     try:
-        return can.Logger(path)
+        return _OutputWriter(can.Logger(path), locked)
     except (ValueError, OSError, ImportError) as exc:
         raise TraceWriteError(f"{path}: cannot write: {exc}") from exc
 

@@ -238,12 +238,16 @@ class _Assembler:
         self.missing: set[str] = set()  # mapped signals not received yet
         self.counter_signals = counter_signals
         self.count = 0
+        # counters taken from another message's (ENG_Intake carries its ENG_Event's counter)
+        self.counter_of: _Assembler | None = None
 
     def deliver_now(self, t_ns: int) -> None:
         if self.missing:
             return
-        for name in self.counter_signals:  # synthesised: one per delivered message
-            self.values[name] = float(self.count & 0xFF)
+        # synthesised counters: one per delivered message, or the last one of counter_of
+        count = self.count if self.counter_of is None else self.counter_of.count - 1
+        for name in self.counter_signals:
+            self.values[name] = float(count & 0xFF)
         self.count += 1
         self.deliver(dict(self.values), t_ns)
 
@@ -273,15 +277,7 @@ def mapped_routes(smap: SignalMap, db: DbcCodec, ecu_codec: DbcCodec,
         per_source.setdefault(m.source_message, []).append((m, asm))
     # the ENG_Intake counter must match the event it belongs to: share the event's count
     if "ENG_Intake" in assemblers and "ENG_Event" in assemblers:
-        assemblers["ENG_Intake"].counter_signals = ()
-        event = assemblers["ENG_Event"]
-        intake = assemblers["ENG_Intake"]
-        original = intake.deliver
-
-        def intake_deliver(values: dict[str, float], t_ns: int) -> None:
-            values["ENG_IntakeCounter"] = float((event.count - 1) & 0xFF)
-            original(values, t_ns)
-        intake.deliver = intake_deliver
+        assemblers["ENG_Intake"].counter_of = assemblers["ENG_Event"]
     triggers = {}
     for m in smap.inputs:
         asm = assemblers.get(m.target.message)
