@@ -10,6 +10,7 @@ from typing import Any, Callable
 import can
 import numpy as np
 
+from vecu import kernels
 from vecu.assembly import (
     PRIO_PLANT,
     PRIO_PROBE,
@@ -243,6 +244,7 @@ def _summary(config: RunConfig, sched: Scheduler, plant: PlantNode, ecu: EcuNode
         "sim_time_s": sim_s,
         "wall_time_s": round(wall_s, 4),
         "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
+        "kernels": kernels.backend(),
         "throttle": throttle,
         "frames": {
             "sent": plant.frames_sent + ecu.frames_sent,

@@ -22,6 +22,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from vecu import kernels
+
+    try:
+        kernels.backend()  # VECU_KERNELS checked before any work starts
+    except kernels.KernelBackendError as exc:
+        print(f"vecu: error: {exc}", file=sys.stderr)
+        return 2
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

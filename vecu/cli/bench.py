@@ -14,7 +14,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "virtual bus (vecu vs python-can), whole pipeline x real time.")
     p.add_argument("--quick", action="store_true", help="shorter runs (noisier figures)")
     p.add_argument("--only", choices=("ukf", "bus", "pipeline", "live", "replay", "ecu",
-                                        "breakdown"), help="run one benchmark group")
+                                        "breakdown", "kernels"), help="run one benchmark group")
     p.add_argument("--live-seconds", type=float, default=10.0, metavar="S",
                    help="live group: seconds of the plant + ECU processes run (target: 60)")
     p.add_argument("--memory-minutes", type=float, default=10.0, metavar="M",
@@ -33,7 +33,10 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float =
                                        bench_throttle_ukf)
     from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
 
-    out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine()}
+    from vecu import kernels
+
+    out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine(),
+                           "kernel_backend": kernels.backend()}
     if only in (None, "ukf"):
         out["ukf"] = bench_throttle_ukf(steps=5_000 if quick else 20_000)
         out["filters"] = bench_speed_and_steering(steps=2_000 if quick else 5_000)
@@ -55,6 +58,9 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float =
     if only in (None, "breakdown"):
         from vecu.bench.breakdown import breakdown
         out["breakdown"] = breakdown(duration_s=2.0 if quick else 5.0)
+    if only in (None, "kernels"):
+        from vecu.bench.kernels import bench_kernels
+        out["kernels"] = bench_kernels(duration_s=2.0 if quick else 5.0)
     if only in (None, "replay"):
         from vecu.bench.replay import bench_replay
         out["replay"] = bench_replay(10.0 if quick else replay_seconds,
@@ -107,6 +113,9 @@ def main(args: argparse.Namespace) -> int:
     if "breakdown" in res:
         from vecu.bench.breakdown import format_breakdown
         print(format_breakdown(res["breakdown"]))
+    if "kernels" in res:
+        from vecu.bench.kernels import format_kernels
+        print(format_kernels(res["kernels"]))
     if "replay" in res:
         from vecu.bench.replay import format_replay
         print(format_replay(res["replay"]))

@@ -73,7 +73,8 @@ class Bank:
     def __init__(self, n: int, s_i: float) -> None:
         self.n = n
         self.cur, self.nxt = Frame(n), Frame(n)
-        self.t1, self.t2, self.t3 = np.empty(n), np.empty(n), np.empty(n)
+        self.T = np.empty((3, n))  # scratch rows (also the compiled step's, careful mode)
+        self.t1, self.t2, self.t3 = self.T
         self.cs = np.empty(n)  # resampling: cumulative weights
         self.ics = np.empty(n, dtype=np.intp)  # resampling: floor(cumulative * n_new + u0)
         self.counts = np.empty(n, dtype=np.intp)  # resampling: copies of each particle

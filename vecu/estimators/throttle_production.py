@@ -20,6 +20,11 @@ is multi-modal; Gaussian filters lock there. The particle filter
     handled by censored-Gaussian moments) and the Kalman filter is as accurate as the particles
     at a fraction of the cost.
 rho is noise-free given (theta, rho, i), so each particle carries its exact rho.
+
+Backends (vecu.kernels, VECU_KERNELS): under "python" the particle step is the numpy code below
+(the reference); under "numba" the same step runs as the compiled loops of
+vecu.estimators.throttle_pf_kernels (same draws, same decisions, results equal to rounding).
+The Kalman stretches and the rare paths (fill, hand-overs) are the same code under both.
 """
 
 from __future__ import annotations
@@ -29,6 +34,14 @@ import math
 
 import numpy as np
 
+from vecu.estimators.throttle_pf_kernels import (
+    CAREFUL,
+    PRIOR,
+    UPDATE,
+    pf_resample,
+    pf_step,
+    step_constants,
+)
 from vecu.estimators.throttle_pf_parts import (
     CLASS_B,
     CLASS_BOUNDS_DEG,
@@ -41,6 +54,7 @@ from vecu.estimators.throttle_pf_parts import (
     class_matrix_stack,
     systematic_counts,
 )
+from vecu.kernels import backend
 from vecu.plant.throttle import F_DIAG, THETA_MAX_DEG, THETA_MIN_DEG
 
 DEFAULT_N_HIGH = 300
@@ -111,6 +125,8 @@ class ThrottleParticleFilter:
         self._bvec = np.array(CLASS_B)
         self._yc = np.zeros(())  # 0-d array: y + shift of the current step
         self._kf = ModeThreeKalman(self._s_th ** 2, s * s)
+        self._kconst = step_constants(s, CLASS_B)  # the compiled step's constants
+        self._extremes: tuple[float, float] | None = None  # compiled step: max theta, min i
         self.resets = self.rejected = self.resamples = self.resizes = 0
         self.kalman_steps = self.steps = 0
         self.reset()
@@ -120,9 +136,11 @@ class ThrottleParticleFilter:
         """Back to the initial prior ('rest': theta=|N(0,1)|, rho, i ~ N(0,1)) and the seed."""
         self._rng = np.random.Generator(np.random.PCG64(self.seed))
         self._normals = z = self._rng.standard_normal(NORMAL_TABLE + max(self._banks))
-        self._zth = z * self._s_th  # theta process noise
-        self._zi = z * self._s_i  # current process noise (prior draw)
-        self._zq = z * (self._s_i * math.sqrt(2.0))  # proposal noise, times sqrt(.5/S) later
+        self._ztab = np.empty((3, z.size))  # rows read by the compiled step
+        self._zth, self._zi, self._zq = self._ztab
+        np.multiply(z, self._s_th, out=self._zth)  # theta process noise
+        np.multiply(z, self._s_i, out=self._zi)  # current process noise (prior draw)
+        np.multiply(z, self._s_i * math.sqrt(2.0), out=self._zq)  # proposal noise, x sqrt(.5/S)
         self._offs: list[int] = []
         self._k_off = 0
         self._gated = 0
@@ -150,16 +168,19 @@ class ThrottleParticleFilter:
         """Weighted moments of theta from one frame; returns the weight sum (bad: NaN)."""
         np.multiply(f.th, f.th, out=f.th2)
         mom = f.F.dot(f.w)  # sums of w * [theta, rho, i, 1, sgn rho, theta^2, w]
-        sw = float(mom[3])
+        return self._take_moments(float(mom[3]), float(mom[0]), float(mom[5]), float(mom[6]))
+
+    def _take_moments(self, sw: float, s_th: float, s_th2: float, s_w2: float) -> float:
+        """Output from the sums of w, w theta, w theta^2, w^2; returns sw (bad: NaN)."""
         if not sw > 0.0:
             return math.nan
-        th = float(mom[0]) / sw
-        var = float(mom[5]) / sw - th * th
+        th = s_th / sw
+        var = s_th2 / sw - th * th
         if not (math.isfinite(th) and math.isfinite(var) and math.isfinite(sw)):
             return math.nan
         self._set_output(th, var)
         self._sw = sw
-        self._sw2 = float(mom[6])
+        self._sw2 = s_w2
         return sw
 
     def _set_output(self, th: float, var: float) -> None:
@@ -205,17 +226,14 @@ class ThrottleParticleFilter:
             return
         b = self._b
         f, g = b.cur, b.nxt
-        self._predict(b, f, g, u, o1)
-        if y is None:
-            self._prior_current(b, f, g, o2)
-        else:
-            self._update(b, f, g, y, o2, False)
         sw_old = self._sw
-        sw = self._summarise(g)
+        extent = self._lo, self._hi  # of frame f: a redo picks its mode classes from these
+        sw = self._propagate(b, f, g, u, y, o1, o2, False)
         if y is not None:
             if sw > SURPRISE_FIT * sw_old:
                 self._gated = 0
             else:  # rare: redo this step as an outlier (predict only) or with care
+                self._lo, self._hi = extent
                 sw = self._replay(b, f, g, u, y, o1, o2, sw / sw_old)
         if not sw > 0.0:  # NaN or no weight left
             self._lost(y)
@@ -231,8 +249,38 @@ class ThrottleParticleFilter:
         if target != n or sw * sw < ESS_FRACTION * n * self._sw2:
             self._resample(target)
         elif (lo > KF_ENTER[0] and self.use_kalman and self.steps % KF_CHECK_EVERY == 0
-              and float(_max(g.th)) < KF_ENTER[1] and float(_min(g.ci)) > KF_ENTER[2]):
+              and self._fits_kalman(g)):
             self._to_kalman(g)
+
+    def _propagate(self, b: Bank, f, g, u: float, y: float | None, o1: int, o2: int,
+                   careful: bool) -> float:
+        """Predict f into g, then the prior current (y None) or the update with y; returns
+        the new weight sum (_summarise). numpy, or one compiled kernel under numba."""
+        if backend() == "numba":
+            mode = PRIOR if y is None else (CAREFUL if careful else UPDATE)
+            yc = 0.0 if y is None else y + self._y_shift
+            sw, s_th, s_th2, s_w2, lo, hi, ci_min = pf_step.compiled(
+                f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u, self._lo, self._hi,
+                o1, o2, mode, yc)
+            self._lo = lo
+            self._hi = hi if lo <= CLASS_BOUNDS_DEG[-1] else THETA_MAX_DEG
+            self._extremes = (hi, ci_min)
+            return self._take_moments(sw, s_th, s_th2, s_w2)
+        self._extremes = None
+        self._predict(b, f, g, u, o1)
+        if y is None:
+            self._prior_current(b, f, g, o2)
+        else:
+            self._update(b, f, g, y, o2, careful)
+        return self._summarise(g)
+
+    def _fits_kalman(self, g) -> bool:
+        """The rest of KF_ENTER: all theta below 85 deg and all currents above 1 A."""
+        if self._extremes is None:
+            th_max, ci_min = float(_max(g.th)), float(_min(g.ci))
+        else:
+            th_max, ci_min = self._extremes
+        return th_max < KF_ENTER[1] and ci_min > KF_ENTER[2]
 
     def _predict(self, b: Bank, f, g, u: float, o1: int) -> None:
         """Eq. (3) for every particle into frame g, theta noise added and clipped to [0, 90]."""
@@ -302,15 +350,12 @@ class ThrottleParticleFilter:
                 fit: float) -> float:
         """Redo the step from frame f (same random draws): y an isolated outlier -> predict
         only; otherwise the careful update. Returns the new weight sum."""
-        self._predict(b, f, g, u, o1)
         if not fit > OUTLIER_FIT and self._gated < MAX_GATED_IN_ROW:
             self._gated += 1
             self.rejected += 1
-            self._prior_current(b, f, g, o2)
-        else:
-            self._gated = 0
-            self._update(b, f, g, y, o2, True)
-        return self._summarise(g)
+            return self._propagate(b, f, g, u, None, o1, o2, False)
+        self._gated = 0
+        return self._propagate(b, f, g, u, y, o1, o2, True)
 
     def _resample(self, n_new: int) -> None:
         """Systematic resampling into n_new particles (weights back to 1)."""
@@ -322,9 +367,11 @@ class ThrottleParticleFilter:
         else:
             self.resizes += 1
         dst = b.nxt if nb is b else nb.cur
-        counts = systematic_counts(b, f.w, n_new, float(self._rng.random()))
-        f.top3.take(b.ar.repeat(counts), axis=1, out=dst.top3)
-        dst.w.fill(1.0)
+        u0 = float(self._rng.random())
+        if backend() != "numba" or pf_resample.compiled(f.F, dst.F, n_new, u0) != n_new:
+            counts = systematic_counts(b, f.w, n_new, u0)  # (broken weights raise here)
+            f.top3.take(b.ar.repeat(counts), axis=1, out=dst.top3)
+            dst.w.fill(1.0)
         if nb is b:
             b.cur, b.nxt = dst, f
         self._b = nb

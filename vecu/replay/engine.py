@@ -21,6 +21,7 @@ from typing import Any
 
 import can
 
+from vecu import kernels
 from vecu.assembly import PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import open_bus
 from vecu.clock import NS_PER_S, SimClock, WallClock
@@ -414,6 +415,7 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: 
         "wall_time_s": round(wall_s, 4),
         "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
         "frames_per_s": round(st.frames_read / wall_s) if wall_s > 0 else None,
+        "kernels": kernels.backend(),
         "frames_written": written,
         "ecu_overruns": ecu.overruns,
         "score": scorer.summary() if scorer.active else None,

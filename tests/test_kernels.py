@@ -1,0 +1,63 @@
+"""vecu.kernels: backend selection (VECU_KERNELS), the python fallback, the CLI's one-line error."""
+
+from __future__ import annotations
+
+import pytest
+
+from vecu import kernels
+from vecu.cli import main
+
+
+@pytest.fixture
+def fresh_backend(monkeypatch):
+    """Unresolved backend state, restored afterwards."""
+    monkeypatch.setattr(kernels, "_active", None)
+    yield
+    monkeypatch.setattr(kernels, "_active", None)
+
+
+@kernels.kernel
+def _weighted_sum(n: int, w: float) -> float:
+    s = 0.0
+    for i in range(n):
+        s += w * i
+    return s
+
+
+def test_python_backend_runs_the_function_itself(fresh_backend, monkeypatch):
+    monkeypatch.setenv(kernels.ENV_VAR, "python")
+    assert kernels.backend() == "python"
+    assert _weighted_sum.impl() is _weighted_sum.py
+    assert _weighted_sum(4, 0.5) == 3.0
+
+
+def test_auto_without_numba_falls_back_to_python(fresh_backend, monkeypatch):
+    monkeypatch.setattr(kernels, "_numba", False)
+    monkeypatch.setenv(kernels.ENV_VAR, "auto")
+    assert kernels.backend() == "python"
+    assert not kernels.numba_available()
+    with pytest.raises(kernels.KernelBackendError, match="not installed"):
+        kernels.set_backend("numba")
+
+
+def test_unknown_backend_is_a_one_line_cli_error(fresh_backend, monkeypatch, capsys):
+    monkeypatch.setenv(kernels.ENV_VAR, "cuda")
+    assert main(["run", "--duration", "0.01"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "VECU_KERNELS='cuda'" in err
+
+
+def test_fastmath_is_refused():
+    with pytest.raises(ValueError, match="fastmath"):
+        kernels.kernel(fastmath=True)
+
+
+def test_numba_backend_compiles_and_agrees(fresh_backend, monkeypatch):
+    pytest.importorskip("numba")
+    monkeypatch.setenv(kernels.ENV_VAR, "numba")
+    assert kernels.backend() == "numba"
+    fn = _weighted_sum.impl()
+    assert fn is not _weighted_sum.py and hasattr(fn, "signatures")
+    assert _weighted_sum(1000, 0.25) == _weighted_sum.py(1000, 0.25)
+    assert kernels.set_backend("python") == "numba"
+    assert _weighted_sum.impl() is _weighted_sum.py

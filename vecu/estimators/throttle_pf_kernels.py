@@ -1,0 +1,233 @@
+"""Compiled particle-mode step of the production throttle estimator (numba backend only).
+
+Loop versions of ThrottleParticleFilter's numpy step (vecu.estimators.throttle_production):
+`pf_step` = _predict + (_prior_current | _update | careful _update) + the moments of _summarise
+in one call (branch-free loops that LLVM vectorises, except libm exp / log: no SVML here, and
+the sequential sums), `pf_resample` = systematic_counts + the copy of _resample. They
+work in place on the Frame matrices F (rows theta, rho, i, 1, sgn rho, theta^2, weight) and read
+the same normal table at the same offsets, so they make the same random draws. Per particle the
+arithmetic is the numpy code's, operation by operation (no fastmath, no FMA contraction), so the
+elementwise results agree to the ulp except where BLAS (the eq. 3 matmul, the moments' gemv) or
+numpy's SIMD exp/log round differently; the resampling counts (sequential cumulative sum, as
+numpy's cumsum) are bit-identical for identical weights.
+
+The Python backend never calls these as plain Python (far too slow): it keeps the numpy path,
+which is the reference. The kernels are plain Python functions all the same (tested that way on
+small sets, with or without numba).
+"""
+
+# The explicit `a if a < b else b` selects keep numpy's NaN semantics (np.minimum / np.clip
+# propagate NaN; Python's min / max depend on the argument order):
+# ruff: noqa: FURB136, PLR1730
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vecu.kernels import kernel
+
+# pf_step modes
+PRIOR = 0  # no measurement: i from its prior, weights unchanged
+UPDATE = 1  # linearised optimal proposal, predictive-likelihood weights
+CAREFUL = 2  # the same with the clamped correction and log-domain weights
+
+# layout of the constants vector of pf_step (see step_constants)
+_INV_C2, _KAPPA, _NEG_K2, _NEG_FOUR_S2, _CLIP_LO, _CLIP_HI, _B0 = range(7)
+
+
+def step_constants(s_i: float, class_b: tuple[float, ...]) -> np.ndarray:
+    """Constants of pf_step, computed exactly as Bank / ThrottleParticleFilter._update do."""
+    inv_c = 1.0 / (2.0 * s_i)
+    kappa = np.sqrt(0.5) * inv_c
+    s2 = s_i * s_i
+    return np.array([inv_c * inv_c, kappa, -kappa * kappa, -4.0 * s_i * s_i,
+                     -0.25 / s2, 0.125 / s2, *class_b], dtype=np.float64)
+
+
+@kernel(error_model="numpy")  # x / 0 -> inf / NaN as numpy, no check per division
+def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, yc):
+    """One particle-mode step from frame src into frame dst (rows 0-2 and 6 written).
+
+    mats: the 12x5 class matrices (rows 3c..3c+2; the b*u entries are taken from cst instead),
+    cst: step_constants, ztab: rows theta noise / prior current noise / proposal noise of the
+    normal table, tmp: 3xn scratch, lo_prev / hi_prev: the filter's _lo / _hi (one class for
+    all particles if both are in it or lo_prev is in mode 3, else the class of each), yc = y +
+    the filter's y shift. Separate branch-free passes so that LLVM vectorises all but exp / log
+    and the sequential sums.
+    Returns (sum w, sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i); min / max
+    are NaN if any value is NaN (as numpy's reductions).
+    """
+    n = src.shape[1]
+    th0, rh0, ci0, w0 = src[0], src[1], src[2], src[6]
+    th, rh, ci, w = dst[0], dst[1], dst[2], dst[6]
+    zth, zi, zq = ztab[0, o1:o1 + n], ztab[1, o2:o2 + n], ztab[2, o2:o2 + n]
+    t1, q, t3 = tmp[0], tmp[1], tmp[2]
+    # bisect.bisect_left((1, 8, 16), x): the number of bounds below x (0 for NaN)
+    c_lo = (1 if lo_prev > 1.0 else 0) + (1 if lo_prev > 8.0 else 0) + (1 if lo_prev > 16.0 else 0)
+    c_hi = (1 if hi_prev > 1.0 else 0) + (1 if hi_prev > 8.0 else 0) + (1 if hi_prev > 16.0 else 0)
+    # eq. (3): th = mats row 3c . [theta, rho, i, 1, sgn rho] (+ noise, clipped), likewise rho
+    # and the predicted current m (into row ci; its constant column is b_c u)
+    if c_lo == 3 or c_lo == c_hi:
+        r = 3 * c_lo
+        a0, a1, a2, a3, a4 = mats[r, 0], mats[r, 1], mats[r, 2], mats[r, 3], mats[r, 4]
+        b0, b1, b2, b3, b4 = (mats[r + 1, 0], mats[r + 1, 1], mats[r + 1, 2], mats[r + 1, 3],
+                              mats[r + 1, 4])
+        d0, d1, d2, d3, d4 = (mats[r + 2, 0], mats[r + 2, 1], mats[r + 2, 2], cst[_B0 + c_lo] * u,
+                              mats[r + 2, 4])
+        # one output row per loop: few enough arrays for LLVM's alias checks, so it vectorises
+        for j in range(n):
+            x1 = rh0[j]
+            sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)  # NaN rho: all rows NaN anyway
+            t = a0 * th0[j] + a1 * x1 + a2 * ci0[j] + a3 + a4 * sg
+            t = t + zth[j]
+            t = 90.0 if t > 90.0 else t
+            th[j] = 0.0 if t < 0.0 else t  # numpy clips all at 0 if the minimum is below: same
+        for j in range(n):
+            x1 = rh0[j]
+            sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
+            rh[j] = b0 * th0[j] + b1 * x1 + b2 * ci0[j] + b3 + b4 * sg
+        for j in range(n):
+            x1 = rh0[j]
+            sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
+            ci[j] = d0 * th0[j] + d1 * x1 + d2 * ci0[j] + d3 + d4 * sg
+    else:
+        for j in range(n):
+            x0 = th0[j]
+            x1 = rh0[j]
+            x2 = ci0[j]
+            sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
+            # class by ceil(theta) as the numpy lookup (NaN -> class 0)
+            c = 0 if not x0 > 1.0 else (1 if x0 <= 8.0 else (2 if x0 <= 16.0 else 3))
+            r = 3 * c
+            t = (mats[r, 0] * x0 + mats[r, 1] * x1 + mats[r, 2] * x2 + mats[r, 3]
+                 + mats[r, 4] * sg)
+            t = t + zth[j]
+            t = 90.0 if t > 90.0 else t
+            th[j] = 0.0 if t < 0.0 else t
+            rh[j] = (mats[r + 1, 0] * x0 + mats[r + 1, 1] * x1 + mats[r + 1, 2] * x2
+                     + mats[r + 1, 3] + mats[r + 1, 4] * sg)
+            ci[j] = (mats[r + 2, 0] * x0 + mats[r + 2, 1] * x1 + mats[r + 2, 2] * x2
+                     + cst[_B0 + c] * u + mats[r + 2, 4] * sg)
+    if mode == 0:  # prior current, weights unchanged
+        for j in range(n):
+            ci[j] = ci[j] + zi[j]
+            w[j] = w0[j]
+    else:  # the linearised optimal proposal, operation by operation as ThrottleParticleFilter
+        inv_c2, kappa, neg_k2 = cst[_INV_C2], cst[_KAPPA], cst[_NEG_K2]
+        for j in range(n):
+            m = ci[j]
+            h2 = m * m
+            h2 = h2 + inv_c2  # S / (2s)^2
+            qj = math.sqrt(h2)
+            q[j] = kappa / qj  # sqrt(0.5 / S)
+            tj = neg_k2 / h2  # -0.5 / S
+            rr = yc - h2  # r
+            tj = rr * tj
+            t3[j] = tj
+            t1[j] = rr * tj  # -0.5 r^2 / S
+        if mode == 2:  # careful: clamp the correction, likelihoods scaled to a maximum of 1
+            clip_lo, clip_hi = cst[_CLIP_LO], cst[_CLIP_HI]
+            for j in range(n):
+                tj = t3[j]
+                t3[j] = clip_lo if tj < clip_lo else (clip_hi if tj > clip_hi else tj)
+            for j in range(n):
+                t1[j] = t1[j] + math.log(q[j])
+            mx = t1[0]
+            for j in range(1, n):
+                v = t1[j]
+                if not math.isnan(mx) and (v > mx or math.isnan(v)):
+                    mx = v
+            for j in range(n):
+                t1[j] = t1[j] - mx
+            for j in range(n):
+                t1[j] = math.exp(t1[j])
+            for j in range(n):
+                w[j] = w0[j] * t1[j]
+        else:
+            for j in range(n):
+                t1[j] = math.exp(t1[j])
+            for j in range(n):
+                w[j] = w0[j] * (q[j] * t1[j])
+        neg_four_s2 = cst[_NEG_FOUR_S2]
+        for j in range(n):
+            m = ci[j]
+            tj = t3[j] * m
+            tj = tj * neg_four_s2
+            tj = tj + m
+            ci[j] = tj + q[j] * zq[j]
+    # moments (sequential sums) and extremes, branch-free (a NaN theta makes s_th NaN; theta
+    # is never infinite after the clip; ci_chk is NaN if some i is NaN or infinite)
+    lo = th[0]
+    hi = lo
+    ci_min = ci[0]
+    ci_chk = 0.0
+    sw = 0.0
+    s_th = 0.0
+    s_th2 = 0.0
+    s_w2 = 0.0
+    for j in range(n):
+        x = th[j]
+        wj = w[j]
+        sw += wj
+        s_th += x * wj
+        s_th2 += (x * x) * wj
+        s_w2 += wj * wj
+        lo = x if x < lo else lo
+        hi = x if x > hi else hi
+        v = ci[j]
+        ci_min = v if v < ci_min else ci_min
+        ci_chk += v * 0.0
+    if math.isnan(s_th) or math.isnan(ci_chk):  # rare: NaN-propagating extremes, as numpy's
+        lo = th[0]
+        hi = lo
+        ci_min = ci[0]
+        for j in range(n):
+            x = th[j]
+            if not math.isnan(lo) and (x < lo or math.isnan(x)):
+                lo = x
+            if not math.isnan(hi) and (x > hi or math.isnan(x)):
+                hi = x
+            v = ci[j]
+            if not math.isnan(ci_min) and (v < ci_min or math.isnan(v)):
+                ci_min = v
+    return sw, s_th, s_th2, s_w2, lo, hi, ci_min
+
+
+@kernel(error_model="numpy")
+def pf_resample(src, dst, n_new, u0):
+    """Systematic resampling of src's particles into dst's n_new (rows 0-2 copied, weights 1).
+
+    Copies of particle i: floor(W_i n_new / W + u0) - floor(W_{i-1} n_new / W + u0), W_i the
+    cumulative weights (the last one absorbs the rounding: the total is n_new). Returns the
+    number of particles written (n_new unless the weights are broken).
+    """
+    n = src.shape[1]
+    total = 0.0
+    for i in range(n):
+        total += src[6, i]
+    scale = n_new / total
+    acc = 0.0
+    prev = 0
+    k = 0
+    for i in range(n):
+        acc += src[6, i]
+        x = acc * scale
+        x = x + u0
+        ic = n_new if i == n - 1 else math.floor(x)
+        cnt = ic - prev
+        prev = ic
+        if cnt > n_new - k:
+            cnt = n_new - k
+        th = src[0, i]
+        rh = src[1, i]
+        ci = src[2, i]
+        for _ in range(cnt):
+            dst[0, k] = th
+            dst[1, k] = rh
+            dst[2, k] = ci
+            k += 1
+    for j in range(n_new):
+        dst[6, j] = 1.0
+    return k

@@ -1,0 +1,122 @@
+"""Optional compiled kernels: numba when it is installed (`pip install vecu[fast]`), plain Python
+and numpy otherwise.
+
+A kernel is written once as a numba-compatible Python function and wrapped with `kernel(fn)`.
+Calling the wrapper runs the numba-compiled version when the active backend is "numba" and the
+Python function itself otherwise. The backend is chosen by the environment variable
+``VECU_KERNELS``:
+
+  auto    (default) numba if it can be imported, else python
+  numba   numba; a one-line error if it is not installed
+  python  never compile (the reference: the golden traces and bit-identity tests use it)
+
+`set_backend` switches it at run time (tests compare the two). Compiled code is cached on disk
+(numba's ``cache=True``: next to the sources, or the user cache directory when that is read-only),
+so only the first process on a machine pays the compile time (~1-3 s per kernel).
+
+Same seed, same backend -> bit-identical output. The two backends agree to rounding (a few ulp:
+numba's vector reductions and libm calls may round differently from numpy's); for kernels that
+only do scalar IEEE arithmetic and libm calls the outputs are bit-identical (tested per kernel).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import Any
+
+BACKENDS = ("auto", "numba", "python")
+ENV_VAR = "VECU_KERNELS"
+
+_numba: Any = None  # the numba module once imported, False if it cannot be
+_active: str | None = None  # "numba" or "python" once resolved
+
+
+class KernelBackendError(RuntimeError):
+    """VECU_KERNELS asks for a backend that is not available (or is not a backend at all)."""
+
+
+def _import_numba() -> Any:
+    global _numba
+    if _numba is None:
+        try:
+            import numba
+        except Exception:  # ImportError, or a broken llvmlite: fall back, never crash
+            _numba = False
+        else:
+            _numba = numba
+    return _numba
+
+
+def numba_available() -> bool:
+    """True if numba can be imported here."""
+    return bool(_import_numba())
+
+
+def _resolve(name: str) -> str:
+    if name not in BACKENDS:
+        raise KernelBackendError(
+            f"{ENV_VAR}={name!r}: expected one of {', '.join(BACKENDS)}")
+    if name == "auto":
+        return "numba" if numba_available() else "python"
+    if name == "numba" and not numba_available():
+        raise KernelBackendError(
+            f"{ENV_VAR}=numba but numba is not installed (pip install 'vecu[fast]')")
+    return name
+
+
+def backend() -> str:
+    """The active backend, "numba" or "python" (resolved from VECU_KERNELS on first use)."""
+    global _active
+    if _active is None:
+        _active = _resolve(os.environ.get(ENV_VAR, "auto").strip().lower() or "auto")
+    return _active
+
+
+def set_backend(name: str) -> str:
+    """Switch the backend ("auto", "numba", "python"); returns the previous one."""
+    previous = backend()
+    global _active
+    _active = _resolve(name)
+    return previous
+
+
+class Kernel:
+    """A numba-compatible function, compiled on first use under the numba backend."""
+
+    __slots__ = ("_compiled", "_options", "py")
+
+    def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
+        self.py = fn
+        self._options = options
+        self._compiled: Callable[..., Any] | None = None
+
+    @property
+    def compiled(self) -> Callable[..., Any]:
+        """The numba dispatcher (compiles lazily per signature; needs numba)."""
+        if self._compiled is None:
+            numba = _import_numba()
+            if not numba:
+                raise KernelBackendError("numba is not installed (pip install 'vecu[fast]')")
+            try:
+                self._compiled = numba.njit(cache=True, **self._options)(self.py)
+            except RuntimeError:  # no cache locator (function defined outside a file)
+                self._compiled = numba.njit(**self._options)(self.py)
+        return self._compiled
+
+    def impl(self) -> Callable[..., Any]:
+        """The function for the active backend (hot callers fetch it once per call site)."""
+        return self.compiled if backend() == "numba" else self.py
+
+    def __call__(self, *args: Any) -> Any:
+        return self.impl()(*args)
+
+
+def kernel(fn: Callable[..., Any] | None = None, **options: Any) -> Any:
+    """Decorator: `@kernel` or `@kernel(error_model="numpy")`; numba options pass through
+    (never fastmath: it would break the agreement with the Python path)."""
+    if "fastmath" in options:
+        raise ValueError("fastmath is not allowed in vecu kernels")
+    if fn is None:
+        return lambda f: Kernel(f, options)
+    return Kernel(fn, options)
