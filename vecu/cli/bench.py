@@ -29,11 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def collect(quick: bool, only: str | None, estimator: str, live_seconds: float = 10.0,
             memory_minutes: float = 10.0, replay_seconds: float = 60.0) -> dict[str, Any]:
+    from vecu import kernels
     from vecu.bench.estimators import (bench_manifold, bench_speed_and_steering,
                                        bench_throttle_ukf)
     from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
-
-    from vecu import kernels
 
     out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine(),
                            "kernel_backend": kernels.backend()}

@@ -41,7 +41,7 @@ def _import_numba() -> Any:
     if _numba is None:
         try:
             import numba
-        except Exception:  # ImportError, or a broken llvmlite: fall back, never crash
+        except Exception:  # noqa: BLE001 (ImportError or a broken llvmlite: fall back)
             _numba = False
         else:
             _numba = numba
