@@ -4,12 +4,21 @@ It is the hot loop of every run: the plant steps it once per engine event, the E
 and the 6-event air-charge prediction six times, each event ~15 sub-steps of two right-hand
 sides. It computes exactly what the reference functions of vecu.plant.manifold compute
 (`_rhs` = `throttle_flow` + `volumetric_efficiency` + `heat_flow`), in the same floating-point
-operations and order (bit-identical results, tests/test_manifold_integrator.py), but:
+operations and order (bit-identical results, tests/test_manifold_fast_paths.py), but:
 - everything that is constant over one event is computed once per call: the throttle area and
   the C_d table column at the held angle alpha, Xi's factor, eta_N(N) and the pumping constant of
   the held input u, and the parameter set's constants (cached per ManifoldParams object);
 - the sub-step loop is inlined in plain local floats (no calls per right-hand side);
 - the second ROS2 stage skips the Jacobian terms it does not use.
+
+The whole event is one compiled kernel (`_integrate_event`, vecu.kernels): numba when it is the
+active backend, the same Python function otherwise. Only scalar IEEE arithmetic, sqrt, cos and
+pow are used (no fastmath, no reductions), so both backends give bit-identical results
+(tests/test_kernels_manifold.py). Under the Python backend the tables are tuples of floats and
+the searches `bisect.bisect_right` (C); under numba they are float64 arrays and bisect_right is
+the hand-written `_bisect_right_impl` (CPython's algorithm: same index for any input, NaN too).
+Bad input fails as the plain Python code fails (math.ceil's ValueError/OverflowError for a
+non-finite sub-step count, IndexError for a NaN table lookup, ZeroDivisionError), not silently.
 """
 
 # ruff: noqa: FURB136 (x if c else y mirrors min()/max() exactly, NaN included, without a call)
@@ -17,8 +26,9 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+from vecu.kernels import kernel
 from vecu.plant.manifold_params import V8_5L7, ManifoldParams
 
 if TYPE_CHECKING:
@@ -27,7 +37,24 @@ if TYPE_CHECKING:
 P_FLOOR_KPA = 0.5  # lower guard for P_im inside eta and the integrator (never reached in use)
 ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
-_CONSTS: dict[int, tuple[ManifoldParams, tuple]] = {}
+# id(params) -> (params, python-backend tables, numba-backend tables or None)
+_TABLES: dict[int, tuple[ManifoldParams, tuple, tuple | None]] = {}
+_numba_ready = False  # bisect_right overload registered
+_numba_sig_ready = False  # kernel signature compiled, compilation switched off
+N_CONSTS = 29  # len(_param_consts(...))
+
+
+def _bisect_right_impl(a: Any, x: float) -> int:
+    """bisect.bisect_right(a, x) as CPython computes it (numba's stand-in for the C function)."""
+    lo = 0
+    hi = len(a)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if x < a[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
 
 
 def _interp_value(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> float:
@@ -41,11 +68,8 @@ def _interp_value(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> flo
     return ys[i] + s * (x - xs[i])
 
 
-def _param_consts(prm: ManifoldParams) -> tuple:
+def _param_consts(prm: ManifoldParams) -> tuple[float, ...]:
     """Per-parameter-set constants, computed as the reference functions compute them."""
-    hit = _CONSTS.get(id(prm))
-    if hit is not None and hit[0] is prm:
-        return hit[1]
     k = prm.kappa
     c = 2.0 * k / (k - 1.0)
     e1 = 1.0 / k
@@ -61,42 +85,125 @@ def _param_consts(prm: ManifoldParams) -> tuple:
     d0 = -dpsi0
     qb = (d0 * s0 - psi0) / (s0 * s0)
     qa = d0 - 2.0 * qb * s0
-    consts = (
+    return (
         k, prm.r_air, prm.v_im_dm3, k - 1.0,
         (2.0 / (k + 1.0)) ** (k / (k - 1.0)),  # critical pressure ratio
         math.sqrt(k) * (2.0 / (k + 1.0)) ** ((k + 1.0) / (2.0 * (k - 1.0))),  # psi choked
         c, e1, e2, e1 - 1.0, e2 - 1.0, pr_reg, -s0, -psi0, qa, qb,
-        prm.cd_pr, len(prm.cd_pr) - 2,
         prm.h1_w_per_k, prm.h2_w_per_k, prm.h1_w_per_k + prm.h2_w_per_k,
         prm.r_c, prm.p_exh_kpa, 1.0 / prm.kappa,
-        prm.lam_dt_max, prm.dp_step_max_kpa, prm.dt_step_max_k, prm.max_substeps,
+        prm.lam_dt_max, prm.dp_step_max_kpa, prm.dt_step_max_k, float(prm.max_substeps),
+        prm.alpha_max_rad, prm.r_th_m, prm.v_d_dm3,
     )
-    _CONSTS[id(prm)] = (prm, consts)
-    return consts
 
 
-def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
-                       params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
-    """Advance (P_im, T_im) by dt with alpha and u held; returns (P_im, T_im, M).
+def _tables(prm: ManifoldParams) -> tuple[ManifoldParams, tuple, tuple | None]:
+    """(params, tuple tables for Python, float64-array tables for numba or None), cached."""
+    hit = _TABLES.get(id(prm))
+    if hit is not None and hit[0] is prm:
+        return hit
+    consts = _param_consts(prm)
+    py = (consts, prm.cd_alpha_deg, prm.cd_table, prm.cd_pr, prm.eta_n_rpm, prm.eta_n_val)
+    nb = None
+    # numba returns NaN where Python's sqrt and ** fail (negative roots, complex powers); these
+    # cannot occur for 1 < kappa, pr_reg <= 1 and p_exh >= 0, so other sets run in Python
+    safe = prm.kappa > 1.0 and prm.pr_reg <= 1.0 and prm.p_exh_kpa >= 0.0
+    try:
+        import numpy as np
 
-    See vecu.plant.manifold.integrate_manifold for the method (M ROS2 sub-steps with the
-    diagonal Jacobian); this is its implementation.
-    """
+        arrays = tuple(np.array(t, dtype=np.float64) for t in py[1:])
+        if safe and arrays[1].ndim == 2 and all(a.ndim == 1 for a in arrays[:1] + arrays[2:]):
+            nb = (tuple(float(x) for x in consts), *arrays)
+    except ValueError:  # a ragged C_d table: only the Python function can take it (and fail alike)
+        pass
+    hit = (prm, py, nb)
+    _TABLES[id(prm)] = hit
+    return hit
+
+
+def _register_numba_search() -> None:
+    """Let numba compile bisect.bisect_right calls as `_bisect_right_impl` (once, before the
+    first compilation of the kernel)."""
+    global _numba_ready
+    if not _numba_ready:
+        from numba.extending import overload
+
+        def typer(a: Any, x: float) -> Any:  # same parameters as the implementation
+            return _bisect_right_impl
+
+        overload(bisect_right)(typer)
+        _numba_ready = True
+
+
+def _prepare_numba() -> None:
+    """Search overload, then the kernel's one signature (all scalars float64, tables float64
+    arrays), compiled or loaded from numba's disk cache; further compilation is switched off,
+    so an int or numpy scalar argument is converted to float64 instead of compiling a new
+    specialisation in the middle of a run."""
+    global _numba_sig_ready
+    _register_numba_search()
+    from numba import types
+
+    f8 = types.float64
+    dispatcher = _integrate_event.compiled
+    dispatcher.compile((f8,) * 8 + (types.UniTuple(f8, N_CONSTS), f8[::1], f8[:, ::1],
+                                    f8[::1], f8[::1], f8[::1]))
+    dispatcher.disable_compile()
+    _numba_sig_ready = True
+
+
+@kernel
+def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: float,
+                     t_cool: float, n_rpm: float, dt: float, cst: Any, cd_alpha: Any,
+                     cd_table: Any, prs: Any, eta_rpm: Any, eta_val: Any
+                     ) -> tuple[float, float, int]:
+    """One event of eq. 5-6 (see integrate_manifold); the tables as tuples or float64 arrays."""
     (k, r, v, km1, prc, psic, c, e1, e2, e1m1, e2m1, pr_reg, ms0, mpsi0, qa, qb,
-     prs, nseg, h1, h2, hsum, r_c, p_exh, e_eta, lam_max, dp_max, dt_max,
-     max_sub) = _param_consts(params)
-    prm = params
-    p_a, t_a, t_cool, n_rpm = u.p_a, u.t_a, u.t_cool, u.n_rpm
+     h1, h2, hsum, r_c, p_exh, e_eta, lam_max, dp_max, dt_max, max_sub_f,
+     alpha_max, r_th, v_d) = cst
+    max_sub = int(max_sub_f)
+    nseg = len(prs) - 2
     # --- per event: throttle (eq. 4, C_d column at alpha), eta_N(N), pumping constant
-    a_clip = min(max(alpha, 0.0), prm.alpha_max_rad)
-    area = math.pi * prm.r_th_m * prm.r_th_m * (1.0 - math.cos(a_clip))
-    xi0 = area * (1000.0 * p_a) / math.sqrt(r * t_a)
+    a_clip = 0.0 if 0.0 > alpha else alpha  # min(max(alpha, 0.0), alpha_max)
+    a_clip = alpha_max if alpha_max < a_clip else a_clip
+    area = math.pi * r_th * r_th * (1.0 - math.cos(a_clip))
+    rta = r * t_a
+    if rta < 0.0:  # as math.sqrt fails in Python (numba would return NaN)
+        raise ValueError("math domain error")
+    xi0 = area * (1000.0 * p_a) / math.sqrt(rta)
     a_deg = math.degrees(a_clip)
-    cdv = [_interp_value(a_deg, prm.cd_alpha_deg, row) for row in prm.cd_table]
+    nrow = len(cd_table)
+    if nrow < nseg + 2:
+        raise IndexError("C_d table has fewer rows than cd_pr breakpoints")
+    cdv = [0.0] * nrow
+    last = len(cd_alpha) - 1
+    for jr in range(nrow):  # _interp_value(a_deg, cd_alpha, cd_table[jr])
+        ys = cd_table[jr]
+        if a_deg <= cd_alpha[0]:
+            cdv[jr] = ys[0]
+        elif a_deg >= cd_alpha[last]:
+            cdv[jr] = ys[len(ys) - 1]
+        else:
+            ia = bisect_right(cd_alpha, a_deg) - 1
+            if ia + 1 >= len(ys) or ia + 1 > last:
+                raise IndexError("C_d lookup out of range (alpha is NaN?)")
+            s = (ys[ia + 1] - ys[ia]) / (cd_alpha[ia + 1] - cd_alpha[ia])
+            cdv[jr] = ys[ia] + s * (a_deg - cd_alpha[ia])
     cds = [(cdv[j + 1] - cdv[j]) / (prs[j + 1] - prs[j]) for j in range(nseg + 1)]
-    prs0, prs_hi = prs[0], prs[-1]
-    scale = _interp_value(n_rpm, prm.eta_n_rpm, prm.eta_n_val) / (r_c - 1.0)
-    k_pump = n_rpm * prm.v_d_dm3 / (120.0 * v)
+    prs0, prs_hi = prs[0], prs[nseg + 1]
+    last = len(eta_rpm) - 1
+    if n_rpm <= eta_rpm[0]:  # _interp_value(n_rpm, eta_rpm, eta_val)
+        eta_n = eta_val[0]
+    elif n_rpm >= eta_rpm[last]:
+        eta_n = eta_val[len(eta_val) - 1]
+    else:
+        ie = bisect_right(eta_rpm, n_rpm) - 1
+        if ie + 1 >= len(eta_val) or ie + 1 > last:
+            raise IndexError("eta_N lookup out of range (N is NaN?)")
+        s = (eta_val[ie + 1] - eta_val[ie]) / (eta_rpm[ie + 1] - eta_rpm[ie])
+        eta_n = eta_val[ie] + s * (n_rpm - eta_rpm[ie])
+    scale = eta_n / (r_c - 1.0)
+    k_pump = n_rpm * v_d / (120.0 * v)
     krta = k * r * t_a
     kta = k * t_a
     kkp = k * k_pump
@@ -145,9 +252,23 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
         jpp = krta * dmdot / v - kkp * (eta + p * deta)
         jtt = (r * mdot * (kta - 2.0 * t) + km1 * (q - hsum * t)) / pv - km1kp * eta
         if i == 0:
-            m = max(dt * (abs(jpp) + abs(jtt)) / lam_max, dt * abs(dp) / dp_max,
-                    dt * abs(dtt) / dt_max)
-            m = min(max(math.ceil(m), 1), max_sub)
+            # m = min(max(ceil(max(a, b, c)), 1), max_sub) with max()'s and ceil's semantics
+            mf = dt * (abs(jpp) + abs(jtt)) / lam_max
+            mb = dt * abs(dp) / dp_max
+            mf = mb if mb > mf else mf
+            mb = dt * abs(dtt) / dt_max
+            mf = mb if mb > mf else mf
+            if math.isnan(mf):
+                raise ValueError("cannot convert float NaN to integer")
+            if math.isinf(mf):
+                raise OverflowError("cannot convert float infinity to integer")
+            if mf <= 1.0:
+                m = 1
+            elif mf < max_sub:
+                m = math.ceil(mf)
+            else:
+                m = max_sub
+            m = max_sub if max_sub < m else m
             h = dt / m
             gh = ROS2_GAMMA * h
         wp = 1.0 - gh * (0.0 if 0.0 < jpp else jpp)
@@ -184,3 +305,29 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
         i += 1
         if i >= m:
             return p, t, m
+
+
+_PY_EVENT = _integrate_event.py
+
+
+def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
+                       params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
+    """Advance (P_im, T_im) by dt with alpha and u held; returns (P_im, T_im, M).
+
+    See vecu.plant.manifold.integrate_manifold for the method (M ROS2 sub-steps with the
+    diagonal Jacobian); this is its implementation (the kernel `_integrate_event`).
+    """
+    hit = _TABLES.get(id(params))
+    if hit is None or hit[0] is not params:
+        hit = _tables(params)
+    run = _integrate_event.impl()
+    if run is _PY_EVENT:
+        cst, xs, tab, prs, er, ev = hit[1]
+    elif hit[2] is None:
+        run = _PY_EVENT
+        cst, xs, tab, prs, er, ev = hit[1]
+    else:
+        if not _numba_sig_ready:
+            _prepare_numba()
+        cst, xs, tab, prs, er, ev = hit[2]
+    return run(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt, cst, xs, tab, prs, er, ev)
