@@ -88,7 +88,8 @@ def format_summary(s: dict[str, Any]) -> str:
     th = s["throttle"]
     fr = s["frames"]
     lines = [f"vecu run: {s['sim_time_s']:.3f} s in {s['wall_time_s']:.2f} s wall "
-             f"({s['x_realtime']}x real time), {s['ticks']} ticks, {s['overruns']} overruns"]
+             f"({s['x_realtime']}x real time, {s['kernels']} kernels), {s['ticks']} ticks, "
+             f"{s['overruns']} overruns"]
     if th["kill_time_s"] is None:
         lines.append("TPS: no fault injected")
     elif th["detected"]:

@@ -30,6 +30,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.estimators.manifold_kernels import (
+    model_constants,
+    numba_tables,
+    predict_events,
+)
+from vecu.estimators.manifold_kernels import prepare as prepare_kernels
 from vecu.plant.manifold import (
     EngineInput,
     actuator_coeffs,
@@ -41,6 +47,7 @@ from vecu.plant.manifold import (
 from vecu.plant.manifold_params import V8_5L7, ManifoldParams
 
 HORIZON = 6
+_PREDICT_EVENTS_PY = predict_events.py
 METHODS = ("direct", "direct_ol", "ekf", "sdkf")
 
 
@@ -62,10 +69,48 @@ def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: Manifol
     return out
 
 
+# id(params) -> (params, kernel constants and tables or None)
+_KERNEL_ARGS: dict[int, tuple[ManifoldParams, tuple | None]] = {}
+
+
+def _compiled_prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams
+                         ) -> tuple[np.ndarray, float] | None:
+    """(x after the inputs, CAC there) by the numba kernel manifold_kernels.predict_events, or
+    None when the Python path runs (python backend, no inputs, odd x or parameter set)."""
+    run = predict_events.impl()
+    if run is _PREDICT_EVENTS_PY or not inputs:
+        return None
+    hit = _KERNEL_ARGS.get(id(params))
+    if hit is None or hit[0] is not params:
+        tables = numba_tables(params)
+        hit = (params, None if tables is None else (model_constants(params), *tables))
+        _KERNEL_ARGS[id(params)] = hit
+    args = hit[1]
+    xa = np.ascontiguousarray(x, dtype=np.float64)
+    if args is None or xa.shape != (6,):
+        return None
+    prepare_kernels()
+    u0 = inputs[0]
+    held = True
+    for u in inputs:
+        if u is not u0:
+            held = False
+            break
+    rows = inputs[:1] if held else inputs
+    ua = np.array([(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool) for u in rows], dtype=np.float64)
+    out = np.empty(6)
+    cac = run(xa, ua, len(inputs), out, *args)
+    return out, cac
+
+
 def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
                   params: ManifoldParams = V8_5L7) -> np.ndarray:
     """x_n+len(inputs) from x_n through the noise-free event map (manifold_model.f, written out
-    on plain floats with the event coefficients computed once per event period: same result)."""
+    on plain floats with the event coefficients computed once per event period: same result).
+    Under the numba backend one kernel call (bit-identical)."""
+    fast = _compiled_prediction(x, inputs, params)
+    if fast is not None:
+        return fast[0]
     vals = [float(v) for v in np.asarray(x, dtype=float)]
     ts_prev = math.nan
     for u in inputs:
@@ -85,6 +130,9 @@ def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
 def predict_cac(x: np.ndarray, inputs: Sequence[EngineInput],
                 params: ManifoldParams = V8_5L7) -> float:
     """Predicted CAC (kg per cylinder event) after the inputs, at the last input's speed."""
+    fast = _compiled_prediction(x, inputs, params)
+    if fast is not None:
+        return fast[1]
     xe = predict_state(x, inputs, params)
     return cylinder_air_charge(float(xe[3]), float(xe[4]), inputs[-1].n_rpm, params)
 

@@ -29,6 +29,9 @@ the last good input and counted; the posterior state is clamped to a physical bo
 symmetrised and S = C P C^T + R factored with vecu.estimators.covariance.cholesky_lower; a
 non-finite or exploding state/covariance (covariance.diverged) resets the filter and is counted.
 No input can make the outputs NaN.
+
+Under the numba backend (vecu.kernels) an "iterate" SDKF event after the input checks is one
+compiled call (vecu.estimators.manifold_kernels.sdkf_event, bit-identical to this code here).
 """
 
 from __future__ import annotations
@@ -45,7 +48,16 @@ from vecu.estimators.covariance import (
     diverged_floats,
     symmetrise,
 )
+from vecu.estimators.manifold_kernels import (
+    DIVERGED,
+    FALLBACK,
+    filter_constants,
+    numba_tables,
+    sdkf_event,
+)
+from vecu.estimators.manifold_kernels import prepare as prepare_kernels
 from vecu.estimators.manifold_model import (
+    ALPHA_SDC_MIN,
     N_X,
     Y_INDEX,
     event_dt,
@@ -64,6 +76,7 @@ from vecu.plant.manifold_params import (
 )
 
 RICCATI_MODES = ("iterate", "doubling", "scipy")
+_SDKF_EVENT_PY = sdkf_event.py
 MANIFOLD_BOUNDS = DivergenceBounds(max_trace=1e5, max_abs_state=1e4)
 
 
@@ -314,6 +327,11 @@ class _ManifoldKF:
         ts = event_dt(u, self.params)
         chans = self._valid_channels(y)
         self._initialise(y, chans)
+        self._event(y, u, ts, chans)
+        return self.x_post.copy()
+
+    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
+        """The event after the input checks: prior covariance, update, guards, prediction."""
         try:
             P = self._prior_cov(u, ts)
             x_post, P_post = self._update(P, y, chans)
@@ -325,10 +343,12 @@ class _ManifoldKF:
             if self._diverged(self.x, self.P):
                 raise FloatingPointError("diverged")
         except (FloatingPointError, ValueError, np.linalg.LinAlgError):
-            self.reset(count=True)
-            self._initialised = True
-            self.last_prediction = None
-        return self.x_post.copy()
+            self._reset_in_step()
+
+    def _reset_in_step(self) -> None:
+        self.reset(count=True)
+        self._initialised = True
+        self.last_prediction = None
 
     @property
     def p_im(self) -> float:
@@ -367,6 +387,8 @@ class ManifoldSDKF(_ManifoldKF):
             raise ValueError(f"riccati must be one of {RICCATI_MODES}, got {config.riccati!r}")
         self.dare_failures = 0
         self.doublings = 0
+        self._kernel_args: tuple | None = None  # numba constants and tables, on first use
+        self._kernel_args_ready = False
         super().__init__(config, x0)
         self._C = np.zeros((3, N_X))
         for i, j in enumerate(Y_INDEX):
@@ -393,6 +415,59 @@ class ManifoldSDKF(_ManifoldKF):
         self.doublings += k
         self.P = P
         return P
+
+    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
+        """Under the numba backend ("iterate" only) the whole event is one compiled call
+        (vecu.estimators.manifold_kernels.sdkf_event); the Python path otherwise, and for the
+        rare events the kernel hands back (S not positive definite or not finite)."""
+        run = sdkf_event.impl()
+        if run is _SDKF_EVENT_PY or self.config.riccati != "iterate":
+            return super()._event(y, u, ts, chans)
+        args = self._kernel_args
+        if args is None:
+            if self._kernel_args_ready:
+                return super()._event(y, u, ts, chans)
+            args = self._prepare_kernel()
+            if args is None:
+                return super()._event(y, u, ts, chans)
+        mask = 0
+        for i in chans:
+            mask |= 1 << i
+        ly = self._last_y  # the valid channels' readings (_valid_channels)
+        gr = self._gated_run
+        xo = np.empty((3, N_X))
+        Po = np.empty((2, N_X, N_X))
+        try:
+            code = run(self.x, self.P, self.P_post, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a,
+                       u.t_cool, ts, ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2],
+                       self.events > 1, *args)
+        except (FloatingPointError, ValueError, np.linalg.LinAlgError):
+            self._reset_in_step()
+            return None
+        if code & FALLBACK:
+            return super()._event(y, u, ts, chans)
+        for i in chans:
+            if code >> i & 1:
+                self.gated[i] += 1
+                gr[i] += 1
+            else:
+                gr[i] = 0
+        if code & DIVERGED:
+            self._reset_in_step()
+            return None
+        self.x, self.x_post = xo[0], xo[1]
+        self.P, self.P_post = Po[0], Po[1]
+        self.last_prediction = (u, xo[2])
+        return None
+
+    def _prepare_kernel(self) -> tuple | None:
+        self._kernel_args_ready = True
+        tables = numba_tables(self.params)
+        if tables is None:
+            return None
+        prepare_kernels()
+        self._kernel_args = (filter_constants(self.config, ALPHA_SDC_MIN), self.Q, *tables)
+        return self._kernel_args
 
     def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
         x_n = f(x_post, u, self.params, ts)

@@ -27,6 +27,11 @@ With record=True each step appends (x_k|k, P_k|k, x_k|k-1, P_k|k-1, C_k = cov(x_
 to deques bounded by history_maxlen (None: unbounded) for the smoothers (steering_smoothers.py):
 the backward pass then reuses the forward pass's own v_x and sigma points (nothing is
 re-propagated, so the time-varying input cannot be mismatched).
+
+Backends (vecu.kernels, VECU_KERNELS): under "numba" the UKF's predict and a_y moments (and the
+recording, with a smoother its gain and backward pass) run in vecu.estimators.steering_kernels,
+3 compiled calls per step, bit-identical to the plain-float code here (the reference, used
+under "python"); the history then lives in a numpy ring (converted if the backend changes).
 """
 
 from __future__ import annotations
@@ -37,10 +42,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.estimators import steering_kernels as sk
 from vecu.estimators import steering_model as sm
 from vecu.estimators.covariance import cholesky_lower, diverged_floats, symmetrise
 from vecu.estimators.sigma_sets import SigmaSet, ahsm
 from vecu.estimators.steering_model import SteeringModel
+from vecu.kernels import backend
 
 P10 = tuple[float, float, float, float, float, float, float, float, float, float]
 # index of (i, j) in the 10-entry upper triangle p00 p01 p02 p03 p11 p12 p13 p22 p23 p33
@@ -103,7 +110,15 @@ class FilterRun:
 
 
 class _SteeringFilter:
-    """Shared input handling, counters, outputs, divergence reset and recording."""
+    """Shared input handling, counters, outputs, divergence reset and recording.
+
+    Subclasses with compiled kernels (`_kernels_ok`) run their numeric core in
+    vecu.estimators.steering_kernels under the numba backend and then record into a
+    steering_kernels.Ring instead of the deques; the storage follows the backend at every step
+    (converted when it changes), so `history()` and the smoothers see the same run either way.
+    """
+
+    _kernels_ok = False
 
     def __init__(self, model: SteeringModel, record: bool, history_maxlen: int | None) -> None:
         self.model = model
@@ -116,6 +131,12 @@ class _SteeringFilter:
         self._p0 = p10_from_matrix(model.P0())
         self.record = record
         self._hist: tuple[deque, ...] = tuple(deque(maxlen=history_maxlen) for _ in range(6))
+        self._maxlen = history_maxlen
+        self._smooth_lag: int | None = None  # set by a FixedLagSmoother (keep_history)
+        self._gains: deque | None = None  # its G_k (Python storage; in the ring under numba)
+        self._nb = False  # ring storage and kernels in use
+        self._ring: sk.Ring | None = None
+        self._lagged = (0.0, 0.0, 0.0, 0.0)  # numba: the smoother's output of the last step
         self.steps = self.resets = 0
         self.missing_r = self.missing_ay = self.missing_vx = 0
         self.rejected_r = self.rejected_ay = self.rejected_vx = 0
@@ -164,15 +185,25 @@ class _SteeringFilter:
     def rejected(self) -> int:
         return self.rejected_r + self.rejected_ay + self.rejected_vx
 
-    def keep_history(self, maxlen: int | None) -> None:
-        """Start recording afresh, keeping the last `maxlen` steps (None: all)."""
+    def keep_history(self, maxlen: int | None, smooth_lag: int | None = None) -> None:
+        """Start recording afresh, keeping the last `maxlen` steps (None: all); smooth_lag: also
+        keep the fixed-lag smoother's gains (maxlen = smooth_lag + 1)."""
         self.record = True
         self._hist = tuple(deque(maxlen=maxlen) for _ in range(6))
+        self._maxlen = maxlen
+        self._smooth_lag = smooth_lag
+        self._gains = None if smooth_lag is None else deque(maxlen=smooth_lag)
+        self._ring = None
+        self._nb = False
 
     def history(self) -> FilterRun:
         """The recorded forward pass (record=True; the last history_maxlen steps if bounded)."""
         if not self.record:
             raise RuntimeError("filter was built with record=False")
+        if self._nb:
+            if not self._ring.count:  # type: ignore[union-attr]
+                raise RuntimeError("no steps recorded")
+            return FilterRun(*self._ring.arrays())  # type: ignore[union-attr]
         xs, ps, xp, pp, cs, vs = self._hist
         if not xs:
             raise RuntimeError("no steps recorded")
@@ -259,10 +290,18 @@ class _SteeringFilter:
 
     def step(self, v_x: float | None, yaw_rate: float | None, a_y: float | None) -> None:
         """Predict 10 ms with v_x, then update with the gyro and the accelerometer readings."""
+        nb = self._kernels_ok and backend() == "numba"
+        if nb is not self._nb:
+            self._use_ring(nb)
         self.steps += 1
         m = self.model
         vx = self._speed(v_x)
-        x, p, cross = self._predict(vx)
+        if nb:
+            vx = float(vx)
+            slot = self._ring.slot() if self.record else 0  # type: ignore[union-attr]
+            x, p, cross = self._predict_compiled(vx, slot)
+        else:
+            x, p, cross = self._predict(vx)
         xp, pp = x, p
         if yaw_rate is None:
             self.missing_r += 1
@@ -274,6 +313,8 @@ class _SteeringFilter:
             self.missing_ay += 1
         elif not -m.max_abs_ay <= a_y <= m.max_abs_ay:
             self.rejected_ay += 1
+        elif nb:
+            x, p = self._update_ay_compiled(x, p, a_y, vx)
         else:
             x, p = self._update_ay(x, p, a_y, vx)
         if (diverged_floats(x, p[0] + p[4] + p[7] + p[9], sum(p) - p[0] - p[4] - p[7] - p[9],
@@ -282,10 +323,15 @@ class _SteeringFilter:
             self.resets += 1
             x, p = self._x0, self._p0
             xp, pp, cross = x, p, [0.0] * 16
+            if nb and self.record:
+                self._ring.hist[slot, sk.COL_XP:sk.COL_VX] = self._reset_row  # type: ignore
         else:
             x = self._project(x, vx)
         self._set(x, p)
-        if self.record:
+        if nb:
+            if self.record:
+                self._push(slot, x, p, vx)
+        elif self.record:
             h = self._hist
             h[0].append(x)
             h[1].append(p)
@@ -294,9 +340,41 @@ class _SteeringFilter:
             h[4].append(cross)
             h[5].append(vx)
 
+    # -- numba backend: ring storage (the kernel calls: SteeringUKF._*_compiled) ---------------
+    def _use_ring(self, nb: bool) -> None:
+        """Move the recorded history between the deques and the ring (backend changed)."""
+        if nb:
+            sk.prepare_numba()
+            if self.record:
+                self._ring = sk.Ring(self._maxlen, sk.rows_from_deques(self._hist, self._gains))
+                self._hist = tuple(deque(maxlen=self._maxlen) for _ in range(6))
+        elif self._ring is not None:
+            self._hist, self._gains = sk.deques_from_rows(self._ring.ordered(), self._maxlen,
+                                                          self._smooth_lag)
+            self._ring = None
+        self._nb = nb
+
+    def _push(self, slot: int, x: tuple[float, ...], p: P10, vx: float) -> None:
+        self._lagged = self._ring.record(slot, x, p, vx, self._smooth_lag,  # type: ignore
+                                         self.steps - 1)
+
+    def _hist_len(self) -> int:
+        return self._ring.count if self._nb else len(self._hist[0])  # type: ignore[union-attr]
+
+    def _window_vx(self) -> list[float]:
+        """v_x of the recorded steps, oldest first."""
+        return self._ring.vx() if self._nb else list(self._hist[5])  # type: ignore[union-attr]
+
+    def _oldest_vx(self) -> float:
+        return self._ring.oldest_vx() if self._nb else float(self._hist[5][0])  # type: ignore
+
+
 
 class SteeringUKF(_SteeringFilter):
-    """Unscented filter, plain floats (module docstring). ~20-30 us per step."""
+    """Unscented filter, plain floats (module docstring). ~20-30 us per step; under the numba
+    backend its numeric core runs in steering_kernels (bit-identical results)."""
+
+    _kernels_ok = True
 
     def __init__(self, model: SteeringModel = SteeringModel(), sigma_set: SigmaSet | None = None,
                  record: bool = False, history_maxlen: int | None = None) -> None:
@@ -308,6 +386,10 @@ class SteeringUKF(_SteeringFilter):
         cols = [(tuple(float(v) for v in s.Z[:, j]), float(s.w[j])) for j in range(s.points)]
         self._pts = tuple((z, w) for z, w in cols if w != 0.0)
         super().__init__(model, record, history_maxlen)
+        self._cst = sk.constants(self.k, self._q, self._r_ay)
+        self._ptab = sk.point_table(self._pts)
+        self._scratch = np.zeros((1, sk.N_COLS))  # the kernels' history row when not recording
+        self._reset_row = np.array([*self._x0, *self._p0, *([0.0] * 16)])
 
     def _sigma(self, x: tuple[float, ...], p: P10) -> list[tuple[tuple[float, ...], float,
                                                                   tuple[float, ...]]]:
@@ -380,6 +462,11 @@ class SteeringUKF(_SteeringFilter):
             c1 += a * dz[1]
             c2 += a * dz[2]
             c3 += a * dz[3]
+        return self._apply_ay(x, p, y, ym, s, c0, c1, c2, c3)
+
+    def _apply_ay(self, x: tuple[float, ...], p: P10, y: float, ym: float, s: float, c0: float,
+                  c1: float, c2: float, c3: float) -> tuple[tuple[float, ...], P10]:
+        """Gate and apply the a_y update from its moments (predicted y, variance, P h^T)."""
         e = y - ym
         if not self._gate_ay(e, s):
             return x, p
@@ -390,6 +477,24 @@ class SteeringUKF(_SteeringFilter):
              p11 - k1 * c1, p12 - k1 * c2, p13 - k1 * c3,
              p22 - k2 * c2, p23 - k2 * c3, p33 - k3 * c3)
         return x, p
+
+    def _predict_compiled(self, vx: float, slot: int) -> tuple[tuple[float, ...], P10, None]:
+        rec = self.record
+        hist = self._ring.hist if rec else self._scratch  # type: ignore[union-attr]
+        ok, x, p = sk.predict.compiled(self._x, self._p, vx, self._cst, self._ptab, hist, slot,
+                                       rec)
+        if not ok:  # not PD for the unrolled Cholesky: the fallback factor from Python
+            ok, x, p = sk.predict_chol.compiled(_chol4(self._p), self._x, vx, self._cst,
+                                                self._ptab, hist, slot, rec)
+        return x, p, None
+
+    def _update_ay_compiled(self, x: tuple[float, ...], p: P10, y: float, vx: float
+                            ) -> tuple[tuple[float, ...], P10]:
+        ok, ym, s, c0, c1, c2, c3 = sk.ay_moments.compiled(x, p, vx, self._cst, self._ptab)
+        if not ok:
+            ok, ym, s, c0, c1, c2, c3 = sk.ay_moments_chol.compiled(_chol4(p), x, vx, self._cst,
+                                                                    self._ptab)
+        return self._apply_ay(x, p, y, ym, s, c0, c1, c2, c3)
 
 
 class SteeringEKF(_SteeringFilter):

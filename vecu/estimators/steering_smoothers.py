@@ -14,13 +14,14 @@ backward pass never re-propagates and always uses the v_x of that step. Fed an E
 - `FixedLagSmoother`: live; wraps a filter, and after step k returns the smoothed estimate of
   step k - lag (a `LaggedEstimate`, flagged with its own step index and time: it is *lagged*), or
   None during the first `lag` steps. Its output at step k equals rts_smooth on the run 0..k at
-  index k - lag (tested); `flush()` smooths the buffered tail at the end of a run.
+  index k - lag (tested); `flush()` smooths the buffered tail at the end of a run. Under the
+  numba backend (around a SteeringUKF) the gain and the backward pass run in the filter's last
+  kernel of the step (steering_kernels.push), bit-identical to the Python code here.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,10 +100,10 @@ class FixedLagSmoother:
             raise ValueError("lag must be >= 0")
         if f.steps:
             raise ValueError("the filter must be fresh (no steps taken)")
-        f.keep_history(self.lag + 1)  # the window the backward pass needs
+        # the window the backward pass needs, and G_k (row-major 16-tuples) for the buffered
+        # steps but the newest (f._gains)
+        f.keep_history(self.lag + 1, smooth_lag=self.lag)
         self.filter = f
-        # G_k (row-major 16-tuples) for the buffered steps but the newest
-        self._gains: deque[tuple[float, ...]] = deque(maxlen=self.lag)
         self._dt = dt
 
     def step(self, v_x: float | None, yaw_rate: float | None, a_y: float | None
@@ -110,12 +111,14 @@ class FixedLagSmoother:
         """One filter step, then the smoothed estimate of step k - lag (None while k < lag)."""
         f = self.filter
         f.step(v_x, yaw_rate, a_y)
+        k = f.steps - 1
+        if f._nb:  # numba: gain and backward pass done in the filter's step (kernel)
+            return None if k < self.lag else self._estimate(k - self.lag, f._lagged)
         h = f._hist
         if len(h[0]) >= 2:  # gain of the previous step from this step's prediction
             Pp = matrix_from_p10(h[3][-1])
             C = np.asarray(h[4][-1], dtype=float).reshape(4, 4)
-            self._gains.append(tuple(np.linalg.solve(Pp, C.T).T.ravel().tolist()))
-        k = f.steps - 1
+            f._gains.append(tuple(np.linalg.solve(Pp, C.T).T.ravel().tolist()))  # type: ignore
         if k < self.lag:
             return None
         return self._estimate(k - self.lag, self._backward()[0])
@@ -123,7 +126,7 @@ class FixedLagSmoother:
     def _backward(self) -> list[tuple[float, float, float, float]]:
         """Smoothed means of the buffered window, oldest first (plain floats: ~2 us a step)."""
         h = self.filter._hist
-        xs, xp, G = h[0], h[2], self._gains  # len(G) == len(xs) - 1: G[j] belongs to xs[j]
+        xs, xp, G = h[0], h[2], self.filter._gains  # len(G) == len(xs) - 1: G[j] is xs[j]'s
         n = len(xs)
         m0, m1, m2, m3 = xs[-1]
         out = [(m0, m1, m2, m3)]
@@ -142,7 +145,7 @@ class FixedLagSmoother:
 
     def _estimate(self, step: int, xt: tuple[float, ...]) -> LaggedEstimate:
         x = np.array(xt)
-        vx = float(self.filter._hist[5][0]) if self.filter._hist[5] else self.filter.v_x
+        vx = self.filter._oldest_vx() if self.filter._hist_len() else self.filter.v_x
         i_s = self.filter.k.i_s
         return LaggedEstimate(step=step, t_s=step * self._dt, lag_steps=self.lag, x=x,
                               swa_rad=i_s * float(x[2]),
@@ -151,12 +154,12 @@ class FixedLagSmoother:
     def flush(self) -> list[LaggedEstimate]:
         """Smoothed estimates of the steps not yet returned (end of a run), oldest first."""
         f = self.filter
-        n_buf = len(f._hist[0])
+        n_buf = f._hist_len()
         if n_buf == 0:
             return []
         first = f.steps - n_buf
-        ms = self._backward()
-        vxs = list(f._hist[5])
+        ms = f._ring.means() if f._nb else self._backward()  # type: ignore[union-attr]
+        vxs = f._window_vx()
         i_s = f.k.i_s
         skip = 1 if f.steps - 1 >= self.lag else 0  # the oldest one was already returned
         return [LaggedEstimate(step=first + j, t_s=(first + j) * self._dt, lag_steps=self.lag,

@@ -8,7 +8,6 @@ summary JSON. Every exit path flushes and closes the log and shuts the buses dow
 
 from __future__ import annotations
 
-import gc
 import json
 import resource
 import signal
@@ -21,7 +20,6 @@ from typing import Any, TextIO
 from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, WallClock
 from vecu.codec import DbcCodec
-from vecu.config import RunConfig
 from vecu.live.livebus import (
     ARRIVAL_TIMESTAMP_INTERFACES,
     FrameLatency,
@@ -30,9 +28,10 @@ from vecu.live.livebus import (
     sent_ids,
 )
 from vecu.live.options import LiveOptions, bus_config
-from vecu.stats import DurationHistogram
 from vecu.recorder import Recorder
+from vecu.runner import warm_up  # noqa: F401 (used by the live CLIs and benches)
 from vecu.scheduler import Scheduler, TaskStats
+from vecu.stats import DurationHistogram
 
 PRIO_STOP_CHECK, PRIO_STATUS = 40, 50
 STOP_CHECK_NS = 10 * NS_PER_MS
@@ -98,21 +97,6 @@ class TickMeter:
             "jitter_us": self.lateness.summary(),
             "exec_us": self.exec_time.summary(),
         }
-
-
-def warm_up(config: RunConfig) -> None:
-    """Before the wall clock starts: 0.3 s of the whole simulated pipeline on a private virtual
-    channel (first numpy / cantools calls cost milliseconds), then freeze the set-up objects out
-    of the garbage collector's way so the first ticks keep time."""
-    from dataclasses import replace
-
-    from vecu.runner import run
-
-    run(replace(config, duration_s=0.3, kill_tps_at_s=None, kill_swa_at_s=None, realtime=False,
-                interface="virtual", channel=f"vecu-warm-up-{id(config)}", log_path=None,
-                keep_series=False))
-    gc.collect()
-    gc.freeze()
 
 
 class LiveProcess:

@@ -32,6 +32,7 @@ from vecu.recorder import TraceWriteError
 from vecu.replay.scoring import TruthScorer
 from vecu.replay.signal_map import SignalMap, identity_map, load_signal_map, mapped_routes
 from vecu.replay.source import TraceReadError, TraceSource
+from vecu.runner import warm_up
 from vecu.scheduler import Scheduler
 from vecu.stats import DurationHistogram
 
@@ -128,6 +129,8 @@ def replay(config: ReplayConfig) -> ReplayResult:
             feeder.player = player_bus
             feeder.speed = config.speed
         ecu_task = schedule_ecu(sched, ecu)
+        if live:  # first numpy / cantools calls and the compiled kernels' loading: not mid-run
+            warm_up(run_cfg)
         show = config.progress if config.progress is not None else sys.stderr.isatty()
         wall0 = time.perf_counter()
         if live:

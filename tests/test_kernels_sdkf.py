@@ -1,0 +1,177 @@
+"""The compiled manifold SDKF event and CAC prediction (vecu.estimators.manifold_kernels) against
+the Python/numpy path: over a drive with NaN channels, missing and out-of-range readings, bad
+inputs, gated spikes, a forced divergence and a non-positive-definite innovation covariance,
+the numba backend gives the same posteriors, covariances, predictions and counters bit for bit
+(numba and numpy call the same OpenBLAS build here; the assertion messages print the largest
+relative difference should a BLAS build ever round differently). The python backend never
+touches the kernels."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vecu import kernels
+from vecu.estimators import manifold_filters as mf
+from vecu.estimators.cac_predict import HORIZON, predict_cac, predict_state
+from vecu.eval.manifold import trace_inputs
+from vecu.plant.drive_profile import DriveProfile, us06_like
+from vecu.plant.manifold import (
+    EngineInput,
+    nominal_input,
+    simulate,
+    steady_state_vector,
+)
+
+COUNTERS = ("events", "missing", "resets", "bad_inputs", "rejected", "gated", "_gated_run")
+
+
+def _under(name, fn):
+    previous = kernels.set_backend(name)
+    try:
+        return fn()
+    finally:
+        kernels.set_backend(previous)
+
+
+@pytest.fixture(scope="module")
+def drive():
+    p = us06_like(6)
+    k = round(8.0 / p.dt_s) + 1
+    trace = _under("python", lambda: simulate(DriveProfile(p.dt_s, p.n_rpm[:k], p.ta_sp[:k]),
+                                              seed=6))
+    return trace.y.tolist(), trace_inputs(trace)
+
+
+def _run_drive(ys, inputs):
+    """SDKF over the drive with bad data mixed in; per event (x_post, P, P_post, prediction,
+    CAC+6 from the filter's prediction, CAC+6 from x_post), plus the counters."""
+    rng = np.random.default_rng(12)
+    flt = mf.make_filter("sdkf")
+    bad_y = [None, (math.nan, 50.0, 300.0), (0.3, math.nan, math.nan), (1e9, -5.0, math.inf),
+             ("x", None, 3.0), (0.3, 1e6, 300.0)]
+    bad_u = [EngineInput(math.nan, 2000.0), EngineInput(0.3, 1e9), EngineInput(0.3, 2000.0, 5.0)]
+    out = []
+    for n, (y, u) in enumerate(zip(ys, inputs)):
+        y = list(y)
+        if n % 3 == 0:
+            y[2] = math.nan  # IAT frame missing: two channels
+        if rng.random() < 0.08:
+            y = bad_y[int(rng.integers(len(bad_y)))]
+        if rng.random() < 0.03:
+            u = bad_u[int(rng.integers(len(bad_u)))]
+        if 400 <= n < 430:
+            y = [y[0] if y else 0.3, 99.0, 300.0]  # a pressure step: gated, then believed
+        if n == 700:
+            flt.P_post[3, 3] = math.nan  # forced divergence: the next event resets
+        if n == 900:
+            flt.P_post[:] = -10.0 * np.eye(6)  # S not positive definite: the jitter fallbacks
+        x = flt.step(y, u)
+        pred = flt.last_prediction
+        c6 = predict_cac(pred[1], [pred[0]] * (HORIZON - 1)) if pred else math.nan
+        out.append((x, flt.P.copy(), flt.P_post.copy(), pred[1].copy() if pred else None, c6,
+                    predict_cac(x, [inputs[n]] * HORIZON)))
+    return out, {k: getattr(flt, k) for k in COUNTERS}
+
+
+@pytest.fixture(scope="module")
+def runs(drive):
+    pytest.importorskip("numba")
+    calls = {"python_event": 0}
+    base = mf._ManifoldKF._event
+
+    def counting(self, *a):
+        calls["python_event"] += 1
+        return base(self, *a)
+
+    mf._ManifoldKF._event = counting
+    try:
+        py = _under("python", lambda: _run_drive(*drive))
+        py_calls = calls["python_event"]
+        nb = _under("numba", lambda: _run_drive(*drive))
+        nb_calls = calls["python_event"] - py_calls
+        nb2 = _under("numba", lambda: _run_drive(*drive))
+    finally:
+        mf._ManifoldKF._event = base
+    return py, nb, nb2, py_calls, nb_calls
+
+
+def _max_rel(a, b):
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    both = np.isfinite(a) & np.isfinite(b)
+    return float(np.max(np.abs(a - b)[both] / np.maximum(np.abs(a[both]), 1e-300), initial=0.0))
+
+
+def test_numba_sdkf_event_equals_the_python_path_over_a_bad_drive(runs):
+    (py, py_cnt), (nb, nb_cnt), _, py_calls, nb_calls = runs
+    assert len(py) == len(nb) > 1500
+    names = ("x_post", "P", "P_post", "prediction", "CAC+6 reused", "CAC+6")
+    for n, (a, b) in enumerate(zip(py, nb)):
+        for name, va, vb in zip(names, a, b):
+            if va is None or vb is None:
+                assert va is vb, (n, name)
+                continue
+            assert np.array_equal(va, vb, equal_nan=True), (n, name, _max_rel(va, vb))
+    assert nb_cnt == py_cnt
+    # the drive exercised what it should: resets, gating, rejected channels, bad inputs
+    assert py_cnt["resets"] == 2 and sum(py_cnt["gated"]) >= 20
+    assert min(py_cnt["rejected"]) > 0 and py_cnt["missing"] > 0 and py_cnt["bad_inputs"] > 0
+    # the kernel ran the events: the Python path only for the fallback (S not PD) events
+    assert py_calls == len(py)
+    assert 1 <= nb_calls <= 3
+    assert len({round(r[5], 9) for r in py}) > 1000  # the predictions move
+
+
+def test_numba_backend_twice_is_bit_identical(runs):
+    (_, _), (nb, nb_cnt), (nb2, nb2_cnt), _, _ = runs
+    assert nb_cnt == nb2_cnt
+    for a, b in zip(nb, nb2):
+        for va, vb in zip(a, b):
+            assert (va is None and vb is None) or np.array_equal(va, vb, equal_nan=True)
+
+
+def test_cac_prediction_kernel_equals_predict_state():
+    """Held and changing inputs (speed changes per event too), states across the range."""
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(21)
+    cases = []
+    for _ in range(300):
+        x = steady_state_vector(nominal_input(float(rng.uniform(0.13, 1.4)), 1500.0))
+        x = x + rng.normal(0, [0.01, 0.01, 0.01, 3.0, 2.0, 1.0])
+        if rng.random() < 0.5:
+            inputs = [nominal_input(float(rng.uniform(0.1, 1.5)),
+                                    float(rng.choice([800.0, 2500.0, 5200.0])))
+                      for _ in range(int(rng.integers(1, 8)))]
+        else:
+            inputs = [nominal_input(float(rng.uniform(0.1, 1.5)), float(rng.uniform(700, 6000)))]
+            inputs = inputs * int(rng.integers(1, 8))
+        cases.append((x, inputs))
+
+    def run():
+        return [(predict_state(x, i), predict_cac(x, i)) for x, i in cases]
+
+    py, nb = _under("python", run), _under("numba", run)
+    for (xa, ca), (xb, cb) in zip(py, nb):
+        assert np.array_equal(xa, xb) and ca == cb
+    assert len({c for _, c in py}) == len(cases)
+
+
+def test_python_backend_never_prepares_or_calls_the_kernels(monkeypatch):
+    def boom(*a):
+        raise AssertionError("kernel used under the python backend")
+
+    monkeypatch.setattr(mf, "prepare_kernels", boom)
+    monkeypatch.setattr(kernels.Kernel, "compiled", property(boom))
+
+    def run():
+        flt = mf.make_filter("sdkf")
+        u = nominal_input(0.3, 2000.0)
+        for k in range(30):
+            x = flt.step((0.3, 40.0 + k, 310.0), u)
+            predict_cac(x, [u] * HORIZON)
+        return flt
+
+    flt = _under("python", run)
+    assert flt.events == 30 and flt._kernel_args is None

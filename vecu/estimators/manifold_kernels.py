@@ -1,0 +1,418 @@
+"""Compiled manifold SDKF event and CAC prediction (numba backend only).
+
+`sdkf_event` is one whole event of ManifoldSDKF with riccati="iterate"
+(vecu/estimators/manifold_filters.py) after the Python-side input checks: the SDC matrix A(x_n|n-1)
+(manifold_model.sdc_matrices), one Riccati iteration P = A P_post A^T + Q, gating and the
+measurement update of the valid channels, clamping, both divergence checks and the prediction
+through the event map (manifold_model.f, with the plant's integrator kernel
+vecu.plant.manifold_integrator._integrate_event called from inside). It returns a status word
+that Python turns into counter increments, a reset, or (rare: S not positive definite or not
+finite) a re-run of the event on the Python path, which then decides exactly as it always did.
+`predict_events` is cac_predict.predict_state / predict_cac in one call.
+
+The scalar model arithmetic (SDC entries, event map, integrator, air charge) is the Python
+code's operation by operation; the matrix products are the same expressions (numba calls BLAS
+and LAPACK through scipy, numpy through its own copy of OpenBLAS), so on a machine where both
+are the same OpenBLAS build the results are bit-identical (tests/test_kernels_sdkf.py asserts
+== and reports the difference if a BLAS build ever rounds otherwise).
+
+The Python backend never runs these functions (the numpy code stays the reference); they are
+plain Python all the same. Caveat (numba's cache): the compiled integrator is linked into these
+kernels' cache entries, and numba does not notice when manifold_integrator.py changes;
+`prepare` checks the linked integrator against the stand-alone one on first use and rebuilds
+both kernels from source when they differ.
+"""
+
+# ruff: noqa: FURB136 (x if c else y mirrors Python's min()/max(), NaN included)
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from typing import Any
+
+import numpy as np
+
+from vecu.kernels import kernel
+from vecu.plant import manifold_integrator as mi
+
+# status word of sdkf_event: bits 0-2 channel i gated
+DIVERGED = 8
+FALLBACK = 16
+
+# filter constants vector (filter_constants)
+(F_R0, F_R1, F_R2, F_GATE2, F_MAX_GATED, F_A_LO, F_A_HI, F_P_LO, F_P_HI, F_T_LO, F_T_HI,
+ F_MAX_TRACE, F_MAX_ABS, F_ZETA, F_OMEGA0, F_TAU, F_VCYL, F_NCYL, F_ALPHA_MIN) = range(19)
+N_FILTER_CONSTS = 19
+
+_ready = False
+
+
+# ----------------------------------------------------------------------------- helpers
+# Plain functions; prepare() rebinds these names to numba-compiled versions before the kernels
+# compile, so numba inlines them (globals are resolved at compile time).
+
+def _interp_py(x, xs, ys):
+    """vecu.plant.manifold._interp's value (same operations; xs, ys 1-d)."""
+    last = len(xs) - 1
+    if x <= xs[0]:
+        return ys[0]
+    if x >= xs[last]:
+        return ys[len(ys) - 1]
+    i = bisect_right(xs, x) - 1
+    s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])
+    return ys[i] + s * (x - xs[i])
+
+
+def _eta_py(n_rpm, p_im, c, eta_rpm, eta_val):
+    """volumetric_efficiency(n_rpm, p_im)[0], c the integrator's constants."""
+    eta_n = _interp(n_rpm, eta_rpm, eta_val)
+    floor = P_FLOOR_KPA
+    p = floor if floor > p_im else p_im
+    resid = (c[20] / p) ** c[21]
+    scale = eta_n / (c[19] - 1.0)
+    return scale * (c[19] - resid)
+
+
+def _mdot_py(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs):
+    """throttle_flow(alpha, p_im, p_a, t_a)[0] (flow_function, discharge_coefficient,
+    throttle_area as written in vecu.plant.manifold)."""
+    pr = p_im / p_a
+    if pr <= c[4]:
+        psi = c[5]
+    elif pr < c[11]:
+        psi = pr ** c[7] * math.sqrt(c[6] * (1.0 - pr ** c[8]))
+    else:
+        s = 1.0 - pr
+        psi = c[13] if s < c[12] else c[14] * s + c[15] * s * abs(s)
+    a = 0.0 if 0.0 > alpha else alpha
+    a = c[26] if c[26] < a else a
+    a_deg = math.degrees(a)
+    n = len(prs)
+    pc = prs[0] if prs[0] > pr else pr
+    pc = prs[n - 1] if prs[n - 1] < pc else pc
+    j = bisect_right(prs, pc) - 1
+    j = n - 2 if n - 2 < j else j
+    lo = _interp(a_deg, cd_alpha, cd_table[j])
+    hi = _interp(a_deg, cd_alpha, cd_table[j + 1])
+    cd = lo + (hi - lo) / (prs[j + 1] - prs[j]) * (pc - prs[j])
+    area = math.pi * c[27] * c[27] * (1.0 - math.cos(a))
+    xi0 = area * (1000.0 * p_a) / math.sqrt(c[1] * t_a)
+    return xi0 * cd * psi
+
+
+def _in_bounds_py(x, P, max_trace, max_abs):
+    """not covariance.diverged_floats(x, trace P, sum P): finite, 0 <= trace <= max_trace,
+    |x_i| <= max_abs."""
+    tr = 0.0
+    tot = 0.0
+    for i in range(6):
+        tr += P[i, i]
+        for j in range(6):
+            tot += P[i, j]
+    if not 0.0 <= tr <= max_trace:
+        return False
+    for i in range(6):
+        if not -max_abs <= x[i] <= max_abs:
+            return False
+    return tot - tot == 0.0
+
+
+def _clamp_py(x, fc):
+    """_ManifoldKF._clamp (min(max(v, lo), hi) with Python's NaN behaviour)."""
+    for i in range(6):
+        lo, hi = (fc[F_A_LO], fc[F_A_HI]) if i < 3 else (
+            (fc[F_P_LO], fc[F_P_HI]) if i == 3 else (fc[F_T_LO], fc[F_T_HI]))
+        v = x[i]
+        v = lo if lo > v else v
+        x[i] = hi if hi < v else v
+
+
+_interp = _interp_py
+_eta = _eta_py
+_mdot = _mdot_py
+_in_bounds = _in_bounds_py
+_clamp = _clamp_py
+_integrate = mi._integrate_event.py
+P_FLOOR_KPA = mi.P_FLOOR_KPA
+
+
+def _jit_helpers() -> None:
+    global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate
+    import numba
+
+    _interp = numba.njit(_interp_py)
+    _eta = numba.njit(_eta_py)
+    _mdot = numba.njit(_mdot_py)
+    _in_bounds = numba.njit(_in_bounds_py)
+    _clamp = numba.njit(_clamp_py)
+    _integrate = mi._integrate_event.compiled
+
+
+def filter_constants(config: Any, alpha_sdc_min: float) -> np.ndarray:
+    """Constants of sdkf_event from a ManifoldFilterConfig (layout: the F_* indices)."""
+    prm = config.params
+    r = config.noise.r_diag()
+    b = config.bounds
+    return np.array([
+        r[0], r[1], r[2], config.gate_sigma * config.gate_sigma, float(config.max_gated_in_row),
+        *config.alpha_box, *config.p_box, *config.t_box, b.max_trace, b.max_abs_state,
+        prm.zeta, prm.omega0, prm.tau_temp_s, prm.v_cyl_dm3, float(prm.n_cyl), alpha_sdc_min,
+    ], dtype=np.float64)
+
+
+def model_constants(prm: Any) -> np.ndarray:
+    """The constants predict_events reads (actuator, IAT, V_cyl, n_cyl) for a parameter set."""
+    out = np.zeros(N_FILTER_CONSTS)
+    out[F_ZETA], out[F_OMEGA0], out[F_TAU] = prm.zeta, prm.omega0, prm.tau_temp_s
+    out[F_VCYL], out[F_NCYL] = prm.v_cyl_dm3, float(prm.n_cyl)
+    return out
+
+
+def prepare() -> None:
+    """Before the first numba call (idempotent): the integrator's search overload and signature,
+    the helpers, each kernel's one signature (compiled or loaded from numba's cache; further
+    compilation off, so int or numpy-scalar arguments convert to float64), then the check that
+    the integrator linked into the cached kernels is the current one (see module)."""
+    global _ready
+    if _ready:
+        return
+    if not mi._numba_sig_ready:
+        mi._prepare_numba()
+    _jit_helpers()
+    _compile_signatures()
+    if not _linked_integrator_is_current():
+        for k in (sdkf_event, predict_events):
+            cache = getattr(k.compiled, "_cache", None)
+            if cache is not None:
+                cache.flush()
+            k._compiled = None  # a fresh dispatcher compiles from the current sources
+        _compile_signatures()
+        if not _linked_integrator_is_current():
+            raise RuntimeError("compiled manifold kernels disagree with the integrator kernel")
+    _ready = True
+
+
+def _compile_signatures() -> None:
+    from numba import types
+
+    f8, i8 = types.float64, types.int64
+    v, m = f8[::1], f8[:, ::1]
+    tables = (v, v, m, v, v, v)  # c, cd_alpha, cd_table, prs, eta_rpm, eta_val
+    for k, sig in (
+        (sdkf_event, (v, m, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
+         + (types.boolean, v, m) + tables),
+        (predict_events, (v, m, i8, v, v) + tables),
+    ):
+        disp = k.compiled
+        disp.compile(sig)
+        disp.disable_compile()
+
+
+def numba_tables(params: Any) -> tuple | None:
+    """(constants array, C_d alpha, C_d table, C_d pr, eta_N rpm, eta_N values) as float64
+    arrays for the kernels, or None when the parameter set runs on the Python path only."""
+    nb = mi._tables(params)[2]
+    if nb is None:
+        return None
+    return (np.array(nb[0], dtype=np.float64), *nb[1:])
+
+
+def _linked_integrator_is_current() -> bool:
+    from vecu.plant.manifold_params import V8_5L7
+
+    tabs = mi._tables(V8_5L7)[2]
+    fc = model_constants(V8_5L7)
+    out = np.empty(6)
+    x = np.array([0.31, 0.3, 0.29, 61.0, 321.0, 318.0])
+    u = np.array([[0.35, 2345.0, 99.0, 297.0, 361.0]])
+    predict_events.compiled(x, u, 1, out, fc, np.array(tabs[0]), *tabs[1:])
+    ts = 120.0 / (8.0 * 2345.0)
+    ref = mi._integrate_event.compiled(61.0, 321.0, 0.3, 99.0, 297.0, 361.0, 2345.0, ts,
+                                       tabs[0], *tabs[1:])
+    return (float(out[3]), float(out[4])) == (ref[0], ref[1])
+
+
+@kernel
+def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
+    """x after `count` events through the event map (cac_predict.predict_state) into out;
+    returns the CAC (kg) there at the last input's speed (predict_cac). u: rows (TA_SP, N, P_a,
+    T_a, T_cool); event i uses row min(i, len(u) - 1) (one row: input held)."""
+    cst = (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
+           c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24],
+           c[25], c[26], c[27], c[28])
+    zw = fc[F_ZETA] * fc[F_OMEGA0]
+    w_et = fc[F_OMEGA0] * math.sqrt(1.0 - fc[F_ZETA] * fc[F_ZETA])
+    u_prev, alpha, alpha_prev, p, t, tm = x[0], x[1], x[2], x[3], x[4], x[5]
+    ts_prev = math.nan
+    a1 = a2 = b1 = b2 = a_t = b_t = 0.0
+    n_rpm = 0.0
+    last = u.shape[0] - 1
+    for i in range(count):
+        r = i if i < last else last
+        sp, n_rpm, p_a, t_a, t_cool = u[r, 0], u[r, 1], u[r, 2], u[r, 3], u[r, 4]
+        ts = 120.0 / (fc[F_NCYL] * n_rpm)
+        if ts != ts_prev:  # actuator_coeffs, iat_coeffs
+            a = math.exp(-zw * ts)
+            b = math.cos(w_et * ts)
+            g = math.sin(w_et * ts)
+            a1, a2 = 2.0 * a * b, -a * a
+            b1, b2 = 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
+            a_t = math.exp(-ts / fc[F_TAU])
+            b_t = 1.0 - a_t
+            ts_prev = ts
+        p_n, t_n, _ = _integrate(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+                                 cd_table, prs, eta_rpm, eta_val)
+        u_prev, alpha, alpha_prev, p, t, tm = (
+            sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha, p_n, t_n,
+            a_t * tm + b_t * t)
+    out[0], out[1], out[2], out[3], out[4], out[5] = u_prev, alpha, alpha_prev, p, t, tm
+    eta = _eta(n_rpm, p, c, eta_rpm, eta_val)
+    return eta * p * fc[F_VCYL] / (c[1] * t)
+
+
+
+
+@kernel
+def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans,
+               run0, run1, run2, iterate, fc, Q, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
+    """One ManifoldSDKF "iterate" event from the prior (x, P; P_post the previous posterior) with
+    the checked input and the valid channels (bit i of chans; y_i their values, run_i their
+    gated-in-a-row counts). Writes xo = (prior x_n+1|n clamped, posterior x_n|n, event-map output
+    before clamping) and Po = (prior P_n|n-1, posterior P_n|n). Returns the channels gated (bits
+    0-2) | DIVERGED (reset the filter) | FALLBACK (run the event on the Python path instead)."""
+    cst = (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
+           c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24],
+           c[25], c[26], c[27], c[28])
+    # --- event coefficients (actuator_coeffs, iat_coeffs) and A(x_n|n-1) (sdc_matrices)
+    zw = fc[F_ZETA] * fc[F_OMEGA0]
+    w_et = fc[F_OMEGA0] * math.sqrt(1.0 - fc[F_ZETA] * fc[F_ZETA])
+    a = math.exp(-zw * ts)
+    b = math.cos(w_et * ts)
+    g = math.sin(w_et * ts)
+    a1, a2 = 2.0 * a * b, -a * a
+    b1, b2 = 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
+    a_t = math.exp(-ts / fc[F_TAU])
+    b_t = 1.0 - a_t
+    k, r, v = c[0], c[1], c[2]
+    alpha, p, t = x[1], x[3], x[4]
+    eta = _eta(n_rpm, p, c, eta_rpm, eta_val)
+    mdot = _mdot(alpha, p, p_a, t_a, c, cd_alpha, cd_table, prs)
+    q = c[16] * (t_cool - t) + c[17] * (t_a - t)
+    ps = 1e-3 if 1e-3 > p else p
+    tsx = 1.0 if 1.0 > t else t
+    pump = k * eta * n_rpm * c[28] * ts / (120.0 * v)
+    amin = fc[F_ALPHA_MIN]
+    flow = ts * mdot / (amin if amin > alpha else alpha)
+    A = np.zeros((6, 6))
+    A[1, 0], A[1, 1], A[1, 2] = b2, a1, a2
+    A[2, 1] = 1.0
+    A[3, 1] = k * r * t_a * flow / v
+    A[4, 1] = tsx * (k * r * t_a - r * tsx) * flow / (v * ps)
+    A[3, 3] = 1.0 - pump
+    A[3, 4] = (k - 1.0) * ts * q / (tsx * v)
+    A[4, 4] = 1.0 - (k - 1.0) / k * pump + (k - 1.0) * ts * q / (v * ps)
+    A[5, 4], A[5, 5] = b_t, a_t
+    # --- prior covariance: one Riccati iteration P = sym(A P_post A^T + Q)
+    Pn = Po[0]
+    if iterate:
+        X = A @ P_post @ A.T + Q
+        Pn[:, :] = 0.5 * (X + X.T)
+    else:
+        Pn[:, :] = P
+    # --- gating (per channel) and the measurement update of the channels used
+    yv = (y0, y1, y2)
+    runs = (run0, run1, run2)
+    rd = (fc[F_R0], fc[F_R1], fc[F_R2])
+    gated = 0
+    nc = 0
+    ch = np.zeros(3, dtype=np.int64)
+    for i in range(3):
+        if chans >> i & 1:
+            j = 2 * i + 1  # Y_INDEX
+            e = yv[i] - x[j]
+            s = Pn[j, j] + rd[i]
+            if e * e > fc[F_GATE2] * s and runs[i] < fc[F_MAX_GATED]:
+                gated |= 1 << i
+            else:
+                ch[nc] = i
+                nc += 1
+    xp = xo[1]
+    Pp = Po[1]
+    if nc == 0:
+        xp[:] = x
+        Pp[:, :] = Pn
+    else:
+        PCt = np.empty((6, nc))  # P C^T over the channels used
+        for i in range(6):
+            for m in range(nc):
+                PCt[i, m] = Pn[i, 2 * ch[m] + 1]
+        e = np.empty(nc)
+        for m in range(nc):
+            e[m] = yv[ch[m]] - x[2 * ch[m] + 1]
+        if nc == 3:  # _gain_all: unrolled 3x3 Cholesky, S^-1 = M^T M
+            s00 = Pn[1, 1] + rd[0]
+            s10 = Pn[3, 1] + 0.0
+            s11 = Pn[3, 3] + rd[1]
+            s20 = Pn[5, 1] + 0.0
+            s21 = Pn[5, 3] + 0.0
+            s22 = Pn[5, 5] + rd[2]
+            if not (math.isfinite(s00 + s10 + s11 + s20 + s21 + s22) and s00 > 0.0):
+                return FALLBACK
+            l00 = math.sqrt(s00)
+            l10, l20 = s10 / l00, s20 / l00
+            d1 = s11 - l10 * l10
+            if not d1 > 0.0:
+                return FALLBACK
+            l11 = math.sqrt(d1)
+            l21 = (s21 - l20 * l10) / l11
+            d2 = s22 - l20 * l20 - l21 * l21
+            if not d2 > 0.0:
+                return FALLBACK
+            m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / math.sqrt(d2)
+            m10 = -l10 * m00 * m11
+            m21 = -l21 * m11 * m22
+            m20 = -(l20 * m00 + l21 * m10) * m22
+            i00 = m00 * m00 + m10 * m10 + m20 * m20
+            i01 = m10 * m11 + m20 * m21
+            i02 = m20 * m22
+            i11 = m11 * m11 + m21 * m21
+            i12 = m21 * m22
+            i22 = m22 * m22
+            Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
+            K = PCt @ Si
+            xp[:] = x + K @ e
+            X = Pn - K @ PCt.T
+            Pp[:, :] = 0.5 * (X + X.T)
+        else:  # the general path: cholesky_lower's first try, inv, S^-1 = L^-T L^-1
+            S = np.empty((nc, nc))
+            for a_ in range(nc):
+                for b_ in range(nc):
+                    S[a_, b_] = PCt[2 * ch[a_] + 1, b_] + (rd[ch[a_]] if a_ == b_ else 0.0)
+                    if not math.isfinite(S[a_, b_]):
+                        return FALLBACK
+            try:
+                L = np.linalg.cholesky(S)
+            except Exception:  # noqa: BLE001 (numba: LinAlgError; the jitter fallbacks in Python)
+                return FALLBACK
+            Li = np.linalg.solve(L, np.eye(nc))  # as numpy's inv: gesv with the identity
+            K = PCt @ (Li.T @ Li)
+            xp[:] = x + K @ e
+            X = Pn - K @ PCt.T
+            Pp[:, :] = 0.5 * (X + X.T)
+    _clamp(xp, fc)
+    if not _in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+        return gated | DIVERGED
+    # --- prediction through the event map (manifold_model.f)
+    u_prev, alpha, alpha_prev, p, t, tm = xp[0], xp[1], xp[2], xp[3], xp[4], xp[5]
+    p_n, t_n, _ = _integrate(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha, cd_table,
+                             prs, eta_rpm, eta_val)
+    xf = xo[2]
+    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
+    xf[3], xf[4], xf[5] = p_n, t_n, a_t * tm + b_t * t
+    xn = xo[0]
+    for i in range(6):
+        xn[i] = xf[i]
+    _clamp(xn, fc)
+    if not _in_bounds(xn, Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+        return gated | DIVERGED
+    return gated
