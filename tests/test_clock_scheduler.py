@@ -72,6 +72,25 @@ def test_wall_clock_waits_on_absolute_deadlines_and_counts_overruns():
     assert max(stats.lateness_ns) < 2 * NS_PER_MS
 
 
+def test_skips_past_the_end_of_a_run_are_counted_only_when_reached():
+    """A stall near the end of run_until must not count releases beyond its end as skipped
+    (runs + skipped == releases of the window); a later run_until that reaches them does."""
+    ft = FakeTime()
+    clock = WallClock(spin_ns=200_000, sleep=ft.sleep, monotonic_ns=ft.mono)
+    sched = Scheduler(clock)
+
+    def work(t: int) -> None:
+        if t == 18 * NS_PER_MS:  # stalls 4.5 periods: releases 19..22 ms are missed
+            ft.t += 4_500_000
+
+    stats = sched.every(NS_PER_MS, work, name="tick")
+    sched.run_until(20 * NS_PER_MS)
+    assert stats.runs + stats.skipped == 20  # releases 0..19 ms; 20..22 ms lie beyond the end
+    assert stats.skipped == 1 and stats.overruns == 1
+    sched.run_until(30 * NS_PER_MS)
+    assert stats.runs + stats.skipped == 30 and stats.skipped == 4
+
+
 def test_scheduler_rejects_bad_period():
     with pytest.raises(ValueError):
         Scheduler(SimClock()).every(0, lambda t: None, name="bad")

@@ -41,6 +41,10 @@ class Scheduler:
         self._seq = 0
         self._record_lateness = record_lateness
         self._stopped = False
+        # releases skipped by an overrun that fall at or after the end of the run_until call
+        # they happened in: per task (first skipped time, period, count); counted when a later
+        # run_until reaches them, so a run's `runs + skipped` is exactly its releases
+        self._skips_ahead: dict[int, tuple[int, int, int]] = {}
 
     def every(self, period_ns: int, fn: TaskFn, *, name: str, offset_ns: int = 0,
               priority: int = 0) -> TaskStats:
@@ -97,12 +101,23 @@ class Scheduler:
     def overruns(self) -> int:
         return sum(t[1].overruns for t in self._tasks)
 
+    def _count_skips_ahead(self, end_ns: int) -> None:
+        for idx, (first, period, count) in list(self._skips_ahead.items()):
+            inside = min(count, max(0, -((first - end_ns) // period)))
+            self._tasks[idx][1].skipped += inside
+            if inside == count:
+                del self._skips_ahead[idx]
+            else:
+                self._skips_ahead[idx] = (first + inside * period, period, count - inside)
+
     def run_until(self, end_ns: int) -> int:
         """Run every release due before end_ns (exclusive); return the clock time at exit."""
         clock = self.clock
         heap = self._heap
         realtime = clock.realtime
         self._stopped = False
+        if self._skips_ahead:
+            self._count_skips_ahead(end_ns)
         while heap and heap[0][0] < end_ns and not self._stopped:
             due, priority, _, idx = heapq.heappop(heap)
             fn, stats, period, _ = self._tasks[idx]
@@ -122,7 +137,11 @@ class Scheduler:
                     if now > nxt:
                         stats.overruns += 1
                         missed = (now - nxt) // period + 1
-                        stats.skipped += missed
+                        inside = min(missed, max(0, -((nxt - end_ns) // period)))
+                        stats.skipped += inside
+                        if missed > inside:
+                            self._skips_ahead[idx] = (nxt + inside * period, period,
+                                                      missed - inside)
                         nxt += missed * period
                 self._push(nxt, priority, idx)
         if not self._stopped:
