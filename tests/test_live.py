@@ -158,6 +158,11 @@ def _check_live_run(res: dict, kill: bool) -> None:
     assert plant["bus"]["rx_by_id"].get("ECU_ThrottleEstimate", 0) > 500
     if res["interface"] == "udp_multicast":  # this interface echoes: both nodes saw their own
         assert ecu["bus"]["own_echo"] > 500 and plant["bus"]["own_echo"] > 500
+    # every frame the ECU took from the bus is accounted for: read during the start-up phase
+    # sync, or handed to the ECU's receive path
+    taken = sum(ecu["bus"]["rx_by_id"].values())
+    assert ecu["sync"]["discarded_frames"] > 0
+    assert taken == ecu["sync"]["discarded_frames"] + ecu["rx"]["received"]
     with can.LogReader(res["ecu_log"]) as reader:  # written by the ECU, closed after SIGTERM
         ids = [m.arbitration_id for m in reader]
     est_id = DbcCodec()["ECU_ThrottleEstimate"].frame_id

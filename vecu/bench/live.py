@@ -186,9 +186,16 @@ def bench_live(seconds: float = 10.0, memory_minutes: float = 10.0,
                 out["throughput_udp"] = r
             else:
                 ecu, plant = r["ecu"], r["plant"]
+                # rates over the plant's sending time: the ECU's own elapsed time also holds
+                # its start-up listen and the final drain, and would understate its rate
+                plant_s = max(plant["elapsed_s"], 1e-9)
                 out["throughput_udp"] = {
+                    "offered": plant["frames"]["plant_sent"],
+                    "decoded": ecu["frames"]["decoded"],
+                    # read while the ECU listened for the plant's phase, before its clock started
+                    "discarded_at_sync": ecu["sync"]["discarded_frames"],
                     "offered_per_s": plant["frames"]["sent_per_s"],
-                    "decoded_per_s": ecu["frames"]["decoded_per_s"],
+                    "decoded_per_s": round(ecu["frames"]["decoded"] / plant_s, 1),
                     "answered_per_s": ecu["frames"]["answered_per_s"],
                     "sensor_frames": _loss(ecu, plant), "rcvbuf_bytes": ecu["bus"]["rcvbuf_bytes"],
                     "ecu_tick": {k: ecu["ticks"]["ecu"][k] for k in ("overrun_pct", "skipped")},
@@ -229,7 +236,8 @@ def format_live(r: dict[str, Any]) -> str:
     tu = r["throughput_udp"]
     if "offered_per_s" in tu:
         lines.append(f"  throughput, udp_multicast, two processes: offered {tu['offered_per_s']} "
-                     f"frames/s, decoded {tu['decoded_per_s']}/s, lost "
+                     f"frames/s, decoded {tu['decoded_per_s']}/s ({tu['discarded_at_sync']} read "
+                     f"during the start-up phase sync), lost "
                      f"{tu['sensor_frames']['lost']} ({tu['sensor_frames']['lost_pct']} %), ECU "
                      f"overruns {tu['ecu_tick']['overrun_pct']} %")
     else:

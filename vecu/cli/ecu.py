@@ -141,6 +141,7 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
         },
         "rx": ecu.rx.as_dict(),
         "frames": {"ecu_sent": ecu.frames_sent, "send_errors": ecu.send_errors,
+                   "decoded": ecu.rx.accepted,
                    "decoded_per_s": round(ecu.rx.accepted / elapsed, 1),
                    "answered_per_s": round(ecu.frames_sent / elapsed, 1)},
         "estimates": estimates,

@@ -30,10 +30,12 @@ class PhaseSync:
     late_edge_us: float | None      # quantile of the deviations after the mean
     margin_us: float
     start_at_perf_ns: int | None
+    discarded: int = 0  # all frames read (and dropped) while listening, trigger frames included
 
     def as_dict(self) -> dict[str, object]:
         return {"frames": self.frames, "phase_us": self.phase_us, "late_edge_us": self.late_edge_us,
-                "margin_us": self.margin_us, "synced": self.start_at_perf_ns is not None}
+                "margin_us": self.margin_us, "synced": self.start_at_perf_ns is not None,
+                "discarded_frames": self.discarded}
 
 
 def arrival_phase(arrivals_ns: list[int], period_ns: int = PERIOD_NS,
@@ -82,20 +84,25 @@ def sync_to_trigger(bus: LiveBus, trigger: tuple[int, bool], frames: int = 100,
     the LiveBus like any other."""
     offset = _clock_offset_ns()
     arrivals: list[int] = []
+    read = 0
     deadline = time.perf_counter_ns() + int(timeout_s * NS_PER_S)
     while len(arrivals) < frames and not stop():
         left = deadline - time.perf_counter_ns()
         if left <= 0:
             break
         msg = bus.recv(min(left / NS_PER_S, 0.05))
-        if msg is None or (msg.arbitration_id, msg.is_extended_id) != trigger:
+        if msg is None:
+            continue
+        read += 1
+        if (msg.arbitration_id, msg.is_extended_id) != trigger:
             continue
         if arrival_timestamps:
             arrivals.append(int(msg.timestamp * NS_PER_S) - offset)
         else:
             arrivals.append(time.perf_counter_ns())
     if len(arrivals) < max(10, frames // 10):
-        return PhaseSync(len(arrivals), None, None, margin_us, None)
+        return PhaseSync(len(arrivals), None, None, margin_us, None, read)
     mean, late = arrival_phase(arrivals)
     start = start_instant(mean, late, margin_us * 1000, time.perf_counter_ns(), lead_ns=2 * PERIOD_NS)
-    return PhaseSync(len(arrivals), round(mean / 1000, 1), round(late / 1000, 1), margin_us, start)
+    return PhaseSync(len(arrivals), round(mean / 1000, 1), round(late / 1000, 1), margin_us, start,
+                     read)
