@@ -22,11 +22,6 @@ def compiled_kernels_ready() -> None:
     """Under the numba backend, load (or, on a fresh checkout, compile: ~40 s once) every kernel
     before the first test, so that the processes the live tests start find numba's disk cache
     warm instead of each compiling on its own while a test's start-up timeout runs."""
-    from vecu import kernels
+    from vecu.runner import load_kernels
 
-    if kernels.backend() != "numba":
-        return
-    from vecu.runner import RunConfig, run
-
-    run(RunConfig(duration_s=0.3, kill_tps_at_s=None, kill_swa_at_s=None,
-                  channel="vecu-test-kernel-warm-up"))
+    load_kernels()

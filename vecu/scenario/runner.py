@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from vecu.runner import run
+from vecu.runner import load_kernels, run
 from vecu.scenario.criteria import CriterionResult, evaluate
 from vecu.scenario.loader import Scenario
 
@@ -82,6 +82,7 @@ def run_scenarios(scenarios: list[Scenario], jobs: int = 1, report_dir: str | No
     results as serial: every run is seeded and independent)."""
     total = len(scenarios)
     outcomes: list[ScenarioOutcome] = []
+    load_kernels()  # once, before the first timed run (forked workers inherit them)
 
     def report(i: int, o: ScenarioOutcome) -> None:
         if stream is not None:
