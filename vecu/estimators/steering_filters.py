@@ -73,24 +73,12 @@ def matrix_from_p10(p: P10 | list[float]) -> np.ndarray:
 
 
 def _chol4(p: P10) -> tuple[float, ...]:
-    """Lower Cholesky (l00, l10, l11, l20, l21, l22, l30, l31, l32, l33); unrolled, fallback
-    covariance.cholesky_lower (jitter, then eigenvalue clipping)."""
-    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
-    if p00 > 0.0:
-        l00 = math.sqrt(p00)
-        l10, l20, l30 = p01 / l00, p02 / l00, p03 / l00
-        d = p11 - l10 * l10
-        if d > 0.0:
-            l11 = math.sqrt(d)
-            l21 = (p12 - l20 * l10) / l11
-            l31 = (p13 - l30 * l10) / l11
-            d = p22 - l20 * l20 - l21 * l21
-            if d > 0.0:
-                l22 = math.sqrt(d)
-                l32 = (p23 - l30 * l20 - l31 * l21) / l22
-                d = p33 - l30 * l30 - l31 * l31 - l32 * l32
-                if d > 0.0:
-                    return l00, l10, l11, l20, l21, l22, l30, l31, l32, math.sqrt(d)
+    """Lower Cholesky (l00, l10, l11, l20, l21, l22, l30, l31, l32, l33); unrolled
+    (steering_kernels.chol_unrolled), fallback covariance.cholesky_lower (jitter, then
+    eigenvalue clipping)."""
+    ok, low = sk.chol_unrolled(p)
+    if ok:
+        return low
     L = cholesky_lower(matrix_from_p10(p))
     return (float(L[0, 0]), float(L[1, 0]), float(L[1, 1]), float(L[2, 0]), float(L[2, 1]),
             float(L[2, 2]), float(L[3, 0]), float(L[3, 1]), float(L[3, 2]), float(L[3, 3]))
