@@ -61,3 +61,13 @@ def test_numba_backend_compiles_and_agrees(fresh_backend, monkeypatch):
     assert _weighted_sum(1000, 0.25) == _weighted_sum.py(1000, 0.25)
     assert kernels.set_backend("python") == "numba"
     assert _weighted_sum.impl() is _weighted_sum.py
+
+
+def test_discard_compiled_recompiles(fresh_backend, monkeypatch):
+    pytest.importorskip("numba")
+    monkeypatch.setenv(kernels.ENV_VAR, "numba")
+    first = _weighted_sum.compiled
+    assert _weighted_sum(10, 1.0) == 45.0
+    _weighted_sum.discard_compiled()
+    assert _weighted_sum.compiled is not first
+    assert _weighted_sum(10, 1.0) == 45.0

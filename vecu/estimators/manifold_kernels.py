@@ -182,10 +182,7 @@ def prepare() -> None:
     _compile_signatures()
     if not _linked_integrator_is_current():
         for k in (sdkf_event, predict_events):
-            cache = getattr(k.compiled, "_cache", None)
-            if cache is not None:
-                cache.flush()
-            k._compiled = None  # a fresh dispatcher compiles from the current sources
+            k.discard_compiled()  # a fresh dispatcher compiles from the current sources
         _compile_signatures()
         if not _linked_integrator_is_current():
             raise RuntimeError("compiled manifold kernels disagree with the integrator kernel")

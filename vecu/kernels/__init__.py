@@ -104,6 +104,15 @@ class Kernel:
                 self._compiled = numba.njit(**self._options)(self.py)
         return self._compiled
 
+    def discard_compiled(self) -> None:
+        """Forget the compiled code, on disk too (numba's cache does not see changes to other
+        kernels a kernel calls: a caller that detects such staleness recompiles with this)."""
+        if self._compiled is not None:
+            cache = getattr(self._compiled, "_cache", None)
+            if cache is not None:
+                cache.flush()
+        self._compiled = None
+
     def impl(self) -> Callable[..., Any]:
         """The function for the active backend (hot callers fetch it once per call site)."""
         return self.compiled if backend() == "numba" else self.py
