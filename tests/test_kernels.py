@@ -71,3 +71,19 @@ def test_discard_compiled_recompiles(fresh_backend, monkeypatch):
     _weighted_sum.discard_compiled()
     assert _weighted_sum.compiled is not first
     assert _weighted_sum(10, 1.0) == 45.0
+
+
+def test_cold_cache_is_announced_once_per_install(fresh_backend, monkeypatch, tmp_path):
+    """A fresh checkout (no numba cache file next to the sources) gets a one-line notice."""
+    pytest.importorskip("numba")
+    monkeypatch.setenv(kernels.ENV_VAR, "numba")
+    assert kernels.cache_is_cold() is False  # this session's kernels are cached already
+    import pathlib
+
+    real_glob = pathlib.Path.glob
+    monkeypatch.setattr(pathlib.Path, "glob",
+                        lambda self, pat: iter(()) if pat.endswith(".nbi") else real_glob(self, pat))
+    assert kernels.cache_is_cold() is True
+    monkeypatch.setenv(kernels.ENV_VAR, "python")
+    monkeypatch.setattr(kernels, "_active", None)
+    assert kernels.cache_is_cold() is False

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario")
+KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario")  # use estimators
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,10 +26,13 @@ def main(argv: list[str] | None = None) -> int:
     from vecu import kernels
 
     try:
-        kernels.backend()  # VECU_KERNELS checked before any work starts
+        cold = kernels.cache_is_cold()  # VECU_KERNELS checked before any work starts
     except kernels.KernelBackendError as exc:
         print(f"vecu: error: {exc}", file=sys.stderr)
         return 2
+    if cold and args.command in KERNEL_COMMANDS:
+        print("vecu: compiling the numba kernels on first use (about 40 s, once per install; "
+              "VECU_KERNELS=python skips them)", file=sys.stderr, flush=True)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -81,6 +81,20 @@ def set_backend(name: str) -> str:
     return previous
 
 
+def cache_is_cold() -> bool:
+    """True under the numba backend when numba's disk cache next to vecu's sources holds no
+    compiled kernel yet (a fresh checkout or install: the first run compiles, ~40 s). False when
+    that directory is not writable (numba then caches elsewhere) or the backend is python."""
+    if backend() != "numba":
+        return False
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    if not os.access(root, os.W_OK):
+        return False
+    return not any(root.glob("*/__pycache__/*.nbi"))
+
+
 class Kernel:
     """A numba-compatible function, compiled on first use under the numba backend."""
 
