@@ -25,3 +25,17 @@ def compiled_kernels_ready() -> None:
     from vecu.runner import load_kernels
 
     load_kernels()
+
+
+@pytest.fixture
+def backend_switch():
+    """Yields run(fn, backend) -> fn() under that kernel backend (vecu.kernels.using); the
+    backend active before the test comes back afterwards, also after a switch inside it."""
+    from vecu import kernels
+
+    def run(fn, name):
+        with kernels.using(name):
+            return fn()
+
+    with kernels.using(kernels.backend()):
+        yield run

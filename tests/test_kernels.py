@@ -87,3 +87,16 @@ def test_cold_cache_is_announced_once_per_install(fresh_backend, monkeypatch, tm
     monkeypatch.setenv(kernels.ENV_VAR, "python")
     monkeypatch.setattr(kernels, "_active", None)
     assert kernels.cache_is_cold() is False
+
+
+def test_using_restores_the_previous_backend_even_after_a_switch_inside(fresh_backend,
+                                                                         monkeypatch):
+    pytest.importorskip("numba")
+    monkeypatch.setenv(kernels.ENV_VAR, "python")
+    with kernels.using("numba") as active:
+        assert active == kernels.backend() == "numba"
+        kernels.set_backend("auto")  # numba as well: the block's own switch
+    assert kernels.backend() == "python"
+    with pytest.raises(RuntimeError), kernels.using("python"):
+        raise RuntimeError("inside")
+    assert kernels.backend() == "python"

@@ -12,7 +12,6 @@ import math
 import numpy as np
 import pytest
 
-from vecu import kernels
 from vecu.plant import manifold_integrator as mi
 from vecu.plant.manifold import EngineInput, integrate_manifold, nominal_input
 from vecu.plant.manifold_params import V8_5L7
@@ -20,22 +19,6 @@ from vecu.plant.manifold_params import V8_5L7
 OTHER = dataclasses.replace(V8_5L7, kappa=1.35, cd_pr=(0.0, 0.4, 0.8, 1.0),
                             cd_table=V8_5L7.cd_table + (V8_5L7.cd_table[-1],),
                             pr_reg=0.97, max_substeps=25)
-
-
-@pytest.fixture
-def backend_switch():
-    """Yields run(fn, backend) -> fn() under that backend; restores the backend afterwards."""
-    previous = kernels.backend()
-
-    def run(fn, name):
-        kernels.set_backend(name)
-        try:
-            return fn()
-        finally:
-            kernels.set_backend(previous)
-
-    yield run
-    kernels.set_backend(previous)
 
 
 def _cases(rng, n):

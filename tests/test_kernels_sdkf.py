@@ -29,11 +29,8 @@ COUNTERS = ("events", "missing", "resets", "bad_inputs", "rejected", "gated", "_
 
 
 def _under(name, fn):
-    previous = kernels.set_backend(name)
-    try:
+    with kernels.using(name):
         return fn()
-    finally:
-        kernels.set_backend(previous)
 
 
 @pytest.fixture(scope="module")

@@ -22,22 +22,6 @@ COUNTERS = ("steps", "resets", "missing_r", "missing_ay", "missing_vx", "rejecte
             "rejected_ay", "rejected_vx", "gated_r", "gated_ay", "clipped")
 
 
-@pytest.fixture
-def backend_switch():
-    """Yields run(fn, backend) -> fn() under that backend; restores the backend afterwards."""
-    previous = kernels.backend()
-
-    def run(fn, name):
-        kernels.set_backend(name)
-        try:
-            return fn()
-        finally:
-            kernels.set_backend(previous)
-
-    yield run
-    kernels.set_backend(previous)
-
-
 @pytest.fixture(scope="module")
 def long_inputs():
     """100 s of the lateral plant's manoeuvre (10 001 steps of v_x, r, a_y)."""

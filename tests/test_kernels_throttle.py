@@ -35,9 +35,8 @@ BURN_IN = 1000
 @pytest.fixture
 def backend_restored():
     """Let a test switch backends; the previous one is restored afterwards."""
-    previous = kernels.backend()
-    yield kernels.set_backend
-    kernels.set_backend(previous)
+    with kernels.using(kernels.backend()):
+        yield kernels.set_backend
 
 
 @pytest.fixture(scope="module")

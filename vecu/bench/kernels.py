@@ -30,8 +30,7 @@ def bench_kernels(duration_s: float = 5.0, repeats: int = 2) -> dict[str, Any]:
         return {"numba": False, "note": "numba not installed (pip install 'vecu[fast]')"}
     from vecu.bench.ecu import capture_plant_frames, run_ecu
 
-    previous = kernels.set_backend("python")
-    try:
+    with kernels.using("python"):  # the backend active before comes back afterwards
         frames = capture_plant_frames(duration_s)
         kernels.set_backend("numba")
         t0 = time.perf_counter()
@@ -46,8 +45,6 @@ def bench_kernels(duration_s: float = 5.0, repeats: int = 2) -> dict[str, Any]:
                 best_run[name] = max(best_run.get(name, 0.0), _whole_run(duration_s))
                 us = run_ecu(frames)["us_per_tick"]
                 best_ecu[name] = min(best_ecu.get(name, float("inf")), us)
-    finally:
-        kernels.set_backend(previous)
     return {
         "numba": True,
         "sim_s": duration_s,

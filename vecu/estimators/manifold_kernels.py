@@ -127,6 +127,28 @@ def _clamp_py(x, fc):
         x[i] = hi if hi < v else v
 
 
+def _event_coeffs_py(ts, fc):
+    """(a1, a2, b1, b2, a_t, b_t) of one event of length ts: plant.manifold.actuator_coeffs
+    and iat_coeffs, the same operations in the same order."""
+    zw = fc[F_ZETA] * fc[F_OMEGA0]
+    w_et = fc[F_OMEGA0] * math.sqrt(1.0 - fc[F_ZETA] * fc[F_ZETA])
+    a = math.exp(-zw * ts)
+    b = math.cos(w_et * ts)
+    g = math.sin(w_et * ts)
+    a_t = math.exp(-ts / fc[F_TAU])
+    return (2.0 * a * b, -a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b),
+            a_t, 1.0 - a_t)
+
+
+def _const_tuple_py(c):
+    """The integrator's 29 per-parameter-set constants as the tuple it takes."""
+    return (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
+            c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24],
+            c[25], c[26], c[27], c[28])
+
+
+_event_coeffs = _event_coeffs_py
+_const_tuple = _const_tuple_py
 _interp = _interp_py
 _eta = _eta_py
 _mdot = _mdot_py
@@ -137,9 +159,11 @@ P_FLOOR_KPA = mi.P_FLOOR_KPA
 
 
 def _jit_helpers() -> None:
-    global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate
+    global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate, _event_coeffs, _const_tuple
     import numba
 
+    _event_coeffs = numba.njit(_event_coeffs_py)
+    _const_tuple = numba.njit(_const_tuple_py)
     _interp = numba.njit(_interp_py)
     _eta = numba.njit(_eta_py)
     _mdot = numba.njit(_mdot_py)
@@ -234,11 +258,7 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
     """x after `count` events through the event map (cac_predict.predict_state) into out;
     returns the CAC (kg) there at the last input's speed (predict_cac). u: rows (TA_SP, N, P_a,
     T_a, T_cool); event i uses row min(i, len(u) - 1) (one row: input held)."""
-    cst = (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
-           c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24],
-           c[25], c[26], c[27], c[28])
-    zw = fc[F_ZETA] * fc[F_OMEGA0]
-    w_et = fc[F_OMEGA0] * math.sqrt(1.0 - fc[F_ZETA] * fc[F_ZETA])
+    cst = _const_tuple(c)
     u_prev, alpha, alpha_prev, p, t, tm = x[0], x[1], x[2], x[3], x[4], x[5]
     ts_prev = math.nan
     a1 = a2 = b1 = b2 = a_t = b_t = 0.0
@@ -248,14 +268,8 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
         r = i if i < last else last
         sp, n_rpm, p_a, t_a, t_cool = u[r, 0], u[r, 1], u[r, 2], u[r, 3], u[r, 4]
         ts = 120.0 / (fc[F_NCYL] * n_rpm)
-        if ts != ts_prev:  # actuator_coeffs, iat_coeffs
-            a = math.exp(-zw * ts)
-            b = math.cos(w_et * ts)
-            g = math.sin(w_et * ts)
-            a1, a2 = 2.0 * a * b, -a * a
-            b1, b2 = 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
-            a_t = math.exp(-ts / fc[F_TAU])
-            b_t = 1.0 - a_t
+        if ts != ts_prev:
+            a1, a2, b1, b2, a_t, b_t = _event_coeffs(ts, fc)
             ts_prev = ts
         p_n, t_n, _ = _integrate(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
                                  cd_table, prs, eta_rpm, eta_val)
@@ -277,19 +291,9 @@ def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2
     gated-in-a-row counts). Writes xo = (prior x_n+1|n clamped, posterior x_n|n, event-map output
     before clamping) and Po = (prior P_n|n-1, posterior P_n|n). Returns the channels gated (bits
     0-2) | DIVERGED (reset the filter) | FALLBACK (run the event on the Python path instead)."""
-    cst = (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
-           c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24],
-           c[25], c[26], c[27], c[28])
+    cst = _const_tuple(c)
     # --- event coefficients (actuator_coeffs, iat_coeffs) and A(x_n|n-1) (sdc_matrices)
-    zw = fc[F_ZETA] * fc[F_OMEGA0]
-    w_et = fc[F_OMEGA0] * math.sqrt(1.0 - fc[F_ZETA] * fc[F_ZETA])
-    a = math.exp(-zw * ts)
-    b = math.cos(w_et * ts)
-    g = math.sin(w_et * ts)
-    a1, a2 = 2.0 * a * b, -a * a
-    b1, b2 = 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
-    a_t = math.exp(-ts / fc[F_TAU])
-    b_t = 1.0 - a_t
+    a1, a2, b1, b2, a_t, b_t = _event_coeffs(ts, fc)
     k, r, v = c[0], c[1], c[2]
     alpha, p, t = x[1], x[3], x[4]
     eta = _eta(n_rpm, p, c, eta_rpm, eta_val)

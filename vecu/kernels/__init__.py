@@ -22,7 +22,8 @@ only do scalar IEEE arithmetic and libm calls the outputs are bit-identical (tes
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 BACKENDS = ("auto", "numba", "python")
@@ -79,6 +80,17 @@ def set_backend(name: str) -> str:
     global _active
     _active = _resolve(name)
     return previous
+
+
+@contextmanager
+def using(name: str) -> Iterator[str]:
+    """Run a block under backend `name` ("auto", "numba", "python"); the backend that was active
+    comes back afterwards, also after a set_backend inside the block."""
+    previous = set_backend(name)
+    try:
+        yield backend()
+    finally:
+        set_backend(previous)
 
 
 def cache_is_cold() -> bool:
