@@ -189,24 +189,27 @@ def _schedule_fault(sched: Scheduler, injector: FaultInjector, f: ScheduledFault
                  name=f"end-{f.kind}-{f.target}", priority=PRIO_PLANT - 1)
 
 
-def load_kernels() -> None:
-    """Under the numba backend, load every compiled kernel now (from numba's disk cache, or
-    compile it on a fresh checkout), outside any timed run: 0.3 s of the default pipeline."""
-    if kernels.backend() == "numba":
-        run(RunConfig(duration_s=0.3, kill_tps_at_s=None, kill_swa_at_s=None,
-                      channel=f"vecu-kernel-load-{time.monotonic_ns()}"))
-
-
-def warm_up(config: RunConfig) -> None:
-    """Before a wall-clock run: 0.3 s of the whole simulated pipeline on a private virtual
-    channel (first numpy / cantools calls cost milliseconds, compiled kernels load from numba's
-    cache or compile on first use), then the set-up objects are frozen out of the garbage
-    collector's way, so the first ticks keep time."""
+def _run_briefly(config: RunConfig) -> None:
+    """0.3 s of the whole simulated pipeline of config on a private virtual channel, nothing
+    written: first numpy / cantools calls and the compiled kernels' loading (or, on a fresh
+    checkout, compiling) happen here instead of in a timed run."""
     from dataclasses import replace
 
     run(replace(config, duration_s=0.3, kill_tps_at_s=None, kill_swa_at_s=None, realtime=False,
-                interface="virtual", channel=f"vecu-warm-up-{id(config)}", log_path=None,
-                keep_series=False, faults=()))
+                interface="virtual", channel=f"vecu-warm-up-{time.monotonic_ns()}",
+                log_path=None, keep_series=False, faults=()))
+
+
+def load_kernels() -> None:
+    """Under the numba backend, load every compiled kernel now, outside any timed run."""
+    if kernels.backend() == "numba":
+        _run_briefly(RunConfig())
+
+
+def warm_up(config: RunConfig) -> None:
+    """Before a wall-clock run: a brief run of the same pipeline, then the set-up objects are
+    frozen out of the garbage collector's way, so the first ticks keep time."""
+    _run_briefly(config)
     gc.collect()
     gc.freeze()
 

@@ -90,7 +90,7 @@ def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict
     from vecu.config import RunConfig
     from vecu.ecu.node import EcuNode
     from vecu.live.livebus import LiveBus, sent_ids
-    from vecu.live.process import warm_up
+    from vecu.runner import warm_up
 
     config = RunConfig(duration_s=seconds, kill_tps_at_s=None)
     codec = DbcCodec()

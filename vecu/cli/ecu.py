@@ -41,10 +41,11 @@ def main(args: argparse.Namespace) -> int:
     from vecu.ecu.sensor_monitor import SOURCE_SENSOR, SensorStatus
     from vecu.ecu.throttle_function import ThrottleFunctionConfig
     from vecu.estimators.registry import EstimatorUnavailableError
-    from vecu.live.process import LiveProcess, warm_up
-    from vecu.stats import RunningStats
+    from vecu.live.process import LiveProcess
     from vecu.live.sync import PhaseSync, sync_to_trigger
     from vecu.recorder import TraceWriteError
+    from vecu.runner import warm_up
+    from vecu.stats import RunningStats
 
     configure_logging(args.quiet)
     require_output_dirs(args.log, args.summary, args.ready_file)

@@ -60,8 +60,9 @@ def main(args: argparse.Namespace) -> int:
     from vecu.bus import BusOpenError
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
-    from vecu.live.process import LiveProcess, warm_up
+    from vecu.live.process import LiveProcess
     from vecu.recorder import TraceWriteError
+    from vecu.runner import warm_up
 
     configure_logging(args.quiet)
     require_output_dirs(args.log, args.summary, args.ready_file)

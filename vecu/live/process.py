@@ -29,7 +29,6 @@ from vecu.live.livebus import (
 )
 from vecu.live.options import LiveOptions, bus_config
 from vecu.recorder import Recorder
-from vecu.runner import warm_up  # noqa: F401 (used by the live CLIs and benches)
 from vecu.scheduler import Scheduler, TaskStats
 from vecu.stats import DurationHistogram
 
