@@ -15,10 +15,15 @@ from vecu.bench.estimators import bench_throttle_ukf
 from vecu.cli import UserInputError
 from vecu.cli import eval as eval_cli
 from vecu.estimators.registry import (
-    THROTTLE_ESTIMATORS, EstimatorUnavailableError, make_throttle_estimator,
+    THROTTLE_ESTIMATORS,
+    EstimatorUnavailableError,
+    make_throttle_estimator,
 )
 from vecu.eval.throttle import (
-    ThrottleEvalResult, error_stats, evaluate_throttle, run_estimator,
+    ThrottleEvalResult,
+    error_stats,
+    evaluate_throttle,
+    run_estimator,
 )
 from vecu.plant.throttle import simulate
 

@@ -16,8 +16,8 @@ from vecu.plant.throttle import (
     InputGenerator,
     ThrottlePlant,
     ThrottlePlantConfig,
-    rng_streams,
 )
+from vecu.rng import rng_streams
 
 KMH = 1 / 3.6
 

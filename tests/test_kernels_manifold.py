@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from vecu.plant import manifold_integrator as mi
-from vecu.plant.manifold import EngineInput, integrate_manifold, nominal_input
-from vecu.plant.manifold_params import V8_5L7
+from vecu.models import manifold_integrator as mi
+from vecu.models.manifold import integrate_manifold, nominal_input
+from vecu.models.manifold_params import V8_5L7, EngineInput
 
 OTHER = dataclasses.replace(V8_5L7, kappa=1.35, cd_pr=(0.0, 0.4, 0.8, 1.0),
                             cd_table=V8_5L7.cd_table + (V8_5L7.cd_table[-1],),

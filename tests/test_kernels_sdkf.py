@@ -17,13 +17,10 @@ from vecu import kernels
 from vecu.estimators import manifold_filters as mf
 from vecu.estimators.cac_predict import HORIZON, predict_cac, predict_state
 from vecu.eval.manifold import trace_inputs
+from vecu.models.manifold import nominal_input, steady_state_vector
+from vecu.models.manifold_params import EngineInput
 from vecu.plant.drive_profile import DriveProfile, us06_like
-from vecu.plant.manifold import (
-    EngineInput,
-    nominal_input,
-    simulate,
-    steady_state_vector,
-)
+from vecu.plant.manifold import simulate
 
 COUNTERS = ("events", "missing", "resets", "bad_inputs", "rejected", "gated", "_gated_run")
 

@@ -22,8 +22,8 @@ from vecu.codec import DbcCodec
 from vecu.live.livebus import LiveBus, sent_ids
 from vecu.live.netns import namespace_prefix, python_module, run_in_namespace
 from vecu.live.scenario import _wait_for, run_scenario
-from vecu.stats import DurationHistogram
 from vecu.live.sync import arrival_phase, start_instant
+from vecu.stats import DurationHistogram
 
 US = 1_000
 

@@ -10,8 +10,8 @@ import math
 import numpy as np
 
 from vecu.bench.estimators import integrate_manifold_reference
-from vecu.plant.manifold import EngineInput, integrate_manifold
-from vecu.plant.manifold_params import V8_5L7
+from vecu.models.manifold import integrate_manifold
+from vecu.models.manifold_params import V8_5L7, EngineInput
 
 
 def _reference(p, t, alpha, u, dt, prm):
@@ -57,7 +57,7 @@ def test_other_parameter_sets_are_not_served_from_the_cache():
 def test_filter_gain_shortcut_matches_the_general_update():
     """_gain_all (unrolled 3x3 Cholesky) vs cholesky_lower + inv: same posterior to 1e-12."""
     from vecu.estimators.manifold_filters import make_filter
-    from vecu.plant.manifold import nominal_input
+    from vecu.models.manifold import nominal_input
 
     rng = np.random.default_rng(5)
     for name in ("sdkf", "ekf"):
@@ -81,7 +81,7 @@ def test_manifold_function_prediction_reuses_the_filter_step_exactly():
     from vecu.codec import DbcCodec
     from vecu.ecu.manifold_function import RAD, ManifoldFunction
     from vecu.estimators.cac_predict import HORIZON, predict_cac
-    from vecu.plant.manifold import EngineInput
+    from vecu.models.manifold_params import EngineInput
 
     fn = ManifoldFunction(DbcCodec())
     rng = np.random.default_rng(2)
@@ -106,7 +106,7 @@ def test_manifold_function_prediction_reuses_the_filter_step_exactly():
 def test_predict_state_equals_the_event_map_applied_in_turn():
     from vecu.estimators.cac_predict import predict_state
     from vecu.estimators.manifold_model import f
-    from vecu.plant.manifold import nominal_input, steady_state_vector
+    from vecu.models.manifold import nominal_input, steady_state_vector
 
     rng = np.random.default_rng(9)
     x0 = steady_state_vector(nominal_input(0.2, 1200.0))

@@ -27,14 +27,10 @@ from vecu.estimators.manifold_model import (
     sdc_matrices,
 )
 from vecu.eval.manifold import evaluate_manifold, trace_inputs
+from vecu.models.manifold import euler_event, nominal_input, steady_state_vector
+from vecu.models.manifold_params import EngineInput
 from vecu.plant.drive_profile import DriveProfile, us06_like
-from vecu.plant.manifold import (
-    EngineInput,
-    euler_event,
-    nominal_input,
-    simulate,
-    steady_state_vector,
-)
+from vecu.plant.manifold import simulate
 
 DEG = math.pi / 180.0
 # (throttle deg, rpm, P offset kPa, T offset K): part load, transients, WOT, idle

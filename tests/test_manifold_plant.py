@@ -8,14 +8,27 @@ import math
 import numpy as np
 import pytest
 
-from vecu.plant.drive_profile import DriveProfileConfig, us06_like
-from vecu.plant.manifold import (
-    EngineInput, ManifoldPlant, ManifoldPlantConfig, actuator_coeffs, actuator_coeffs_printed,
-    critical_pressure_ratio, euler_event, f, flow_function, integrate_manifold, manifold_rhs,
-    nominal_input, port_flow, psi_choked, sample_time, simulate, steady_state, steady_state_vector,
-    throttle_flow, volumetric_efficiency,
+from vecu.models.manifold import (
+    actuator_coeffs,
+    actuator_coeffs_printed,
+    critical_pressure_ratio,
+    euler_event,
+    f,
+    flow_function,
+    integrate_manifold,
+    manifold_rhs,
+    nominal_input,
+    port_flow,
+    psi_choked,
+    sample_time,
+    steady_state,
+    steady_state_vector,
+    throttle_flow,
+    volumetric_efficiency,
 )
-from vecu.plant.manifold_params import V8_5L7
+from vecu.models.manifold_params import V8_5L7, EngineInput
+from vecu.plant.drive_profile import DriveProfileConfig, us06_like
+from vecu.plant.manifold import ManifoldPlant, ManifoldPlantConfig, simulate
 
 P = V8_5L7
 SEEDS = (0, 1, 2)

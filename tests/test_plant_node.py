@@ -8,8 +8,13 @@ from vecu.clock import NS_PER_MS
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultKind, FaultTarget, make_fault, parse_kind
 from vecu.plant.node import PlantNode, ThrottlePart
-from vecu.plant.throttle import (InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig,
-                                 rng_streams)
+from vecu.plant.throttle import (
+    InputConfig,
+    InputGenerator,
+    ThrottlePlant,
+    ThrottlePlantConfig,
+)
+from vecu.rng import rng_streams
 
 
 @pytest.fixture

@@ -1,9 +1,13 @@
 from __future__ import annotations
 
-from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS
-from vecu.ecu.sensor_monitor import DtcState, SensorMonitor, SensorMonitorConfig
-from vecu.ecu.sensor_monitor import SensorStatus
+from vecu.ecu.sensor_monitor import (
+    DtcState,
+    SensorMonitor,
+    SensorMonitorConfig,
+    SensorStatus,
+)
+from vecu.models.sensors import TpsCalibration
 
 CAL = TpsCalibration()
 

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from vecu.estimators.covariance import cholesky_lower
-from vecu.estimators.sigma_sets import PAPER_SETS, agm, ahsm, arm, moment_errors, paper_set
+from vecu.estimators.sigma_sets import (
+    PAPER_SETS,
+    agm,
+    ahsm,
+    arm,
+    moment_errors,
+    paper_set,
+)
 
 
 @pytest.mark.parametrize("name,points", [("ahsm", 7), ("arm", 4), ("agm", 4)])

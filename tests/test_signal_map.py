@@ -7,8 +7,13 @@ import math
 import pytest
 
 from vecu.codec import DbcCodec
-from vecu.replay.signal_map import (SignalMapError, build_signal_map, identity_map,
-                                    load_signal_map, unit_conversion)
+from vecu.replay.signal_map import (
+    SignalMapError,
+    build_signal_map,
+    identity_map,
+    load_signal_map,
+    unit_conversion,
+)
 
 
 @pytest.mark.parametrize("src,dst,x,y", [

@@ -25,15 +25,15 @@ from vecu.estimators.steering_filters import (
 from vecu.estimators.steering_model import SteeringModel
 from vecu.estimators.steering_smoothers import FixedLagSmoother, rts_smooth
 from vecu.eval.steering import evaluate_steering
+from vecu.models.lateral import VehicleParams
 from vecu.plant import lateral as lat
 from vecu.plant.lateral import (
-    DEG,
     LateralSensors,
     ManoeuvreConfig,
     SensorModel,
-    VehicleParams,
     simulate_lateral,
 )
+from vecu.units import RAD_PER_DEG
 
 SHORT = ManoeuvreConfig(duration_s=20.0)
 
@@ -83,14 +83,14 @@ def test_mismatch_degrades_gracefully() -> None:
 # --- plant -------------------------------------------------------------------------------------
 def test_vehicle_parameters_match_design_note() -> None:
     p = VehicleParams()
-    assert p.understeer_rad_per_mps2 * lat.G_MPS2 / DEG == pytest.approx(1.78, abs=0.01)
+    assert p.understeer_rad_per_mps2 * lat.G_MPS2 / RAD_PER_DEG == pytest.approx(1.78, abs=0.01)
     assert math.sqrt(p.wheelbase_m / p.understeer_rad_per_mps2) == pytest.approx(28.7, abs=0.05)
 
 
 def test_steady_state_and_small_angle_gain() -> None:
     p = VehicleParams()
     t = lat.tyre_consts(p)
-    v, d = 25.0, 0.2 * DEG
+    v, d = 25.0, 0.2 * RAD_PER_DEG
     x = lat.steady_state(d, v, p)
     assert max(abs(g) for g in lat.f(x, (d, v), p, t)) < 1e-9
     # Small angle: linear yaw gain v / (L + K v^2) within 0.5 %.
@@ -105,8 +105,8 @@ def test_manoeuvre_ranges(short_trace) -> None:
     assert tr.t.size == 30001
     assert 20.0 <= tr.v_x.min() and tr.v_x.max() <= 30.0
     assert np.abs(tr.a_y).max() < 7.0  # below mu g: tyres nonlinear, never saturated
-    assert np.abs(tr.swa).max() > 15.0 * DEG
-    assert abs(tr.swa[0]) > 3.0 * DEG  # starts in a curve
+    assert np.abs(tr.swa).max() > 15.0 * RAD_PER_DEG
+    assert abs(tr.swa[0]) > 3.0 * RAD_PER_DEG  # starts in a curve
     np.testing.assert_allclose(tr.swa, tr.params.steering_ratio * tr.delta)
 
 
@@ -119,9 +119,9 @@ def test_sensor_model_eq3() -> None:
     half = SensorModel(sigma=0.0, gain=0.5, bias=0.1).measure(np.full(3, 2.0), rng)
     np.testing.assert_allclose(half, 1.1)
     sens = dataclasses.replace(LateralSensors(),
-                               steering_wheel=SensorModel(sigma=0.1 * DEG, gain=0.0))
+                               steering_wheel=SensorModel(sigma=0.1 * RAD_PER_DEG, gain=0.0))
     tr = simulate_lateral(7, SHORT, sensors=sens)
-    assert np.abs(tr.meas_swa).max() < 0.6 * DEG  # a killed SWA sensor reads noise only
+    assert np.abs(tr.meas_swa).max() < 0.6 * RAD_PER_DEG  # a killed SWA sensor reads noise only
 
 
 def test_determinism() -> None:
@@ -214,7 +214,7 @@ def test_never_nan_under_bad_input(cls, short_trace) -> None:
     assert f.gated_ay > 0  # spikes gated
     assert f.resets == 0
     # Still tracking: half the readings were bad, the error stays moderate.
-    assert abs(f.swa_rad - tr.swa[-1]) < 5.0 * DEG
+    assert abs(f.swa_rad - tr.swa[-1]) < 5.0 * RAD_PER_DEG
 
 
 def test_missing_readings_predict_only() -> None:

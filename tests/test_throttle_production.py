@@ -18,7 +18,8 @@ from vecu.estimators.throttle_production import (
     ThrottleParticleFilter,
     make_production_estimator,
 )
-from vecu.plant.throttle import TABLE_I, simulate, step_mean
+from vecu.models.throttle import TABLE_I, step_mean
+from vecu.plant.throttle import simulate
 
 BURN_IN = 1000
 

@@ -8,13 +8,18 @@ import numpy as np
 import pytest
 
 from vecu.estimators.covariance import (
-    DivergenceBounds, cholesky_lower, diverged, diverged_floats, symmetrise,
+    DivergenceBounds,
+    cholesky_lower,
+    diverged,
+    diverged_floats,
+    symmetrise,
 )
 from vecu.estimators.sigma_sets import PAPER_SETS, paper_set
 from vecu.estimators.throttle_model import NumpyThrottleUKF, f, h, process_noise_cov
 from vecu.estimators.ukf import UnscentedFilter
 from vecu.estimators.ukf_fast import FastThrottleUKF
-from vecu.plant.throttle import F_DIAG, simulate
+from vecu.models.throttle import F_DIAG
+from vecu.plant.throttle import simulate
 
 # --- generic filter: exact on a linear-Gaussian model -------------------------------------------
 

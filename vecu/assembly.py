@@ -33,8 +33,8 @@ from vecu.plant.throttle import (
     InputGenerator,
     ThrottlePlant,
     ThrottlePlantConfig,
-    rng_streams,
 )
+from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 
 TICK_NS = NS_PER_MS

@@ -14,9 +14,9 @@ from vecu.ecu.manifold_function import ManifoldFunction
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import ThrottleFunction
-from vecu.plant.longitudinal import KMH
 from vecu.plant.node import LateralPart, LongitudinalPart, ManifoldPart, ThrottlePart
 from vecu.stats import RunningStats
+from vecu.units import MPS_PER_KMH
 
 LOW_SPEED_KMH = 5.0  # the paper's split: the wheel-speed sensor is useless below 5 km/h
 SPEED_BURN_IN_NS = 500_000_000  # the filter starts at rest: skip its start-up, as vecu.eval.speed does
@@ -129,14 +129,14 @@ class SpeedProbe:
         v, a = part.v, part.a
         s = self._series
         if s is not None and self._k < s.shape[1]:
-            s[:, self._k] = (t_ns / NS_PER_S, v / KMH, part.wheel / KMH, kf.speed_mps / KMH, a,
+            s[:, self._k] = (t_ns / NS_PER_S, v / MPS_PER_KMH, part.wheel / MPS_PER_KMH, kf.speed_mps / MPS_PER_KMH, a,
                              kf.accel_mps2)
         self._k += 1
         if t_ns < SPEED_BURN_IN_NS:
             return
-        band = "high" if v / KMH >= LOW_SPEED_KMH else "low"
-        self.v_est[band].add((kf.speed_mps - v) / KMH)
-        self.v_raw[band].add((part.wheel - v) / KMH)
+        band = "high" if v / MPS_PER_KMH >= LOW_SPEED_KMH else "low"
+        self.v_est[band].add((kf.speed_mps - v) / MPS_PER_KMH)
+        self.v_raw[band].add((part.wheel - v) / MPS_PER_KMH)
         self.a_est.add(kf.accel_mps2 - a)
         self.a_raw.add(part.accel - a)
 

@@ -34,9 +34,6 @@ from vecu.faults import FaultInjector, FaultTarget, ScheduledFault, parse_kind
 from vecu.plant.node import (
     PlantNode,
 )
-from vecu.plant.throttle import (
-    rng_streams,
-)
 from vecu.probes import (
     ManifoldProbe,
     SpeedProbe,
@@ -47,6 +44,7 @@ from vecu.probes import (
     ThrottleSeries,
 )
 from vecu.recorder import Recorder
+from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 
 __all__ = ["RunConfig", "RunResult", "detection", "run"]

@@ -179,7 +179,7 @@ class NumpyReferencePF:
     def __init__(self, n: int = 600, noise_scale: float = 1.0, seed: int = 1) -> None:
         import numpy as np
 
-        from vecu.plant.throttle import F_DIAG
+        from vecu.models.throttle import F_DIAG
 
         self.np = np
         self.rng = np.random.default_rng(seed)
@@ -192,7 +192,7 @@ class NumpyReferencePF:
         self.theta_deg = 0.0
 
     def step(self, u: float, y: float | None) -> None:
-        from vecu.plant.throttle import MODE_BOUNDS_DEG, TABLE_I
+        from vecu.models.throttle import MODE_BOUNDS_DEG, TABLE_I
 
         np, rng = self.np, self.rng
         th, rh, ci = self.x
@@ -257,9 +257,9 @@ def integrate_manifold_reference(p: float, t: float, alpha: float, u: Any, dt: f
     """vecu.plant.manifold.integrate_manifold written plainly on the model's own functions
     (`_rhs` per stage: throttle_flow, volumetric_efficiency, heat_flow): the baseline of the
     hoisted, inlined implementation (and its bit-for-bit reference in the tests)."""
+    from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA
+    from vecu.models.manifold_params import V8_5L7
     from vecu.plant import manifold
-    from vecu.plant.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA
-    from vecu.plant.manifold_params import V8_5L7
 
     prm = V8_5L7 if prm is None else prm
     g = ROS2_GAMMA
@@ -291,8 +291,9 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
     from vecu.estimators.manifold_filters import make_filter
     from vecu.estimators.manifold_model import f as model_f
     from vecu.eval.manifold import trace_inputs
+    from vecu.models.manifold import cylinder_air_charge
     from vecu.plant.drive_profile import DriveProfile, us06_like
-    from vecu.plant.manifold import cylinder_air_charge, simulate
+    from vecu.plant.manifold import simulate
 
     prof = us06_like(BENCH_SEED)
     k = round(duration_s / prof.dt_s) + 1

@@ -30,8 +30,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def collect(quick: bool, only: str | None, estimator: str, live_seconds: float = 10.0,
             memory_minutes: float = 10.0, replay_seconds: float = 60.0) -> dict[str, Any]:
     from vecu import kernels
-    from vecu.bench.estimators import (bench_manifold, bench_speed_and_steering,
-                                       bench_throttle_ukf)
+    from vecu.bench.estimators import (
+        bench_manifold,
+        bench_speed_and_steering,
+        bench_throttle_ukf,
+    )
     from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
 
     out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine(),
@@ -40,8 +43,11 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float =
         out["ukf"] = bench_throttle_ukf(steps=5_000 if quick else 20_000)
         out["filters"] = bench_speed_and_steering(steps=2_000 if quick else 5_000)
         out["manifold"] = bench_manifold(duration_s=10.0 if quick else 80.0)
-        from vecu.bench.estimators import (bench_manifold_function, bench_steering_smoother,
-                                           bench_throttle_production)
+        from vecu.bench.estimators import (
+            bench_manifold_function,
+            bench_steering_smoother,
+            bench_throttle_production,
+        )
         out["estimators"] = [  # the four ECU estimators against straightforward numpy versions
             bench_throttle_production(steps=5_000 if quick else 20_000),
             out["filters"][0],

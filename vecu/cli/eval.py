@@ -94,7 +94,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _throttle_filters(text: str | None) -> list[str]:
     from vecu.estimators.registry import (
-        THROTTLE_ESTIMATORS, EstimatorUnavailableError, make_throttle_estimator,
+        THROTTLE_ESTIMATORS,
+        EstimatorUnavailableError,
+        make_throttle_estimator,
     )
 
     if text is None:

@@ -31,7 +31,13 @@ def command_values(target: str, kind: str, value: float | None) -> dict[str, flo
     import numpy as np
 
     from vecu.codec import DbcCodec
-    from vecu.faults import DEFAULT_VALUES, FaultInjector, FaultKind, FaultTarget, parse_kind
+    from vecu.faults import (
+        DEFAULT_VALUES,
+        FaultInjector,
+        FaultKind,
+        FaultTarget,
+        parse_kind,
+    )
 
     try:
         tgt = FaultTarget[target.strip().upper()]

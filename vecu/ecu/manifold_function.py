@@ -18,11 +18,9 @@ from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.estimators.cac_predict import HORIZON, predict_cac
 from vecu.estimators.manifold_filters import make_filter
-from vecu.plant.manifold import EngineInput, cylinder_air_charge
-from vecu.plant.manifold_params import V8_5L7
-
-RAD = math.pi / 180.0
-KG_TO_MG = 1e6
+from vecu.models.manifold import cylinder_air_charge
+from vecu.models.manifold_params import V8_5L7, EngineInput
+from vecu.units import KELVIN_AT_0_DEGC, MG_PER_KG, RAD_PER_DEG
 
 
 class ManifoldFunction:
@@ -53,7 +51,7 @@ class ManifoldFunction:
         self._event = values
 
     def _on_iat(self, values: dict[str, float], t_ns: int) -> None:
-        self._iat = (int(values["ENG_IntakeCounter"]), values["ENG_IAT"] + 273.15)
+        self._iat = (int(values["ENG_IntakeCounter"]), values["ENG_IAT"] + KELVIN_AT_0_DEGC)
 
     def run(self, t_ns: int, send: Send) -> None:
         ev, iat = self._event, self._iat
@@ -70,8 +68,8 @@ class ManifoldFunction:
         self._last_counter = counter
         t_meas = iat[1] if iat is not None and iat[0] == counter else None
         n_rpm = ev["ENG_Speed"]
-        u = EngineInput(ev["ENG_ThrottleSetpoint"] * RAD, n_rpm)
-        y = (ev["ENG_ThrottleAngle"] * RAD, ev["ENG_MAP"],
+        u = EngineInput(ev["ENG_ThrottleSetpoint"] * RAD_PER_DEG, n_rpm)
+        y = (ev["ENG_ThrottleAngle"] * RAD_PER_DEG, ev["ENG_MAP"],
              t_meas if t_meas is not None else math.nan)  # NaN channel: rejected, others used
         t0 = time.perf_counter()
         x = self.filter.step(y, u)
@@ -87,9 +85,9 @@ class ManifoldFunction:
         self.events += 1
         self.last = (self._abs_index, float(x[3]), float(x[4]), cac, cac6)
         self.estimates_sent += send(self._out.frame({
-            "MFD_ThrottleAngle": float(x[1]) / RAD, "MFD_Pressure": float(x[3]),
-            "MFD_Temperature": float(x[4]) - 273.15, "MFD_CAC": cac * KG_TO_MG,
-            "MFD_CACPred6": cac6 * KG_TO_MG}, t_ns / NS_PER_S))
+            "MFD_ThrottleAngle": float(x[1]) / RAD_PER_DEG, "MFD_Pressure": float(x[3]),
+            "MFD_Temperature": float(x[4]) - KELVIN_AT_0_DEGC, "MFD_CAC": cac * MG_PER_KG,
+            "MFD_CACPred6": cac6 * MG_PER_KG}, t_ns / NS_PER_S))
 
     def status_signals(self) -> dict[str, int]:
         return {}

@@ -14,8 +14,8 @@ import enum
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS
+from vecu.models.sensors import TpsCalibration
 
 SOURCE_SENSOR, SOURCE_ESTIMATE = 0, 1  # THR_Source / STE_Source in the DBC
 

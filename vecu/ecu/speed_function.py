@@ -18,7 +18,7 @@ from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
 from vecu.estimators.speed_kf import SpeedKalmanFilter
-from vecu.plant.longitudinal import KMH
+from vecu.units import MPS_PER_KMH
 
 MODE_NORMAL, MODE_STANDSTILL, MODE_ABS, MODE_COAST = 0, 1, 2, 3
 WHEEL_MAX_KMH = 280.0  # above: a short to supply / garbage (the car cannot go faster)
@@ -64,7 +64,7 @@ class SpeedFunction:
     def _on_motion(self, values: dict[str, float], t_ns: int) -> None:
         wheel_kmh = values["ESC_WheelSpeed"]
         self.monitor.on_frame(t_ns, wheel_kmh)
-        self._wheel = wheel_kmh * KMH
+        self._wheel = wheel_kmh * MPS_PER_KMH
         self._accel = values["ESC_LongAccel"]
 
     def run(self, t_ns: int, send: Send) -> None:
@@ -73,8 +73,8 @@ class SpeedFunction:
         mon = self.monitor
         was_ok = mon.status == SensorStatus.OK
         # until the filter has taken its first wheel reading its speed means nothing: no gate
-        std = kf.speed_std_mps / KMH if getattr(kf, "_initialised", True) else math.inf
-        status = mon.evaluate(t_ns, kf.speed_mps / KMH, std)
+        std = kf.speed_std_mps / MPS_PER_KMH if getattr(kf, "_initialised", True) else math.inf
+        status = mon.evaluate(t_ns, kf.speed_mps / MPS_PER_KMH, std)
         if was_ok and status == SensorStatus.TIMEOUT:
             mon.timeouts += 1
         wheel = self._wheel
@@ -89,8 +89,8 @@ class SpeedFunction:
             mode = MODE_STANDSTILL if kf.standstill else (MODE_ABS if kf.abs_mode else MODE_NORMAL)
         self.mode = mode
         self.estimates_sent += send(self._out.frame({
-            "SPD_VehSpeed": kf.speed_mps / KMH, "SPD_VehAccel": kf.accel_mps2,
-            "SPD_VehSpeedStd": kf.speed_std_mps / KMH, "SPD_AccelOffset": kf.offset_mps2,
+            "SPD_VehSpeed": kf.speed_mps / MPS_PER_KMH, "SPD_VehAccel": kf.accel_mps2,
+            "SPD_VehSpeedStd": kf.speed_std_mps / MPS_PER_KMH, "SPD_AccelOffset": kf.offset_mps2,
             "SPD_Mode": mode,
         }, t_ns / NS_PER_S))
 

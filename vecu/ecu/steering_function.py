@@ -9,18 +9,20 @@ smoothed estimate of STS_LagMs ago (flagged invalid until the lag has filled).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
-from vecu.ecu.sensor_monitor import (SOURCE_SENSOR, SensorMonitor,
-                                     SensorMonitorConfig, SensorStatus)
+from vecu.ecu.sensor_monitor import (
+    SOURCE_SENSOR,
+    SensorMonitor,
+    SensorMonitorConfig,
+    SensorStatus,
+)
 from vecu.estimators.steering_smoothers import FixedLagSmoother
-from vecu.plant.longitudinal import KMH
+from vecu.units import DEG_PER_RAD, MPS_PER_KMH
 
-DEG = 180.0 / math.pi
 SWA_LIMIT_DEG = 780.0  # lock to lock of a passenger car, about 2.2 turns each way
 
 
@@ -69,8 +71,8 @@ class SteeringFunction:
                 Subscription("SWA_Sensor", self._on_swa, self.monitor.on_e2e_error)]
 
     def _on_lateral(self, values: dict[str, float], t_ns: int) -> None:
-        self._vx = values["LAT_VehSpeed"] * KMH
-        self._r = values["LAT_YawRate"] / DEG
+        self._vx = values["LAT_VehSpeed"] * MPS_PER_KMH
+        self._r = values["LAT_YawRate"] / DEG_PER_RAD
         self._ay = values["LAT_LatAccel"]
 
     def _on_swa(self, values: dict[str, float], t_ns: int) -> None:
@@ -80,7 +82,7 @@ class SteeringFunction:
         lagged = self.smoother.step(self._vx, self._r, self._ay)
         self._vx = self._r = self._ay = None
         ukf = self.ukf
-        est, std, beta = ukf.swa_rad * DEG, ukf.swa_std_rad * DEG, ukf.side_slip_rad * DEG
+        est, std, beta = ukf.swa_rad * DEG_PER_RAD, ukf.swa_std_rad * DEG_PER_RAD, ukf.side_slip_rad * DEG_PER_RAD
         angle, source, status = self.monitor.select(t_ns, est, std)
         self.angle, self.source, self.status = angle, source, status
         ts = t_ns / NS_PER_S
@@ -91,7 +93,7 @@ class SteeringFunction:
         self._tx_counter = (self._tx_counter + 1) & 0xF
         if lagged is not None:
             lag_ms = int(round(lagged.lag_steps * self.period_ns / NS_PER_MS))
-            self.lagged = (lag_ms, lagged.swa_rad * DEG, lagged.side_slip_rad * DEG)
+            self.lagged = (lag_ms, lagged.swa_rad * DEG_PER_RAD, lagged.side_slip_rad * DEG_PER_RAD)
         lag = self.lagged
         send(self._smoothed.frame({
             "STS_SwAngle": lag[1] if lag else 0.0, "STS_SideSlip": lag[2] if lag else 0.0,

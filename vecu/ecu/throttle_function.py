@@ -11,15 +11,17 @@ import math
 from collections import deque
 from dataclasses import asdict, dataclass, field
 
-from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
-from vecu.ecu.sensor_monitor import (SOURCE_SENSOR, SensorMonitor,
-                                     SensorMonitorConfig, SensorStatus)
+from vecu.ecu.sensor_monitor import (
+    SOURCE_SENSOR,
+    SensorMonitor,
+    SensorMonitorConfig,
+    SensorStatus,
+)
 from vecu.estimators.base import ThrottleEstimator
-
-
+from vecu.models.sensors import TpsCalibration
 
 MAX_BACKLOG = 20  # wattmeter samples the estimator catches up on in one run (20 ms of stall)
 

@@ -36,15 +36,14 @@ from vecu.estimators.manifold_kernels import (
     predict_events,
 )
 from vecu.estimators.manifold_kernels import prepare as prepare_kernels
-from vecu.plant.manifold import (
-    EngineInput,
+from vecu.models.manifold import (
     actuator_coeffs,
     cylinder_air_charge,
     iat_coeffs,
     integrate_manifold,
     sample_time,
 )
-from vecu.plant.manifold_params import V8_5L7, ManifoldParams
+from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 HORIZON = 6
 _PREDICT_EVENTS_PY = predict_events.py

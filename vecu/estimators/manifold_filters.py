@@ -67,10 +67,11 @@ from vecu.estimators.manifold_model import (
     r_matrix,
     sdc_matrices,
 )
-from vecu.plant.manifold import EngineInput, nominal_input, steady_state_vector
-from vecu.plant.manifold_params import (
+from vecu.models.manifold import nominal_input, steady_state_vector
+from vecu.models.manifold_params import (
     PAPER_NOISE,
     V8_5L7,
+    EngineInput,
     ManifoldNoise,
     ManifoldParams,
 )

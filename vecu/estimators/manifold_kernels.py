@@ -5,7 +5,7 @@
 (manifold_model.sdc_matrices), one Riccati iteration P = A P_post A^T + Q, gating and the
 measurement update of the valid channels, clamping, both divergence checks and the prediction
 through the event map (manifold_model.f, with the plant's integrator kernel
-vecu.plant.manifold_integrator._integrate_event called from inside). It returns a status word
+vecu.models.manifold_integrator._integrate_event called from inside). It returns a status word
 that Python turns into counter increments, a reset, or (rare: S not positive definite or not
 finite) a re-run of the event on the Python path, which then decides exactly as it always did.
 `predict_events` is cac_predict.predict_state / predict_cac in one call.
@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from vecu.kernels import kernel
-from vecu.plant import manifold_integrator as mi
+from vecu.models import manifold_integrator as mi
 
 # status word of sdkf_event: bits 0-2 channel i gated
 DIVERGED = 8
@@ -52,7 +52,7 @@ _ready = False
 # compile, so numba inlines them (globals are resolved at compile time).
 
 def _interp_py(x, xs, ys):
-    """vecu.plant.manifold._interp's value (same operations; xs, ys 1-d)."""
+    """vecu.models.manifold._interp's value (same operations; xs, ys 1-d)."""
     last = len(xs) - 1
     if x <= xs[0]:
         return ys[0]
@@ -75,7 +75,7 @@ def _eta_py(n_rpm, p_im, c, eta_rpm, eta_val):
 
 def _mdot_py(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs):
     """throttle_flow(alpha, p_im, p_a, t_a)[0] (flow_function, discharge_coefficient,
-    throttle_area as written in vecu.plant.manifold)."""
+    throttle_area as written in vecu.models.manifold)."""
     pr = p_im / p_a
     if pr <= c[4]:
         psi = c[5]
@@ -239,7 +239,7 @@ def numba_tables(params: Any) -> tuple | None:
 
 
 def _linked_integrator_is_current() -> bool:
-    from vecu.plant.manifold_params import V8_5L7
+    from vecu.models.manifold_params import V8_5L7
 
     tabs = mi._tables(V8_5L7)[2]
     fc = model_constants(V8_5L7)

@@ -1,6 +1,6 @@
 """Filter-side augmented intake-manifold model (Dutka 2006, eq. 10-14 notation).
 
-Built on the plant's pure functions (vecu/plant/manifold.py); no equation is restated here except
+Built on the model's pure functions (vecu/models/manifold.py); no equation is restated here except
 the paper's own state-dependent-coefficient (SDC) factorisation of eq. 7/10, which the SDKF needs.
 
 State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) (eq. 10), output y = C x =
@@ -23,9 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vecu.plant.manifold import (
+from vecu.models.manifold import (
     N_STATE,
-    EngineInput,
     actuator_coeffs,
     heat_flow,
     iat_coeffs,
@@ -34,15 +33,12 @@ from vecu.plant.manifold import (
     throttle_flow,
     volumetric_efficiency,
 )
-from vecu.plant.manifold import (
-    f as plant_f,
-)
-from vecu.plant.manifold import (
-    h as plant_h,
-)
-from vecu.plant.manifold_params import (
+from vecu.models.manifold import f as plant_f
+from vecu.models.manifold import h as plant_h
+from vecu.models.manifold_params import (
     PAPER_NOISE,
     V8_5L7,
+    EngineInput,
     ManifoldNoise,
     ManifoldParams,
 )

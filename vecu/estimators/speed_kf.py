@@ -33,9 +33,9 @@ import math
 from dataclasses import dataclass
 
 from vecu.estimators.covariance import DivergenceBounds, diverged_floats
+from vecu.units import MPS_PER_KMH
 
 DT_S = 0.002
-KMH = 1.0 / 3.6
 REACQUIRE_SAMPLES = 10  # 20 ms of readings >= reacquire_kmh before they are believed
 MAX_GATED_IN_ROW = 25  # 50 ms of consecutive gated wheel readings, then believe the sensor
 SPEED_BOUNDS = DivergenceBounds(max_trace=1e4, max_abs_state=1e3)
@@ -115,13 +115,13 @@ class SpeedKalmanFilter:
         self._r_a = c.sigma_accel_mps2 ** 2
         self._sw2 = c.sigma_wheel_mps ** 2
         self._swmax2 = c.sigma_wheel_max_mps ** 2
-        self._vref = c.wheel_ref_kmh * KMH
-        self._vmin = c.min_wheel_kmh * KMH
-        self._vreacq = c.reacquire_kmh * KMH
+        self._vref = c.wheel_ref_kmh * MPS_PER_KMH
+        self._vmin = c.min_wheel_kmh * MPS_PER_KMH
+        self._vreacq = c.reacquire_kmh * MPS_PER_KMH
         self._still_alpha = dt / c.still_tau_s
         self._above2 = c.abs_above_factor ** 2
         self._abs_alpha = dt / c.abs_tau_s
-        self._vstill = c.still_enter_kmh * KMH
+        self._vstill = c.still_enter_kmh * MPS_PER_KMH
         self._a_still = c.still_enter_accel_mps2
         self._exit_p11 = c.p0_accel
         self._r_zero = c.zero_speed_std_mps ** 2

@@ -2,7 +2,7 @@
 
 State x = [v_y, r, delta, delta_dot] (lateral velocity m/s, yaw rate rad/s, road-wheel angle rad
 and its rate): the paper's lateral (4) and yaw (11) motion on the single-track model of
-vecu.plant.lateral, plus the steering angle as an estimated state driven by white delta_ddot
+vecu.models.lateral, plus the steering angle as an estimated state driven by white delta_ddot
 (PSD q_delta: a steering-rate random walk). Steering-wheel angle = i_s * delta; side slip
 beta = atan(v_y / v_x). Input: the measured speed v_x (held over a step). Measurements
 y = [r, a_y] (gyro, accelerometer; the paper's eq. 2 with a nonlinear h).
@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vecu.estimators.covariance import DivergenceBounds
-from vecu.plant.lateral import DEG, DT_S, TyreConsts, VehicleParams, tyre_consts
+from vecu.models.lateral import DT_S, TyreConsts, VehicleParams, tyre_consts
+from vecu.units import RAD_PER_DEG
 
 N_STATE = 4
 V_X_MIN = 3.0  # m/s: the single-track model is singular at standstill; v_x is clipped to this
@@ -45,12 +46,12 @@ class SteeringModel:
 
     params: VehicleParams = field(default_factory=VehicleParams)
     dt_s: float = DT_S
-    q_delta: float = (200.0 / 16.0 * DEG) ** 2
+    q_delta: float = (200.0 / 16.0 * RAD_PER_DEG) ** 2
     q_vy: float = 0.2 ** 2
-    q_r: float = (2.0 * DEG) ** 2
-    sigma_r: float = 0.2 * DEG
+    q_r: float = (2.0 * RAD_PER_DEG) ** 2
+    sigma_r: float = 0.2 * RAD_PER_DEG
     sigma_ay: float = 0.1
-    p0_std: State = (1.0, 0.2, 5.0 * DEG, 20.0 * DEG)
+    p0_std: State = (1.0, 0.2, 5.0 * RAD_PER_DEG, 20.0 * RAD_PER_DEG)
     # Plausible ranges: outside (or non-finite) a reading is rejected and counted.
     max_abs_r: float = 2.5  # rad/s (~143 deg/s)
     max_abs_ay: float = 15.0  # m/s^2 (~1.5 g; road tyres stay below ~1.1 g)

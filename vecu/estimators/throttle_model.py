@@ -1,6 +1,6 @@
 """Filter-side throttle model (Vargas et al. 2015, eqs. 3-4) and the numpy UKF built on it.
 
-f(x, u): the noise-free eq. (3) step (vecu.plant.throttle.step_mean) with theta clipped to the
+f(x, u): the noise-free eq. (3) step (vecu.models.throttle.step_mean) with theta clipped to the
 mechanical stops [0, 90] deg, as in the plant (rho and i untouched).
 h(x) = i^2 (eq. 4). Q = FF^T = diag((alpha F_ii)^2), R = HH^T = 1. x0 = 0, P0 = I (Section III-C).
 """
@@ -12,7 +12,7 @@ import numpy as np
 from vecu.estimators.covariance import DivergenceBounds
 from vecu.estimators.sigma_sets import SigmaSet, paper_set
 from vecu.estimators.ukf import UnscentedFilter
-from vecu.plant.throttle import F_DIAG, H_WATTMETER, clip_theta, step_mean
+from vecu.models.throttle import F_DIAG, H_WATTMETER, clip_theta, step_mean
 
 N_STATE = 3
 X0: tuple[float, float, float] = (0.0, 0.0, 0.0)

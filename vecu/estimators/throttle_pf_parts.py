@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from vecu.plant.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG
+from vecu.models.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG
 
 CLASS_BOUNDS_DEG: tuple[float, float, float] = (1.0, MODE_BOUNDS_DEG[0], MODE_BOUNDS_DEG[1])
 HIGH_CLASS = 3

@@ -3,7 +3,7 @@
 Model (Vargas et al. 2015): the piecewise-affine eq. (3) with Table I, state x = [theta, rho, i],
 theta in degrees and clipped to the stops [0, 90] after every step, process noise alpha*F with
 F = diag(sqrt 0.35, 0, sqrt 0.18) per 1 ms step; wattmeter eq. (4) y = i^2 + v, v ~ N(0, 1)
-(vecu.plant.throttle; docs/models.md, "Production throttle estimator").
+(vecu.models.throttle; docs/models.md, "Production throttle estimator").
 
 Why particles: y carries |i| only, theta is inferred through the dynamics, and near the mode
 switches at 8 / 16 deg (rho flips its sign convention between mode 1 and modes 2/3; a mode-2 ->
@@ -55,7 +55,7 @@ from vecu.estimators.throttle_pf_parts import (
     systematic_counts,
 )
 from vecu.kernels import backend
-from vecu.plant.throttle import F_DIAG, THETA_MAX_DEG, THETA_MIN_DEG
+from vecu.models.throttle import F_DIAG, THETA_MAX_DEG, THETA_MIN_DEG
 
 DEFAULT_N_HIGH = 300
 DEFAULT_N_LOW = 600

@@ -19,7 +19,12 @@ from typing import Callable
 
 import numpy as np
 
-from vecu.estimators.covariance import DivergenceBounds, cholesky_lower, diverged, symmetrise
+from vecu.estimators.covariance import (
+    DivergenceBounds,
+    cholesky_lower,
+    diverged,
+    symmetrise,
+)
 from vecu.estimators.sigma_sets import SigmaSet
 
 TransitionFn = Callable[[np.ndarray, float], np.ndarray]

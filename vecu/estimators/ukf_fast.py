@@ -18,9 +18,12 @@ import numpy as np
 from vecu.estimators.covariance import DivergenceBounds, cholesky_lower, diverged_floats
 from vecu.estimators.sigma_sets import SigmaSet, paper_set
 from vecu.estimators.throttle_model import (
-    THROTTLE_BOUNDS, X0, measurement_noise_var, process_noise_diag,
+    THROTTLE_BOUNDS,
+    X0,
+    measurement_noise_var,
+    process_noise_diag,
 )
-from vecu.plant.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG, THETA_MIN_DEG
+from vecu.models.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG, THETA_MIN_DEG
 
 _MODES = tuple(
     (p.a12, p.a21, p.a22, p.a23, p.a32, p.a33, p.b, p.c1, p.c2, p.c3) for p in TABLE_I

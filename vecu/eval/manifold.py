@@ -27,9 +27,9 @@ from vecu.estimators.cac_predict import (
     prediction_errors,
 )
 from vecu.estimators.manifold_filters import ManifoldFilterConfig, make_filter
+from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile, us06_like
-from vecu.plant.manifold import EngineInput, ManifoldTrace, simulate
-from vecu.plant.manifold_params import V8_5L7, ManifoldParams
+from vecu.plant.manifold import ManifoldTrace, simulate
 
 DEFAULT_FILTER_CONFIG = ManifoldFilterConfig()
 P_IM_RANGE_KPA = (10.0, 105.0)  # physically sensible for this engine (floor ~18, WOT ~100)

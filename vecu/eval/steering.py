@@ -23,15 +23,15 @@ import numpy as np
 from vecu.estimators.steering_filters import SteeringEKF, SteeringUKF
 from vecu.estimators.steering_model import SteeringModel
 from vecu.estimators.steering_smoothers import FixedLagSmoother, rts_smooth
+from vecu.models.lateral import DT_S
 from vecu.plant.lateral import (
-    DEG,
-    DT_S,
     LateralSensors,
     LateralTrace,
     ManoeuvreConfig,
     SensorModel,
     simulate_lateral,
 )
+from vecu.units import RAD_PER_DEG
 
 TIMING_STEPS = 3000  # bare UKF / EKF steps timed separately (no recording, no harness)
 
@@ -86,7 +86,7 @@ def mismatch_setup(model: SteeringModel) -> tuple[SteeringModel, LateralSensors]
                              c_r_n_per_rad=0.85 * p.c_r_n_per_rad)
     base = LateralSensors()
     sens = dataclasses.replace(base, yaw_rate=SensorModel(sigma=base.yaw_rate.sigma,
-                                                          bias=0.3 * DEG))
+                                                          bias=0.3 * RAD_PER_DEG))
     return dataclasses.replace(model, params=fp), sens
 
 
@@ -145,7 +145,7 @@ def evaluate_steering(
     swa_inv = i_s * (p.wheelbase_m + p.understeer_rad_per_mps2 * v * v) * tr.meas_r / v
 
     sl = slice(round(burn_in_s / DT_S), n)
-    d = 1.0 / DEG
+    d = 1.0 / RAD_PER_DEG
 
     def e_swa(est: np.ndarray) -> float:
         return _rms((est[sl] - tr.swa[sl]) * d)

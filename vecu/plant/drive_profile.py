@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.plant.manifold_params import V8_5L7, ManifoldParams
-from vecu.plant.throttle import rng_streams
+from vecu.models.manifold_params import V8_5L7, ManifoldParams
+from vecu.rng import rng_streams
 
 STREAM = "manifold.profile"
 MANEUVERS = ("pull", "tip_in", "cruise", "decel", "idle")

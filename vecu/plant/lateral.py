@@ -1,21 +1,7 @@
-"""Single-track (bicycle) vehicle, a seeded 300 s steering manoeuvre and in-vehicle sensors.
+"""Single-track vehicle simulator: a seeded 300 s steering manoeuvre and in-vehicle sensors.
 
-After Khalid et al. (steering-wheel angle by an unscented smoother): the paper's eq. (4) lateral
-motion and eq. (11) yaw motion reduced to one axle each (its printed parameters and eqs. (6)-(14)
-are unusable; the model and numbers follow /work/shared/design/steering.md, see docs/models.md).
-SI units throughout: rad, rad/s, m, m/s, m/s^2, N.
-
-State x = [v_y, r] (lateral velocity, yaw rate); input u = [delta, v_x] (road-wheel angle,
-longitudinal speed, an exogenous input: the longitudinal motion is neglected as in the paper).
-  alpha_f = delta - (v_y + l_f r) / v_x,   alpha_r = -(v_y - l_r r) / v_x
-  F_y(alpha) = D sin(C atan(B alpha)),   D = mu F_z,  B = C_alpha / (C D)   (Pacejka, no shift)
-  v_y' = (F_yf cos delta + F_yr) / M - v_x r        (eq. 4, per axle)
-  r'   = (l_f F_yf cos delta - l_r F_yr) / I_z      (eq. 11, per axle, no l_s terms)
-  a_y  = (F_yf cos delta + F_yr) / M                (the accelerometer's quantity)
-Steering-wheel angle = i_s * delta. Sensors follow the paper's eq. (3): Y = G Y0 + nu, 0 <= G <= 1
-(G = 1 healthy, G = 0 dead), here with an optional bias (gyro offset for mismatch studies).
-`f`, `h` are pure functions of (x, u, params); `simulate_lateral` does the stepping (RK4 at 5 ms,
-samples at 100 Hz) with the named streams of `rng_streams`.
+The model (after Khalid, a sane single-track vehicle) is vecu.models.lateral; this module adds
+the manoeuvre, RK4 stepping and the eq. (3) sensors.
 """
 
 from __future__ import annotations
@@ -25,123 +11,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vecu.plant.throttle import rng_streams
+from vecu.models.lateral import (
+    DT_S,
+    VehicleParams,
+    h,
+    rk4_step,
+    steady_state,
+    tyre_consts,
+)
+from vecu.rng import rng_streams
+from vecu.units import RAD_PER_DEG
 
-G_MPS2 = 9.81
-DEG = math.pi / 180.0
-DT_S = 0.01  # sample period of the sensors and of the ECU filter (100 Hz)
 SIM_SUBSTEPS = 2  # RK4 substeps per sample (5 ms)
 STREAMS = ("steer.manoeuvre", "steer.sensors")
 SEGMENTS = ("sine", "lane_change", "steady_turn", "sweep")
-
-
-@dataclass(frozen=True)
-class VehicleParams:
-    """Single-track parameters. M, I_z: the paper, Section III. l_f, l_r, C_f, C_r, mu, i_s, C:
-    design note (the paper's l_f = 1100 m, l_r = 1500 m are garbled). Understeer 1.78 deg/g,
-    characteristic speed 28.7 m/s."""
-
-    mass_kg: float = 1410.0
-    yaw_inertia_kgm2: float = 1800.0
-    l_f_m: float = 1.1
-    l_r_m: float = 1.5
-    c_f_n_per_rad: float = 100e3  # front axle cornering stiffness
-    c_r_n_per_rad: float = 120e3
-    mu: float = 1.0
-    shape_c: float = 1.3  # Pacejka C
-    steering_ratio: float = 16.0  # i_s: steering-wheel angle / road-wheel angle
-
-    @property
-    def wheelbase_m(self) -> float:
-        return self.l_f_m + self.l_r_m
-
-    @property
-    def understeer_rad_per_mps2(self) -> float:
-        """K = M / L (l_r / C_f - l_f / C_r): delta = (L + K v^2) r / v in a steady turn."""
-        p = self
-        return p.mass_kg / p.wheelbase_m * (p.l_r_m / p.c_f_n_per_rad - p.l_f_m / p.c_r_n_per_rad)
-
-
-@dataclass(frozen=True)
-class TyreConsts:
-    """Per-axle D (N) and B (1/rad) derived once from VehicleParams (static axle loads)."""
-
-    d_f: float
-    b_f: float
-    d_r: float
-    b_r: float
-    c: float
-
-
-def tyre_consts(p: VehicleParams) -> TyreConsts:
-    """D = mu F_z (static loads M g l_r / L front, M g l_f / L rear), B = C_alpha / (C D)."""
-    fz_f = p.mass_kg * G_MPS2 * p.l_r_m / p.wheelbase_m
-    fz_r = p.mass_kg * G_MPS2 * p.l_f_m / p.wheelbase_m
-    d_f, d_r = p.mu * fz_f, p.mu * fz_r
-    return TyreConsts(d_f, p.c_f_n_per_rad / (p.shape_c * d_f),
-                      d_r, p.c_r_n_per_rad / (p.shape_c * d_r), p.shape_c)
-
-
-def axle_forces(v_y: float, r: float, delta: float, v_x: float, p: VehicleParams,
-                t: TyreConsts) -> tuple[float, float]:
-    """(F_yf, F_yr) in N from the slip angles (module docstring)."""
-    a_f = delta - (v_y + p.l_f_m * r) / v_x
-    a_r = (p.l_r_m * r - v_y) / v_x
-    return (t.d_f * math.sin(t.c * math.atan(t.b_f * a_f)),
-            t.d_r * math.sin(t.c * math.atan(t.b_r * a_r)))
-
-
-def f(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,
-      t: TyreConsts | None = None) -> tuple[float, float]:
-    """Continuous dynamics (v_y', r') of eqs. (4), (11) for x = (v_y, r), u = (delta, v_x)."""
-    t = t if t is not None else tyre_consts(p)
-    v_y, r = x
-    delta, v_x = u
-    ff, fr = axle_forces(v_y, r, delta, v_x, p, t)
-    ffc = ff * math.cos(delta)
-    return ((ffc + fr) / p.mass_kg - v_x * r,
-            (p.l_f_m * ffc - p.l_r_m * fr) / p.yaw_inertia_kgm2)
-
-
-def h(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,
-      t: TyreConsts | None = None) -> tuple[float, float]:
-    """True sensor quantities (r, a_y) for x = (v_y, r), u = (delta, v_x)."""
-    t = t if t is not None else tyre_consts(p)
-    v_y, r = x
-    delta, v_x = u
-    ff, fr = axle_forces(v_y, r, delta, v_x, p, t)
-    return r, (ff * math.cos(delta) + fr) / p.mass_kg
-
-
-def rk4_step(x: tuple[float, float], u0: tuple[float, float], u1: tuple[float, float], dt: float,
-             p: VehicleParams, t: TyreConsts) -> tuple[float, float]:
-    """One RK4 step of `f` with the input linear between u0 (start) and u1 (end)."""
-    um = (0.5 * (u0[0] + u1[0]), 0.5 * (u0[1] + u1[1]))
-    k1 = f(x, u0, p, t)
-    k2 = f((x[0] + 0.5 * dt * k1[0], x[1] + 0.5 * dt * k1[1]), um, p, t)
-    k3 = f((x[0] + 0.5 * dt * k2[0], x[1] + 0.5 * dt * k2[1]), um, p, t)
-    k4 = f((x[0] + dt * k3[0], x[1] + dt * k3[1]), u1, p, t)
-    return (x[0] + dt / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
-            x[1] + dt / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]))
-
-
-def steady_state(delta: float, v_x: float, p: VehicleParams, iters: int = 60) -> tuple[float, float]:
-    """(v_y, r) of a steady turn at (delta, v_x): Newton on f = 0 from the linear solution."""
-    t = tyre_consts(p)
-    L = p.wheelbase_m
-    r = v_x * delta / (L + p.understeer_rad_per_mps2 * v_x * v_x)
-    x = np.array([r * (p.l_r_m - p.mass_kg * p.l_f_m * v_x * v_x / (p.c_r_n_per_rad * L)), r])
-    for _ in range(iters):
-        fx = np.array(f((x[0], x[1]), (delta, v_x), p, t))
-        J = np.empty((2, 2))
-        for j in range(2):
-            e = np.zeros(2)
-            e[j] = 1e-6
-            J[:, j] = (np.array(f((x[0] + e[0], x[1] + e[1]), (delta, v_x), p, t)) - fx) / 1e-6
-        x = x - np.linalg.solve(J, fx)
-        if float(np.abs(fx).max()) < 1e-12:
-            break
-    return float(x[0]), float(x[1])
 
 
 # --------------------------------------------------------------------------- sensors (eq. 3)
@@ -169,10 +52,10 @@ class LateralSensors:
     """In-vehicle sensors at 100 Hz (design note): gyro 0.2 deg/s, accelerometer 0.1 m/s^2,
     wheel-speed based v_x 0.05 m/s, steering-wheel angle 0.1 deg (a good optical SWA sensor)."""
 
-    yaw_rate: SensorModel = SensorModel(sigma=0.2 * DEG)
+    yaw_rate: SensorModel = SensorModel(sigma=0.2 * RAD_PER_DEG)
     lat_accel: SensorModel = SensorModel(sigma=0.1)
     speed: SensorModel = SensorModel(sigma=0.05)
-    steering_wheel: SensorModel = SensorModel(sigma=0.1 * DEG)
+    steering_wheel: SensorModel = SensorModel(sigma=0.1 * RAD_PER_DEG)
 
 
 # --------------------------------------------------------------------------- manoeuvre
@@ -293,7 +176,7 @@ def steering_profile(cfg: ManoeuvreConfig, p: VehicleParams, rng: np.random.Gene
             rng.shuffle(order)
         straight = int(rng.uniform(2.0, 5.0) / dt)
         # Straight driving: small corrections, low-passed noise of ~1 deg at the wheel.
-        parts.append(np.convolve(rng.normal(0.0, 1.0 * DEG, straight), np.ones(50) / 50 ** 0.5,
+        parts.append(np.convolve(rng.normal(0.0, 1.0 * RAD_PER_DEG, straight), np.ones(50) / 50 ** 0.5,
                                  mode="same"))
         seg = _segment(order.pop(), float(v[min(k + straight, n - 1)]), cfg, p, dt, rng)
         parts.append(seg)

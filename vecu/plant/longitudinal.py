@@ -23,11 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.plant.throttle import rng_streams
+from vecu.rng import rng_streams
+from vecu.units import G_MPS2, MPS_PER_KMH
 
 DT_S = 0.002  # 500 Hz, the paper's sampling frequency
-KMH = 1.0 / 3.6  # m/s per km/h
-G_MPS2 = 9.81
 MANOEUVRES = ("paper", "gentle", "abs", "launch_brake")
 STREAMS = ("speed.manoeuvre", "speed.wheel", "speed.accel")
 
@@ -97,16 +96,16 @@ class _Profile:
 def _draw_profile(kind: str, rng: np.random.Generator) -> _Profile:
     u = rng.uniform
     if kind == "paper":
-        return _Profile(u(81.0, 87.0) * KMH, u(1.5, 2.5), u(7.3, 8.7), u(25.0, 35.0), 0.0,
+        return _Profile(u(81.0, 87.0) * MPS_PER_KMH, u(1.5, 2.5), u(7.3, 8.7), u(25.0, 35.0), 0.0,
                         0.0, 0.0, 0.0, 0.0)
     if kind == "gentle":
-        return _Profile(u(40.0, 60.0) * KMH, u(1.5, 2.5), u(2.5, 3.5), u(8.0, 12.0), 0.0,
+        return _Profile(u(40.0, 60.0) * MPS_PER_KMH, u(1.5, 2.5), u(2.5, 3.5), u(8.0, 12.0), 0.0,
                         u(8.0, 12.0), u(1.0, 1.8), 0.0, 0.0)
     if kind == "abs":
-        return _Profile(u(81.0, 87.0) * KMH, u(1.5, 2.5), u(9.2, 9.8), u(40.0, 60.0), 0.0,
+        return _Profile(u(81.0, 87.0) * MPS_PER_KMH, u(1.5, 2.5), u(9.2, 9.8), u(40.0, 60.0), 0.0,
                         0.0, 0.0, u(5.0, 8.0), u(0.0, 2.0 * math.pi))
     if kind == "launch_brake":
-        return _Profile(u(35.0, 45.0) * KMH, u(0.8, 1.2), u(4.0, 6.0), u(15.0, 25.0), u(2.0, 3.0),
+        return _Profile(u(35.0, 45.0) * MPS_PER_KMH, u(0.8, 1.2), u(4.0, 6.0), u(15.0, 25.0), u(2.0, 3.0),
                         u(6.0, 10.0), u(1.5, 2.5), 0.0, 0.0)
     raise ValueError(f"unknown manoeuvre {kind!r}; choose from {', '.join(MANOEUVRES)}")
 
@@ -148,7 +147,7 @@ def _truth(cfg: ManoeuvreConfig, p: _Profile, rng: np.random.Generator
                 phase = "brake"
         elif phase == "brake":
             a_cmd = -p.decel
-            if p.release_kmh > 0.0 and v < p.release_kmh * KMH:
+            if p.release_kmh > 0.0 and v < p.release_kmh * MPS_PER_KMH:
                 a_cmd = -p.release_decel
         else:  # stopped
             a_cmd = 0.0
@@ -187,7 +186,7 @@ def simulate_speed(
     # Wheel-speed sensor.
     rw = rngs["speed.wheel"]
     nz, ud = rw.standard_normal(n), rw.uniform(size=n)
-    vk = v / KMH
+    vk = v / MPS_PER_KMH
     sig = np.minimum(wheel.sigma_mps * np.maximum(1.0, wheel.sigma_ref_kmh / np.maximum(vk, 1e-6)),
                      wheel.sigma_max_mps)
     abs_on = braking & (prof.abs_hz > 0.0) & (vk > wheel.abs_off_kmh)

@@ -7,32 +7,32 @@ sensor frames; the node owns the bus and obeys FI_Command frames for the fault i
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Callable
 from typing import Protocol
 
 import can
 
-from vecu.calibration import TpsCalibration
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
-from vecu.node import BusNode
-from vecu.plant.drive_profile import us06_like
-from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
-from vecu.plant.lateral import simulate_lateral
-from vecu.plant.longitudinal import KMH, simulate_speed
-from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
-from vecu.plant.manifold import (
-    ManifoldPlant,
-    ManifoldPlantConfig,
+from vecu.models.manifold import (
     cylinder_air_charge,
     nominal_input,
     sample_time,
     steady_state_vector,
 )
-from vecu.plant.manifold_params import V8_5L7
-from vecu.plant.throttle import InputGenerator, ThrottlePlant, rng_streams
+from vecu.models.manifold_params import V8_5L7
+from vecu.models.sensors import TpsCalibration
+from vecu.node import BusNode
+from vecu.plant.drive_profile import us06_like
+from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
+from vecu.plant.lateral import simulate_lateral
+from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
+from vecu.plant.longitudinal import simulate_speed
+from vecu.plant.manifold import ManifoldPlant, ManifoldPlantConfig
+from vecu.plant.throttle import InputGenerator, ThrottlePlant
+from vecu.rng import rng_streams
+from vecu.units import DEG_PER_RAD, KELVIN_AT_0_DEGC, MG_PER_KG, MPS_PER_KMH
 
 log = logging.getLogger(__name__)
 
@@ -132,9 +132,9 @@ class LongitudinalPart:
         v, a, wheel, accel = (col[k] for col in self._cols)
         self.v, self.a, self.wheel, self.accel = v, a, wheel, accel
         ts = t_ns / NS_PER_S
-        send(self._msg.frame({"ESC_WheelSpeed": wheel / KMH, "ESC_LongAccel": accel}, ts))
+        send(self._msg.frame({"ESC_WheelSpeed": wheel / MPS_PER_KMH, "ESC_LongAccel": accel}, ts))
         if self.truth_msg is not None:
-            send(self.truth_msg.frame({"TRU_VehSpeed": v / KMH, "TRU_VehAccel": a}, ts))
+            send(self.truth_msg.frame({"TRU_VehSpeed": v / MPS_PER_KMH, "TRU_VehAccel": a}, ts))
 
 
 class LateralPart:
@@ -150,10 +150,9 @@ class LateralPart:
         self._swa = codec["SWA_Sensor"]
         self.injector = injector
         tr = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)))
-        deg = 180.0 / math.pi
-        self._cols = ((tr.swa * deg).tolist(), (tr.beta * deg).tolist(),
-                      (tr.meas_r * deg).tolist(), tr.meas_ay.tolist(), (tr.meas_vx / KMH).tolist(),
-                      (tr.meas_swa * deg).tolist())
+        self._cols = ((tr.swa * DEG_PER_RAD).tolist(), (tr.beta * DEG_PER_RAD).tolist(),
+                      (tr.meas_r * DEG_PER_RAD).tolist(), tr.meas_ay.tolist(), (tr.meas_vx / MPS_PER_KMH).tolist(),
+                      (tr.meas_swa * DEG_PER_RAD).tolist())
         self._k = 0
         self._counter = 0
         self.truth_msg = None  # TRUTH_Steering codec when recording truth
@@ -216,15 +215,14 @@ class ManifoldPart:
                          cylinder_air_charge(plant.p_im, plant.t_im, n, V8_5L7))
         self.truth.pop(k - 64, None)  # bounded: probes look back a few events only
         ts = t_ns / NS_PER_S
-        deg = 180.0 / math.pi
         send(self._ev.frame({"ENG_EventCounter": k & 0xFF, "ENG_Speed": n,
-                             "ENG_ThrottleSetpoint": sp * deg, "ENG_ThrottleAngle": ta * deg,
+                             "ENG_ThrottleSetpoint": sp * DEG_PER_RAD, "ENG_ThrottleAngle": ta * DEG_PER_RAD,
                              "ENG_MAP": p_kpa}, ts))
-        send(self._iat.frame({"ENG_IntakeCounter": k & 0xFF, "ENG_IAT": t_meas - 273.15}, ts))
+        send(self._iat.frame({"ENG_IntakeCounter": k & 0xFF, "ENG_IAT": t_meas - KELVIN_AT_0_DEGC}, ts))
         if self.truth_msg is not None:
             p_true, t_true, cac_true = self.truth[k]
             send(self.truth_msg.frame({"TRU_EventCounter": k & 0xFF, "TRU_MAP": p_true,
-                                       "TRU_IMT": t_true - 273.15, "TRU_CAC": cac_true * 1e6}, ts))
+                                       "TRU_IMT": t_true - KELVIN_AT_0_DEGC, "TRU_CAC": cac_true * MG_PER_KG}, ts))
         dt = sample_time(n, V8_5L7.n_cyl)
         plant.step(nominal_input(sp, n), dt)
         self.events += 1

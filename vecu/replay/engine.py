@@ -30,7 +30,12 @@ from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
 from vecu.recorder import TraceWriteError
 from vecu.replay.scoring import TruthScorer
-from vecu.replay.signal_map import SignalMap, identity_map, load_signal_map, mapped_routes
+from vecu.replay.signal_map import (
+    SignalMap,
+    identity_map,
+    load_signal_map,
+    mapped_routes,
+)
 from vecu.replay.source import TraceReadError, TraceSource
 from vecu.runner import warm_up
 from vecu.scheduler import Scheduler

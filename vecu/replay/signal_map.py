@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import copy
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import tomllib
 
 from vecu.codec import DbcCodec, FrameCodec
 from vecu.ecu.node import EcuFunction, Route, Subscription

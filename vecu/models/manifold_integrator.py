@@ -1,8 +1,8 @@
-"""The event integrator of eq. 5-6 (vecu.plant.manifold.integrate_manifold), written for speed.
+"""The event integrator of eq. 5-6 (vecu.models.manifold.integrate_manifold), written for speed.
 
 It is the hot loop of every run: the plant steps it once per engine event, the ECU's filter once
 and the 6-event air-charge prediction six times, each event ~15 sub-steps of two right-hand
-sides. It computes exactly what the reference functions of vecu.plant.manifold compute
+sides. It computes exactly what the reference functions of vecu.models.manifold compute
 (`_rhs` = `throttle_flow` + `volumetric_efficiency` + `heat_flow`), in the same floating-point
 operations and order (bit-identical results, tests/test_manifold_fast_paths.py), but:
 - everything that is constant over one event is computed once per call: the throttle area and
@@ -26,13 +26,10 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from vecu.kernels import kernel
-from vecu.plant.manifold_params import V8_5L7, ManifoldParams
-
-if TYPE_CHECKING:
-    from vecu.plant.manifold import EngineInput
+from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 P_FLOOR_KPA = 0.5  # lower guard for P_im inside eta and the integrator (never reached in use)
 ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
@@ -58,7 +55,7 @@ def _bisect_right_impl(a: Any, x: float) -> int:
 
 
 def _interp_value(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> float:
-    """vecu.plant.manifold._interp's value (same operations)."""
+    """vecu.models.manifold._interp's value (same operations)."""
     if x <= xs[0]:
         return ys[0]
     if x >= xs[-1]:
@@ -314,7 +311,7 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
     """Advance (P_im, T_im) by dt with alpha and u held; returns (P_im, T_im, M).
 
-    See vecu.plant.manifold.integrate_manifold for the method (M ROS2 sub-steps with the
+    See vecu.models.manifold.integrate_manifold for the method (M ROS2 sub-steps with the
     diagonal Jacobian); this is its implementation (the kernel `_integrate_event`).
     """
     hit = _TABLES.get(id(params))

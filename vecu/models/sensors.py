@@ -1,4 +1,4 @@
-"""Sensor datasheet values shared by the plant (which produces the signal) and the ECU (which reads it)."""
+"""Sensor transfer laws shared by the plant (which produces the signal) and the ECU (which reads it)."""
 
 from __future__ import annotations
 

@@ -120,3 +120,14 @@ class ManifoldNoise:
 
 V8_5L7 = ManifoldParams()
 PAPER_NOISE = ManifoldNoise()
+
+
+@dataclass(frozen=True)
+class EngineInput:
+    """Inputs at one event: setpoint TA_SP (rad), N (rpm), P_a (kPa), T_a and T_coolant (K)."""
+
+    ta_sp: float
+    n_rpm: float
+    p_a: float = V8_5L7.p_a_kpa
+    t_a: float = V8_5L7.t_a_k
+    t_cool: float = V8_5L7.t_cool_k

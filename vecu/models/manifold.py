@@ -1,0 +1,358 @@
+"""Intake manifold and electronic throttle (Dutka et al. 2006, eq. 1-9), corrected: docs/models.md.
+
+Units (the paper's own, in which eq. 5, 6 and 8 hold literally): P in kPa, V in dm^3
+(kPa dm^3 = J), T in K, throttle angle alpha in rad, mass flow in kg/s, heat flow in W, N in rpm,
+time in s. Only the throttle-flow factor Xi of eq. 2-3 needs P_a in Pa (A_th is in m^2).
+
+State of one event n (the augmented x_n of eq. 10, 6 entries):
+    x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas)
+where (u_prev, alpha, alpha_prev) is the non-minimal actuator state x_ET of eq. 1.
+Input: EngineInput (throttle setpoint TA_SP in rad, N, P_a, T_a, T_coolant).
+
+Layers:
+- pure model functions (actuator coefficients, eq. 2-4 flow, eq. 5-6 right-hand side, eq. 8, eq. 9,
+  steady state), usable by filters;
+- `integrate_manifold`: one event of eq. 5-6 in sub-steps of a two-stage Rosenbrock method with
+  the diagonal Jacobian (the printed single Euler step diverges at large openings);
+- `f`/`h`: the noise-free event map and output of the augmented model;
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+
+from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA  # noqa: F401 (re-exported)
+from vecu.models.manifold_integrator import integrate_manifold as _integrate_fast
+from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
+
+N_STATE = 6
+
+
+def nominal_input(ta_sp: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> EngineInput:
+    """EngineInput with the parameter set's nominal ambient and coolant conditions."""
+    return EngineInput(ta_sp, n_rpm, params.p_a_kpa, params.t_a_k, params.t_cool_k)
+
+
+# ------------------------------------------------------------------------- event timing
+
+def sample_time(n_rpm: float, n_cyl: int = 8) -> float:
+    """Event period T_s = 120 / (n_cyl N) s (Section II; 120/(8N) for the V8)."""
+    return 120.0 / (n_cyl * n_rpm)
+
+
+# ------------------------------------------------------------------------- actuator, eq. 1
+
+def actuator_coeffs(
+    ts: float, params: ManifoldParams = V8_5L7,
+) -> tuple[float, float, float, float]:
+    """(a1, a2, b1, b2) of the corrected eq. 1:
+    alpha_{n+1} = a1 alpha_n + a2 alpha_{n-1} + b1 u_n + b2 u_{n-1}.
+
+    Exact zero-order-hold discretisation of alpha'' = w0^2 (u - alpha) - 2 zeta w0 alpha' at ts:
+    a1 = 2 a b, a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b),
+    a = exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2).
+    """
+    zw = params.zeta * params.omega0
+    w_et = params.omega0 * math.sqrt(1.0 - params.zeta * params.zeta)
+    a = math.exp(-zw * ts)
+    b = math.cos(w_et * ts)
+    g = math.sin(w_et * ts)
+    return 2.0 * a * b, -a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
+
+
+def actuator_coeffs_printed(
+    ts: float, params: ManifoldParams = V8_5L7,
+) -> tuple[float, float, float, float]:
+    """(a1, a2, b1, b2) exactly as printed under eq. 1 (wrong; kept as evidence for docs/tests)."""
+    zw = params.zeta * params.omega0
+    w_et = params.omega0 * math.sqrt(1.0 - params.zeta * params.zeta)
+    a = math.exp(-zw * ts)
+    b = math.cos(w_et * ts)
+    g = math.sin(w_et * ts)
+    return -2.0 * a * a * b, a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / (w_et - b))
+
+
+def actuator_matrices(
+    ts: float, params: ManifoldParams = V8_5L7,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A_ET, B_ET, C_ET) of eq. 1 for x_ET = (u_prev, alpha, alpha_prev); recompute every event."""
+    a1, a2, b1, b2 = actuator_coeffs(ts, params)
+    a_et = np.array([[0.0, 0.0, 0.0], [b2, a1, a2], [0.0, 1.0, 0.0]])
+    return a_et, np.array([1.0, b1, 0.0]), np.array([0.0, 1.0, 0.0])
+
+
+# ------------------------------------------------------------------------- throttle flow, eq. 2-4
+
+def throttle_area(alpha: float, params: ManifoldParams = V8_5L7) -> float:
+    """Eq. 4, A_th = pi R_th^2 (1 - cos alpha) in m^2, alpha clipped to the stops [0, alpha_max]."""
+    a = min(max(alpha, 0.0), params.alpha_max_rad)
+    return math.pi * params.r_th_m * params.r_th_m * (1.0 - math.cos(a))
+
+
+def _interp(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> tuple[float, float]:
+    """Piecewise-linear lookup with end clamping: (value, slope) (slope 0 outside the table)."""
+    if x <= xs[0]:
+        return ys[0], 0.0
+    if x >= xs[-1]:
+        return ys[-1], 0.0
+    i = bisect.bisect_right(xs, x) - 1
+    s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])
+    return ys[i] + s * (x - xs[i]), s
+
+
+def discharge_coefficient(
+    pr: float, alpha: float, params: ManifoldParams = V8_5L7,
+) -> tuple[float, float]:
+    """C_d(pr, alpha) by bilinear lookup (eq. 2-3 text): (C_d, dC_d/dpr); pr clamped to [0, 1]."""
+    a_deg = math.degrees(min(max(alpha, 0.0), params.alpha_max_rad))
+    prs = params.cd_pr
+    p = min(max(pr, prs[0]), prs[-1])
+    j = min(bisect.bisect_right(prs, p) - 1, len(prs) - 2)
+    lo, _ = _interp(a_deg, params.cd_alpha_deg, params.cd_table[j])
+    hi, _ = _interp(a_deg, params.cd_alpha_deg, params.cd_table[j + 1])
+    s = (hi - lo) / (prs[j + 1] - prs[j])
+    slope = s if prs[0] < pr < prs[-1] else 0.0
+    return lo + s * (p - prs[j]), slope
+
+
+def critical_pressure_ratio(kappa: float) -> float:
+    """Choking boundary (2/(kappa+1))^(kappa/(kappa-1)) of eq. 2-3 (0.5283 for kappa = 1.4)."""
+    return (2.0 / (kappa + 1.0)) ** (kappa / (kappa - 1.0))
+
+
+def psi_choked(kappa: float) -> float:
+    """Eq. 3 corrected: sqrt(kappa) (2/(kappa+1))^((kappa+1)/(2(kappa-1))) = 0.6847 for kappa = 1.4.
+
+    As printed, with 2/(kappa-1), it is 147.9.
+    """
+    return math.sqrt(kappa) * (2.0 / (kappa + 1.0)) ** ((kappa + 1.0) / (2.0 * (kappa - 1.0)))
+
+
+def _psi_subsonic(pr: float, kappa: float) -> tuple[float, float]:
+    """Eq. 2 with the square root over the whole bracket: (psi, dpsi/dpr) for pr_c <= pr < 1."""
+    c = 2.0 * kappa / (kappa - 1.0)
+    e1 = 1.0 / kappa
+    e2 = (kappa - 1.0) / kappa
+    inner = c * (1.0 - pr ** e2)
+    root = math.sqrt(inner)
+    psi = pr ** e1 * root
+    dpsi = e1 * pr ** (e1 - 1.0) * root - pr ** e1 * c * e2 * pr ** (e2 - 1.0) / (2.0 * root)
+    return psi, dpsi
+
+
+def flow_function(pr: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
+    """psi(pr) with dpsi/dpr: choked (eq. 3), subsonic (eq. 2), C1 quadratic near pr = 1.
+
+    For s = 1 - pr < s0 = 1 - pr_reg: psi = a s + b s|s| with psi and slope matched at s0, so the
+    infinite slope of eq. 2 at pr -> 1 is removed; the odd extension gives a small reverse flow
+    for pr > 1 (reached only through process noise at wide open throttle), saturated at -psi(s0).
+    """
+    k = params.kappa
+    if pr <= critical_pressure_ratio(k):
+        return psi_choked(k), 0.0
+    if pr < params.pr_reg:
+        return _psi_subsonic(pr, k)
+    s0 = 1.0 - params.pr_reg
+    psi0, dpsi0 = _psi_subsonic(params.pr_reg, k)
+    d0 = -dpsi0  # dpsi/ds at s0
+    b = (d0 * s0 - psi0) / (s0 * s0)
+    a = d0 - 2.0 * b * s0
+    s = 1.0 - pr
+    if s < -s0:
+        return -psi0, 0.0
+    return a * s + b * s * abs(s), -(a + 2.0 * b * abs(s))
+
+
+def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
+                  params: ManifoldParams = V8_5L7) -> tuple[float, float]:
+    """Eq. 2-3: (mdot_at in kg/s, d mdot_at / dP_im in kg/s per kPa).
+
+    Xi = C_d A_th(alpha) P_a / sqrt(R_air T_a) with P_a converted to Pa (A_th in m^2).
+    """
+    pr = p_im / p_a
+    psi, dpsi = flow_function(pr, params)
+    cd, dcd = discharge_coefficient(pr, alpha, params)
+    xi0 = throttle_area(alpha, params) * (1000.0 * p_a) / math.sqrt(params.r_air * t_a)
+    return xi0 * cd * psi, xi0 * (dcd * psi + cd * dpsi) / p_a
+
+
+# ------------------------------------------------------------------------- port flow, eq. 8
+
+def volumetric_efficiency(
+    n_rpm: float, p_im: float, params: ManifoldParams = V8_5L7,
+) -> tuple[float, float]:
+    """eta(N, P) = eta_N(N) (r_c - (P_exh/P)^(1/kappa)) / (r_c - 1): (eta, d eta/dP_im per kPa)."""
+    eta_n, _ = _interp(n_rpm, params.eta_n_rpm, params.eta_n_val)
+    p = max(p_im, P_FLOOR_KPA)
+    e = 1.0 / params.kappa
+    resid = (params.p_exh_kpa / p) ** e
+    scale = eta_n / (params.r_c - 1.0)
+    deta = scale * e * resid / p if p_im > P_FLOOR_KPA else 0.0
+    return scale * (params.r_c - resid), deta
+
+
+def port_flow(p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> float:
+    """Eq. 8: mdot_ac = eta P_im N V_d / (120 R_air T_im), kg/s (kPa dm^3 = J)."""
+    eta, _ = volumetric_efficiency(n_rpm, p_im, params)
+    return eta * p_im * n_rpm * params.v_d_dm3 / (120.0 * params.r_air * t_im)
+
+
+def cylinder_air_charge(
+    p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7,
+) -> float:
+    """Air mass trapped per cylinder event, kg: mdot_ac T_s = eta P_im V_cyl / (R_air T_im)."""
+    eta, _ = volumetric_efficiency(n_rpm, p_im, params)
+    return eta * p_im * params.v_cyl_dm3 / (params.r_air * t_im)
+
+
+def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V8_5L7) -> float:
+    """Q_ext = h1 (T_coolant - T_im) + h2 (T_a - T_im), W (eq. 5-6 text)."""
+    return params.h1_w_per_k * (t_cool - t_im) + params.h2_w_per_k * (t_a - t_im)
+
+
+# ------------------------------------------------------------------------- manifold, eq. 5-6
+
+def _rhs(p: float, t: float, alpha: float, u: EngineInput,
+         prm: ManifoldParams) -> tuple[float, float, float, float]:
+    """(dP/dt, dT/dt, d(dP/dt)/dP, d(dT/dt)/dT) of the continuous model behind eq. 5-6."""
+    k = prm.kappa
+    r = prm.r_air
+    v = prm.v_im_dm3
+    mdot, dmdot = throttle_flow(alpha, p, u.p_a, u.t_a, prm)
+    eta, deta = volumetric_efficiency(u.n_rpm, p, prm)
+    k_pump = u.n_rpm * prm.v_d_dm3 / (120.0 * v)  # mdot_ac R T / (V_im eta P), 1/s
+    q = heat_flow(t, u.t_a, u.t_cool, prm)
+    pv = max(p, P_FLOOR_KPA) * v
+    dp = k * r * u.t_a * mdot / v - k * k_pump * eta * p + (k - 1.0) * q / v
+    dt = (r * t * mdot * (k * u.t_a - t) + (k - 1.0) * t * q) / pv - (k - 1.0) * k_pump * eta * t
+    jpp = k * r * u.t_a * dmdot / v - k * k_pump * (eta + p * deta)
+    hsum = prm.h1_w_per_k + prm.h2_w_per_k
+    jtt = ((r * mdot * (k * u.t_a - 2.0 * t) + (k - 1.0) * (q - hsum * t)) / pv
+           - (k - 1.0) * k_pump * eta)
+    return dp, dt, jpp, jtt
+
+
+def manifold_rhs(p_im: float, t_im: float, alpha: float, u: EngineInput,
+                 params: ManifoldParams = V8_5L7) -> tuple[float, float]:
+    """Continuous eq. 5-6: (dP_im/dt in kPa/s, dT_im/dt in K/s) at throttle angle alpha.
+
+    dP/dt = kappa R (T_a mdot_at - T_im mdot_ac) / V_im + (kappa - 1) Q_ext / V_im
+    dT/dt = T_im / (P_im V_im) [R mdot_at (kappa T_a - T_im) - (kappa - 1) R T_im mdot_ac
+                                + (kappa - 1) Q_ext]
+    One Euler step of length T_s = 120/(8N) gives eq. 5-6 with V_cyl = V_d/8 in the pumping terms.
+    """
+    dp, dt, _, _ = _rhs(p_im, t_im, alpha, u, params)
+    return dp, dt
+
+
+def euler_event(p_im: float, t_im: float, alpha: float, u: EngineInput,
+                params: ManifoldParams = V8_5L7) -> tuple[float, float]:
+    """Eq. 5-6 as printed (one explicit Euler step over T_s), with V_cyl = V_d/8. Unstable at large
+    openings; for comparison only."""
+    ts = sample_time(u.n_rpm, params.n_cyl)
+    dp, dt, _, _ = _rhs(p_im, t_im, alpha, u, params)
+    return p_im + ts * dp, t_im + ts * dt
+
+
+def substeps_for(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
+                 params: ManifoldParams = V8_5L7) -> int:
+    """Sub-steps M for one interval dt (see integrate_manifold)."""
+    dp, dtt, jpp, jtt = _rhs(p_im, t_im, alpha, u, params)
+    return _substeps(dp, dtt, jpp, jtt, dt, params)
+
+
+def _substeps(dp: float, dtt: float, jpp: float, jtt: float, dt: float, prm: ManifoldParams) -> int:
+    """Smallest M with h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and
+    |h dT/dt| <= dt_step_max (h = dt/M), clamped to [1, max_substeps]."""
+    m = max(
+        dt * (abs(jpp) + abs(jtt)) / prm.lam_dt_max,
+        dt * abs(dp) / prm.dp_step_max_kpa,
+        dt * abs(dtt) / prm.dt_step_max_k,
+    )
+    return min(max(math.ceil(m), 1), prm.max_substeps)
+
+
+def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
+                       params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
+    """Advance (P_im, T_im) by dt with alpha and u held (zero-order hold over the event).
+
+    M sub-steps (chosen once per event from the stiffness and the rates, `_substeps`), each a
+    two-stage Rosenbrock step (ROS2, gamma = 1 + 1/sqrt 2; second order for any W) with the
+    diagonal Jacobian W = diag(min(J_PP, 0), min(J_TT, 0)) of `_rhs`:
+        k1 = f(x) / (1 - gamma h W),  k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W),
+        x += h (1.5 k1 + 0.5 k2).
+    The throttle-flow pole (up to ~5000 1/s near pr = 1) is then damped for any h, and the
+    steady state of eq. 5-6 is an exact fixed point. Returns (P_im, T_im, M).
+    Implemented in vecu.models.manifold_integrator (per-event constants hoisted, loop inlined;
+    bit-identical to the same steps written with `_rhs`).
+    """
+    return _integrate_fast(p_im, t_im, alpha, u, dt, params)
+
+
+def steady_state(
+    alpha: float, u: EngineInput, params: ManifoldParams = V8_5L7,
+) -> tuple[float, float]:
+    """(P_im, T_im) with dP/dt = dT/dt = 0 at a fixed angle: mdot_at = mdot_ac and
+    T_im = (kappa R mdot T_a + (kappa-1)(h1 T_cool + h2 T_a)) / (kappa R mdot + (kappa-1)(h1 + h2)).
+    """
+    k, r = params.kappa, params.r_air
+    hsum = params.h1_w_per_k + params.h2_w_per_k
+    hq = params.h1_w_per_k * u.t_cool + params.h2_w_per_k * u.t_a
+
+    def temp(mdot: float) -> float:
+        return (k * r * mdot * u.t_a + (k - 1.0) * hq) / (k * r * mdot + (k - 1.0) * hsum)
+
+    def gap(p: float) -> float:
+        mdot, _ = throttle_flow(alpha, p, u.p_a, u.t_a, params)
+        return mdot - port_flow(p, temp(mdot), u.n_rpm, params)
+
+    p_lo = 1.0
+    if gap(p_lo) <= 0.0:  # throttle (nearly) shut: the residual-gas term balances at very low P
+        p_lo = P_FLOOR_KPA
+    p = brentq(gap, p_lo, u.p_a, xtol=1e-10, rtol=1e-12)
+    mdot, _ = throttle_flow(alpha, p, u.p_a, u.t_a, params)
+    return p, temp(mdot)
+
+
+# ------------------------------------------------------------------------- IAT sensor, eq. 9
+
+def iat_coeffs(ts: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
+    """(a_T, 1 - a_T) of eq. 9, a_T = exp(-T_s / tau_Temp)."""
+    a = math.exp(-ts / params.tau_temp_s)
+    return a, 1.0 - a
+
+
+# ------------------------------------------------------------------------- augmented model
+
+def f(
+    x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7, dt: float | None = None,
+) -> np.ndarray:
+    """Noise-free eq. 10: one event of x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas).
+
+    The manifold sees alpha_n over the event (B_IM C_ET x_ET,n in eq. 10); the actuator moves to
+    alpha_{n+1} with the corrected eq. 1; the IAT sensor follows T_im,n (eq. 9). dt defaults to T_s.
+    """
+    ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
+    u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
+    a1, a2, b1, b2 = actuator_coeffs(ts, params)
+    p_n, t_n, _ = integrate_manifold(p, t, alpha, u, ts, params)
+    a_t, b_t = iat_coeffs(ts, params)
+    return np.array([
+        u.ta_sp, a1 * alpha + a2 * alpha_prev + b1 * u.ta_sp + b2 * u_prev, alpha,
+        p_n, t_n, a_t * tm + b_t * t,
+    ])
+
+
+def h(x: np.ndarray) -> np.ndarray:
+    """Outputs of eq. 10 without noise: y = (TA, P_im, T_im.meas) = (x[1], x[3], x[5])."""
+    return np.array([x[1], x[3], x[5]])
+
+
+def steady_state_vector(u: EngineInput, params: ManifoldParams = V8_5L7) -> np.ndarray:
+    """Augmented state at rest with alpha = TA_SP: actuator, manifold and sensor in equilibrium."""
+    p, t = steady_state(u.ta_sp, u, params)
+    return np.array([u.ta_sp, u.ta_sp, u.ta_sp, p, t, t])
