@@ -14,7 +14,7 @@ from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuNode
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.throttle_function import ThrottleFunction
-from vecu.estimators.ukf_fast import FastThrottleUKF
+from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 
 
 @pytest.fixture

@@ -125,8 +125,8 @@ def test_sdkf_and_cac_prediction_are_bit_identical_across_backends(backend_switc
     """The ECU side end to end: 150 SDKF events with the 6-event CAC prediction from each
     posterior; numba gives the same posteriors, covariances and predictions, bit for bit."""
     pytest.importorskip("numba")
-    from vecu.estimators.cac_predict import HORIZON, predict_cac
-    from vecu.estimators.manifold_filters import make_filter
+    from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
+    from vecu.estimators.manifold.filters import make_filter
 
     def run():
         rng = np.random.default_rng(8)

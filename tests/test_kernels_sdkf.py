@@ -1,4 +1,4 @@
-"""The compiled manifold SDKF event and CAC prediction (vecu.estimators.manifold_kernels) against
+"""The compiled manifold SDKF event and CAC prediction (vecu.estimators.manifold.kernels) against
 the Python/numpy path: over a drive with NaN channels, missing and out-of-range readings, bad
 inputs, gated spikes, a forced divergence and a non-positive-definite innovation covariance,
 the numba backend gives the same posteriors, covariances, predictions and counters bit for bit
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from vecu import kernels
-from vecu.estimators import manifold_filters as mf
-from vecu.estimators.cac_predict import HORIZON, predict_cac, predict_state
+from vecu.estimators.manifold import filters as mf
+from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac, predict_state
 from vecu.eval.manifold import trace_inputs
 from vecu.models.manifold import nominal_input, steady_state_vector
 from vecu.models.manifold_params import EngineInput

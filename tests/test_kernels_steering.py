@@ -1,4 +1,4 @@
-"""The steering UKF + fixed-lag smoother under the numba backend (vecu.estimators.steering_kernels)
+"""The steering UKF + fixed-lag smoother under the numba backend (vecu.estimators.steering.kernels)
 give exactly (==, measured max |difference| 0) what the Python backend gives: filter outputs,
 smoothed outputs, the recorded history and every counter, on a long manoeuvre and on a run with
 bad readings, resets, gating and clipping; with the Cholesky fallback; across a backend switch in
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from vecu import kernels
-from vecu.estimators import steering_kernels as sk
-from vecu.estimators import steering_model as sm
-from vecu.estimators.steering_filters import SteeringUKF, _chol4
-from vecu.estimators.steering_smoothers import FixedLagSmoother
+from vecu.estimators.steering import kernels as sk
+from vecu.estimators.steering import model as sm
+from vecu.estimators.steering.filters import SteeringUKF, _chol4
+from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
 
 needs_numba = pytest.mark.skipif(not kernels.numba_available(), reason="numba not installed")

@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 
 from vecu import kernels
-from vecu.estimators.throttle_pf_kernels import (
+from vecu.estimators.throttle.pf_kernels import (
     CAREFUL,
     PRIOR,
     UPDATE,
     pf_resample,
     pf_step,
 )
-from vecu.estimators.throttle_pf_parts import systematic_counts
-from vecu.estimators.throttle_production import (
+from vecu.estimators.throttle.pf_parts import systematic_counts
+from vecu.estimators.throttle.production import (
     ThrottleParticleFilter,
     make_production_estimator,
 )

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from vecu.estimators.lqg_design import (
+from vecu.estimators.speed.lqg_design import (
     A_PAPER,
     AR_PAPER,
     B1_PAPER,

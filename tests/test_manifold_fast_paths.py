@@ -56,7 +56,7 @@ def test_other_parameter_sets_are_not_served_from_the_cache():
 
 def test_filter_gain_shortcut_matches_the_general_update():
     """_gain_all (unrolled 3x3 Cholesky) vs cholesky_lower + inv: same posterior to 1e-12."""
-    from vecu.estimators.manifold_filters import make_filter
+    from vecu.estimators.manifold.filters import make_filter
     from vecu.models.manifold import nominal_input
 
     rng = np.random.default_rng(5)
@@ -80,7 +80,7 @@ def test_manifold_function_prediction_reuses_the_filter_step_exactly():
     """The 6-event CAC prediction starting from the filter's own prediction equals the full one."""
     from vecu.codec import DbcCodec
     from vecu.ecu.manifold_function import RAD, ManifoldFunction
-    from vecu.estimators.cac_predict import HORIZON, predict_cac
+    from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
     from vecu.models.manifold_params import EngineInput
 
     fn = ManifoldFunction(DbcCodec())
@@ -104,8 +104,8 @@ def test_manifold_function_prediction_reuses_the_filter_step_exactly():
 
 
 def test_predict_state_equals_the_event_map_applied_in_turn():
-    from vecu.estimators.cac_predict import predict_state
-    from vecu.estimators.manifold_model import f
+    from vecu.estimators.manifold.cac_predict import predict_state
+    from vecu.estimators.manifold.model import f
     from vecu.models.manifold import nominal_input, steady_state_vector
 
     rng = np.random.default_rng(9)

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from vecu.estimators.manifold_filters import (
+from vecu.estimators.manifold.filters import (
     ManifoldFilterConfig,
     ManifoldSDKF,
     dare_doubling,
     make_filter,
 )
-from vecu.estimators.manifold_model import (
+from vecu.estimators.manifold.model import (
     C_MATRIX,
     f,
     f_and_jacobian,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vecu.estimators.covariance import cholesky_lower
-from vecu.estimators.sigma_sets import (
+from vecu.estimators.common.covariance import cholesky_lower
+from vecu.estimators.common.sigma_sets import (
     PAPER_SETS,
     agm,
     ahsm,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from vecu.estimators.speed_kf import SpeedKalmanFilter
+from vecu.estimators.speed.kf import SpeedKalmanFilter
 from vecu.eval.speed import evaluate_speed, run_filter
 from vecu.plant.longitudinal import KMH, MANOEUVRES, ManoeuvreConfig, simulate_speed
 

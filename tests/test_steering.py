@@ -13,17 +13,17 @@ import math
 import numpy as np
 import pytest
 
-from vecu.estimators import steering_model as sm
-from vecu.estimators.sigma_sets import moment_errors
-from vecu.estimators.steering_filters import (
+from vecu.estimators.common.sigma_sets import moment_errors
+from vecu.estimators.steering import model as sm
+from vecu.estimators.steering.filters import (
     SteeringEKF,
     SteeringUKF,
     default_sigma_set,
     matrix_from_p10,
     p10_from_matrix,
 )
-from vecu.estimators.steering_model import SteeringModel
-from vecu.estimators.steering_smoothers import FixedLagSmoother, rts_smooth
+from vecu.estimators.steering.model import SteeringModel
+from vecu.estimators.steering.smoothers import FixedLagSmoother, rts_smooth
 from vecu.eval.steering import evaluate_steering
 from vecu.models.lateral import VehicleParams
 from vecu.plant import lateral as lat
@@ -182,7 +182,7 @@ def test_sigma_set_choice() -> None:
     assert s.n == 4 and s.points == 9 and s.w[0] == 0.0 and np.all(s.w[1:] == 1.0 / 8.0)
     assert max(moment_errors(s)) < 1e-12
     with pytest.raises(ValueError):
-        from vecu.estimators.sigma_sets import ahsm
+        from vecu.estimators.common.sigma_sets import ahsm
         SteeringUKF(sigma_set=ahsm(3))
     P = np.arange(16.0).reshape(4, 4)
     P = P + P.T

@@ -1,4 +1,4 @@
-"""Production throttle estimator (vecu.estimators.throttle_production) against simulated truth.
+"""Production throttle estimator (vecu.estimators.throttle.production) against simulated truth.
 
 Accuracy is checked on 60 k steps per alpha (the 200 k-step, 3-seed figures are in
 docs/models.md); the tolerances leave room for the Monte-Carlo spread of a 60 k-step run, they are
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from vecu.estimators.registry import make_throttle_estimator
-from vecu.estimators.throttle_pf_parts import ModeThreeKalman, class_matrix_stack
-from vecu.estimators.throttle_production import (
+from vecu.estimators.throttle.pf_parts import ModeThreeKalman, class_matrix_stack
+from vecu.estimators.throttle.production import (
     ThrottleParticleFilter,
     make_production_estimator,
 )

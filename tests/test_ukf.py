@@ -7,17 +7,17 @@ import math
 import numpy as np
 import pytest
 
-from vecu.estimators.covariance import (
+from vecu.estimators.common.covariance import (
     DivergenceBounds,
     cholesky_lower,
     diverged,
     diverged_floats,
     symmetrise,
 )
-from vecu.estimators.sigma_sets import PAPER_SETS, paper_set
-from vecu.estimators.throttle_model import NumpyThrottleUKF, f, h, process_noise_cov
-from vecu.estimators.ukf import UnscentedFilter
-from vecu.estimators.ukf_fast import FastThrottleUKF
+from vecu.estimators.common.sigma_sets import PAPER_SETS, paper_set
+from vecu.estimators.common.ukf import UnscentedFilter
+from vecu.estimators.throttle.model import NumpyThrottleUKF, f, h, process_noise_cov
+from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.models.throttle import F_DIAG
 from vecu.plant.throttle import simulate
 

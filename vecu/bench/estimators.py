@@ -9,9 +9,9 @@ import sys
 import time
 from typing import Any
 
-from vecu.estimators.sigma_sets import PAPER_SETS
-from vecu.estimators.throttle_model import NumpyThrottleUKF
-from vecu.estimators.ukf_fast import FastThrottleUKF
+from vecu.estimators.common.sigma_sets import PAPER_SETS
+from vecu.estimators.throttle.model import NumpyThrottleUKF
+from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.plant.throttle import simulate
 
 BENCH_SEED = 1
@@ -95,8 +95,8 @@ def bench_speed_and_steering(steps: int = 5_000, repeats: int = 3) -> list[dict[
     the (numpy-Jacobian) EKF for the steering UKF."""
     import numpy as np
 
-    from vecu.estimators.speed_kf import SpeedKalmanFilter
-    from vecu.estimators.steering_filters import SteeringEKF, SteeringUKF
+    from vecu.estimators.speed.kf import SpeedKalmanFilter
+    from vecu.estimators.steering.filters import SteeringEKF, SteeringUKF
     from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
     from vecu.plant.longitudinal import simulate_speed
 
@@ -287,9 +287,9 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
     manifold_model.f six times. Same profile, same run."""
     from unittest import mock
 
-    from vecu.estimators.cac_predict import HORIZON, predict_cac
-    from vecu.estimators.manifold_filters import make_filter
-    from vecu.estimators.manifold_model import f as model_f
+    from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
+    from vecu.estimators.manifold.filters import make_filter
+    from vecu.estimators.manifold.model import f as model_f
     from vecu.eval.manifold import trace_inputs
     from vecu.models.manifold import cylinder_air_charge
     from vecu.plant.drive_profile import DriveProfile, us06_like
@@ -335,8 +335,8 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
 def bench_steering_smoother(steps: int = 1_000, repeats: int = 3) -> dict[str, float | str]:
     """us per 10 ms step of the ECU's steering estimator (plain-float UKF inside the fixed-lag
     smoother) against the same smoother around the numpy EKF."""
-    from vecu.estimators.steering_filters import SteeringEKF
-    from vecu.estimators.steering_smoothers import FixedLagSmoother
+    from vecu.estimators.steering.filters import SteeringEKF
+    from vecu.estimators.steering.smoothers import FixedLagSmoother
     from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
 
     lat = simulate_lateral(BENCH_SEED, ManoeuvreConfig(duration_s=steps / 100.0 + 1.0))

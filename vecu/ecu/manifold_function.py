@@ -16,8 +16,8 @@ import time
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
-from vecu.estimators.cac_predict import HORIZON, predict_cac
-from vecu.estimators.manifold_filters import make_filter
+from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
+from vecu.estimators.manifold.filters import make_filter
 from vecu.models.manifold import cylinder_air_charge
 from vecu.models.manifold_params import V8_5L7, EngineInput
 from vecu.units import KELVIN_AT_0_DEGC, MG_PER_KG, RAD_PER_DEG

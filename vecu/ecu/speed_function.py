@@ -17,7 +17,7 @@ from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
-from vecu.estimators.speed_kf import SpeedKalmanFilter
+from vecu.estimators.speed.kf import SpeedKalmanFilter
 from vecu.units import MPS_PER_KMH
 
 MODE_NORMAL, MODE_STANDSTILL, MODE_ABS, MODE_COAST = 0, 1, 2, 3

@@ -20,7 +20,7 @@ from vecu.ecu.sensor_monitor import (
     SensorMonitorConfig,
     SensorStatus,
 )
-from vecu.estimators.steering_smoothers import FixedLagSmoother
+from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.units import DEG_PER_RAD, MPS_PER_KMH
 
 SWA_LIMIT_DEG = 780.0  # lock to lock of a passenger car, about 2.2 turns each way

@@ -20,7 +20,7 @@ from vecu.ecu.sensor_monitor import (
     SensorMonitorConfig,
     SensorStatus,
 )
-from vecu.estimators.base import ThrottleEstimator
+from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.models.sensors import TpsCalibration
 
 MAX_BACKLOG = 20  # wattmeter samples the estimator catches up on in one run (20 ms of stall)

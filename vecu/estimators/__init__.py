@@ -1,0 +1,1 @@
+"""State estimators by family (throttle, speed, steering, manifold) on shared sigma-point and covariance math (common)."""

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from vecu.estimators.base import ThrottleEstimator
+from vecu.estimators.throttle.base import ThrottleEstimator
 
 _PAPER = ("ahsm", "arm", "agm")
 # Fast (plain-float) paper filters, their numpy reference versions, the model-only baseline and
@@ -19,7 +19,7 @@ class OpenLoopThrottle:
     """
 
     def __init__(self, noise_scale: float = 1.0) -> None:
-        from vecu.estimators.ukf_fast import FastThrottleUKF
+        from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 
         self._ukf = FastThrottleUKF("ahsm", noise_scale)
         self.name = "open-loop"
@@ -58,22 +58,22 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0) -> ThrottleEsti
     imported (the other names never depend on it).
     """
     if name in _PAPER:
-        from vecu.estimators.ukf_fast import FastThrottleUKF
+        from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 
         return FastThrottleUKF(name, noise_scale)
     if name.endswith("-numpy") and name[: -len("-numpy")] in _PAPER:
-        from vecu.estimators.throttle_model import NumpyThrottleUKF
+        from vecu.estimators.throttle.model import NumpyThrottleUKF
 
         return NumpyThrottleUKF(name[: -len("-numpy")], noise_scale)
     if name == "open-loop":
         return OpenLoopThrottle(noise_scale)
     if name == "production":
         try:
-            from vecu.estimators.throttle_production import make_production_estimator
+            from vecu.estimators.throttle.production import make_production_estimator
         except ImportError as exc:
             raise EstimatorUnavailableError(
                 "throttle estimator 'production' is unavailable: cannot import "
-                f"make_production_estimator from vecu.estimators.throttle_production ({exc})"
+                f"make_production_estimator from vecu.estimators.throttle.production ({exc})"
             ) from exc
         return make_production_estimator(noise_scale)
     raise ValueError(

@@ -3,7 +3,7 @@
 Each run: seeded 80 s US06-like profile (vecu.plant.drive_profile.us06_like(seed)), the noisy
 truth plant (Section IV's Q and R, vecu.plant.manifold.simulate(seed)), then the four CAC sources
 (direct, direct + open-loop temperature, EKF, SDKF) and the 6-event-ahead CAC prediction
-(vecu.estimators.cac_predict). Sums over events of |CAC_actual - CAC_pred| (mg) and of its square
+(vecu.estimators.manifold.cac_predict). Sums over events of |CAC_actual - CAC_pred| (mg) and of its square
 (mg^2), pooled over runs (seeds seed, seed+1, ...), and their ratio to "direct".
 
 Also: wall-clock microseconds per event of each filter's step() (the live SDKF with one Riccati
@@ -20,13 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.cac_predict import (
+from vecu.estimators.manifold.cac_predict import (
     CacPredictionConfig,
     OpenLoopTemperature,
     direct_state,
     prediction_errors,
 )
-from vecu.estimators.manifold_filters import ManifoldFilterConfig, make_filter
+from vecu.estimators.manifold.filters import ManifoldFilterConfig, make_filter
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile, us06_like
 from vecu.plant.manifold import ManifoldTrace, simulate

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.speed_kf import SpeedFilterConfig, SpeedKalmanFilter
+from vecu.estimators.speed.kf import SpeedFilterConfig, SpeedKalmanFilter
 from vecu.plant.longitudinal import (
     DT_S,
     KMH,

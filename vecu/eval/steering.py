@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.steering_filters import SteeringEKF, SteeringUKF
-from vecu.estimators.steering_model import SteeringModel
-from vecu.estimators.steering_smoothers import FixedLagSmoother, rts_smooth
+from vecu.estimators.steering.filters import SteeringEKF, SteeringUKF
+from vecu.estimators.steering.model import SteeringModel
+from vecu.estimators.steering.smoothers import FixedLagSmoother, rts_smooth
 from vecu.models.lateral import DT_S
 from vecu.plant.lateral import (
     LateralSensors,

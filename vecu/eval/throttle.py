@@ -16,8 +16,8 @@ from typing import Sequence
 
 import numpy as np
 
-from vecu.estimators.base import ThrottleEstimator
 from vecu.estimators.registry import make_throttle_estimator
+from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.plant.throttle import ThrottleTrace, simulate
 
 DEFAULT_BURN_IN = 1000

@@ -30,12 +30,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.manifold_kernels import (
+from vecu.estimators.manifold.kernels import (
     model_constants,
     numba_tables,
     predict_events,
 )
-from vecu.estimators.manifold_kernels import prepare as prepare_kernels
+from vecu.estimators.manifold.kernels import prepare as prepare_kernels
 from vecu.models.manifold import (
     actuator_coeffs,
     cylinder_air_charge,

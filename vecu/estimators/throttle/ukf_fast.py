@@ -15,9 +15,13 @@ import math
 
 import numpy as np
 
-from vecu.estimators.covariance import DivergenceBounds, cholesky_lower, diverged_floats
-from vecu.estimators.sigma_sets import SigmaSet, paper_set
-from vecu.estimators.throttle_model import (
+from vecu.estimators.common.covariance import (
+    DivergenceBounds,
+    cholesky_lower,
+    diverged_floats,
+)
+from vecu.estimators.common.sigma_sets import SigmaSet, paper_set
+from vecu.estimators.throttle.model import (
     THROTTLE_BOUNDS,
     X0,
     measurement_noise_var,

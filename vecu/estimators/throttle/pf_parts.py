@@ -1,4 +1,4 @@
-"""Parts of the production throttle estimator (vecu.estimators.throttle_production).
+"""Parts of the production throttle estimator (vecu.estimators.throttle.production).
 
 Eq. (3) coefficient tables (Vargas et al. 2015, Table I) laid out for the particle filter, and
 its particle buffers. The filter splits theta into four classes, inside each of which eq. (3) is

@@ -26,12 +26,12 @@ Guards (shared): y=None (or an all-invalid y) -> predict only; each channel that
 its plausible range is rejected and counted, the others are used; innovations beyond gate_sigma are
 gated (at most max_gated_in_row in a row per channel); bad inputs u (NaN, absurd N) are replaced by
 the last good input and counted; the posterior state is clamped to a physical box; P is
-symmetrised and S = C P C^T + R factored with vecu.estimators.covariance.cholesky_lower; a
+symmetrised and S = C P C^T + R factored with vecu.estimators.common.covariance.cholesky_lower; a
 non-finite or exploding state/covariance (covariance.diverged) resets the filter and is counted.
 No input can make the outputs NaN.
 
 Under the numba backend (vecu.kernels) an "iterate" SDKF event after the input checks is one
-compiled call (vecu.estimators.manifold_kernels.sdkf_event, bit-identical to this code here).
+compiled call (vecu.estimators.manifold.kernels.sdkf_event, bit-identical to this code here).
 """
 
 from __future__ import annotations
@@ -42,21 +42,21 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from vecu.estimators.covariance import (
+from vecu.estimators.common.covariance import (
     DivergenceBounds,
     cholesky_lower,
     diverged_floats,
     symmetrise,
 )
-from vecu.estimators.manifold_kernels import (
+from vecu.estimators.manifold.kernels import (
     DIVERGED,
     FALLBACK,
     filter_constants,
     numba_tables,
     sdkf_event,
 )
-from vecu.estimators.manifold_kernels import prepare as prepare_kernels
-from vecu.estimators.manifold_model import (
+from vecu.estimators.manifold.kernels import prepare as prepare_kernels
+from vecu.estimators.manifold.model import (
     ALPHA_SDC_MIN,
     N_X,
     Y_INDEX,
@@ -419,7 +419,7 @@ class ManifoldSDKF(_ManifoldKF):
 
     def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
         """Under the numba backend ("iterate" only) the whole event is one compiled call
-        (vecu.estimators.manifold_kernels.sdkf_event); the Python path otherwise, and for the
+        (vecu.estimators.manifold.kernels.sdkf_event); the Python path otherwise, and for the
         rare events the kernel hands back (S not positive definite or not finite)."""
         run = sdkf_event.impl()
         if run is _SDKF_EVENT_PY or self.config.riccati != "iterate":

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vecu.estimators.covariance import DivergenceBounds
+from vecu.estimators.common.covariance import DivergenceBounds
 from vecu.models.lateral import DT_S, TyreConsts, VehicleParams, tyre_consts
 from vecu.units import RAD_PER_DEG
 

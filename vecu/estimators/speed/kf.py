@@ -23,7 +23,7 @@ docs/models.md). This is the practical 500 Hz version of the same fusion:
 
 Inputs: None = missing (predict only, counted); non-finite or outside the plausible range =
 rejected (counted); wheel innovations beyond gate_sigma are gated out, at most MAX_GATED_IN_ROW
-in a row. Divergence (vecu.estimators.covariance.diverged_floats) resets to the prior and counts.
+in a row. Divergence (vecu.estimators.common.covariance.diverged_floats) resets to the prior and counts.
 Nothing the inputs contain can make the outputs NaN.
 """
 
@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from vecu.estimators.covariance import DivergenceBounds, diverged_floats
+from vecu.estimators.common.covariance import DivergenceBounds, diverged_floats
 from vecu.units import MPS_PER_KMH
 
 DT_S = 0.002

@@ -1,6 +1,6 @@
 """Compiled particle-mode step of the production throttle estimator (numba backend only).
 
-Loop versions of ThrottleParticleFilter's numpy step (vecu.estimators.throttle_production):
+Loop versions of ThrottleParticleFilter's numpy step (vecu.estimators.throttle.production):
 `pf_step` = _predict + (_prior_current | _update | careful _update) + the moments of _summarise
 in one call (branch-free loops that LLVM vectorises, except libm exp / log: no SVML here, and
 the sequential sums), `pf_resample` = systematic_counts + the copy of _resample. They

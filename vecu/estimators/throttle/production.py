@@ -23,7 +23,7 @@ rho is noise-free given (theta, rho, i), so each particle carries its exact rho.
 
 Backends (vecu.kernels, VECU_KERNELS): under "python" the particle step is the numpy code below
 (the reference); under "numba" the same step runs as the compiled loops of
-vecu.estimators.throttle_pf_kernels (same draws, same decisions, results equal to rounding).
+vecu.estimators.throttle.pf_kernels (same draws, same decisions, results equal to rounding).
 The Kalman stretches and the rare paths (fill, hand-overs) are the same code under both.
 """
 
@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from vecu.estimators.throttle_pf_kernels import (
+from vecu.estimators.throttle.pf_kernels import (
     CAREFUL,
     PRIOR,
     UPDATE,
@@ -42,7 +42,7 @@ from vecu.estimators.throttle_pf_kernels import (
     pf_step,
     step_constants,
 )
-from vecu.estimators.throttle_pf_parts import (
+from vecu.estimators.throttle.pf_parts import (
     CLASS_B,
     CLASS_BOUNDS_DEG,
     HIGH_CLASS,

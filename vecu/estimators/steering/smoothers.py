@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.steering_filters import (
+from vecu.estimators.steering.filters import (
     FilterRun,
     SteeringUKF,
     _SteeringFilter,

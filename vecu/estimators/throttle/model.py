@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vecu.estimators.covariance import DivergenceBounds
-from vecu.estimators.sigma_sets import SigmaSet, paper_set
-from vecu.estimators.ukf import UnscentedFilter
+from vecu.estimators.common.covariance import DivergenceBounds
+from vecu.estimators.common.sigma_sets import SigmaSet, paper_set
+from vecu.estimators.common.ukf import UnscentedFilter
 from vecu.models.throttle import F_DIAG, H_WATTMETER, clip_theta, step_mean
 
 N_STATE = 3

@@ -1,4 +1,4 @@
-"""Steering-wheel angle / side-slip filters on vecu.estimators.steering_model: UKF and EKF.
+"""Steering-wheel angle / side-slip filters on vecu.estimators.steering.model: UKF and EKF.
 
 Both run the same step at 100 Hz: predict with the measured v_x (the paper's Step "time
 update", eqs. 17-18 / 26), then a linear Kalman update with the gyro r (H = [0, 1, 0, 0]: exact, no
@@ -7,11 +7,11 @@ EKF). Processing the two independent readings one after the other is exact for t
 and lets either be missing on its own.
 
 UKF (`SteeringUKF`): plain floats, n = 4, P kept as its 10 distinct entries, unrolled Cholesky
-(fallback: covariance.cholesky_lower). Sigma set: any vecu.estimators.sigma_sets.SigmaSet with
+(fallback: covariance.cholesky_lower). Sigma set: any vecu.estimators.common.sigma_sets.SigmaSet with
 n = 4; default `ahsm(4, lam=0)`, the symmetric AHSM set generalised to n with lambda = 0, i.e. the
 third-degree spherical-radial cubature rule: 2n points x +- sqrt(n) S e_i, weights 1/(2n), all
 positive (so P stays PSD) and the zero-weight centre point skipped (docs/models.md: why not the
-paper-throttle lam = 12 or a negative-centre-weight scaled set). Unlike vecu.estimators.ukf
+paper-throttle lam = 12 or a negative-centre-weight scaled set). Unlike vecu.estimators.common.ukf
 (Vargas Step 3), the points are redrawn from (x_pred, P_pred) for the update: here Q (the steering
 random walk) reaches a_y within one step and must be in Pxy.
 
@@ -29,7 +29,7 @@ the backward pass then reuses the forward pass's own v_x and sigma points (nothi
 re-propagated, so the time-varying input cannot be mismatched).
 
 Backends (vecu.kernels, VECU_KERNELS): under "numba" the UKF's predict and a_y moments (and the
-recording, with a smoother its gain and backward pass) run in vecu.estimators.steering_kernels,
+recording, with a smoother its gain and backward pass) run in vecu.estimators.steering.kernels,
 3 compiled calls per step, bit-identical to the plain-float code here (the reference, used
 under "python"); the history then lives in a numpy ring (converted if the backend changes).
 """
@@ -42,11 +42,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators import steering_kernels as sk
-from vecu.estimators import steering_model as sm
-from vecu.estimators.covariance import cholesky_lower, diverged_floats, symmetrise
-from vecu.estimators.sigma_sets import SigmaSet, ahsm
-from vecu.estimators.steering_model import SteeringModel
+from vecu.estimators.common.covariance import (
+    cholesky_lower,
+    diverged_floats,
+    symmetrise,
+)
+from vecu.estimators.common.sigma_sets import SigmaSet, ahsm
+from vecu.estimators.steering import kernels as sk
+from vecu.estimators.steering import model as sm
+from vecu.estimators.steering.model import SteeringModel
 from vecu.kernels import backend
 
 P10 = tuple[float, float, float, float, float, float, float, float, float, float]
@@ -101,7 +105,7 @@ class _SteeringFilter:
     """Shared input handling, counters, outputs, divergence reset and recording.
 
     Subclasses with compiled kernels (`_kernels_ok`) run their numeric core in
-    vecu.estimators.steering_kernels under the numba backend and then record into a
+    vecu.estimators.steering.kernels under the numba backend and then record into a
     steering_kernels.Ring instead of the deques; the storage follows the backend at every step
     (converted when it changes), so `history()` and the smoothers see the same run either way.
     """

@@ -10,7 +10,7 @@ Under the numba backend SteeringUKF.step crosses into compiled code three times:
 `prepare_numba()` must run before any of them is called compiled (SteeringUKF does it on its
 first numba step): it registers the helpers and the LAPACK symbol and compiles / loads all six.
 Input checks, gating, counters, divergence resets and the state projection stay in Python
-(vecu.estimators.steering_filters). If the unrolled Cholesky finds P not positive definite the
+(vecu.estimators.steering.filters). If the unrolled Cholesky finds P not positive definite the
 kernel returns ok = False and Python computes the fallback factor (covariance.cholesky_lower)
 and calls the `*_chol` variant with it.
 

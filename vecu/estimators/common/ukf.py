@@ -8,7 +8,7 @@ Reference implementation and speed baseline (see ukf_fast.py for the n = 3 speci
   y_pred = sum w gamma; Pxy, Pyy = sum w (gamma-y)(gamma-y)^T + HH^T; G = Pxy Pyy^-1;
   x = x_pred + G (y - y_pred); P = Pxx - G Pyy G^T.
 
-The same weights serve mean and covariance. Guards (vecu.estimators.covariance): P is
+The same weights serve mean and covariance. Guards (vecu.estimators.common.covariance): P is
 symmetrised after each update, factorised with a fallback, and the filter resets to (x0, P0) when
 the state or covariance diverges (counted in `resets`). A non-finite y is treated as missing.
 """
@@ -19,13 +19,13 @@ from typing import Callable
 
 import numpy as np
 
-from vecu.estimators.covariance import (
+from vecu.estimators.common.covariance import (
     DivergenceBounds,
     cholesky_lower,
     diverged,
     symmetrise,
 )
-from vecu.estimators.sigma_sets import SigmaSet
+from vecu.estimators.common.sigma_sets import SigmaSet
 
 TransitionFn = Callable[[np.ndarray, float], np.ndarray]
 MeasurementFn = Callable[[np.ndarray], np.ndarray]

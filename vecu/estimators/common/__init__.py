@@ -1,0 +1,1 @@
+"""Shared estimator math: sigma-point sets, covariance guards, the generic unscented filter."""

@@ -1,0 +1,1 @@
+"""Intake manifold pressure/temperature and cylinder air charge (Dutka 2006): EKF, SDKF, CAC prediction."""

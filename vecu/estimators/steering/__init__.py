@@ -1,0 +1,1 @@
+"""Steering-wheel angle and side-slip (Khalid): UKF/EKF and unscented smoothers."""
