@@ -19,8 +19,6 @@ from vecu.plant.throttle import (
 )
 from vecu.rng import rng_streams
 
-KMH = 1 / 3.6
-
 
 @pytest.fixture
 def rig():

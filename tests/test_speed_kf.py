@@ -9,7 +9,8 @@ import pytest
 
 from vecu.estimators.speed.kf import SpeedKalmanFilter
 from vecu.eval.speed import evaluate_speed, run_filter
-from vecu.plant.longitudinal import KMH, MANOEUVRES, ManoeuvreConfig, simulate_speed
+from vecu.plant.longitudinal import MANOEUVRES, ManoeuvreConfig, simulate_speed
+from vecu.units import MPS_PER_KMH
 
 
 @pytest.fixture(scope="module")
@@ -73,10 +74,10 @@ def test_missing_measurements_predict_only() -> None:
     err = []
     for k in range(len(tr.t)):
         f.step(None if drop_w[k] else float(tr.wheel[k]), None if drop_a[k] else float(tr.accel[k]))
-        if tr.v[k] >= 5 * KMH and k > 250:
+        if tr.v[k] >= 5 * MPS_PER_KMH and k > 250:
             err.append(f.speed_mps - tr.v[k])
         assert _finite(f)
-    assert math.sqrt(np.mean(np.square(err))) / KMH < 0.3  # ~0.1 km/h with all inputs
+    assert math.sqrt(np.mean(np.square(err))) / MPS_PER_KMH < 0.3  # ~0.1 km/h with all inputs
     assert f.missing_wheel == int(drop_w.sum()) and f.missing_accel == int(drop_a.sum())
 
 

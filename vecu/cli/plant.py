@@ -32,14 +32,14 @@ class ExtraLoad:
     """Sends copies of the current ESC_Motion frame at a mean rate, spread over the 1 ms ticks."""
 
     def __init__(self, codec, plant, per_s: float) -> None:
-        from vecu.plant.longitudinal import KMH
+        from vecu.units import MPS_PER_KMH
 
         self._msg = codec["ESC_Motion"]
         self._part = plant.longitudinal
         self._send = plant._send
         self._per_tick = per_s / 1000.0
         self._owed = 0.0
-        self._kmh = KMH
+        self._kmh = MPS_PER_KMH
         self.sent = 0
 
     def tick(self, t_ns: int) -> None:

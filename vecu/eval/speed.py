@@ -22,11 +22,11 @@ import numpy as np
 from vecu.estimators.speed.kf import SpeedFilterConfig, SpeedKalmanFilter
 from vecu.plant.longitudinal import (
     DT_S,
-    KMH,
     ManoeuvreConfig,
     SpeedTrace,
     simulate_speed,
 )
+from vecu.units import MPS_PER_KMH
 
 LOW_SPEED_KMH = 5.0
 
@@ -104,7 +104,7 @@ def evaluate_speed(
         resets += f.resets
         rejected += f.rejected_wheel + f.rejected_accel
         v = tr.v[burn:]
-        hi = v >= LOW_SPEED_KMH * KMH
+        hi = v >= LOW_SPEED_KMH * MPS_PER_KMH
         lo = ~hi
         mv = lo & (v > 0.0)
         ef = vh[burn:] - v
@@ -116,8 +116,8 @@ def evaluate_speed(
         ea_r.append(tr.accel[burn:] - tr.a[burn:])
         ea_d.append(np.diff(tr.wheel)[burn - 1:] / DT_S - tr.a[burn:])
     c = np.concatenate
-    s_hi, s_hi_r = _rms(c(ef_hi)) / KMH, _rms(c(er_hi)) / KMH
-    s_lo, s_lo_r = _rms(c(ef_lo)) / KMH, _rms(c(er_lo)) / KMH
+    s_hi, s_hi_r = _rms(c(ef_hi)) / MPS_PER_KMH, _rms(c(er_hi)) / MPS_PER_KMH
+    s_lo, s_lo_r = _rms(c(ef_lo)) / MPS_PER_KMH, _rms(c(er_lo)) / MPS_PER_KMH
     s_mv, s_mv_r = _rms(c(ef_mv)), _rms(c(er_mv))
     a_f, a_r = _rms(c(ea_f)), _rms(c(ea_r))
     return SpeedEvalReport(
