@@ -254,12 +254,12 @@ def bench_throttle_production(steps: int = 20_000, repeats: int = 3,
 
 def integrate_manifold_reference(p: float, t: float, alpha: float, u: Any, dt: float,
                                  prm: Any = None) -> tuple[float, float, int]:
-    """vecu.plant.manifold.integrate_manifold written plainly on the model's own functions
+    """vecu.models.manifold.integrate_manifold written plainly on the model's own functions
     (`_rhs` per stage: throttle_flow, volumetric_efficiency, heat_flow): the baseline of the
     hoisted, inlined implementation (and its bit-for-bit reference in the tests)."""
     from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA
     from vecu.models.manifold_params import V8_5L7
-    from vecu.plant import manifold
+    from vecu.models import manifold
 
     prm = V8_5L7 if prm is None else prm
     g = ROS2_GAMMA
@@ -314,7 +314,7 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
         flt = make_filter("sdkf")
         flt._gain_all = lambda P: None
         # every integration (filter, prediction) goes through vecu.plant.manifold's wrapper
-        with mock.patch("vecu.plant.manifold._integrate_fast", integrate_manifold_reference):
+        with mock.patch("vecu.models.manifold._integrate_fast", integrate_manifold_reference):
             t0 = time.perf_counter()
             for y, u in zip(ys, inputs):
                 x = flt.step(y, u)
