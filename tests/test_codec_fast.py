@@ -99,7 +99,7 @@ def test_frame_codec_saturation_and_e2e_match_the_cantools_path():
         for _ in range(RUNS):
             values = {}
             saturated = {name for name, _, _ in fc._saturate}
-            for sig in fc.message.signals:
+            for sig in fc.signals:
                 if sig.name not in saturated:  # full-range integers (CRC, counters, enums)
                     values[sig.name] = int(rng.integers(1 << sig.length))
                     continue

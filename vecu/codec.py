@@ -16,6 +16,7 @@ of message) goes through cantools itself.
 
 from __future__ import annotations
 
+import copy
 import math
 import struct
 from collections.abc import Callable, Iterable, Mapping
@@ -56,6 +57,21 @@ def load_database(paths: Iterable[str | Path], strict: bool = True) -> cantools.
 
 
 @dataclass(frozen=True)
+class SignalInfo:
+    """One DBC signal as plain vecu data (what other modules may know of a signal)."""
+
+    name: str
+    unit: str | None
+    minimum: float | None
+    maximum: float | None
+    scale: float
+    offset: float
+    length: int
+    is_signed: bool
+    is_float: bool
+
+
+@dataclass(frozen=True)
 class E2ELayout:
     crc_signal: str
     counter_signal: str
@@ -63,16 +79,23 @@ class E2ELayout:
 
 
 class FrameCodec:
-    """Precompiled encoder/decoder for one DBC message."""
+    """Precompiled encoder/decoder for one DBC message.
 
-    def __init__(self, message: Message) -> None:
-        self.message = message
+    fast=False keeps only cantools' own encode/decode (the baseline of `vecu bench --only ecu`).
+    """
+
+    def __init__(self, message: Message, fast: bool = True) -> None:
+        self._message = message
         self.name: str = message.name
         self.frame_id: int = message.frame_id
         self.is_extended: bool = message.is_extended_frame
         self.is_fd: bool = message.is_fd
         self.length: int = message.length
         self.cycle_time_ms: int | None = message.cycle_time
+        self.senders: tuple[str, ...] = tuple(message.senders)
+        self.signals: tuple[SignalInfo, ...] = tuple(
+            SignalInfo(s.name, s.unit or None, s.minimum, s.maximum, s.scale, s.offset, s.length,
+                       s.is_signed, s.is_float) for s in message.signals)
         self.ranges: dict[str, tuple[float | None, float | None]] = {
             s.name: (s.minimum, s.maximum) for s in message.signals
         }
@@ -91,8 +114,22 @@ class FrameCodec:
         self.e2e = _e2e_layout(message)
         self._encode = message.encode
         self._decode_simple = message.decode_simple
-        fast = compile_fast_codec(message, self._saturate)
-        self._fast_encode, self._fast_decode = fast if fast is not None else (None, None)
+        compiled = compile_fast_codec(message, self._saturate) if fast else None
+        self._fast_encode, self._fast_decode = compiled if compiled is not None else (None, None)
+
+    def signal(self, name: str) -> SignalInfo:
+        """The named signal (KeyError when the message has none)."""
+        for sig in self.signals:
+            if sig.name == name:
+                return sig
+        raise KeyError(f"{self.name} has no signal {name!r}")
+
+    def checking_only(self, signals: Iterable[str]) -> FrameCodec:
+        """This codec, range-checking (bad_values) only the given signals; encode/decode alike."""
+        keep = set(signals)
+        restricted = copy.copy(self)
+        restricted._checked = [c for c in self._checked if c[0] in keep]
+        return restricted
 
     def encode(self, values: Mapping[str, float]) -> bytes:
         """Physical values -> payload, saturated to the DBC [minimum, maximum] (NaN -> minimum).
@@ -316,12 +353,13 @@ class DbcCodec:
     The default is vecu's own DBC plus its truth DBC (the ECU knows the truth IDs and ignores them).
     """
 
-    def __init__(self, paths: Iterable[str | Path] | None = None, strict: bool = True) -> None:
+    def __init__(self, paths: Iterable[str | Path] | None = None, strict: bool = True,
+                 fast: bool = True) -> None:
         paths = (list(paths) if paths is not None
                  else [builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC)])
         self.paths = [str(p) for p in paths]
-        self.db = load_database(paths, strict=strict)
-        self._by_name = {m.name: FrameCodec(m) for m in self.db.messages}
+        self._db = load_database(paths, strict=strict)
+        self._by_name = {m.name: FrameCodec(m, fast) for m in self._db.messages}
         self.by_id: dict[tuple[int, bool], FrameCodec] = {
             (c.frame_id, c.is_extended): c for c in self._by_name.values()
         }
@@ -334,3 +372,8 @@ class DbcCodec:
 
     def lookup(self, msg: can.Message) -> FrameCodec | None:
         return self.by_id.get((msg.arbitration_id, msg.is_extended_id))
+
+    def sent_by(self, node: str) -> set[tuple[int, bool]]:
+        """(CAN ID, extended) of every message the DBC(s) give `node` as a sender."""
+        return {(fc.frame_id, fc.is_extended) for fc in self._by_name.values()
+                if node in fc.senders}

@@ -340,7 +340,7 @@ def fault_event_signals(codec: DbcCodec, site: FaultSite, kind: int, active: int
     fc = codec[site.message] if site.message in codec else None  # noqa: SIM401
     index = 0
     if fc is not None and site.signal is not None:
-        names = [s.name for s in fc.message.signals]
+        names = [s.name for s in fc.signals]
         index = names.index(site.signal) + 1 if site.signal in names else 0
     if value is None:
         value = DEFAULT_VALUES.get(FaultKind(kind), 0.0) if kind in FaultKind._value2member_map_ \

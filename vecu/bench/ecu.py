@@ -52,15 +52,9 @@ def capture_plant_frames(duration_s: float, seed: int = 0) -> list[list[can.Mess
     return ticks
 
 
-def _cantools_only(codec: DbcCodec) -> DbcCodec:
-    for fc in codec.by_id.values():
-        fc._fast_encode = fc._fast_decode = None
-    return codec
-
-
 def run_ecu(frames: list[list[can.Message]], fast_codec: bool = True) -> dict[str, float]:
     """Feed the captured frames into a fresh ECU (all four functions); timing of that loop."""
-    codec = DbcCodec() if fast_codec else _cantools_only(DbcCodec())
+    codec = DbcCodec(fast=fast_codec)
     bus = open_bus(channel=f"vecu-bench-ecu-{next(_channels)}")  # nobody else on it
     try:
         ecu = EcuNode(bus, codec, build_functions(RunConfig(), codec).enabled())

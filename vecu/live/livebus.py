@@ -60,7 +60,7 @@ def enlarge_receive_buffer(bus: can.BusABC, size: int = 4 << 20) -> int | None:
 
 def sent_ids(codec: DbcCodec, node: str) -> set[Key]:
     """CAN IDs the DBC(s) give `node` (e.g. PLANT, VECU, TESTER) as a sender."""
-    return {(m.frame_id, m.is_extended_frame) for m in codec.db.messages if node in m.senders}
+    return codec.sent_by(node)
 
 
 class FrameLatency:

@@ -12,7 +12,6 @@ with a required input unmapped is disabled, with the reason in the summary.
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -20,7 +19,7 @@ from pathlib import Path
 
 import tomllib
 
-from vecu.codec import DbcCodec, FrameCodec
+from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuFunction, Route, Subscription
 
 
@@ -192,7 +191,7 @@ def _mapped_input(path: str, key: str, fn_name: str, name: str, spec: object,
         raise SignalMapError(f"{path}: {key}.signal: message {msg_name} has no signal "
                              f"{sig_name!r}")
     target = INPUTS[fn_name][name]
-    dbc_unit = fc.message.get_signal_by_name(sig_name).unit or None
+    dbc_unit = fc.signal(sig_name).unit
     unit = spec.get("unit", dbc_unit or target.unit)
     for opt in ("scale", "offset"):
         if opt in spec and (isinstance(spec[opt], bool)
@@ -290,18 +289,11 @@ def mapped_routes(smap: SignalMap, db: DbcCodec, ecu_codec: DbcCodec,
         fire = [a for a in {id(a): a for _, a in entries}.values() if triggers[a.target] == source]
         convs = [(m.source_signal, m.target.signal, m.factor, m.offset, a) for m, a in entries]
         fed = tuple({id(f): f for f in (subs[a.target][1] for _, a in entries)}.values())
-        route_codec = _checking_only(fc, [m.source_signal for m, _ in entries])
+        # a third-party frame is not rejected for a signal the ECU does not use
+        route_codec = fc.checking_only(m.source_signal for m, _ in entries)
         routes[(fc.frame_id, fc.is_extended)] = Route(
             route_codec, Subscription(source, _route_callback(convs, fire)), None, fed)
     return routes
-
-
-def _checking_only(fc: FrameCodec, signals: list[str]) -> FrameCodec:
-    """The message's codec, range-checking only the mapped signals (a third-party frame is not
-    rejected for a signal the ECU does not use)."""
-    restricted = copy.copy(fc)
-    restricted._checked = [c for c in fc._checked if c[0] in signals]
-    return restricted
 
 
 def _route_callback(convs: list[tuple[str, str, float, float, _Assembler]],
