@@ -15,11 +15,13 @@ from typing import Any
 import can
 from can.interfaces.virtual import VirtualBus
 
+from vecu.errors import UnavailableError
+
 DEFAULT_INTERFACE = "virtual"
 DEFAULT_CHANNEL = "vecu"
 
 
-class BusOpenError(Exception):
+class BusOpenError(UnavailableError):
     """The requested bus cannot be opened; the message says which and why."""
 
 

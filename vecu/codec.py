@@ -30,13 +30,14 @@ from cantools.database.can import Message
 from cantools.database.conversion import IdentityConversion, LinearConversion
 
 from vecu.e2e import e2e_crc
+from vecu.errors import BadFileError
 
 DEFAULT_DBC = "vecu.dbc"
 TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
 
 
-class DbcLoadError(Exception):
-    """A DBC file that cannot be used; the message names the file and the problem."""
+class DbcLoadError(BadFileError):
+    """A DBC file that cannot be used: DbcLoadError(path, problem)."""
 
 
 def builtin_dbc_path(name: str = DEFAULT_DBC) -> Path:
@@ -50,9 +51,9 @@ def load_database(paths: Iterable[str | Path], strict: bool = True) -> cantools.
         try:
             db.add_dbc_file(str(path))
         except FileNotFoundError as exc:
-            raise DbcLoadError(f"{path}: no such file") from exc
+            raise DbcLoadError(path, "no such file") from exc
         except Exception as exc:  # cantools raises many kinds; report them as one line
-            raise DbcLoadError(f"{path}: {type(exc).__name__}: {exc}".splitlines()[0]) from exc
+            raise DbcLoadError(path, f"{type(exc).__name__}: {exc}".splitlines()[0]) from exc
     return db
 
 
@@ -343,7 +344,8 @@ def _e2e_layout(message: Message) -> E2ELayout | None:
     if crc is None or counter is None:
         return None
     if crc.length != 8 or crc.start % 8 != 0:
-        raise DbcLoadError(f"{message.name}: E2E signal {crc.name} must be 8 bits, byte aligned")
+        raise DbcLoadError(None, f"{message.name}: E2E signal {crc.name} must be 8 bits, "
+                           "byte aligned")
     return E2ELayout(crc.name, counter.name, crc.start // 8)
 
 

@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from vecu.ecu.speed_function import SpeedFunctionConfig
 from vecu.ecu.steering_function import SteeringFunctionConfig
 from vecu.ecu.throttle_function import ThrottleFunctionConfig
+from vecu.errors import ConfigError
+from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
 
 
@@ -43,24 +45,29 @@ class RunConfig:
     faults: tuple[ScheduledFault, ...] = ()  # fault timeline (scenarios), on top of the kills
 
     def validate(self) -> None:
+        """Raise a UserError (ConfigError, BadArgumentError) on an impossible configuration."""
         if not (self.duration_s > 0 and math.isfinite(self.duration_s)):
-            raise ValueError(f"duration must be a positive number of seconds, got {self.duration_s}")
+            raise ConfigError(f"duration must be a positive number of seconds, got {self.duration_s}")
         if self.kill_tps_at_s is not None and not 0 <= self.kill_tps_at_s < self.duration_s:
-            raise ValueError(f"kill time {self.kill_tps_at_s} s is outside the run (0..{self.duration_s} s)")
+            raise ConfigError(f"kill time {self.kill_tps_at_s} s is outside the run (0..{self.duration_s} s)")
         if self.noise_scale < 0:
-            raise ValueError(f"noise scale must be >= 0, got {self.noise_scale}")
+            raise ConfigError(f"noise scale must be >= 0, got {self.noise_scale}")
         if self.kill_swa_at_s is not None and not 0 <= self.kill_swa_at_s < self.duration_s:
-            raise ValueError(f"SWA kill time {self.kill_swa_at_s} s is outside the run "
-                             f"(0..{self.duration_s} s)")
+            raise ConfigError(f"SWA kill time {self.kill_swa_at_s} s is outside the run "
+                              f"(0..{self.duration_s} s)")
         if self.kill_swa_at_s is not None and not self.steering:
-            raise ValueError("an SWA fault needs the steering part (steering=True)")
+            raise ConfigError("an SWA fault needs the steering part (steering=True)")
         for name in (self.fault, self.swa_fault, *(f.kind for f in self.faults)):
             if parse_kind(name) == FaultKind.CLEAR:
-                raise ValueError("fault kind 'clear' cannot be injected")
+                raise ConfigError("fault kind 'clear' cannot be injected")
+        if self.kill_tps_at_s is not None:  # a bad value fails now, not at the kill time
+            check_value(parse_kind(self.fault), self.fault_value)
+        if self.kill_swa_at_s is not None:
+            check_value(parse_kind(self.swa_fault), self.swa_fault_value)
         for f in self.faults:
             if not 0 <= f.start_s < self.duration_s:
-                raise ValueError(f"fault {f.kind} on {f.target}: start {f.start_s} s is outside "
-                                 f"the run (0..{self.duration_s} s)")
+                raise ConfigError(f"fault {f.kind} on {f.target}: start {f.start_s} s is outside "
+                                  f"the run (0..{self.duration_s} s)")
             if f.end_s is not None and not f.start_s < f.end_s:
-                raise ValueError(f"fault {f.kind} on {f.target}: end {f.end_s} s is not after "
-                                 f"its start {f.start_s} s")
+                raise ConfigError(f"fault {f.kind} on {f.target}: end {f.end_s} s is not after "
+                                  f"its start {f.start_s} s")

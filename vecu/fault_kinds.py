@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Protocol
 import can
 import numpy as np
 
+from vecu.errors import BadArgumentError
+
 if TYPE_CHECKING:
     from vecu.codec import FrameCodec
 
@@ -131,7 +133,7 @@ class Gain:
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.gain <= 1.0:
-            raise ValueError(f"gain fault: G must be in [0, 1], got {self.gain}")
+            raise BadArgumentError(f"gain fault: G must be in [0, 1], got {self.gain}")
 
     def apply(self, value: float, t_ns: int = 0) -> float | None:
         return self.gain * value
@@ -250,15 +252,23 @@ def make_fault(kind: FaultKind, value: float | None, rng: np.random.Generator,
         return Gain(value)
     if kind == FaultKind.NOISE:
         if value < 0:
-            raise ValueError(f"noise fault: sigma must be >= 0, got {value}")
+            raise BadArgumentError(f"noise fault: sigma must be >= 0, got {value}")
         return Noise(value, rng)
     if kind == FaultKind.DRIFT:
         return Drift(value, t_ns)
     if kind == FaultKind.QUANTISE:
         if not value > 0:
-            raise ValueError(f"quantise fault: step must be > 0, got {value}")
+            raise BadArgumentError(f"quantise fault: step must be > 0, got {value}")
         return Quantise(value)
     raise ValueError(f"no signal fault of kind {kind.name.lower()!r}")
+
+
+def check_value(kind: FaultKind, value: float | None) -> None:
+    """Raise BadArgumentError unless `value` (None: the kind's default) suits `kind`."""
+    if kind in FRAME_KINDS:
+        check_frame_value(kind, DEFAULT_VALUES.get(kind, 0.0) if value is None else value)
+    elif kind != FaultKind.CLEAR:
+        make_fault(kind, value, np.random.default_rng(0))
 
 
 def check_frame_value(kind: FaultKind, value: float) -> None:
@@ -267,5 +277,5 @@ def check_frame_value(kind: FaultKind, value: float) -> None:
               FaultKind.BABBLE: (0.0, 100.0), FaultKind.ERROR_FRAMES: (0.0, 100.0)}
     lo, hi = limits.get(kind, (-math.inf, math.inf))
     if not lo <= value <= hi:
-        raise ValueError(f"{kind.name.lower()} fault: {VALUE_MEANING[kind]} must be in "
-                         f"[{lo:g}, {hi:g}], got {value}")
+        raise BadArgumentError(f"{kind.name.lower()} fault: {VALUE_MEANING[kind]} must be in "
+                               f"[{lo:g}, {hi:g}], got {value}")

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import can
 import numpy as np
 
+from vecu.errors import BadArgumentError
 from vecu.fault_kinds import (  # noqa: F401 (re-exported: the fault library's public names)
     DEFAULT_VALUES,
     E2E_KINDS,
@@ -118,8 +119,8 @@ def parse_site(text: str | FaultSite | FaultTarget) -> FaultSite:
         return alias
     parts = text.strip().split(".")
     if len(parts) > 2 or not all(parts):
-        raise ValueError(f"bad fault target {text!r}: expected tps, swa, wheel, accel, "
-                         "MESSAGE or MESSAGE.SIGNAL")
+        raise BadArgumentError(f"bad fault target {text!r}: expected tps, swa, wheel, accel, "
+                               "MESSAGE or MESSAGE.SIGNAL")
     return FaultSite(parts[0], parts[1] if len(parts) == 2 else None)
 
 
@@ -128,7 +129,7 @@ def parse_kind(name: str) -> FaultKind:
         return FaultKind[name.strip().upper().replace("-", "_")]
     except KeyError:
         names = ", ".join(k.name.lower() for k in FaultKind if k != FaultKind.CLEAR)
-        raise ValueError(f"unknown fault kind {name!r} (known: {names})") from None
+        raise BadArgumentError(f"unknown fault kind {name!r} (known: {names})") from None
 
 
 # --------------------------------------------------------------------------- signal faults
@@ -178,29 +179,31 @@ class FaultInjector:
             from vecu.codec import DbcCodec
             self._codec = DbcCodec()
         if site.message not in self._codec:
-            raise ValueError(f"fault target {site.name!r}: no message {site.message!r} in the DBC")
+            raise BadArgumentError(f"fault target {site.name!r}: no message {site.message!r} in "
+                                   "the DBC")
         fc = self._codec[site.message]
         if site.signal is not None and site.signal not in fc.ranges:
-            raise ValueError(f"fault target {site.name!r}: message {site.message} has no signal "
-                             f"{site.signal!r}")
+            raise BadArgumentError(f"fault target {site.name!r}: message {site.message} has no "
+                                   f"signal {site.signal!r}")
         return fc
 
     def check(self, target: str | FaultSite | FaultTarget, kind: FaultKind,
               value: float | None = None) -> FaultSite:
-        """Raise ValueError unless `kind` (with `value`) can act on `target`; return the site."""
+        """Raise BadArgumentError unless `kind` (with `value`) can act on `target`; return the
+        site."""
         site = parse_site(target)
         fc = self._message(site)
         if kind == FaultKind.CLEAR:
             return site
         if kind in E2E_KINDS and fc.e2e is None:
-            raise ValueError(f"fault {kind.name.lower()} on {site.name!r}: message "
-                             f"{site.message} has no E2E CRC/alive counter")
+            raise BadArgumentError(f"fault {kind.name.lower()} on {site.name!r}: message "
+                                   f"{site.message} has no E2E CRC/alive counter")
         if kind in FRAME_KINDS:
             check_frame_value(kind, DEFAULT_VALUES.get(kind, 0.0) if value is None else value)
         else:
             if site.signal is None:
-                raise ValueError(f"signal fault {kind.name.lower()} needs MESSAGE.SIGNAL, "
-                                 f"got {site.name!r}")
+                raise BadArgumentError(f"signal fault {kind.name.lower()} needs MESSAGE.SIGNAL, "
+                                       f"got {site.name!r}")
             make_fault(kind, value, self._rng)  # validates the value
         return site
 

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import can
 
+from vecu.errors import BadFileError
 
-class TraceWriteError(Exception):
-    """The log file cannot be written; the message names the file."""
+
+class TraceWriteError(BadFileError):
+    """The log file cannot be written: TraceWriteError(path, problem)."""
 
 
 class Recorder:
@@ -22,7 +24,7 @@ class Recorder:
         try:
             self._writer = can.Logger(path)
         except (ValueError, OSError, ImportError) as exc:
-            raise TraceWriteError(f"{path}: cannot write log: {exc}") from exc
+            raise TraceWriteError(path, f"cannot write log: {exc}") from exc
         self.frames = 0
         self._closed = False
 

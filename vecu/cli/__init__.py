@@ -1,4 +1,8 @@
-"""`vecu` command line: one module per subcommand, each exposing register(subparsers)."""
+"""`vecu` command line: one module per subcommand, each exposing register(subparsers).
+
+Exit codes: 0 done, 1 a bug (traceback) or a failed check the subcommand reports, 2 a user error
+(one line `vecu: error: …`; with --debug its traceback first), 130 interrupted.
+"""
 
 from __future__ import annotations
 
@@ -6,44 +10,76 @@ import argparse
 import importlib
 import logging
 import sys
+import traceback
 from pathlib import Path
+
+from vecu.errors import BadFileError, UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario")
 KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario")  # use estimators
 
 
+DEBUG_HELP = "on a user error, print its traceback too"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vecu", description="Virtual ECU gateway for CAN")
+    parser.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
     for name in SUBCOMMANDS:
         importlib.import_module(f"vecu.cli.{name}").register(sub)
+    add_debug_flag(parser)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    from vecu import kernels
+def add_debug_flag(parser: argparse.ArgumentParser) -> None:
+    """Accept --debug after every (nested) subcommand too; SUPPRESS keeps `vecu --debug run`
+    from being reset by the subparser's default."""
+    seen: set[int] = set()
+    stack = [parser]
+    while stack:
+        p = stack.pop()
+        for action in p._actions:
+            if not isinstance(action, argparse._SubParsersAction):
+                continue
+            for child in action.choices.values():
+                if id(child) in seen:  # aliases share a parser
+                    continue
+                seen.add(id(child))
+                if "--debug" not in child._option_string_actions:
+                    child.add_argument("--debug", action="store_true",
+                                       default=argparse.SUPPRESS, help=DEBUG_HELP)
+                stack.append(child)
 
+
+def main(argv: list[str] | None = None) -> int:
+    """The `vecu` command: parse argv (argparse errors exit 2 on their own) and run it."""
+    return run_command(build_parser().parse_args(argv))
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """Run args.func(args) and map the outcome to an exit code (see the module docstring)."""
     try:
+        from vecu import kernels
+
         cold = kernels.cache_is_cold()  # VECU_KERNELS checked before any work starts
-    except kernels.KernelBackendError as exc:
-        print(f"vecu: error: {exc}", file=sys.stderr)
-        return 2
-    if cold and args.command in KERNEL_COMMANDS:
-        print("vecu: compiling the numba kernels on first use (about 40 s, once per install; "
-              "VECU_KERNELS=python skips them)", file=sys.stderr, flush=True)
-    try:
+        if cold and getattr(args, "command", None) in KERNEL_COMMANDS:
+            print("vecu: compiling the numba kernels on first use (about 40 s, once per install; "
+                  "VECU_KERNELS=python skips them)", file=sys.stderr, flush=True)
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         return 130
-    except UserInputError as exc:
+    except UserError as exc:
+        if getattr(args, "debug", False):
+            traceback.print_exc()
         print(f"vecu: error: {exc}", file=sys.stderr)
         return 2
+    except Exception:  # noqa: BLE001 - a bug: its traceback, exit 1 (as Python itself would)
+        traceback.print_exc()
+        return 1
 
 
-class UserInputError(Exception):
-    """A bad file or argument given by the user: reported as one line, exit code 2."""
+UserInputError = UserError  # the former name of vecu.errors.UserError (kept for importers)
 
 
 def configure_logging(quiet: bool) -> None:
@@ -56,7 +92,7 @@ def require_output_dirs(*paths: str | None) -> None:
     """Fail before a run, not after it, when an output file's directory does not exist."""
     for path in paths:
         if path and not Path(path).resolve().parent.is_dir():
-            raise UserInputError(f"{path}: directory does not exist")
+            raise BadFileError(path, "directory does not exist")
 
 
 if __name__ == "__main__":

@@ -34,16 +34,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from vecu.assembly import build_functions, schedule_ecu
-    from vecu.bus import BusOpenError
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
     from vecu.ecu.node import EcuNode
     from vecu.ecu.sensor_monitor import SOURCE_SENSOR, SensorStatus
     from vecu.ecu.throttle_function import ThrottleFunctionConfig
-    from vecu.estimators.registry import EstimatorUnavailableError
     from vecu.live.process import LiveProcess
     from vecu.live.sync import PhaseSync, sync_to_trigger
-    from vecu.recorder import TraceWriteError
     from vecu.runner import warm_up
     from vecu.stats import RunningStats
 
@@ -63,13 +60,10 @@ def main(args: argparse.Namespace) -> int:
                        speed=not args.no_speed, steering=not args.no_steering,
                        manifold=not args.no_manifold, manifold_filter=args.manifold_filter)
     codec = DbcCodec()
-    try:
-        config.validate()
-        fns = build_functions(config, codec)
-        proc = LiveProcess(live_options(args, "ecu"), codec, "VECU",
-                           latency=("ETB_Wattmeter", "ECU_ThrottleEstimate"))
-    except (ValueError, KeyError, BusOpenError, TraceWriteError, EstimatorUnavailableError) as exc:
-        raise UserInputError(str(exc).strip("'\"")) from exc
+    config.validate()
+    fns = build_functions(config, codec)
+    proc = LiveProcess(live_options(args, "ecu"), codec, "VECU",
+                       latency=("ETB_Wattmeter", "ECU_ThrottleEstimate"))
     summary: dict[str, Any] | None = None
     try:
         ecu = EcuNode(proc.bus, codec, fns.enabled())

@@ -8,7 +8,7 @@ import json
 import sys
 from typing import Any
 
-from vecu.cli import UserInputError
+from vecu.errors import BadArgumentError
 
 DEFAULT_THROTTLE_FILTERS = ("ahsm", "arm", "agm", "open-loop", "production")
 
@@ -109,28 +109,24 @@ def _throttle_filters(text: str | None) -> list[str]:
         return names
     names = [s.strip() for s in text.split(",") if s.strip()]
     if not names:
-        raise UserInputError("--filters: empty list")
+        raise BadArgumentError("--filters: empty list")
     unknown = [s for s in names if s not in THROTTLE_ESTIMATORS]
     if unknown:
-        raise UserInputError(f"--filters: unknown estimator(s) {', '.join(unknown)}; "
-                             f"choose from {', '.join(THROTTLE_ESTIMATORS)}")
+        raise BadArgumentError(f"--filters: unknown estimator(s) {', '.join(unknown)}; "
+                               f"choose from {', '.join(THROTTLE_ESTIMATORS)}")
     if len(set(names)) != len(names):
-        raise UserInputError("--filters: a name is repeated")
+        raise BadArgumentError("--filters: a name is repeated")
     return names
 
 
 def main_throttle(args: argparse.Namespace) -> int:
-    from vecu.estimators.registry import EstimatorUnavailableError
     from vecu.eval.throttle import DEFAULT_BURN_IN, evaluate_throttle
 
     if args.steps <= DEFAULT_BURN_IN:
-        raise UserInputError(f"--steps must exceed the {DEFAULT_BURN_IN}-step burn-in")
+        raise BadArgumentError(f"--steps must exceed the {DEFAULT_BURN_IN}-step burn-in")
     names = _throttle_filters(args.filters)
-    try:
-        report = evaluate_throttle(names, steps=args.steps, noise_scale=args.noise_scale,
-                                   seed=args.seed)
-    except EstimatorUnavailableError as exc:
-        raise UserInputError(str(exc)) from exc
+    report = evaluate_throttle(names, steps=args.steps, noise_scale=args.noise_scale,
+                               seed=args.seed)
     if args.json:
         print(json.dumps(dataclasses.asdict(report), indent=2))
     else:
@@ -163,8 +159,8 @@ def main_speed(args: argparse.Namespace) -> int:
     names = list(MANOEUVRES) if args.manoeuvre == "all" else [args.manoeuvre]
     unknown = [m for m in names if m not in MANOEUVRES]
     if unknown:
-        raise UserInputError(f"--manoeuvre: unknown {unknown[0]!r}; choose from "
-                             f"{', '.join(MANOEUVRES)} or all")
+        raise BadArgumentError(f"--manoeuvre: unknown {unknown[0]!r}; choose from "
+                               f"{', '.join(MANOEUVRES)} or all")
     reports = [dataclasses.asdict(evaluate_speed(seed=args.seed, runs=args.runs, manoeuvre=m))
                for m in names]
     if args.json:
@@ -184,9 +180,9 @@ def main_steering(args: argparse.Namespace) -> int:
     from vecu.eval.steering import evaluate_steering
 
     if not 1.0 <= args.duration <= 3600.0:
-        raise UserInputError(f"--duration: expected 1..3600 s, got {args.duration}")
+        raise BadArgumentError(f"--duration: expected 1..3600 s, got {args.duration}")
     if not 0.0 < args.lag < args.duration:
-        raise UserInputError(f"--lag: expected 0 < lag < duration, got {args.lag}")
+        raise BadArgumentError(f"--lag: expected 0 < lag < duration, got {args.lag}")
     r = dataclasses.asdict(evaluate_steering(seed=args.seed, duration_s=args.duration,
                                              lag_s=args.lag, mismatch=args.mismatch))
     if args.json:
@@ -210,7 +206,7 @@ def main_manifold(args: argparse.Namespace) -> int:
     from vecu.eval.manifold import evaluate_manifold
 
     if args.duration is not None and not 1.0 <= args.duration <= 80.0:
-        raise UserInputError(f"--duration: expected 1..80 s, got {args.duration}")
+        raise BadArgumentError(f"--duration: expected 1..80 s, got {args.duration}")
     r = dataclasses.asdict(evaluate_manifold(seed=args.seed, runs=args.runs, stride=args.stride,
                                              full_dare=not args.no_dare,
                                              duration_s=args.duration))

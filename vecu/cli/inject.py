@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from vecu.cli import UserInputError
+from vecu.errors import BadArgumentError, UnavailableError
 from vecu.live.args import add_bus_arguments
 
 
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def command_values(target: str, kind: str, value: float | None) -> dict[str, float]:
-    """FI_Command signal values; raises ValueError with a clear message on bad input."""
+    """FI_Command signal values; raises BadArgumentError with a clear message on bad input."""
     import numpy as np
 
     from vecu.codec import DbcCodec
@@ -39,14 +39,13 @@ def command_values(target: str, kind: str, value: float | None) -> dict[str, flo
         parse_kind,
     )
 
-    try:
-        tgt = FaultTarget[target.strip().upper()]
-    except KeyError:
-        raise ValueError(f"unknown target {target!r} (known: "
-                         f"{', '.join(t.name.lower() for t in FaultTarget)})") from None
+    tgt = FaultTarget.__members__.get(target.strip().upper())
+    if tgt is None:
+        raise BadArgumentError(f"unknown target {target!r} (known: "
+                               f"{', '.join(t.name.lower() for t in FaultTarget)})")
     k = FaultKind.CLEAR if kind.strip().lower() == "clear" else parse_kind(kind)
     if value is not None and not (math.isfinite(value) and -32.768 <= value <= 32.767):
-        raise ValueError(f"--value must be within -32.768..32.767, got {value}")
+        raise BadArgumentError(f"--value must be within -32.768..32.767, got {value}")
     if k != FaultKind.CLEAR:  # the plant's own checks, signal and frame faults alike
         FaultInjector(np.random.default_rng(0), DbcCodec()).check(tgt, k, value)
     if value is None:
@@ -55,23 +54,19 @@ def command_values(target: str, kind: str, value: float | None) -> dict[str, flo
 
 
 def main(args: argparse.Namespace) -> int:
-    from vecu.bus import BusOpenError, open_bus
+    import can
+
+    from vecu.bus import open_bus
     from vecu.clock import NS_PER_S, WallClock
     from vecu.codec import DbcCodec
     from vecu.live.options import LiveOptions, bus_config
 
     if not (math.isfinite(args.at) and 0.0 <= args.at <= 86_400.0):
-        raise UserInputError(f"--at: expected 0..86400 s, got {args.at}")
-    try:
-        values = command_values(args.target, args.kind, args.value)
-    except ValueError as exc:
-        raise UserInputError(str(exc)) from exc
-    try:
-        cfg = bus_config(LiveOptions(role="inject", interface=args.interface,
-                                     channel=args.channel, bitrate=args.bitrate))
-        bus = open_bus(**cfg)
-    except BusOpenError as exc:
-        raise UserInputError(str(exc)) from exc
+        raise BadArgumentError(f"--at: expected 0..86400 s, got {args.at}")
+    values = command_values(args.target, args.kind, args.value)
+    cfg = bus_config(LiveOptions(role="inject", interface=args.interface,
+                                 channel=args.channel, bitrate=args.bitrate))
+    bus = open_bus(**cfg)
     try:
         clock = WallClock()
         clock.start()
@@ -79,9 +74,9 @@ def main(args: argparse.Namespace) -> int:
         frame = DbcCodec()["FI_Command"].frame(values, 0.0)
         try:
             bus.send(frame, timeout=1.0)
-        except Exception as exc:  # python-can raises CanError subclasses, some interfaces OSError
-            raise UserInputError(f"cannot send FI_Command on {cfg['interface']} "
-                                 f"{cfg['channel']}: {exc}") from exc
+        except (can.CanError, OSError) as exc:  # python-can's errors; some interfaces: OSError
+            raise UnavailableError(f"cannot send FI_Command on {cfg['interface']} "
+                                   f"{cfg['channel']}: {exc}") from exc
     finally:
         bus.shutdown()
     if not args.quiet:

@@ -57,11 +57,9 @@ class ExtraLoad:
 
 def main(args: argparse.Namespace) -> int:
     from vecu.assembly import build_plant, schedule_plant
-    from vecu.bus import BusOpenError
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
     from vecu.live.process import LiveProcess
-    from vecu.recorder import TraceWriteError
     from vecu.runner import warm_up
 
     configure_logging(args.quiet)
@@ -77,11 +75,8 @@ def main(args: argparse.Namespace) -> int:
                        kill_tps_at_s=None, speed=not args.no_speed, steering=not args.no_steering,
                        manifold=not args.no_manifold)
     codec = DbcCodec()
-    try:
-        config.validate()
-        proc = LiveProcess(live_options(args, "plant"), codec, "PLANT")
-    except (ValueError, KeyError, BusOpenError, TraceWriteError) as exc:
-        raise UserInputError(str(exc).strip("'\"")) from exc
+    config.validate()
+    proc = LiveProcess(live_options(args, "plant"), codec, "PLANT")
     summary: dict[str, Any] | None = None
     try:
         plant = build_plant(config, codec, proc.bus, truth=args.truth)

@@ -7,10 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vecu.bus import BusOpenError
-from vecu.cli import UserInputError, configure_logging, require_output_dirs
-from vecu.codec import DbcLoadError
-from vecu.recorder import TraceWriteError
+from vecu.cli import configure_logging, require_output_dirs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,7 +44,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from vecu.replay.engine import ReplayConfig, replay
-    from vecu.replay.signal_map import SignalMapError
     from vecu.replay.source import TraceReadError
 
     configure_logging(args.quiet)
@@ -57,12 +53,7 @@ def main(args: argparse.Namespace) -> int:
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
         channel=args.channel, fmt=args.fmt, estimator=args.estimator, progress=args.progress,
         keep_series=bool(args.plot))
-    try:
-        result = replay(config)
-    except (TraceReadError, SignalMapError, DbcLoadError, TraceWriteError, BusOpenError) as exc:
-        raise UserInputError(str(exc)) from exc
-    except (ValueError, KeyError) as exc:
-        raise UserInputError(f"{args.trace}: {str(exc).strip(chr(39))}") from exc
+    result = replay(config)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
     if args.plot and result.series is not None:
@@ -71,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(format_summary(result.summary))
     if result.error:
-        raise UserInputError(result.error)
+        raise TraceReadError(None, result.error)  # after the summary of what was read
     return 0
 
 

@@ -7,9 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vecu.bus import BusOpenError
-from vecu.cli import UserInputError, configure_logging, require_output_dirs
-from vecu.recorder import TraceWriteError
+from vecu.cli import configure_logging, require_output_dirs
 
 
 def _kill_time(text: str) -> float | str | None:
@@ -69,11 +67,9 @@ def main(args: argparse.Namespace) -> int:
         keep_series=bool(args.plot),
         kill_swa_at_s=None if args.kill_swa_at == "half" else args.kill_swa_at,
         swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value)
+    config.validate()  # user errors before any output is touched
     require_output_dirs(args.log, args.summary, args.plot)
-    try:
-        result = run(config)
-    except (ValueError, KeyError, BusOpenError, TraceWriteError) as exc:
-        raise UserInputError(str(exc).strip("'\"")) from exc
+    result = run(config)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
     if args.plot and result.throttle_series is not None:

@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from vecu.cli import UserInputError, configure_logging, require_output_dirs
+from vecu.cli import configure_logging, require_output_dirs
+from vecu.errors import BadArgumentError, BadFileError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,27 +27,24 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from vecu.scenario.loader import ScenarioError, load_scenario
+    from vecu.scenario.loader import load_scenario
     from vecu.scenario.report import write_html, write_junit
     from vecu.scenario.runner import run_scenarios
 
     configure_logging(quiet=True)  # errors only: the scenario lines are the output
     if args.jobs < 1:
-        raise UserInputError(f"--jobs must be >= 1, got {args.jobs}")
+        raise BadArgumentError(f"--jobs must be >= 1, got {args.jobs}")
     require_output_dirs(args.junit)
-    try:
-        scenarios = [load_scenario(f) for f in args.files]
-    except ScenarioError as exc:
-        raise UserInputError(str(exc)) from exc
+    scenarios = [load_scenario(f) for f in args.files]
     names = [s.name for s in scenarios]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise UserInputError(f"scenario names must be unique, repeated: {', '.join(dup)}")
+        raise BadArgumentError(f"scenario names must be unique, repeated: {', '.join(dup)}")
     if args.report:
         try:
             Path(args.report).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise UserInputError(f"{args.report}: cannot create directory: {exc.strerror}") from exc
+            raise BadFileError(args.report, f"cannot create directory: {exc.strerror}") from exc
     outcomes = run_scenarios(scenarios, jobs=args.jobs, report_dir=args.report,
                              stream=None if args.quiet else sys.stderr)
     if args.junit:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from vecu.errors import BadArgumentError, UnavailableError
 from vecu.estimators.throttle.base import ThrottleEstimator
 
 _PAPER = ("ahsm", "arm", "agm")
@@ -43,19 +44,16 @@ class OpenLoopThrottle:
         self._ukf.reset()
 
 
-class EstimatorUnavailableError(ValueError):
-    """A known estimator name whose implementation could not be imported.
-
-    A ValueError, like an unknown name, so callers that report bad --estimator values as one-line
-    errors (vecu run) handle it the same way.
-    """
+class EstimatorUnavailableError(UnavailableError, ValueError):
+    """A known estimator name whose implementation could not be imported (a user error, exit 2,
+    and a ValueError like an unknown name)."""
 
 
 def make_throttle_estimator(name: str, noise_scale: float = 1.0) -> ThrottleEstimator:
     """Build a fresh estimator. noise_scale is the alpha the filter assumes for F (Q = (alpha F)^2).
 
-    Raises ValueError for an unknown name, EstimatorUnavailableError if "production" cannot be
-    imported (the other names never depend on it).
+    Raises BadArgumentError (a ValueError) for an unknown name, EstimatorUnavailableError if
+    "production" cannot be imported (the other names never depend on it).
     """
     if name in _PAPER:
         from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
@@ -76,6 +74,6 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0) -> ThrottleEsti
                 f"make_production_estimator from vecu.estimators.throttle.production ({exc})"
             ) from exc
         return make_production_estimator(noise_scale)
-    raise ValueError(
+    raise BadArgumentError(
         f"unknown throttle estimator {name!r}; choose from {', '.join(THROTTLE_ESTIMATORS)}"
     )

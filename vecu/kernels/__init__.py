@@ -26,6 +26,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from vecu.errors import ConfigError
+
 BACKENDS = ("auto", "numba", "python")
 ENV_VAR = "VECU_KERNELS"
 
@@ -33,7 +35,7 @@ _numba: Any = None  # the numba module once imported, False if it cannot be
 _active: str | None = None  # "numba" or "python" once resolved
 
 
-class KernelBackendError(RuntimeError):
+class KernelBackendError(ConfigError):
     """VECU_KERNELS asks for a backend that is not available (or is not a backend at all)."""
 
 

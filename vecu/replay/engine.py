@@ -28,6 +28,7 @@ from vecu.clock import NS_PER_S, SimClock, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
+from vecu.errors import BadArgumentError
 from vecu.recorder import TraceWriteError
 from vecu.replay.scoring import TruthScorer
 from vecu.replay.signal_map import (
@@ -68,7 +69,7 @@ class ReplayConfig:
 
     def validate(self) -> None:
         if self.speed is not None and not (self.speed > 0 and self.speed < 1e4):
-            raise ValueError(f"--speed must be in (0, 10000), got {self.speed}")
+            raise BadArgumentError(f"--speed must be in (0, 10000), got {self.speed}")
 
 
 @dataclass
@@ -358,7 +359,7 @@ def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
     try:
         return _OutputWriter(can.Logger(path), locked)
     except (ValueError, OSError, ImportError) as exc:
-        raise TraceWriteError(f"{path}: cannot write: {exc}") from exc
+        raise TraceWriteError(path, f"cannot write: {exc}") from exc
 
 
 def _progress(source: TraceSource, feeder: _Feeder, wall0: float) -> None:

@@ -21,10 +21,11 @@ import tomllib
 
 from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuFunction, Route, Subscription
+from vecu.errors import BadFileError
 
 
-class SignalMapError(Exception):
-    """A bad signal map: the message names the file, the key and the problem."""
+class SignalMapError(BadFileError):
+    """A bad signal map: SignalMapError(path, problem), the problem naming the key."""
 
 
 @dataclass(frozen=True)
@@ -134,9 +135,9 @@ def load_signal_map(path: str | Path, db: DbcCodec) -> SignalMap:
         with open(path, "rb") as f:
             doc = tomllib.load(f)
     except FileNotFoundError as exc:
-        raise SignalMapError(f"{path}: no such file") from exc
+        raise SignalMapError(path, "no such file") from exc
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SignalMapError(f"{path}: not valid TOML: {exc}") from exc
+        raise SignalMapError(path, f"not valid TOML: {exc}") from exc
     return build_signal_map(doc, db, path)
 
 
@@ -144,14 +145,14 @@ def build_signal_map(doc: dict, db: DbcCodec, path: str = "<map>") -> SignalMap:
     mapped: list[MappedInput] = []
     for fn_name, table in doc.items():
         if fn_name not in INPUTS:
-            raise SignalMapError(f"{path}: [{fn_name}]: unknown function "
+            raise SignalMapError(path, f"[{fn_name}]: unknown function "
                                  f"(known: {', '.join(INPUTS)})")
         if not isinstance(table, dict):
-            raise SignalMapError(f"{path}: {fn_name}: must be a table of inputs")
+            raise SignalMapError(path, f"{fn_name}: must be a table of inputs")
         for name, spec in table.items():
             key = f"{fn_name}.{name}"
             if name not in INPUTS[fn_name]:
-                raise SignalMapError(f"{path}: {key}: unknown input "
+                raise SignalMapError(path, f"{key}: unknown input "
                                      f"(known: {', '.join(INPUTS[fn_name])})")
             mapped.append(_mapped_input(path, key, fn_name, name, spec, db))
     return _with_coverage(path, mapped)
@@ -173,22 +174,22 @@ def _mapped_input(path: str, key: str, fn_name: str, name: str, spec: object,
     if isinstance(spec, str):
         spec = {"signal": spec}
     if not isinstance(spec, dict):
-        raise SignalMapError(f"{path}: {key}: expected a table like "
+        raise SignalMapError(path, f"{key}: expected a table like "
                              f'{{ signal = "Message.Signal", unit = "km/h" }}')
     unknown = set(spec) - {"signal", "unit", "scale", "offset"}
     if unknown:
-        raise SignalMapError(f"{path}: {key}: unknown key {sorted(unknown)[0]!r} "
+        raise SignalMapError(path, f"{key}: unknown key {sorted(unknown)[0]!r} "
                              f"(allowed: signal, unit, scale, offset)")
     ref = spec.get("signal")
     if not isinstance(ref, str) or ref.count(".") != 1:
-        raise SignalMapError(f"{path}: {key}.signal: expected \"Message.Signal\", got {ref!r}")
+        raise SignalMapError(path, f"{key}.signal: expected \"Message.Signal\", got {ref!r}")
     msg_name, sig_name = ref.split(".")
     if msg_name not in db:
-        raise SignalMapError(f"{path}: {key}.signal: no message {msg_name!r} in "
+        raise SignalMapError(path, f"{key}.signal: no message {msg_name!r} in "
                              f"{', '.join(Path(p).name for p in db.paths)}")
     fc = db[msg_name]
     if sig_name not in fc.ranges:
-        raise SignalMapError(f"{path}: {key}.signal: message {msg_name} has no signal "
+        raise SignalMapError(path, f"{key}.signal: message {msg_name} has no signal "
                              f"{sig_name!r}")
     target = INPUTS[fn_name][name]
     dbc_unit = fc.signal(sig_name).unit
@@ -197,13 +198,13 @@ def _mapped_input(path: str, key: str, fn_name: str, name: str, spec: object,
         if opt in spec and (isinstance(spec[opt], bool)
                             or not isinstance(spec[opt], (int, float))
                             or not math.isfinite(spec[opt])):
-            raise SignalMapError(f"{path}: {key}.{opt}: expected a finite number")
+            raise SignalMapError(path, f"{key}.{opt}: expected a finite number")
     if not isinstance(unit, str):
-        raise SignalMapError(f"{path}: {key}.unit: expected a string")
+        raise SignalMapError(path, f"{key}.unit: expected a string")
     try:
         factor, offset = unit_conversion(unit, target.unit)
     except ValueError as exc:
-        raise SignalMapError(f"{path}: {key}.unit: {exc}") from exc
+        raise SignalMapError(path, f"{key}.unit: {exc}") from exc
     scale, pre = float(spec.get("scale", 1.0)), float(spec.get("offset", 0.0))
     return MappedInput(fn_name, name, msg_name, sig_name, target, scale * factor,
                        pre * factor + offset, unit)

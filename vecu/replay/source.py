@@ -20,6 +20,7 @@ from pathlib import Path
 import can
 
 from vecu.clock import NS_PER_S
+from vecu.errors import BadArgumentError, BadFileError
 
 log = logging.getLogger(__name__)
 
@@ -31,8 +32,8 @@ REORDER_WINDOW_NS = 50_000_000  # 50 ms: covers multi-channel loggers that flush
 LINE_TERMINATED = {"asc", "log", "csv"}
 
 
-class TraceReadError(Exception):
-    """The trace cannot be read (further); the message names the file and the position."""
+class TraceReadError(BadFileError):
+    """The trace cannot be read: TraceReadError(path, problem)."""
 
 
 @dataclass
@@ -55,22 +56,24 @@ def open_reader(path: str | Path, fmt: str | None = None) -> can.io.generic.Mess
     """python-can reader for path: by suffix (.asc .blf .log .trc .csv .mf4, + .gz), or fmt."""
     path = str(path)
     if not os.path.exists(path):
-        raise TraceReadError(f"{path}: no such file")
+        raise TraceReadError(path, "no such file")
+    if fmt is not None:
+        readers = {f: can.io.player.MESSAGE_READERS["." + f] for f in reader_formats()}
+        if fmt not in readers:
+            raise BadArgumentError(f"unknown format {fmt!r} (python-can reads: "
+                                   f"{', '.join(readers)})")
     try:
         if fmt is None:
             return can.LogReader(path)
-        readers = {f: can.io.player.MESSAGE_READERS["." + f] for f in reader_formats()}
-        if fmt not in readers:
-            raise ValueError(f"unknown format {fmt!r} (python-can reads: {', '.join(readers)})")
         cls = readers[fmt]
         if path.endswith(".gz"):
             text = issubclass(cls, can.io.generic.TextIOMessageReader)
             return cls(gzip.open(path, mode="rt" if text else "rb"))
         return cls(file=path)
     except ImportError as exc:
-        raise TraceReadError(f"{path}: this format needs an optional package: {exc}") from exc
+        raise TraceReadError(path, f"this format needs an optional package: {exc}") from exc
     except Exception as exc:  # noqa: BLE001 - python-can raises many kinds; one line each
-        raise TraceReadError(f"{path}: cannot open trace: {_one_line(exc)}") from exc
+        raise TraceReadError(path, f"cannot open trace: {_one_line(exc)}") from exc
 
 
 def _one_line(exc: BaseException) -> str:

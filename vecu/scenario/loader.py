@@ -25,6 +25,7 @@ from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.ecu.speed_function import SpeedFunctionConfig
 from vecu.ecu.steering_function import SteeringFunctionConfig
 from vecu.ecu.throttle_function import ThrottleFunctionConfig
+from vecu.errors import BadFileError
 from vecu.estimators.registry import THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
 from vecu.plant.longitudinal import MANOEUVRES
@@ -52,8 +53,8 @@ SENSOR_CRITERIA = {"detect_within_ms": NUMBER, "detected_as": list, "fallback_wi
 BUS_CRITERIA = {"dtc": STR}
 
 
-class ScenarioError(ValueError):
-    """A bad scenario file: one line naming the file, the key and the reason."""
+class ScenarioError(BadFileError):
+    """A bad scenario file: ScenarioError(path, problem), the problem naming the key."""
 
 
 @dataclass(frozen=True)
@@ -92,7 +93,7 @@ class _Checker:
         self.path = path
 
     def fail(self, key: str, reason: str) -> ScenarioError:
-        return ScenarioError(f"{self.path}: key '{key}': {reason}")
+        return ScenarioError(self.path, f"key '{key}': {reason}")
 
     def table(self, data: Any, schema: dict[str, Any], prefix: str) -> dict[str, Any]:
         if not isinstance(data, dict):
@@ -128,11 +129,11 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         with open(path, "rb") as fh:
             data = tomllib.load(fh)
     except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such file") from None
+        raise ScenarioError(path, "no such file") from None
     except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
+        raise ScenarioError(path, f"cannot read: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: TOML syntax error: {exc}".splitlines()[0]) from None
+        raise ScenarioError(path, f"TOML syntax error: {exc}".splitlines()[0]) from None
     chk.table(data, TOP_KEYS, "")
     if "duration_s" not in data:
         raise chk.fail("duration_s", "required key missing")

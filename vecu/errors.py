@@ -1,0 +1,52 @@
+"""vecu's one error tree (imports no other vecu module).
+
+    VecuError
+    └── UserError                    a user's mistake: `vecu: error: <message>`, exit code 2
+        ├── BadArgumentError     a bad option or argument value (also a ValueError)
+        ├── ConfigError          an impossible configuration or setting (also a ValueError)
+        ├── BadFileError         a file the user named cannot be read, used or written
+        └── UnavailableError     something asked for is not available here (bus, package)
+
+Anything else that escapes the command line is a bug: a traceback and exit code 1. The
+ValueError bases keep `except ValueError` in library callers working for validation errors.
+"""
+
+from __future__ import annotations
+
+import os
+
+
+class VecuError(Exception):
+    """Base of every error vecu raises on purpose."""
+
+
+class UserError(VecuError):
+    """A user's mistake; the command line reports it as one line `vecu: error: …`, exit 2."""
+
+
+class BadArgumentError(UserError, ValueError):
+    """A bad option or argument value (a time outside the run, an unknown name, …)."""
+
+
+class ConfigError(UserError, ValueError):
+    """A configuration or environment setting that cannot work (e.g. VECU_KERNELS=cuda)."""
+
+
+class BadFileError(UserError):
+    """A file the user named cannot be read, used or written; str() is "PATH: problem"."""
+
+    def __init__(self, path: str | os.PathLike[str] | None, problem: str) -> None:
+        self.path = None if path is None else os.fspath(path)
+        self.problem = problem
+        super().__init__(problem if path is None else f"{self.path}: {problem}")
+
+    def __reduce__(self) -> tuple:  # picklable across processes (scenario --jobs)
+        return type(self), (self.path, self.problem)
+
+
+class UnavailableError(UserError):
+    """Something asked for is not available on this machine: a bus, an optional package."""
+
+
+__all__ = ["BadArgumentError", "BadFileError", "ConfigError", "UnavailableError", "UserError",
+           "VecuError"]
