@@ -135,7 +135,7 @@ def test_realtime_run_is_paced_by_the_wall_clock():
 
     t0 = time.perf_counter()
     res = run(RunConfig(duration_s=0.3, seed=1, kill_tps_at_s=0.1, fault="frames_stop",
-                        realtime=True, estimator="arm"))
+                        realtime=True).with_params(estimator="arm"))
     wall = time.perf_counter() - t0
     assert res.summary["ticks"] == 300
     assert wall >= 0.3 and res.summary["x_realtime"] <= 1.05

@@ -91,16 +91,9 @@ def test_shipped_set_covers_the_issue_and_every_scenario_passes(tmp_path):
 
 
 def _disable(scenario, sensor):
-    cfg = scenario.config
-    if sensor == "tps":
-        mon = replace(cfg.throttle.tps_monitor, enabled=False)
-        cfg = replace(cfg, throttle=replace(cfg.throttle, tps_monitor=mon))
-    elif sensor == "swa":
-        cfg = replace(cfg, steering_fn=replace(cfg.steering_fn, monitor=replace(
-            cfg.steering_fn.monitor, enabled=False)))
-    else:
-        cfg = replace(cfg, speed_fn=replace(cfg.speed_fn, wheel_monitor=replace(
-            cfg.speed_fn.wheel_monitor, enabled=False)))
+    from vecu.scenario.loader import MONITOR_PATHS
+
+    cfg = scenario.config.with_params({f"{MONITOR_PATHS[sensor]}.enabled": False})
     return replace(scenario, config=cfg)
 
 

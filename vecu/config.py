@@ -1,16 +1,107 @@
-"""Run configuration shared by the simulated run, live processes, replay and scenarios."""
+"""Run configuration and the parameter tree, shared by the simulated run, live processes, replay,
+scenarios and campaigns.
+
+The tree has two halves that default to equal values: `plant.*`, the simulated car (the truth),
+and `ecu.*`, what the ECU believes (its calibration). A robustness study sets them apart, e.g.
+`--set plant.manifold.engine.v_im_dm3=5.25` leaves the ECU on the nominal engine. The mechanics
+(dotted paths, units, sources, parsing) are vecu.params; this module is the harness floor, so it
+may name the plant's and the ECU's configuration classes (docs/architecture.md).
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 
+from vecu import params as ptree
+from vecu.ecu.manifold_function import ManifoldFunctionConfig
 from vecu.ecu.speed_function import SpeedFunctionConfig
 from vecu.ecu.steering_function import SteeringFunctionConfig
 from vecu.ecu.throttle_function import ThrottleFunctionConfig
 from vecu.errors import ConfigError
+from vecu.estimators.registry import THROTTLE_ESTIMATORS
 from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
+from vecu.models.lateral import VehicleParams
+from vecu.models.sensors import TpsCalibration
+from vecu.plant.lateral import LateralSensors
+from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
+from vecu.plant.manifold import ManifoldPlantConfig
+from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
+
+
+@dataclass(frozen=True)
+class PlantSensors:
+    """The simulated sensors' transfer laws and noise."""
+
+    tps: TpsCalibration = field(default_factory=TpsCalibration)
+    wheel: WheelSensorConfig = field(default_factory=WheelSensorConfig)
+    accel: AccelSensorConfig = field(default_factory=AccelSensorConfig)
+    lateral: LateralSensors = field(default_factory=LateralSensors)
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """The simulated car: throttle body and its excitation, vehicle, engine, sensors."""
+
+    throttle: ThrottlePlantConfig = field(default_factory=ThrottlePlantConfig)
+    input: InputConfig = field(default_factory=InputConfig)
+    lateral: VehicleParams = field(default_factory=VehicleParams)
+    manifold: ManifoldPlantConfig = field(default_factory=ManifoldPlantConfig)
+    sensors: PlantSensors = field(default_factory=PlantSensors)
+
+
+@dataclass(frozen=True)
+class EcuParams:
+    """What the ECU believes and how it decides: one configuration per ECU function."""
+
+    throttle: ThrottleFunctionConfig = field(default_factory=ThrottleFunctionConfig)
+    speed: SpeedFunctionConfig = field(default_factory=SpeedFunctionConfig)
+    steering: SteeringFunctionConfig = field(default_factory=SteeringFunctionConfig)
+    manifold: ManifoldFunctionConfig = field(default_factory=ManifoldFunctionConfig)
+
+
+@dataclass(frozen=True)
+class ParamTree:
+    """The whole parameter tree: `plant.*` (the truth) and `ecu.*` (the calibration)."""
+
+    plant: PlantParams = field(default_factory=PlantParams)
+    ecu: EcuParams = field(default_factory=EcuParams)
+
+    def set(self, sets: object) -> ParamTree:
+        """A new tree with (path, value) pairs or a {path: value} mapping applied, checked."""
+        tree = ptree.apply_sets(self, sets)  # type: ignore[arg-type]
+        validate_tree(tree)
+        return tree
+
+
+# Command-line shortcuts: one flag that sets several leaves (both halves of the tree agree).
+SHORTCUTS: dict[str, tuple[str, ...]] = {
+    "noise_scale": ("plant.throttle.noise_scale", "ecu.throttle.noise_scale"),
+    "estimator": ("ecu.throttle.estimator",),
+    "manifold_filter": ("ecu.manifold.filter",),
+}
+MANIFOLD_FILTERS = ("sdkf", "ekf")
+
+
+def shortcut_sets(**values: object) -> list[tuple[str, object]]:
+    """(path, value) pairs for the shortcut options given (None: not given)."""
+    return [(path, v) for name, v in values.items() if v is not None for path in SHORTCUTS[name]]
+
+
+def validate_tree(tree: ParamTree) -> None:
+    """Checks beyond each leaf's type: names from their lists, scales that cannot be negative."""
+    for path in ("plant.throttle.noise_scale", "ecu.throttle.noise_scale",
+                 "plant.manifold.noise_scale"):
+        if ptree.get(tree, path) < 0:
+            raise ptree.ParamError(f"parameter '{path}' must be >= 0, got {ptree.get(tree, path)}")
+    name = tree.ecu.throttle.estimator
+    if name not in THROTTLE_ESTIMATORS:
+        raise ptree.ParamError(f"parameter 'ecu.throttle.estimator': unknown estimator {name!r} "
+                               f"(known: {', '.join(THROTTLE_ESTIMATORS)})")
+    if tree.ecu.manifold.filter not in MANIFOLD_FILTERS:
+        raise ptree.ParamError(f"parameter 'ecu.manifold.filter': expected one of "
+                               f"{', '.join(MANIFOLD_FILTERS)}, got {tree.ecu.manifold.filter!r}")
 
 
 @dataclass(frozen=True)
@@ -19,11 +110,9 @@ class RunConfig:
 
     duration_s: float = 10.0
     seed: int = 0
-    noise_scale: float = 1.0
     kill_tps_at_s: float | None = 5.0
     fault: str = "dead"
     fault_value: float | None = None
-    estimator: str = "production"
     realtime: bool = False
     interface: str | None = None
     channel: str | None = None
@@ -34,15 +123,34 @@ class RunConfig:
     speed: bool = True  # longitudinal plant part + ECU speed function (Hernandez 2005)
     steering: bool = True  # lateral plant part + ECU steering function (Khalid)
     manifold: bool = True  # engine-event manifold part + ECU manifold function (Dutka 2006)
-    manifold_filter: str = "sdkf"  # "sdkf" (live, one Riccati iteration per event) or "ekf"
     kill_swa_at_s: float | None = None
     swa_fault: str = "dead"
     swa_fault_value: float | None = None
-    throttle: ThrottleFunctionConfig = field(default_factory=ThrottleFunctionConfig)
-    steering_fn: SteeringFunctionConfig = field(default_factory=SteeringFunctionConfig)
-    speed_fn: SpeedFunctionConfig = field(default_factory=SpeedFunctionConfig)
+    params: ParamTree = field(default_factory=ParamTree)  # plant.* and ecu.* (vecu params)
     speed_manoeuvres: tuple[str, ...] | None = None  # longitudinal plant sequence (None: default)
     faults: tuple[ScheduledFault, ...] = ()  # fault timeline (scenarios), on top of the kills
+
+    def with_params(self, sets: object = (), **shortcuts: object) -> RunConfig:
+        """This configuration with parameter-tree overrides: (path, value) pairs or a mapping,
+        then the shortcuts (noise_scale=, estimator=, manifold_filter=; None: unchanged)."""
+        pairs = list(sets.items()) if isinstance(sets, dict) else list(sets)  # type: ignore[attr-defined]
+        pairs += shortcut_sets(**shortcuts)
+        return replace(self, params=self.params.set(pairs)) if pairs else self
+
+    @property
+    def estimator(self) -> str:
+        return self.params.ecu.throttle.estimator
+
+    def summary(self) -> dict[str, object]:
+        """For run summaries: the run's own settings, the throttle noise scale, estimator and
+        manifold filter, and every parameter that differs from the defaults (path: value)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "params"}
+        out["faults"] = [asdict(f) for f in self.faults]
+        out["noise_scale"] = self.params.plant.throttle.noise_scale
+        out["estimator"] = self.estimator
+        out["manifold_filter"] = self.params.ecu.manifold.filter
+        out["params"] = {leaf.path: leaf.value for leaf in ptree.differences(self.params, ParamTree())}
+        return out
 
     def validate(self) -> None:
         """Raise a UserError (ConfigError, BadArgumentError) on an impossible configuration."""
@@ -50,8 +158,7 @@ class RunConfig:
             raise ConfigError(f"duration must be a positive number of seconds, got {self.duration_s}")
         if self.kill_tps_at_s is not None and not 0 <= self.kill_tps_at_s < self.duration_s:
             raise ConfigError(f"kill time {self.kill_tps_at_s} s is outside the run (0..{self.duration_s} s)")
-        if self.noise_scale < 0:
-            raise ConfigError(f"noise scale must be >= 0, got {self.noise_scale}")
+        validate_tree(self.params)
         if self.kill_swa_at_s is not None and not 0 <= self.kill_swa_at_s < self.duration_s:
             raise ConfigError(f"SWA kill time {self.kill_swa_at_s} s is outside the run "
                               f"(0..{self.duration_s} s)")

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vecu.cli import configure_logging, require_output_dirs
+from vecu.cli import add_set_option, configure_logging, param_sets, require_output_dirs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,7 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--channel", help="python-can channel for --speed")
     p.add_argument("--format", dest="fmt", metavar="FMT",
                    help="reader when the suffix does not tell (asc, blf, log, trc, csv, mf4)")
-    p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
+    p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
+    add_set_option(p, "ecu.* calibration only")
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
     prog = p.add_mutually_exclusive_group()
@@ -52,6 +53,7 @@ def main(args: argparse.Namespace) -> int:
         trace=args.trace, dbc=tuple(args.dbc), signal_map=args.signal_map, out=args.out,
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
         channel=args.channel, fmt=args.fmt, estimator=args.estimator, progress=args.progress,
+        sets=tuple(param_sets(args, only="ecu.")),
         keep_series=bool(args.plot))
     result = replay(config)
     if args.summary:

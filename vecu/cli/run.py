@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vecu.cli import configure_logging, require_output_dirs
+from vecu.cli import add_set_option, configure_logging, param_sets, require_output_dirs
 
 
 def _kill_time(text: str) -> float | str | None:
@@ -42,9 +42,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--swa-fault", default="dead", metavar="KIND",
                    help="SWA fault kind, as --fault (offset/noise in deg, default dead)")
     p.add_argument("--swa-fault-value", type=float, metavar="X", help="SWA fault value")
-    p.add_argument("--noise-scale", type=float, default=1.0, metavar="A",
-                   help="process-noise scale alpha of the throttle model (1 = paper)")
-    p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
+    p.add_argument("--noise-scale", type=float, default=None, metavar="A",
+                   help="process-noise scale alpha of the throttle model, plant and ECU (1 = paper)")
+    p.add_argument("--estimator", default=None, help="throttle estimator (default production; = --set ecu.throttle.estimator=NAME)")
+    add_set_option(p, "plant.* and ecu.*")
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
     p.add_argument("--no-truth", dest="truth", action="store_false",
@@ -60,13 +61,14 @@ def main(args: argparse.Namespace) -> int:
 
     configure_logging(args.quiet)
     config = RunConfig(
-        duration_s=args.duration, seed=args.seed, noise_scale=args.noise_scale,
-        kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at, fault=args.fault, fault_value=args.fault_value,
-        estimator=args.estimator, realtime=args.realtime, interface=args.interface,
+        duration_s=args.duration, seed=args.seed,
+        kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at,
+        fault=args.fault, fault_value=args.fault_value, realtime=args.realtime, interface=args.interface,
         channel=args.channel, bitrate=args.bitrate, log_path=args.log, truth=args.truth,
         keep_series=bool(args.plot),
         kill_swa_at_s=None if args.kill_swa_at == "half" else args.kill_swa_at,
-        swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value)
+        swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value,
+    ).with_params(param_sets(args), noise_scale=args.noise_scale, estimator=args.estimator)
     config.validate()  # user errors before any output is touched
     require_output_dirs(args.log, args.summary, args.plot)
     result = run(config)
@@ -111,7 +113,8 @@ def format_summary(s: dict[str, Any]) -> str:
     sp = s.get("speed")
     if sp:
         hi, lo, ac = sp["speed_ge_5kmh"], sp["speed_lt_5kmh"], sp["accel"]
-        parts = [f"speed >= 5 km/h: RMS {hi['estimate_error_kmh']['rms']:.2f} km/h "
+        parts = [f"no samples after the {sp['burn_in_s']:g} s burn-in" if hi["gain_db"] is None
+                 else f"speed >= 5 km/h: RMS {hi['estimate_error_kmh']['rms']:.2f} km/h "
                  f"(raw wheel {hi['raw_wheel_error_kmh']['rms']:.2f}, {hi['gain_db']:+.1f} dB)"]
         if lo["gain_db"] is not None:
             parts.append(f"< 5 km/h: {lo['gain_db']:+.1f} dB")

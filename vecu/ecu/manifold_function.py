@@ -12,24 +12,35 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
-from vecu.estimators.manifold.filters import make_filter
-from vecu.models.manifold import cylinder_air_charge
-from vecu.models.manifold_params import V8_5L7, EngineInput
+from vecu.estimators.manifold.filters import ManifoldFilterConfig, make_filter
+from vecu.models.manifold import cylinder_air_charge, nominal_input
 from vecu.units import KELVIN_AT_0_DEGC, MG_PER_KG, RAD_PER_DEG
+
+
+@dataclass(frozen=True)
+class ManifoldFunctionConfig:
+    """The ECU's manifold calibration: which filter, and the engine and noise it believes in
+    (`kf.params`, `kf.noise`; equal to the simulated engine unless a study sets them apart)."""
+
+    filter: str = "sdkf"  # "sdkf" (live, one Riccati iteration per event) or "ekf"
+    kf: ManifoldFilterConfig = field(default_factory=ManifoldFilterConfig)
 
 
 class ManifoldFunction:
     name = "manifold"
     period_ns = NS_PER_MS  # polls for complete events every base tick
 
-    def __init__(self, codec: DbcCodec, filter_name: str = "sdkf") -> None:
-        self.filter = make_filter(filter_name)
-        self.filter_name = filter_name
+    def __init__(self, codec: DbcCodec,
+                 config: ManifoldFunctionConfig = ManifoldFunctionConfig()) -> None:
+        self.filter = make_filter(config.filter, config.kf)
+        self.filter_name = config.filter
+        self._engine = self.filter.params  # the calibration: filter, CAC and prediction
         self._out = codec["ECU_ManifoldEstimate"]
         self.timeouts = 0
         self.estimates_sent = 0
@@ -68,18 +79,18 @@ class ManifoldFunction:
         self._last_counter = counter
         t_meas = iat[1] if iat is not None and iat[0] == counter else None
         n_rpm = ev["ENG_Speed"]
-        u = EngineInput(ev["ENG_ThrottleSetpoint"] * RAD_PER_DEG, n_rpm)
+        u = nominal_input(ev["ENG_ThrottleSetpoint"] * RAD_PER_DEG, n_rpm, self._engine)
         y = (ev["ENG_ThrottleAngle"] * RAD_PER_DEG, ev["ENG_MAP"],
              t_meas if t_meas is not None else math.nan)  # NaN channel: rejected, others used
         t0 = time.perf_counter()
         x = self.filter.step(y, u)
         t1 = time.perf_counter()
-        cac = cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, V8_5L7)
+        cac = cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, self._engine)
         first = self.filter.last_prediction  # the filter already ran event n+1 from x
-        if first is not None and first[0] is u and self.filter.params is V8_5L7:
-            cac6 = predict_cac(first[1], [u] * (HORIZON - 1), V8_5L7)
+        if first is not None and first[0] is u:
+            cac6 = predict_cac(first[1], [u] * (HORIZON - 1), self._engine)
         else:
-            cac6 = predict_cac(x, [u] * HORIZON, V8_5L7)
+            cac6 = predict_cac(x, [u] * HORIZON, self._engine)
         self.filter_seconds += t1 - t0
         self.predict_seconds += time.perf_counter() - t1
         self.events += 1

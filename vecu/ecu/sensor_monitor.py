@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from vecu.clock import NS_PER_MS
 from vecu.models.sensors import TpsCalibration
@@ -87,7 +87,8 @@ class Dtc:
 
 @dataclass(frozen=True)
 class SensorMonitorConfig:
-    cycle_ms: float = 1.0          # from the DBC (GenMsgCycleTime of the sensor's frame)
+    # from the DBC (GenMsgCycleTime of the sensor's frame): set by the function, not a parameter
+    cycle_ms: float = field(default=1.0, metadata={"param": False})
     timeout_cycles: int = 3        # frames stop: confirmed after 3 missed periods
     range_debounce: int = 2        # consecutive out-of-range samples
     e2e_debounce: int = 2          # consecutive CRC/counter errors

@@ -17,7 +17,7 @@ from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
-from vecu.estimators.speed.kf import SpeedKalmanFilter
+from vecu.estimators.speed.kf import SpeedFilterConfig, SpeedKalmanFilter
 from vecu.units import MPS_PER_KMH
 
 MODE_NORMAL, MODE_STANDSTILL, MODE_ABS, MODE_COAST = 0, 1, 2, 3
@@ -32,6 +32,7 @@ class SpeedFunctionConfig:
     # a normal dropout and cannot be told apart).
     wheel_monitor: SensorMonitorConfig = field(default_factory=lambda: SensorMonitorConfig(
         cycle_ms=2.0, stuck_samples=0, plaus_sigma=5.0, plaus_margin=10.0, plaus_debounce=5))
+    filter: SpeedFilterConfig = field(default_factory=SpeedFilterConfig)  # the 500 Hz KF
 
 
 class SpeedFunction:
@@ -40,7 +41,7 @@ class SpeedFunction:
 
     def __init__(self, codec: DbcCodec, kf: SpeedKalmanFilter | None = None,
                  config: SpeedFunctionConfig = SpeedFunctionConfig()) -> None:
-        self.kf = kf if kf is not None else SpeedKalmanFilter()
+        self.kf = kf if kf is not None else SpeedKalmanFilter(config.filter)
         self._out = codec["ECU_SpeedEstimate"]
         cycle = codec["ESC_Motion"].cycle_time_ms or config.wheel_monitor.cycle_ms
         self.monitor = SensorMonitor(replace(config.wheel_monitor, cycle_ms=cycle), 0.0,

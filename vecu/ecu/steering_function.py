@@ -20,6 +20,8 @@ from vecu.ecu.sensor_monitor import (
     SensorMonitorConfig,
     SensorStatus,
 )
+from vecu.estimators.steering.filters import SteeringUKF
+from vecu.estimators.steering.model import SteeringModel
 from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.units import DEG_PER_RAD, MPS_PER_KMH
 
@@ -33,6 +35,7 @@ class SteeringFunctionConfig:
     # readings happen ~14 % of the time: 10 in a row ~ 2e-8 per frame.
     monitor: SensorMonitorConfig = field(default_factory=lambda: SensorMonitorConfig(
         cycle_ms=10.0, stuck_samples=10, plaus_sigma=5.0, plaus_margin=4.0, heal_ms=500.0))
+    model: SteeringModel = field(default_factory=SteeringModel)  # vehicle + UKF tuning
 
 
 class SteeringFunction:
@@ -41,7 +44,7 @@ class SteeringFunction:
 
     def __init__(self, codec: DbcCodec,
                  config: SteeringFunctionConfig = SteeringFunctionConfig()) -> None:
-        self.smoother = FixedLagSmoother(lag_s=config.lag_s)
+        self.smoother = FixedLagSmoother(lag_s=config.lag_s, filt=SteeringUKF(config.model))
         self.ukf = self.smoother.filter
         self._est = codec["ECU_SteeringEstimate"]
         self._smoothed = codec["ECU_SteeringSmoothed"]

@@ -35,7 +35,9 @@ class ThrottleFunctionConfig:
     # <= 7 ms; plausibility catches in-range offsets and gain faults (docs/models.md, Diagnostics)
     tps_monitor: SensorMonitorConfig = field(default_factory=lambda: SensorMonitorConfig(
         plaus_margin=15.0, plaus_debounce=300))
-    calibration: TpsCalibration = field(default_factory=TpsCalibration)
+    calibration: TpsCalibration = field(default_factory=TpsCalibration)  # the TPS law it believes
+    estimator: str = "production"  # vecu.estimators.registry name
+    noise_scale: float = 1.0  # the alpha the estimator assumes for F (Q = (alpha F)^2)
 
 
 class ThrottleFunction:

@@ -30,7 +30,7 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=positive_seconds, metavar="S",
                    help="run S seconds (default: until Ctrl-C / SIGTERM)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--noise-scale", type=float, default=1.0, metavar="A",
+    p.add_argument("--noise-scale", type=float, default=None, metavar="A",
                    help="process-noise scale alpha of the throttle model (1 = paper)")
     p.add_argument("--no-speed", action="store_true", help="leave out the speed part/function")
     p.add_argument("--no-steering", action="store_true", help="leave out the steering part/function")

@@ -46,11 +46,31 @@ F_DIAG: tuple[float, float, float] = (math.sqrt(0.35), 0.0, math.sqrt(0.18))
 H_WATTMETER = 1.0
 
 
-def mode_index(theta: float) -> int:
+@dataclass(frozen=True)
+class ThrottleModel:
+    """One throttle body: the three modes of eq. (3) (Table I columns), the mode switching
+    angles, the process-noise gain F and the wattmeter noise gain H. PAPER_THROTTLE is Table I."""
+
+    mode1: ModeParams = TABLE_I[0]
+    mode2: ModeParams = TABLE_I[1]
+    mode3: ModeParams = TABLE_I[2]
+    mode_bounds_deg: tuple[float, float] = MODE_BOUNDS_DEG
+    f_diag: tuple[float, float, float] = F_DIAG
+    h_wattmeter: float = H_WATTMETER
+
+    @property
+    def modes(self) -> tuple[ModeParams, ModeParams, ModeParams]:
+        return (self.mode1, self.mode2, self.mode3)
+
+
+PAPER_THROTTLE = ThrottleModel()
+
+
+def mode_index(theta: float, bounds: tuple[float, float] = MODE_BOUNDS_DEG) -> int:
     """Return 0, 1 or 2 for Theta_1, Theta_2, Theta_3 (negative theta counts as Theta_1)."""
-    if theta <= MODE_BOUNDS_DEG[0]:
+    if theta <= bounds[0]:
         return 0
-    if theta <= MODE_BOUNDS_DEG[1]:
+    if theta <= bounds[1]:
         return 1
     return 2
 
@@ -68,9 +88,11 @@ def clip_theta(theta: float) -> float:
     return theta
 
 
-def step_mean(theta: float, rho: float, i: float, u: float) -> tuple[float, float, float]:
+def step_mean(theta: float, rho: float, i: float, u: float,
+              modes: tuple[ModeParams, ...] = TABLE_I,
+              bounds: tuple[float, float] = MODE_BOUNDS_DEG) -> tuple[float, float, float]:
     """Noise-free part of eq. (3): x_{k+1} = A_s x_k + B_s u_k + c_s(x_k), before the clip."""
-    p = TABLE_I[mode_index(theta)]
+    p = modes[mode_index(theta, bounds)]
     theta_n = theta + p.a12 * rho
     rho_n = (
         p.a21 * theta + p.a22 * rho + p.a23 * i

@@ -7,7 +7,7 @@ and the event-by-event simulation over a drive profile.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -39,9 +39,11 @@ from vecu.rng import rng_streams
 class ManifoldPlantConfig:
     """noise_scale multiplies the standard deviations of the paper's Q and R (0: noise-free)."""
 
+    engine: ManifoldParams = V8_5L7  # the simulated engine (the truth)
     noise_scale: float = 1.0
     noise: ManifoldNoise = PAPER_NOISE
-    block: int = 1024  # noise rows drawn at a time (the stream does not depend on it)
+    # noise rows drawn at a time (the stream does not depend on it): not a parameter of the car
+    block: int = field(default=1024, metadata={"param": False})
 
 
 class ManifoldPlant:

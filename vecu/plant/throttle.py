@@ -6,14 +6,14 @@ the TPS sensor and the input generator.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
 from scipy import signal
 
 from vecu.models.sensors import TpsCalibration
-from vecu.models.throttle import F_DIAG, H_WATTMETER, clip_theta, step_mean
+from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel, clip_theta, step_mean
 from vecu.rng import rng_streams
 
 INPUT_CHUNK = 1000  # input samples generated at a time
@@ -25,7 +25,9 @@ class ThrottlePlantConfig:
 
     noise_scale: float = 1.0
     tps_noise_v: float = 0.002  # TPS electrical noise, 1 sigma (V); 0.002 V = 0.036 deg
-    block: int = 1_000  # noise rows drawn at a time (the stream does not depend on it)
+    model: ThrottleModel = PAPER_THROTTLE  # Table I, mode bounds, F and H of this throttle body
+    # noise rows drawn at a time (the stream does not depend on it): not a parameter of the car
+    block: int = field(default=1_000, metadata={"param": False})
 
 
 class ThrottlePlant:
@@ -39,8 +41,11 @@ class ThrottlePlant:
         self.i = 0.0
         self._noise: list[list[float]] = []
         self._pos = 0
-        self._sig_theta = config.noise_scale * F_DIAG[0]
-        self._sig_i = config.noise_scale * F_DIAG[2]
+        self._sig_theta = config.noise_scale * config.model.f_diag[0]
+        self._sig_i = config.noise_scale * config.model.f_diag[2]
+        self._modes = config.model.modes
+        self._bounds = config.model.mode_bounds_deg
+        self._h = config.model.h_wattmeter
 
     def _refill(self) -> None:
         block = self._rng.standard_normal((self.config.block, 4))
@@ -53,7 +58,7 @@ class ThrottlePlant:
             self._refill()
         w = self._noise[self._pos]
         self._pos += 1
-        theta_n, rho_n, i_n = step_mean(self.theta, self.rho, self.i, u)
+        theta_n, rho_n, i_n = step_mean(self.theta, self.rho, self.i, u, self._modes, self._bounds)
         self.theta = clip_theta(theta_n + self._sig_theta * w[0])
         self.rho = rho_n
         self.i = i_n + self._sig_i * w[1]
@@ -62,7 +67,7 @@ class ThrottlePlant:
         """y_k = i_k**2 + v_k (eq. 4), in W (model units)."""
         if self._pos >= len(self._noise):
             self._refill()
-        return self.i * self.i + H_WATTMETER * self._noise[self._pos][2]
+        return self.i * self.i + self._h * self._noise[self._pos][2]
 
     def tps_voltage(self, calibration: TpsCalibration) -> float:
         """Position-sensor output for the current angle, with small electrical noise."""

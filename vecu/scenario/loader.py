@@ -8,7 +8,7 @@ The format is documented in docs/scenarios.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -20,16 +20,16 @@ except ModuleNotFoundError:  # Python 3.10
 import numpy as np
 
 from vecu.codec import DbcCodec
-from vecu.config import RunConfig
+from vecu.config import ParamTree, RunConfig, shortcut_sets
 from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
-from vecu.ecu.speed_function import SpeedFunctionConfig
-from vecu.ecu.steering_function import SteeringFunctionConfig
-from vecu.ecu.throttle_function import ThrottleFunctionConfig
 from vecu.errors import BadFileError
 from vecu.estimators.registry import THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
+from vecu.params import ParamError, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
 
+MONITOR_PATHS = {"tps": "ecu.throttle.tps_monitor", "swa": "ecu.steering.monitor",
+                 "wheel": "ecu.speed.wheel_monitor"}
 SENSORS = {"tps": "TPS_Sensor", "swa": "SWA_Sensor", "wheel": "ESC_Motion"}
 # which plant part sends a message (a fault on a message nobody sends would do nothing)
 MESSAGE_PART = {"ESC_Motion": "speed", "CHS_Lateral": "steering", "SWA_Sensor": "steering",
@@ -39,7 +39,7 @@ MAX_SERIES_S = 600.0  # longer runs keep no per-tick series (memory): no plots, 
 NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
-            "plant": dict, "ecu": dict, "faults": list, "criteria": dict}
+            "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict}
 PLANT_KEYS = {"noise_scale": NUMBER, "speed": BOOL, "steering": BOOL, "manifold": BOOL,
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, "tps": dict, "swa": dict, "wheel": dict}
@@ -172,15 +172,19 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         monitors[sensor] = over
     faults = _faults(chk, data.get("faults", []), duration, parts, codec)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
-    thr, ste, spd = ThrottleFunctionConfig(), SteeringFunctionConfig(), SpeedFunctionConfig()
+    sets: list[tuple[str, Any]] = []
+    for sensor, group in MONITOR_PATHS.items():
+        sets += [(f"{group}.{key}", value) for key, value in monitors[sensor].items()]
+    sets += shortcut_sets(noise_scale=noise, estimator=estimator, manifold_filter=filt)
+    sets += flatten_toml(data.get("set", {}))  # [set]: any leaf of `vecu params`, last wins
+    try:
+        params = ParamTree().set(sets)
+    except ParamError as exc:
+        raise ScenarioError(path, f"key 'set': {exc}") from None
     config = RunConfig(
-        duration_s=duration, seed=seed, noise_scale=noise, kill_tps_at_s=None,
-        estimator=estimator, manifold_filter=filt, keep_series=duration <= MAX_SERIES_S,
+        duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
-        throttle=replace(thr, tps_monitor=replace(thr.tps_monitor, **monitors["tps"])),
-        steering_fn=replace(ste, monitor=replace(ste.monitor, **monitors["swa"])),
-        speed_fn=replace(spd, wheel_monitor=replace(spd.wheel_monitor, **monitors["wheel"])),
-        **parts)
+        params=params, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
                     config, criteria)
 

@@ -150,7 +150,7 @@ def plot_scenario(scenario: Scenario, result: RunResult, path: str) -> None:
         ax.legend(loc="upper right", fontsize=7, ncol=5)
     axes[-1, 0].set_xlabel("time (s)  —  dotted: diagnosis status changes (red fault, green ok)")
     fig.suptitle(f"{scenario.name}: seed {scenario.config.seed}, estimator "
-                 f"{scenario.config.estimator}", y=0.995, fontsize=10)
+                 f"{scenario.config.params.ecu.throttle.estimator}", y=0.995, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
