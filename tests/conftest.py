@@ -27,6 +27,21 @@ def compiled_kernels_ready() -> None:
     load_kernels()
 
 
+KERNEL_BACKENDS = ("python", "numba")
+
+
+@pytest.fixture(params=KERNEL_BACKENDS)
+def backend(request):
+    """Each kernel backend in turn, active for the test (vecu.kernels.using; the one active
+    before comes back afterwards); "numba" is skipped where numba is not installed."""
+    from vecu import kernels
+
+    if request.param == "numba" and not kernels.numba_available():
+        pytest.skip("numba not installed")
+    with kernels.using(request.param) as name:
+        yield name
+
+
 @pytest.fixture
 def backend_switch():
     """Yields run(fn, backend) -> fn() under that kernel backend (vecu.kernels.using); the

@@ -12,7 +12,8 @@ import pytest
 from vecu import kernels
 from vecu.estimators.steering import kernels as sk
 from vecu.estimators.steering import model as sm
-from vecu.estimators.steering.filters import SteeringUKF, _chol4
+from vecu.estimators.common.small_linalg import chol4, chol4_or_fallback
+from vecu.estimators.steering.filters import SteeringUKF
 from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
 
@@ -134,7 +135,7 @@ def _non_pd_filter() -> SteeringUKF:
 @needs_numba
 def test_cholesky_fallback_under_numba(backend_switch) -> None:
     p_bad = _non_pd_filter()._p
-    assert not sk.chol_unrolled(p_bad)[0]  # the fallback path is the one taken
+    assert not chol4.py(p_bad)[0]  # the fallback path is the one taken
 
     def run():
         f = _non_pd_filter()
@@ -169,9 +170,9 @@ def test_kernel_model_functions_equal_the_reference() -> None:
         assert sk.lateral_accel(x[0], x[1], x[2], vx, cst) == sm.h_ay(x, vx, k)
         M = rng.normal(size=(4, 4))
         p = tuple(float(v) for v in (M @ M.T + 1e-3 * np.eye(4))[np.triu_indices(4)])
-        ok, l = sk.chol_unrolled(p)
-        assert ok and l == _chol4(p)
-    assert not sk.chol_unrolled((1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0))[0]
+        ok, l = chol4.py(p)
+        assert ok and l == chol4_or_fallback(p)
+    assert not chol4.py((1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0))[0]
 
 
 def test_gain_as_python_equals_the_smoother_gain() -> None:

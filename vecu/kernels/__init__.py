@@ -14,6 +14,13 @@ Python function itself otherwise. The backend is chosen by the environment varia
 (numba's ``cache=True``: next to the sources, or the user cache directory when that is read-only),
 so only the first process on a machine pays the compile time (~1-3 s per kernel).
 
+A kernel may call other kernels (small shared pieces such as vecu.estimators.common.small_linalg
+or vecu.models.lateral.tyre_force): under numba a Kernel object used inside compiled code is
+its compiled dispatcher, and a kernel's disk cache is dropped when a file it calls into (other
+kernels, helpers) is newer than that cache (numba itself only watches the kernel's own file).
+Plain-Python hot paths call `k.py` directly: a compiled call from Python costs more than a tiny
+kernel.
+
 Same seed, same backend -> bit-identical output. The two backends agree to rounding (a few ulp:
 numba's vector reductions and libm calls may round differently from numpy's); for kernels that
 only do scalar IEEE arithmetic and libm calls the outputs are bit-identical (tested per kernel).
@@ -48,7 +55,18 @@ def _import_numba() -> Any:
             _numba = False
         else:
             _numba = numba
+            _register_kernel_type(numba)
     return _numba
+
+
+def _register_kernel_type(numba: Any) -> None:
+    """Let compiled code call a Kernel object: numba types it as the kernel's dispatcher."""
+    from numba.core import types
+    from numba.extending import typeof_impl
+
+    @typeof_impl.register(Kernel)
+    def _typeof_kernel(val: Kernel, c: Any) -> Any:
+        return types.Dispatcher(val.compiled)
 
 
 def numba_available() -> bool:
@@ -127,9 +145,12 @@ class Kernel:
             if not numba:
                 raise KernelBackendError("numba is not installed (pip install 'vecu[fast]')")
             try:
-                self._compiled = numba.njit(cache=True, **self._options)(self.py)
+                compiled = numba.njit(cache=True, **self._options)(self.py)
             except RuntimeError:  # no cache locator (function defined outside a file)
-                self._compiled = numba.njit(**self._options)(self.py)
+                compiled = numba.njit(**self._options)(self.py)
+            else:
+                _drop_stale_cache(compiled, self.py)
+            self._compiled = compiled
         return self._compiled
 
     def discard_compiled(self) -> None:
@@ -147,6 +168,46 @@ class Kernel:
 
     def __call__(self, *args: Any) -> Any:
         return self.impl()(*args)
+
+
+def _called_files(fn: Callable[..., Any]) -> set[str]:
+    """Source files of fn and of every function it calls by a global name, transitively (Kernel
+    objects, plain helpers, numba dispatchers)."""
+    files: set[str] = set()
+    seen: set[int] = set()
+    todo = [fn]
+    while todo:
+        f = todo.pop()
+        code = getattr(f, "__code__", None)
+        if code is None or id(f) in seen:
+            continue
+        seen.add(id(f))
+        files.add(code.co_filename)
+        names = set(code.co_names)
+        for const in code.co_consts:  # nested functions and lambdas
+            if hasattr(const, "co_names"):
+                names.update(const.co_names)
+        glb = getattr(f, "__globals__", {})
+        for name in names:
+            v = glb.get(name)
+            if isinstance(v, Kernel):
+                todo.append(v.py)
+            elif hasattr(v, "py_func"):  # a numba dispatcher
+                todo.append(v.py_func)
+            elif callable(v) and hasattr(v, "__code__"):
+                todo.append(v)
+    return files
+
+
+def _drop_stale_cache(compiled: Any, fn: Callable[..., Any]) -> None:
+    """Flush compiled's disk cache when a file fn calls into changed after it was written."""
+    cache = getattr(compiled, "_cache", None)
+    index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    if index is None or not os.path.exists(index):
+        return
+    written = os.path.getmtime(index)
+    if any(os.path.exists(f) and os.path.getmtime(f) > written for f in _called_files(fn)):
+        cache.flush()
 
 
 def kernel(fn: Callable[..., Any] | None = None, **options: Any) -> Any:

@@ -48,6 +48,7 @@ from vecu.estimators.common.covariance import (
     diverged_floats,
     symmetrise,
 )
+from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
 from vecu.estimators.manifold.kernels import (
     DIVERGED,
     FALLBACK,
@@ -276,32 +277,17 @@ class _ManifoldKF:
 
     def _gain_all(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(K, P C^T) for all three channels with S^-1 = L^-T L^-1 from an unrolled 3x3 Cholesky
-        in plain floats (what cholesky_lower + inv do, without their per-call overhead); None
-        when S is not finite or not positive definite (the general path then decides)."""
+        in plain floats (common.small_linalg: what cholesky_lower + inv do, without their per-call
+        overhead); None when S is not finite or not positive definite (the general path then
+        decides)."""
         PCt = P[:, 1::2]  # columns (1, 3, 5) = Y_INDEX
         (s00, _, _), (s10, s11, _), (s20, s21, s22) = (PCt[1::2] + self.R).tolist()
-        if not (math.isfinite(s00 + s10 + s11 + s20 + s21 + s22) and s00 > 0.0):
+        if not math.isfinite(s00 + s10 + s11 + s20 + s21 + s22):
             return None
-        l00 = math.sqrt(s00)
-        l10, l20 = s10 / l00, s20 / l00
-        d1 = s11 - l10 * l10
-        if not d1 > 0.0:
+        ok, low = chol3.py((s00, s10, s20, s11, s21, s22))
+        if not ok:
             return None
-        l11 = math.sqrt(d1)
-        l21 = (s21 - l20 * l10) / l11
-        d2 = s22 - l20 * l20 - l21 * l21
-        if not d2 > 0.0:
-            return None
-        m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / math.sqrt(d2)  # M = L^-1 (lower)
-        m10 = -l10 * m00 * m11
-        m21 = -l21 * m11 * m22
-        m20 = -(l20 * m00 + l21 * m10) * m22
-        i00 = m00 * m00 + m10 * m10 + m20 * m20  # S^-1 = M^T M
-        i01 = m10 * m11 + m20 * m21
-        i02 = m20 * m22
-        i11 = m11 * m11 + m21 * m21
-        i12 = m21 * m22
-        i22 = m22 * m22
+        i00, i01, i02, i11, i12, i22 = inverse_from_chol3.py(low)
         s_inv = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
         return PCt @ s_inv, PCt
 

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
 from vecu.kernels import kernel
 from vecu.models import manifold_integrator as mi
 
@@ -350,35 +351,19 @@ def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2
         e = np.empty(nc)
         for m in range(nc):
             e[m] = yv[ch[m]] - x[2 * ch[m] + 1]
-        if nc == 3:  # _gain_all: unrolled 3x3 Cholesky, S^-1 = M^T M
+        if nc == 3:  # _gain_all: unrolled 3x3 Cholesky, S^-1 = M^T M (common.small_linalg)
             s00 = Pn[1, 1] + rd[0]
             s10 = Pn[3, 1] + 0.0
             s11 = Pn[3, 3] + rd[1]
             s20 = Pn[5, 1] + 0.0
             s21 = Pn[5, 3] + 0.0
             s22 = Pn[5, 5] + rd[2]
-            if not (math.isfinite(s00 + s10 + s11 + s20 + s21 + s22) and s00 > 0.0):
+            if not math.isfinite(s00 + s10 + s11 + s20 + s21 + s22):
                 return FALLBACK
-            l00 = math.sqrt(s00)
-            l10, l20 = s10 / l00, s20 / l00
-            d1 = s11 - l10 * l10
-            if not d1 > 0.0:
+            ok, low = chol3((s00, s10, s20, s11, s21, s22))
+            if not ok:
                 return FALLBACK
-            l11 = math.sqrt(d1)
-            l21 = (s21 - l20 * l10) / l11
-            d2 = s22 - l20 * l20 - l21 * l21
-            if not d2 > 0.0:
-                return FALLBACK
-            m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / math.sqrt(d2)
-            m10 = -l10 * m00 * m11
-            m21 = -l21 * m11 * m22
-            m20 = -(l20 * m00 + l21 * m10) * m22
-            i00 = m00 * m00 + m10 * m10 + m20 * m20
-            i01 = m10 * m11 + m20 * m21
-            i02 = m20 * m22
-            i11 = m11 * m11 + m21 * m21
-            i12 = m21 * m22
-            i22 = m22 * m22
+            i00, i01, i02, i11, i12, i22 = inverse_from_chol3(low)
             Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
             K = PCt @ Si
             xp[:] = x + K @ e

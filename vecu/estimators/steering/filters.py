@@ -7,11 +7,12 @@ EKF). Processing the two independent readings one after the other is exact for t
 and lets either be missing on its own.
 
 UKF (`SteeringUKF`): plain floats, n = 4, P kept as its 10 distinct entries, unrolled Cholesky
-(fallback: covariance.cholesky_lower). Sigma set: any vecu.estimators.common.sigma_sets.SigmaSet with
-n = 4; default `ahsm(4, lam=0)`, the symmetric AHSM set generalised to n with lambda = 0, i.e. the
-third-degree spherical-radial cubature rule: 2n points x +- sqrt(n) S e_i, weights 1/(2n), all
-positive (so P stays PSD) and the zero-weight centre point skipped (docs/models.md: why not the
-paper-throttle lam = 12 or a negative-centre-weight scaled set). Unlike vecu.estimators.common.ukf
+(common.small_linalg.chol4; fallback: covariance.cholesky_lower). Sigma set: any
+vecu.estimators.common.sigma_sets.SigmaSet with n = 4; default `ahsm(4, lam=0)`, the symmetric
+AHSM set generalised to n with lambda = 0, i.e. the third-degree spherical-radial cubature rule:
+2n points x +- sqrt(n) S e_i, weights 1/(2n), all positive (so P stays PSD) and the zero-weight
+centre point skipped (docs/models.md: why not the paper-throttle lam = 12 or a
+negative-centre-weight scaled set). Unlike vecu.estimators.common.ukf
 (Vargas Step 3), the points are redrawn from (x_pred, P_pred) for the update: here Q (the steering
 random walk) reaches a_y within one step and must be in Pxy.
 
@@ -42,12 +43,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.common.covariance import (
-    cholesky_lower,
-    diverged_floats,
-    symmetrise,
-)
+from vecu.estimators.common.covariance import diverged_floats, symmetrise
 from vecu.estimators.common.sigma_sets import SigmaSet, ahsm
+from vecu.estimators.common.small_linalg import chol4_or_fallback
 from vecu.estimators.steering import kernels as sk
 from vecu.estimators.steering import model as sm
 from vecu.estimators.steering.model import SteeringModel
@@ -74,18 +72,6 @@ def matrix_from_p10(p: P10 | list[float]) -> np.ndarray:
         for j in range(4):
             P[i, j] = p[_IDX[i][j]]
     return P
-
-
-def _chol4(p: P10) -> tuple[float, ...]:
-    """Lower Cholesky (l00, l10, l11, l20, l21, l22, l30, l31, l32, l33); unrolled
-    (steering_kernels.chol_unrolled), fallback covariance.cholesky_lower (jitter, then
-    eigenvalue clipping)."""
-    ok, low = sk.chol_unrolled(p)
-    if ok:
-        return low
-    L = cholesky_lower(matrix_from_p10(p))
-    return (float(L[0, 0]), float(L[1, 0]), float(L[1, 1]), float(L[2, 0]), float(L[2, 1]),
-            float(L[2, 2]), float(L[3, 0]), float(L[3, 1]), float(L[3, 2]), float(L[3, 3]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -386,7 +372,7 @@ class SteeringUKF(_SteeringFilter):
     def _sigma(self, x: tuple[float, ...], p: P10) -> list[tuple[tuple[float, ...], float,
                                                                   tuple[float, ...]]]:
         """[(chi_j, w_j, S z_j)] with S = chol(P)."""
-        l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = _chol4(p)
+        l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = chol4_or_fallback(p)
         x0, x1, x2, x3 = x
         out = []
         for (z0, z1, z2, z3), w in self._pts:
@@ -476,16 +462,16 @@ class SteeringUKF(_SteeringFilter):
         ok, x, p = sk.predict.compiled(self._x, self._p, vx, self._cst, self._ptab, hist, slot,
                                        rec)
         if not ok:  # not PD for the unrolled Cholesky: the fallback factor from Python
-            ok, x, p = sk.predict_chol.compiled(_chol4(self._p), self._x, vx, self._cst,
-                                                self._ptab, hist, slot, rec)
+            ok, x, p = sk.predict_chol.compiled(chol4_or_fallback(self._p), self._x, vx,
+                                                self._cst, self._ptab, hist, slot, rec)
         return x, p, None
 
     def _update_ay_compiled(self, x: tuple[float, ...], p: P10, y: float, vx: float
                             ) -> tuple[tuple[float, ...], P10]:
         ok, ym, s, c0, c1, c2, c3 = sk.ay_moments.compiled(x, p, vx, self._cst, self._ptab)
         if not ok:
-            ok, ym, s, c0, c1, c2, c3 = sk.ay_moments_chol.compiled(_chol4(p), x, vx, self._cst,
-                                                                    self._ptab)
+            ok, ym, s, c0, c1, c2, c3 = sk.ay_moments_chol.compiled(
+                chol4_or_fallback(p), x, vx, self._cst, self._ptab)
         return self._apply_ay(x, p, y, ym, s, c0, c1, c2, c3)
 
 

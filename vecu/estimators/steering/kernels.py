@@ -10,9 +10,9 @@ Under the numba backend SteeringUKF.step crosses into compiled code three times:
 `prepare_numba()` must run before any of them is called compiled (SteeringUKF does it on its
 first numba step): it registers the helpers and the LAPACK symbol and compiles / loads all six.
 Input checks, gating, counters, divergence resets and the state projection stay in Python
-(vecu.estimators.steering.filters). If the unrolled Cholesky finds P not positive definite the
-kernel returns ok = False and Python computes the fallback factor (covariance.cholesky_lower)
-and calls the `*_chol` variant with it.
+(vecu.estimators.steering.filters). If the unrolled Cholesky (common.small_linalg.chol4) finds P
+not positive definite the kernel returns ok = False and Python computes the fallback factor
+(small_linalg.chol4_or_fallback) and calls the `*_chol` variant with it.
 
 Each kernel repeats the Python reference's floating-point operations in the same order (scalar
 IEEE arithmetic, libm sin / atan / cos, correctly rounded sqrt; no fastmath, no reductions), so
@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from vecu.estimators.common.small_linalg import chol4
 from vecu.kernels import kernel
 
 # history ring columns
@@ -59,27 +60,6 @@ def point_table(pts: tuple[tuple[tuple[float, ...], float], ...]) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- helpers
-def chol_unrolled(p: Any) -> tuple[bool, tuple[float, ...]]:
-    """steering_filters._chol4 without its fallback: (False, zeros) if P is not PD."""
-    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
-    if p00 > 0.0:
-        l00 = math.sqrt(p00)
-        l10, l20, l30 = p01 / l00, p02 / l00, p03 / l00
-        d = p11 - l10 * l10
-        if d > 0.0:
-            l11 = math.sqrt(d)
-            l21 = (p12 - l20 * l10) / l11
-            l31 = (p13 - l30 * l10) / l11
-            d = p22 - l20 * l20 - l21 * l21
-            if d > 0.0:
-                l22 = math.sqrt(d)
-                l32 = (p23 - l30 * l20 - l31 * l21) / l22
-                d = p33 - l30 * l30 - l31 * l31 - l32 * l32
-                if d > 0.0:
-                    return True, (l00, l10, l11, l20, l21, l22, l30, l31, l32, math.sqrt(d))
-    return False, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-
-
 def transition(vy: float, r: float, d: float, dd: float, vx: float, cst: Any
                ) -> tuple[float, float, float, float]:
     """steering_model.f, the same operations in the same order."""
@@ -268,7 +248,7 @@ def gain_into(hist: Any, slot: int, prev: int) -> None:
         hist[prev, COL_G + i] = b[i]
 
 
-_HELPERS = (gain_into, chol_unrolled, transition, lateral_accel, sigma_offsets, predict_core, ay_core,
+_HELPERS = (gain_into, transition, lateral_accel, sigma_offsets, predict_core, ay_core,
             backward_pass)
 
 
@@ -277,7 +257,7 @@ _HELPERS = (gain_into, chol_unrolled, transition, lateral_accel, sigma_offsets, 
 def predict(x: Any, p: Any, vx: float, cst: Any, pts: Any, hist: Any, slot: int, rec: bool
             ) -> tuple[bool, tuple[float, ...], tuple[float, ...]]:
     """(ok, x_pred, P_pred); ok = False (nothing written) if the unrolled Cholesky fails."""
-    ok, l = chol_unrolled(p)
+    ok, l = chol4(p)
     if not ok:
         return False, (0.0, 0.0, 0.0, 0.0), l
     return predict_core(l, x, vx, cst, pts, hist, slot, rec)
@@ -294,7 +274,7 @@ def predict_chol(l: Any, x: Any, vx: float, cst: Any, pts: Any, hist: Any, slot:
 def ay_moments(x: Any, p: Any, vx: float, cst: Any, pts: Any
                ) -> tuple[bool, float, float, float, float, float, float]:
     """(ok, y_mean, s, c0..c3) of the a_y update; ok = False if the unrolled Cholesky fails."""
-    ok, l = chol_unrolled(p)
+    ok, l = chol4(p)
     if not ok:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     return ay_core(l, x, vx, cst, pts)

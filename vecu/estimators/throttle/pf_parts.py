@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from vecu.estimators.common.small_linalg import chol3_floored
 from vecu.models.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG
 
 CLASS_BOUNDS_DEG: tuple[float, float, float] = (1.0, MODE_BOUNDS_DEG[0], MODE_BOUNDS_DEG[1])
@@ -209,14 +210,10 @@ class ModeThreeKalman:
                 or self.ci - 3.0 * math.sqrt(p22) < i_min or not math.isfinite(self.th + self.rh))
 
     def cholesky(self) -> tuple[float, float, float, float, float, float]:
-        """Lower Cholesky factor (l00, l10, l11, l20, l21, l22) of P (tiny jitter if needed)."""
-        l00 = math.sqrt(max(self.p00, 1e-12))
-        l10 = self.p01 / l00
-        l20 = self.p02 / l00
-        l11 = math.sqrt(max(self.p11 - l10 * l10, 1e-12))
-        l21 = (self.p12 - l20 * l10) / l11
-        l22 = math.sqrt(max(self.p22 - l20 * l20 - l21 * l21, 1e-12))
-        return l00, l10, l11, l20, l21, l22
+        """Lower Cholesky factor (l00, l10, l11, l20, l21, l22) of P (pivots floored at 1e-12:
+        a tiny jitter if needed; common.small_linalg.chol3_floored)."""
+        return chol3_floored.py((self.p00, self.p01, self.p02, self.p11, self.p12, self.p22),
+                                1e-12)
 
 
 def systematic_counts(b: Bank, w: np.ndarray, n_new: int, u0: float) -> np.ndarray:

@@ -1,9 +1,9 @@
 """The paper's UKF (Step 3 with any of the Step 2/2a/2b sigma sets) specialised to the throttle.
 
 Same algorithm, guards and reset semantics as ukf.UnscentedFilter + throttle_model, written for
-n = 3 and a scalar wattmeter reading in plain Python floats: unrolled 3x3 Cholesky, the sigma
-pattern pre-extracted into tuples, Table I pre-extracted per mode, eq. (3) inlined, and the Step-3
-sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated point.
+n = 3 and a scalar wattmeter reading in plain Python floats: unrolled 3x3 Cholesky
+(common.small_linalg.chol3_or_fallback), the sigma pattern pre-extracted into tuples, Table I
+pre-extracted per mode, eq. (3) inlined, and the Step-3 sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated point.
 No numpy in the normal step; the (rare) Cholesky fallback reuses covariance.cholesky_lower so both
 implementations fall back identically. From the same (x, P) one step matches the numpy reference
 to < 1e-9 relative (tests/test_ukf.py; on free runs see docs/models.md for ARM/AGM at alpha = 1).
@@ -15,12 +15,9 @@ import math
 
 import numpy as np
 
-from vecu.estimators.common.covariance import (
-    DivergenceBounds,
-    cholesky_lower,
-    diverged_floats,
-)
+from vecu.estimators.common.covariance import DivergenceBounds, diverged_floats
 from vecu.estimators.common.sigma_sets import SigmaSet, paper_set
+from vecu.estimators.common.small_linalg import chol3_or_fallback
 from vecu.estimators.throttle.model import (
     THROTTLE_BOUNDS,
     X0,
@@ -34,28 +31,6 @@ _MODES = tuple(
 )
 _B1, _B2 = MODE_BOUNDS_DEG
 _LO, _HI = THETA_MIN_DEG, THETA_MAX_DEG
-
-
-def _chol3(p: tuple[float, ...]) -> tuple[float, float, float, float, float, float]:
-    """Lower Cholesky factor (l00, l10, l11, l20, l21, l22) of P given as (p00,p01,p02,p11,p12,p22).
-
-    Unrolled; on a non-positive pivot falls back to covariance.cholesky_lower (jitter, clipping).
-    """
-    p00, p01, p02, p11, p12, p22 = p
-    if p00 > 0.0:
-        l00 = math.sqrt(p00)
-        l10 = p01 / l00
-        l20 = p02 / l00
-        d = p11 - l10 * l10
-        if d > 0.0:
-            l11 = math.sqrt(d)
-            l21 = (p12 - l20 * l10) / l11
-            d = (p22 - l20 * l20) - l21 * l21
-            if d > 0.0:
-                return l00, l10, l11, l20, l21, math.sqrt(d)
-    L = cholesky_lower(np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]]))
-    return (float(L[0, 0]), float(L[1, 0]), float(L[1, 1]),
-            float(L[2, 0]), float(L[2, 1]), float(L[2, 2]))
 
 
 class FastThrottleUKF:
@@ -117,7 +92,7 @@ class FastThrottleUKF:
     def _prior_moments(self) -> tuple[float, float, float, float, float]:
         """Reset to (x0, P0) and return y_pred, Pxy, Pyy of its (unpropagated) sigma points."""
         self.reset()
-        l00, l10, l11, l20, l21, l22 = _chol3(self.p)
+        l00, l10, l11, l20, l21, l22 = chol3_or_fallback(self.p)
         x0, x1, x2 = self.x
         pts = []
         for z0, z1, z2, w in self._pattern:
@@ -135,7 +110,7 @@ class FastThrottleUKF:
 
     def step(self, u_prev: float, y: float | None) -> None:
         """Step 2 (draw) + Step 3 (predict with u_prev; update with y unless None / non-finite)."""
-        l00, l10, l11, l20, l21, l22 = _chol3(self.p)
+        l00, l10, l11, l20, l21, l22 = chol3_or_fallback(self.p)
         x0, x1, x2 = self.x
         m0, m1, m2 = _MODES
         b1, b2, lo, hi = _B1, _B2, _LO, _HI
