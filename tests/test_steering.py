@@ -25,15 +25,15 @@ from vecu.estimators.steering.filters import (
 from vecu.estimators.steering.model import SteeringModel
 from vecu.estimators.steering.smoothers import FixedLagSmoother, rts_smooth
 from vecu.eval.steering import evaluate_steering
+from vecu.models import lateral as lat
 from vecu.models.lateral import VehicleParams
-from vecu.plant import lateral as lat
 from vecu.plant.lateral import (
     LateralSensors,
     ManoeuvreConfig,
     SensorModel,
     simulate_lateral,
 )
-from vecu.units import RAD_PER_DEG
+from vecu.units import G_MPS2, RAD_PER_DEG
 
 SHORT = ManoeuvreConfig(duration_s=20.0)
 
@@ -83,7 +83,7 @@ def test_mismatch_degrades_gracefully() -> None:
 # --- plant -------------------------------------------------------------------------------------
 def test_vehicle_parameters_match_design_note() -> None:
     p = VehicleParams()
-    assert p.understeer_rad_per_mps2 * lat.G_MPS2 / RAD_PER_DEG == pytest.approx(1.78, abs=0.01)
+    assert p.understeer_rad_per_mps2 * G_MPS2 / RAD_PER_DEG == pytest.approx(1.78, abs=0.01)
     assert math.sqrt(p.wheelbase_m / p.understeer_rad_per_mps2) == pytest.approx(28.7, abs=0.05)
 
 

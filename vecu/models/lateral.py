@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.kernels import kernel
 from vecu.units import G_MPS2
 
 DT_S = 0.01  # sample period of the sensors and of the ECU filter (100 Hz)
@@ -77,13 +78,29 @@ def tyre_consts(p: VehicleParams) -> TyreConsts:
                       d_r, p.c_r_n_per_rad / (p.shape_c * d_r), p.shape_c)
 
 
+@kernel
+def tyre_force(d: float, c: float, b: float, alpha: float) -> float:
+    """Lateral tyre force F_y = D sin(C atan(B alpha)) (N) at slip angle alpha (rad): Pacejka's
+    magic formula without shifts (module docstring; the paper's tyre curve). The one copy: the
+    plant, the filters' model and the compiled steering kernels call it (plain-Python callers
+    `tyre_force.py`, vecu.kernels)."""
+    return d * math.sin(c * math.atan(b * alpha))
+
+
+@kernel
+def tyre_force_slope(d: float, c: float, b: float, alpha: float) -> tuple[float, float]:
+    """(F_y, dF_y/dalpha) of `tyre_force`: with u = C atan(B alpha),
+    (D sin u, D cos u C B / (1 + (B alpha)^2)) (the EKF's Jacobians)."""
+    u = c * math.atan(b * alpha)
+    return d * math.sin(u), d * math.cos(u) * c * b / (1.0 + (b * alpha) ** 2)
+
+
 def axle_forces(v_y: float, r: float, delta: float, v_x: float, p: VehicleParams,
                 t: TyreConsts) -> tuple[float, float]:
     """(F_yf, F_yr) in N from the slip angles (module docstring)."""
     a_f = delta - (v_y + p.l_f_m * r) / v_x
     a_r = (p.l_r_m * r - v_y) / v_x
-    return (t.d_f * math.sin(t.c * math.atan(t.b_f * a_f)),
-            t.d_r * math.sin(t.c * math.atan(t.b_r * a_r)))
+    return tyre_force.py(t.d_f, t.c, t.b_f, a_f), tyre_force.py(t.d_r, t.c, t.b_r, a_r)
 
 
 def f(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,

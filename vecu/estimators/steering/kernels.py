@@ -16,7 +16,9 @@ not positive definite the kernel returns ok = False and Python computes the fall
 
 Each kernel repeats the Python reference's floating-point operations in the same order (scalar
 IEEE arithmetic, libm sin / atan / cos, correctly rounded sqrt; no fastmath, no reductions), so
-both backends give bit-identical results (tests/test_kernels_steering.py).
+both backends give bit-identical results (tests/test_kernels_steering.py). The tyre curve
+(vecu.models.lateral.tyre_force) and the Cholesky (common.small_linalg.chol4) are the shared
+kernels, called from here.
 
 History ring (`Ring`): one float64 row per step, columns below; rows are written at `head`
 (mod capacity), the oldest of `count` rows is dropped first, as the deques of the Python path.
@@ -32,6 +34,7 @@ import numpy as np
 
 from vecu.estimators.common.small_linalg import chol4
 from vecu.kernels import kernel
+from vecu.models.lateral import tyre_force
 
 # history ring columns
 COL_X, COL_P, COL_XP, COL_PP, COL_C, COL_VX, COL_G = 0, 4, 14, 18, 28, 44, 45
@@ -65,13 +68,13 @@ def transition(vy: float, r: float, d: float, dd: float, vx: float, cst: Any
     """steering_model.f, the same operations in the same order."""
     dt, m, iz, lf, lr = cst[_DT], cst[_M], cst[_IZ], cst[_LF], cst[_LR]
     d_f, b_f, d_r, b_r, c = cst[_DF], cst[_BF], cst[_DR], cst[_BR], cst[_C]
-    ffc = d_f * math.sin(c * math.atan(b_f * (d - (vy + lf * r) / vx))) * math.cos(d)
-    fr = d_r * math.sin(c * math.atan(b_r * ((lr * r - vy) / vx)))
+    ffc = tyre_force(d_f, c, b_f, d - (vy + lf * r) / vx) * math.cos(d)
+    fr = tyre_force(d_r, c, b_r, (lr * r - vy) / vx)
     a1 = (ffc + fr) / m - vx * r
     b1 = (lf * ffc - lr * fr) / iz
     vy2, r2, d2 = vy + dt * a1, r + dt * b1, d + dt * dd
-    ffc = d_f * math.sin(c * math.atan(b_f * (d2 - (vy2 + lf * r2) / vx))) * math.cos(d2)
-    fr = d_r * math.sin(c * math.atan(b_r * ((lr * r2 - vy2) / vx)))
+    ffc = tyre_force(d_f, c, b_f, d2 - (vy2 + lf * r2) / vx) * math.cos(d2)
+    fr = tyre_force(d_r, c, b_r, (lr * r2 - vy2) / vx)
     h2 = 0.5 * dt
     return (vy + h2 * (a1 + (ffc + fr) / m - vx * r2),
             r + h2 * (b1 + (lf * ffc - lr * fr) / iz), d2, dd)
@@ -79,8 +82,8 @@ def transition(vy: float, r: float, d: float, dd: float, vx: float, cst: Any
 
 def lateral_accel(vy: float, r: float, d: float, vx: float, cst: Any) -> float:
     """steering_model.h_ay, the same operations in the same order."""
-    ff = cst[_DF] * math.sin(cst[_C] * math.atan(cst[_BF] * (d - (vy + cst[_LF] * r) / vx)))
-    fr = cst[_DR] * math.sin(cst[_C] * math.atan(cst[_BR] * ((cst[_LR] * r - vy) / vx)))
+    ff = tyre_force(cst[_DF], cst[_C], cst[_BF], d - (vy + cst[_LF] * r) / vx)
+    fr = tyre_force(cst[_DR], cst[_C], cst[_BR], (cst[_LR] * r - vy) / vx)
     return (ff * math.cos(d) + fr) / cst[_M]
 
 

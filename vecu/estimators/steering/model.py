@@ -22,7 +22,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vecu.estimators.common.covariance import DivergenceBounds
-from vecu.models.lateral import DT_S, TyreConsts, VehicleParams, tyre_consts
+from vecu.models.lateral import (
+    DT_S,
+    TyreConsts,
+    VehicleParams,
+    tyre_consts,
+    tyre_force,
+    tyre_force_slope,
+)
 from vecu.units import RAD_PER_DEG
 
 N_STATE = 4
@@ -30,6 +37,8 @@ V_X_MIN = 3.0  # m/s: the single-track model is singular at standstill; v_x is c
 STEERING_BOUNDS = DivergenceBounds(max_trace=1e3, max_abs_state=1e2)
 
 State = tuple[float, float, float, float]
+_tyre = tyre_force.py  # the plain-Python reference (hot path: no backend dispatch)
+_tyre_slope = tyre_force_slope.py
 
 
 @dataclass(frozen=True)
@@ -100,8 +109,9 @@ def consts(model: SteeringModel) -> Consts:
 
 
 def _forces(vy: float, r: float, d: float, vx: float, k: Consts) -> tuple[float, float]:
-    ff = k.d_f * math.sin(k.c * math.atan(k.b_f * (d - (vy + k.lf * r) / vx)))
-    fr = k.d_r * math.sin(k.c * math.atan(k.b_r * ((k.lr * r - vy) / vx)))
+    """(F_yf cos delta, F_yr) from the slip angles (vecu.models.lateral.tyre_force)."""
+    ff = _tyre(k.d_f, k.c, k.b_f, d - (vy + k.lf * r) / vx)
+    fr = _tyre(k.d_r, k.c, k.b_r, (k.lr * r - vy) / vx)
     return ff * math.cos(d), fr
 
 
@@ -118,14 +128,14 @@ def f(x: State, vx: float, k: Consts) -> State:
     dt = k.dt
     vy, r, d, dd = x
     lf, lr, m, iz, c = k.lf, k.lr, k.m, k.iz, k.c
-    sin, atan, cos = math.sin, math.atan, math.cos
-    ffc = k.d_f * sin(c * atan(k.b_f * (d - (vy + lf * r) / vx))) * cos(d)
-    fr = k.d_r * sin(c * atan(k.b_r * ((lr * r - vy) / vx)))
+    tyre, cos = _tyre, math.cos
+    ffc = tyre(k.d_f, c, k.b_f, d - (vy + lf * r) / vx) * cos(d)
+    fr = tyre(k.d_r, c, k.b_r, (lr * r - vy) / vx)
     a1 = (ffc + fr) / m - vx * r
     b1 = (lf * ffc - lr * fr) / iz
     vy2, r2, d2 = vy + dt * a1, r + dt * b1, d + dt * dd
-    ffc = k.d_f * sin(c * atan(k.b_f * (d2 - (vy2 + lf * r2) / vx))) * cos(d2)
-    fr = k.d_r * sin(c * atan(k.b_r * ((lr * r2 - vy2) / vx)))
+    ffc = tyre(k.d_f, c, k.b_f, d2 - (vy2 + lf * r2) / vx) * cos(d2)
+    fr = tyre(k.d_r, c, k.b_r, (lr * r2 - vy2) / vx)
     h2 = 0.5 * dt
     return (vy + h2 * (a1 + (ffc + fr) / m - vx * r2),
             r + h2 * (b1 + (lf * ffc - lr * fr) / iz), d2, dd)
@@ -168,11 +178,8 @@ def _force_grads(vy: float, r: float, d: float, vx: float, k: Consts
     """(F_yf cos d, F_yr, d(F_yf cos d)/d(vy, r, d), dF_yr/d(vy, r))."""
     af = d - (vy + k.lf * r) / vx
     ar = (k.lr * r - vy) / vx
-    uf = k.c * math.atan(k.b_f * af)
-    ur = k.c * math.atan(k.b_r * ar)
-    ff, fr = k.d_f * math.sin(uf), k.d_r * math.sin(ur)
-    dff = k.d_f * math.cos(uf) * k.c * k.b_f / (1.0 + (k.b_f * af) ** 2)  # dF_f/d alpha_f
-    dfr = k.d_r * math.cos(ur) * k.c * k.b_r / (1.0 + (k.b_r * ar) ** 2)
+    ff, dff = _tyre_slope(k.d_f, k.c, k.b_f, af)  # F_f, dF_f/d alpha_f
+    fr, dfr = _tyre_slope(k.d_r, k.c, k.b_r, ar)
     cd, sd = math.cos(d), math.sin(d)
     g_f = (-dff * cd / vx, -dff * cd * k.lf / vx, dff * cd - ff * sd)
     g_r = (-dfr / vx, dfr * k.lr / vx)

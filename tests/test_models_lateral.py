@@ -1,0 +1,70 @@
+"""vecu.models.lateral's tyre curve, the one copy of D sin(C atan(B alpha)): its value, its slope
+against finite differences, the axle forces built on it, and the same bits under every kernel
+backend (called directly and from inside the steering kernels)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vecu.estimators.steering import kernels as sk
+from vecu.estimators.steering import model as sm
+from vecu.estimators.steering.filters import SteeringUKF
+from vecu.models import lateral as lat
+
+
+def _slips(n=400, seed=2):
+    rng = np.random.default_rng(seed)
+    return [float(a) for a in np.concatenate([rng.normal(0.0, 0.05, n), rng.uniform(-1.0, 1.0, n),
+                                              [0.0, -0.0, 1e-12, 0.3, -0.3]])]
+
+
+def test_tyre_force_is_the_magic_formula_with_its_peak_at_d():
+    t = lat.tyre_consts(lat.VehicleParams())
+    for a in _slips():
+        assert lat.tyre_force.py(t.d_f, t.c, t.b_f, a) == t.d_f * math.sin(
+            t.c * math.atan(t.b_f * a))
+    # initial slope D C B = C_alpha (the cornering stiffness), peak D where C atan(B a) = pi / 2
+    p = lat.VehicleParams()
+    slope0 = lat.tyre_force_slope.py(t.d_f, t.c, t.b_f, 0.0)[1]
+    assert slope0 == pytest.approx(p.c_f_n_per_rad, rel=1e-12)
+    a_peak = math.tan(math.pi / (2.0 * t.c)) / t.b_r
+    assert lat.tyre_force.py(t.d_r, t.c, t.b_r, a_peak) == pytest.approx(t.d_r, rel=1e-12)
+
+
+def test_slope_is_the_derivative_and_its_force_the_force():
+    t = lat.tyre_consts(lat.VehicleParams())
+    h = 1e-7
+    for a in _slips(100):
+        f, df = lat.tyre_force_slope.py(t.d_r, t.c, t.b_r, a)
+        assert f == lat.tyre_force.py(t.d_r, t.c, t.b_r, a)
+        fd = (lat.tyre_force.py(t.d_r, t.c, t.b_r, a + h)
+              - lat.tyre_force.py(t.d_r, t.c, t.b_r, a - h)) / (2.0 * h)
+        assert abs(df - fd) <= 1e-5 * t.d_r
+
+
+def test_every_backend_gives_the_reference_bits(backend):
+    t = lat.tyre_consts(lat.VehicleParams())
+    for a in _slips():
+        assert lat.tyre_force(t.d_f, t.c, t.b_f, a) == lat.tyre_force.py(t.d_f, t.c, t.b_f, a)
+        assert lat.tyre_force_slope(t.d_r, t.c, t.b_r, a) == \
+            lat.tyre_force_slope.py(t.d_r, t.c, t.b_r, a)
+
+
+def test_plant_filter_model_and_kernels_share_the_curve(backend):
+    """axle_forces (plant), steering_model.h_ay / f (filters) and the steering kernels'
+    lateral_accel / transition (which call tyre_force as a kernel) agree bit for bit."""
+    p = lat.VehicleParams()
+    t = lat.tyre_consts(p)
+    f = SteeringUKF()
+    k, cst = f.k, f._cst
+    rng = np.random.default_rng(9)
+    for _ in range(200):
+        x = tuple(float(v) for v in rng.normal(0.0, [0.5, 0.3, 0.1, 0.5]))
+        vx = float(rng.uniform(3.0, 40.0))
+        ff, fr = lat.axle_forces(x[0], x[1], x[2], vx, p, t)
+        assert sm.h_ay(x, vx, k) == (ff * math.cos(x[2]) + fr) / p.mass_kg
+        assert sk.lateral_accel(x[0], x[1], x[2], vx, cst) == sm.h_ay(x, vx, k)
+        assert sk.transition(*x, vx, cst) == sm.f(x, vx, k)
