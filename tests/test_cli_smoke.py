@@ -92,6 +92,7 @@ USER_MISTAKES = [
     (["scenario", "run", "{bad_scenario}"], "bad.toml: key 'plant.wheels': unknown key"),
     (["eval", "steering", "--duration", "0.1"], "--duration: expected 1..3600 s"),
     (["inject", "--target", "brakes", "--kind", "dead"], "unknown target 'brakes'"),
+    (["ecu", "--log", "x.bogus"], "x.bogus: cannot write log"),  # and no bus-not-shut-down warning
 ]
 
 

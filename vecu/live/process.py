@@ -121,14 +121,18 @@ class LiveProcess:
         self.elapsed_s = 0.0
         self._closed = False
         bus_args = {k: v for k, v in cfg.items() if k != "interface"}
-        if opts.log_path:  # its own bus, like candump: sees the other nodes and this one
-            rec_bus = open_bus(cfg["interface"], **bus_args)
-            self._buses.append(rec_bus)
-            if self.interface == "udp_multicast":
-                enlarge_receive_buffer(rec_bus)
-            self.recorder = Recorder(rec_bus, opts.log_path)
-        raw = open_bus(cfg["interface"], **bus_args)
-        self._buses.append(raw)
+        try:  # a bad log file or bus: what is already open is shut again (one-line error)
+            if opts.log_path:  # its own bus, like candump: sees the other nodes and this one
+                rec_bus = open_bus(cfg["interface"], **bus_args)
+                self._buses.append(rec_bus)
+                if self.interface == "udp_multicast":
+                    enlarge_receive_buffer(rec_bus)
+                self.recorder = Recorder(rec_bus, opts.log_path)
+            raw = open_bus(cfg["interface"], **bus_args)
+            self._buses.append(raw)
+        except BaseException:
+            self.close()
+            raise
         lat = None
         if latency is not None:
             trig, resp = codec[latency[0]], codec[latency[1]]
