@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from vecu.bench.estimators import bench_throttle_ukf
-from vecu.cli import UserInputError
 from vecu.cli import eval as eval_cli
+from vecu.errors import BadArgumentError
 from vecu.estimators.registry import (
     THROTTLE_ESTIMATORS,
     EstimatorUnavailableError,
@@ -172,14 +172,14 @@ def test_cli_json_and_table(capsys) -> None:
 
 
 def test_cli_bad_input(monkeypatch, capsys) -> None:
-    with pytest.raises(UserInputError, match="unknown"):
+    with pytest.raises(BadArgumentError, match="unknown"):
         _cli(["eval", "throttle", "--filters", "arm,foo"])
-    with pytest.raises(UserInputError, match="burn-in"):
+    with pytest.raises(BadArgumentError, match="burn-in"):
         _cli(["eval", "throttle", "--steps", "1000"])
     with pytest.raises(SystemExit):
         _cli(["eval", "throttle", "--noise-scale", "-1"])
     monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.production", None)
-    with pytest.raises(UserInputError, match="production"):
+    with pytest.raises(EstimatorUnavailableError, match="production"):
         _cli(["eval", "throttle", "--steps", "2000", "--filters", "production"])
     # Not asked for explicitly: skipped with a warning.
     assert _cli(["eval", "throttle", "--steps", "1500", "--json"]) == 0
