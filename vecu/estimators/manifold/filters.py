@@ -37,7 +37,9 @@ compiled call (vecu.estimators.manifold.kernels.sdkf_event, bit-identical to thi
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -131,7 +133,8 @@ def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
 
 
 class _ManifoldKF:
-    """Shared measurement update, guards and counters (subclasses: prior covariance, predict)."""
+    """Shared measurement update, guards and counters (subclasses: prior covariance, predict);
+    a manifold.base.ManifoldEstimator."""
 
     name = "base"
 
@@ -303,7 +306,7 @@ class _ManifoldKF:
         raise NotImplementedError
 
     # ---------------------------------------------------------------- public
-    def step(self, y, u: EngineInput) -> np.ndarray:
+    def step(self, y: Sequence[Any] | None, u: EngineInput) -> np.ndarray:
         """One engine event: update with y_n (None: predict only), predict with u_n.
         Returns the posterior x_n|n (a copy). Afterwards `last_prediction` is (u, f(x_n|n, u))
         with the event map's output before clamping, or None when the step reset the filter

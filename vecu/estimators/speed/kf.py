@@ -96,7 +96,8 @@ def scalar_update3(x: tuple[float, float, float], p: tuple[float, ...],
 
 
 class SpeedKalmanFilter:
-    """step(wheel_speed_mps | None, accel_mps2 | None) every 2 ms; see the module docstring.
+    """step(wheel_speed_mps | None, accel_mps2 | None) every 2 ms; see the module docstring. A
+    speed.base.SpeedEstimator.
 
     Outputs: speed_mps, accel_mps2 (offset-corrected), offset_mps2 and their std. Counters:
     steps, missing_wheel, missing_accel, rejected_wheel, rejected_accel (NaN / out of range),

@@ -39,13 +39,13 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 
 from vecu.estimators.common.covariance import diverged_floats, symmetrise
 from vecu.estimators.common.sigma_sets import SigmaSet, ahsm
 from vecu.estimators.common.small_linalg import chol4_or_fallback
+from vecu.estimators.steering.base import FilterRun
 from vecu.estimators.steering import kernels as sk
 from vecu.estimators.steering import model as sm
 from vecu.estimators.steering.model import SteeringModel
@@ -74,21 +74,9 @@ def matrix_from_p10(p: P10 | list[float]) -> np.ndarray:
     return P
 
 
-@dataclass(frozen=True, eq=False)
-class FilterRun:
-    """A recorded forward pass, arrays over steps k = 0..N-1 (see the module docstring).
-    x_pred[0], P_pred[0], C[0] link the prior to step 0; after a divergence reset C[k] = 0."""
-
-    x: np.ndarray  # (N, 4) filtered
-    P: np.ndarray  # (N, 4, 4)
-    x_pred: np.ndarray  # (N, 4)
-    P_pred: np.ndarray  # (N, 4, 4)
-    C: np.ndarray  # (N, 4, 4)
-    v_x: np.ndarray  # (N,) speed used by the predict into step k
-
-
 class _SteeringFilter:
-    """Shared input handling, counters, outputs, divergence reset and recording.
+    """Shared input handling, counters, outputs, divergence reset and recording: a
+    steering.base.SteeringEstimator.
 
     Subclasses with compiled kernels (`_kernels_ok`) run their numeric core in
     vecu.estimators.steering.kernels under the numba backend and then record into a

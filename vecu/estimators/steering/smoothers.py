@@ -6,7 +6,7 @@ what its text describes ("the smoothed property of the latent variable ... p(x(t
   G_k   = C_k+1 P_k+1|k^-1,       C_k+1 = sum_j w_j (chi_j - x_k|k)(f(chi_j, v_x) - x_k+1|k)^T
   x_k|T = x_k|k + G_k (x_k+1|T - x_k+1|k)
   P_k|T = P_k|k + G_k (P_k+1|T - P_k+1|k) G_k^T
-C_k+1, x_k+1|k and P_k+1|k are the forward pass's own (steering_filters.FilterRun), so the
+C_k+1, x_k+1|k and P_k+1|k are the forward pass's own (steering.base.FilterRun), so the
 backward pass never re-propagates and always uses the v_x of that step. Fed an EKF run
 (C = P F^T) the same code is the extended RTS smoother.
 
@@ -26,12 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.steering.filters import (
-    FilterRun,
-    SteeringUKF,
-    _SteeringFilter,
-    matrix_from_p10,
-)
+from vecu.estimators.steering.base import FilterRun, LaggedEstimate
+from vecu.estimators.steering.filters import SteeringUKF, _SteeringFilter, matrix_from_p10
+from vecu.estimators.steering.model import SteeringModel
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,23 +69,13 @@ def rts_smooth(run: FilterRun, covariance: bool = True) -> SmoothedRun:
     return SmoothedRun(xs, Ps)
 
 
-@dataclass(frozen=True, eq=False)
-class LaggedEstimate:
-    """Fixed-lag smoothed state of step `step` (time t_s), produced `lag_steps` steps later."""
-
-    step: int
-    t_s: float
-    lag_steps: int
-    x: np.ndarray  # [v_y, r, delta, delta_dot]
-    swa_rad: float
-    side_slip_rad: float
-
-
 class FixedLagSmoother:
-    """Live fixed-lag unscented RTS smoother around a steering filter (module docstring).
+    """Live fixed-lag unscented RTS smoother around a steering filter (module docstring); a
+    steering.base.SteeringEstimator.
 
-    step(v_x, yaw_rate, a_y) runs the filter (whose current estimate stays available as
-    `.filter`) and returns the estimate of `lag` steps ago. Cost: `lag` 4x4 mat-vec products
+    step(v_x, yaw_rate, a_y) runs the filter and returns the estimate of `lag` steps ago; the
+    filter's current estimate stays available as `.filter` and through the outputs (swa_rad,
+    side_slip_rad, ...: the filtered, not the lagged values). Cost: `lag` 4x4 mat-vec products
     per step (means only; the lagged covariance is not computed).
     """
 
@@ -122,6 +109,39 @@ class FixedLagSmoother:
         if k < self.lag:
             return None
         return self._estimate(k - self.lag, self._backward()[0])
+
+    def reset(self) -> None:
+        """Start afresh, as a new smoother around a fresh filter: the filter back to its prior,
+        its step count and the buffered window cleared (its other counters kept)."""
+        f = self.filter
+        f.reset()
+        f.steps = 0
+        f.keep_history(self.lag + 1, smooth_lag=self.lag)
+
+    # -- the filter's current estimate and counters (SteeringEstimator) ------------------------
+    @property
+    def model(self) -> SteeringModel:
+        return self.filter.model
+
+    @property
+    def steps(self) -> int:
+        return self.filter.steps
+
+    @property
+    def resets(self) -> int:
+        return self.filter.resets
+
+    @property
+    def swa_rad(self) -> float:
+        return self.filter.swa_rad
+
+    @property
+    def swa_std_rad(self) -> float:
+        return self.filter.swa_std_rad
+
+    @property
+    def side_slip_rad(self) -> float:
+        return self.filter.side_slip_rad
 
     def _backward(self) -> list[tuple[float, float, float, float]]:
         """Smoothed means of the buffered window, oldest first (plain floats: ~2 us a step)."""

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 
+@runtime_checkable
 class ThrottleEstimator(Protocol):
     """A filter tracking the throttle angle from commanded voltage and wattmeter power.
 

@@ -1,0 +1,50 @@
+"""What every vehicle speed / acceleration estimator offers (Hernandez 2005; the 500 Hz Kalman
+filter lives in speed.kf)."""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+
+@runtime_checkable
+class SpeedEstimator(Protocol):
+    """A filter fusing the wheel-speed sensor and the longitudinal accelerometer (the paper's
+    eq. 25 observer on speed and acceleration, here SpeedKalmanFilter at 2 ms).
+
+    step(wheel_speed, accel): predict one step, then update with the wheel speed (m/s) and the
+    accelerometer (m/s^2); None = missing (predict only, counted), non-finite or implausible =
+    rejected (counted). The outputs never become NaN: a diverged filter resets to the prior,
+    counted in `resets`. standstill / abs_mode: the filter holds the car at rest / follows the
+    upper wheel envelope under ABS slip.
+    """
+
+    @property
+    def steps(self) -> int: ...
+
+    @property
+    def resets(self) -> int: ...
+
+    def step(self, wheel_speed: float | None, accel: float | None) -> None: ...
+
+    def reset(self) -> None: ...
+
+    @property
+    def speed_mps(self) -> float: ...
+
+    @property
+    def accel_mps2(self) -> float: ...
+
+    @property
+    def offset_mps2(self) -> float: ...
+
+    @property
+    def speed_std_mps(self) -> float: ...
+
+    @property
+    def accel_std_mps2(self) -> float: ...
+
+    @property
+    def standstill(self) -> bool: ...
+
+    @property
+    def abs_mode(self) -> bool: ...
