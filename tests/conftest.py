@@ -42,6 +42,35 @@ def backend(request):
         yield name
 
 
+class BackendCache:
+    """Results computed once per kernel backend (and key) and shared by a module's tests."""
+
+    def __init__(self) -> None:
+        self._done: dict = {}
+
+    def get(self, key, fn):
+        """fn() under the active backend, computed on the first call for (backend, key)."""
+        from vecu import kernels
+
+        k = (kernels.backend(), key)
+        if k not in self._done:
+            self._done[k] = fn()
+        return self._done[k]
+
+    def reference(self, key, fn):
+        """fn() under the python backend (the reference the other backends are held to)."""
+        from vecu import kernels
+
+        with kernels.using("python"):
+            return self.get(key, fn)
+
+
+@pytest.fixture(scope="module")
+def per_backend() -> BackendCache:
+    """A module's BackendCache (expensive runs done once per backend, the reference once)."""
+    return BackendCache()
+
+
 @pytest.fixture
 def backend_switch():
     """Yields run(fn, backend) -> fn() under that kernel backend (vecu.kernels.using); the

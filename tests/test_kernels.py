@@ -24,11 +24,22 @@ def _weighted_sum(n: int, w: float) -> float:
     return s
 
 
-def test_python_backend_runs_the_function_itself(fresh_backend, monkeypatch):
-    monkeypatch.setenv(kernels.ENV_VAR, "python")
-    assert kernels.backend() == "python"
-    assert _weighted_sum.impl() is _weighted_sum.py
+@kernels.kernel
+def _twice_weighted_sum(n: int, w: float) -> float:
+    """A kernel calling another kernel (as the estimators' kernels call the shared ones)."""
+    return _weighted_sum(n, w) + _weighted_sum(n, 2.0 * w)
+
+
+def test_vecu_kernels_selects_the_backend_and_it_agrees_with_python(backend, fresh_backend,
+                                                                    monkeypatch):
+    monkeypatch.setenv(kernels.ENV_VAR, backend)
+    assert kernels.backend() == backend
+    fn = _weighted_sum.impl()
+    assert (fn is _weighted_sum.py) == (backend == "python")
+    assert backend == "python" or hasattr(fn, "signatures")  # a numba dispatcher
     assert _weighted_sum(4, 0.5) == 3.0
+    assert _weighted_sum(1000, 0.25) == _weighted_sum.py(1000, 0.25)
+    assert _twice_weighted_sum(1000, 0.25) == _twice_weighted_sum.py(1000, 0.25) == 374625.0
 
 
 def test_auto_without_numba_falls_back_to_python(fresh_backend, monkeypatch):
@@ -52,13 +63,9 @@ def test_fastmath_is_refused():
         kernels.kernel(fastmath=True)
 
 
-def test_numba_backend_compiles_and_agrees(fresh_backend, monkeypatch):
+def test_set_backend_returns_the_previous_one(fresh_backend, monkeypatch):
     pytest.importorskip("numba")
     monkeypatch.setenv(kernels.ENV_VAR, "numba")
-    assert kernels.backend() == "numba"
-    fn = _weighted_sum.impl()
-    assert fn is not _weighted_sum.py and hasattr(fn, "signatures")
-    assert _weighted_sum(1000, 0.25) == _weighted_sum.py(1000, 0.25)
     assert kernels.set_backend("python") == "numba"
     assert _weighted_sum.impl() is _weighted_sum.py
 
@@ -100,3 +107,54 @@ def test_using_restores_the_previous_backend_even_after_a_switch_inside(fresh_ba
     with pytest.raises(RuntimeError), kernels.using("python"):
         raise RuntimeError("inside")
     assert kernels.backend() == "python"
+
+
+_CALLEE = """import math
+from vecu.kernels import kernel
+
+
+@kernel
+def inner(x):
+    return x + {value}
+"""
+_CALLER = """from vecu.kernels import kernel
+from {pkg}.callee import inner
+
+
+@kernel
+def outer(x):
+    return 2.0 * inner(x)
+"""
+
+
+def test_a_changed_callee_file_drops_its_callers_disk_cache(tmp_path, monkeypatch):
+    """numba's cache only watches a kernel's own file; a kernel calling into another file is
+    recompiled when that file is newer than its cache (vecu.kernels._drop_stale_cache)."""
+    pytest.importorskip("numba")
+    import importlib
+    import os
+    import sys
+
+    pkg = f"vecu_cache_probe_{os.getpid()}"
+    root = tmp_path / pkg
+    root.mkdir()
+    (root / "__init__.py").write_text("")
+    (root / "caller.py").write_text(_CALLER.format(pkg=pkg))
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    def outer_of(value: float, stamp: float) -> float:
+        callee = root / "callee.py"
+        callee.write_text(_CALLEE.format(value=value))
+        os.utime(callee, (stamp, stamp))
+        for name in [m for m in sys.modules if m.startswith(pkg)]:
+            del sys.modules[name]
+        importlib.invalidate_caches()
+        caller = importlib.import_module(f"{pkg}.caller")
+        with kernels.using("numba"):
+            return caller.outer(1.0)
+
+    now = (root / "caller.py").stat().st_mtime
+    assert outer_of(1.0, now - 100.0) == 4.0  # compiled and cached
+    assert list(root.glob("__pycache__/caller.outer-*.nbi"))
+    assert outer_of(1.0, now - 100.0) == 4.0  # loaded from the cache
+    assert outer_of(5.0, now + 100.0) == 12.0  # callee changed: not the stale 4.0

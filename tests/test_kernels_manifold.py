@@ -1,7 +1,7 @@
-"""The manifold event integrator as a compiled kernel: under numba it returns exactly (==) what
-the Python backend returns, over random states on every flow branch, on a second parameter set
-and through the SDKF + 6-event CAC prediction; bad input fails with the same exception type;
-the numba stand-in for bisect_right finds the same index as the C one."""
+"""The manifold event integrator as a kernel: under every backend (numba: compiled) it returns
+exactly (==) what the Python backend returns, over random states on every flow branch, on a
+second parameter set and through the SDKF + 6-event CAC prediction; bad input fails with the
+same exception type; the numba stand-in for bisect_right finds the same index as the C one."""
 
 from __future__ import annotations
 
@@ -45,13 +45,12 @@ def _branch(p, u, prm):
 
 
 @pytest.mark.parametrize("prm", [V8_5L7, OTHER], ids=["V8_5L7", "other"])
-def test_numba_integrator_is_bit_identical_to_the_python_backend(prm, backend_switch):
-    pytest.importorskip("numba")
+def test_integrator_gives_the_python_reference_bit_for_bit(prm, backend, per_backend):
     cases = list(_cases(np.random.default_rng(11), 1500))
-    py = backend_switch(lambda: [integrate_manifold(*c, prm) for c in cases], "python")
-    nb = backend_switch(lambda: [integrate_manifold(*c, prm) for c in cases], "numba")
-    assert len(nb) == len(py) == 1500
-    for c, a, b in zip(cases, py, nb):
+    py = per_backend.reference(prm, lambda: [integrate_manifold(*c, prm) for c in cases])
+    got = [integrate_manifold(*c, prm) for c in cases]
+    assert len(got) == len(py) == 1500
+    for c, a, b in zip(cases, py, got):
         assert a == b, c  # exact: p, t and the sub-step count
         assert type(b[2]) is int and type(b[0]) is float
     assert {_branch(c[0], c[3], prm) for c in cases} == {
@@ -60,19 +59,16 @@ def test_numba_integrator_is_bit_identical_to_the_python_backend(prm, backend_sw
     assert len({m for _, _, m in py}) > 10
 
 
-def test_second_parameter_set_is_not_served_from_the_first_sets_tables(backend_switch):
-    pytest.importorskip("numba")
+def test_second_parameter_set_is_not_served_from_the_first_sets_tables(backend,
+                                                                        backend_switch):
     args = (60.0, 320.0, 0.4, EngineInput(0.5, 2500.0), 0.006)
-    a = backend_switch(lambda: integrate_manifold(*args, OTHER), "numba")
-    b = backend_switch(lambda: integrate_manifold(*args), "numba")
+    a = integrate_manifold(*args, OTHER)
+    b = integrate_manifold(*args)
     assert a != b
     assert a == backend_switch(lambda: integrate_manifold(*args, OTHER), "python")
 
 
-@pytest.mark.parametrize("name", ["python", "numba"])
-def test_bad_input_fails_with_the_exception_the_python_code_raised(name, backend_switch):
-    if name == "numba":
-        pytest.importorskip("numba")
+def test_bad_input_fails_with_the_exception_the_python_code_raised(backend):
     u = EngineInput(0.3, 2000.0)
     cases = [
         ((math.nan, 300.0, 0.3, u, 0.0075), ValueError),  # math.ceil(nan) of the sub-step count
@@ -84,20 +80,18 @@ def test_bad_input_fails_with_the_exception_the_python_code_raised(name, backend
     ]
     for args, exc in cases:
         with pytest.raises(exc):
-            backend_switch(lambda args=args: integrate_manifold(*args), name)
+            integrate_manifold(*args)
 
 
-def test_parameter_sets_numba_cannot_mirror_run_the_python_function(backend_switch):
+def test_parameter_sets_numba_cannot_mirror_run_the_python_function(backend):
     """A negative exhaust pressure makes (P_exh/P)^(1/kappa) complex in Python (the step then
     fails with TypeError) where numba would return NaN: such a set never gets numba tables and
-    fails alike under both backends."""
-    pytest.importorskip("numba")
+    fails alike under every backend."""
     odd = dataclasses.replace(V8_5L7, p_exh_kpa=-1.0)
     assert mi._tables(odd)[2] is None and mi._tables(V8_5L7)[2] is not None
     args = (90.0, 310.0, 0.5, EngineInput(0.5, 3000.0), 0.005)
-    for name in ("python", "numba"):
-        with pytest.raises(TypeError):
-            backend_switch(lambda: integrate_manifold(*args, odd), name)
+    with pytest.raises(TypeError):
+        integrate_manifold(*args, odd)
 
 
 def test_hand_written_search_finds_bisect_rights_index():
@@ -121,10 +115,10 @@ def test_compiled_search_finds_bisect_rights_index():
             assert search(xs, x) == bisect.bisect_right(xs.tolist(), x), (xs, x)
 
 
-def test_sdkf_and_cac_prediction_are_bit_identical_across_backends(backend_switch):
+def test_sdkf_and_cac_prediction_give_the_python_reference_bit_for_bit(backend, per_backend):
     """The ECU side end to end: 150 SDKF events with the 6-event CAC prediction from each
-    posterior; numba gives the same posteriors, covariances and predictions, bit for bit."""
-    pytest.importorskip("numba")
+    posterior; every backend gives the same posteriors, covariances and predictions, bit for
+    bit."""
     from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
     from vecu.estimators.manifold.filters import make_filter
 
@@ -141,20 +135,20 @@ def test_sdkf_and_cac_prediction_are_bit_identical_across_backends(backend_switc
             out.append((x.tolist(), flt.P.tolist(), predict_cac(x, [u] * HORIZON)))
         return out, flt.resets
 
-    (py, py_resets), (nb, nb_resets) = backend_switch(run, "python"), backend_switch(run, "numba")
-    assert py_resets == nb_resets == 0
-    assert nb == py
+    (py, py_resets), (got, got_resets) = per_backend.reference("sdkf", run), run()
+    assert py_resets == got_resets == 0
+    assert got == py
     assert len({round(c, 9) for _, _, c in py}) > 100  # the predictions actually move
 
 
-def test_int_and_numpy_scalars_reuse_the_one_compiled_signature(backend_switch):
+def test_int_and_numpy_scalars_reuse_the_one_compiled_signature(backend, backend_switch):
     """An int speed (a DBC signal with scale 1) or numpy scalars convert to float64 instead of
     compiling a second specialisation mid-run; the result equals the float call's."""
-    pytest.importorskip("numba")
     args = (40.0, 310.0, 0.2, EngineInput(0.2, 2000.0), 0.0075)
-    ref = backend_switch(lambda: integrate_manifold(*args), "numba")
+    ref = integrate_manifold(*args)
     ints = (40, 310, np.float64(0.2), EngineInput(0.2, 2000, 100, 298.15, 363.15), 0.0075)
-    assert backend_switch(lambda: integrate_manifold(*ints), "numba") == ref
+    assert integrate_manifold(*ints) == ref
     assert backend_switch(lambda: integrate_manifold(*ints), "python") == ref
-    assert len(mi._integrate_event.compiled.signatures) == 1
+    if backend == "numba":
+        assert len(mi._integrate_event.compiled.signatures) == 1
     assert len(mi._param_consts(V8_5L7)) == mi.N_CONSTS

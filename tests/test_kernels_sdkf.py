@@ -1,10 +1,10 @@
-"""The compiled manifold SDKF event and CAC prediction (vecu.estimators.manifold.kernels) against
-the Python/numpy path: over a drive with NaN channels, missing and out-of-range readings, bad
-inputs, gated spikes, a forced divergence and a non-positive-definite innovation covariance,
-the numba backend gives the same posteriors, covariances, predictions and counters bit for bit
-(numba and numpy call the same OpenBLAS build here; the assertion messages print the largest
-relative difference should a BLAS build ever round differently). The python backend never
-touches the kernels."""
+"""The manifold SDKF event and CAC prediction under every kernel backend (numba: the compiled
+vecu.estimators.manifold.kernels) against the Python/numpy path: over a drive with NaN channels,
+missing and out-of-range readings, bad inputs, gated spikes, a forced divergence and a
+non-positive-definite innovation covariance, each backend gives the same posteriors,
+covariances, predictions and counters bit for bit, twice (numba and numpy call the same
+OpenBLAS build here; the assertion messages print the largest relative difference should a BLAS
+build ever round differently). The python backend never touches the kernels."""
 
 from __future__ import annotations
 
@@ -70,9 +70,8 @@ def _run_drive(ys, inputs):
     return out, {k: getattr(flt, k) for k in COUNTERS}
 
 
-@pytest.fixture(scope="module")
-def runs(drive):
-    pytest.importorskip("numba")
+def _counted_drive(drive):
+    """_run_drive plus the number of events the Python path ran (ManifoldKF._event calls)."""
     calls = {"python_event": 0}
     base = mf._ManifoldKF._event
 
@@ -82,14 +81,10 @@ def runs(drive):
 
     mf._ManifoldKF._event = counting
     try:
-        py = _under("python", lambda: _run_drive(*drive))
-        py_calls = calls["python_event"]
-        nb = _under("numba", lambda: _run_drive(*drive))
-        nb_calls = calls["python_event"] - py_calls
-        nb2 = _under("numba", lambda: _run_drive(*drive))
+        out = _run_drive(*drive)
     finally:
         mf._ManifoldKF._event = base
-    return py, nb, nb2, py_calls, nb_calls
+    return out, calls["python_event"]
 
 
 def _max_rel(a, b):
@@ -98,37 +93,38 @@ def _max_rel(a, b):
     return float(np.max(np.abs(a - b)[both] / np.maximum(np.abs(a[both]), 1e-300), initial=0.0))
 
 
-def test_numba_sdkf_event_equals_the_python_path_over_a_bad_drive(runs):
-    (py, py_cnt), (nb, nb_cnt), _, py_calls, nb_calls = runs
-    assert len(py) == len(nb) > 1500
+def test_sdkf_event_gives_the_python_reference_over_a_bad_drive(drive, backend, per_backend):
+    (py, py_cnt), py_calls = per_backend.reference("drive", lambda: _counted_drive(drive))
+    (got, got_cnt), got_calls = per_backend.get("drive", lambda: _counted_drive(drive))
+    assert len(py) == len(got) > 1500
     names = ("x_post", "P", "P_post", "prediction", "CAC+6 reused", "CAC+6")
-    for n, (a, b) in enumerate(zip(py, nb)):
+    for n, (a, b) in enumerate(zip(py, got)):
         for name, va, vb in zip(names, a, b):
             if va is None or vb is None:
                 assert va is vb, (n, name)
                 continue
             assert np.array_equal(va, vb, equal_nan=True), (n, name, _max_rel(va, vb))
-    assert nb_cnt == py_cnt
+    assert got_cnt == py_cnt
     # the drive exercised what it should: resets, gating, rejected channels, bad inputs
     assert py_cnt["resets"] == 2 and sum(py_cnt["gated"]) >= 20
     assert min(py_cnt["rejected"]) > 0 and py_cnt["missing"] > 0 and py_cnt["bad_inputs"] > 0
-    # the kernel ran the events: the Python path only for the fallback (S not PD) events
     assert py_calls == len(py)
-    assert 1 <= nb_calls <= 3
+    if backend == "numba":  # the kernel ran the events: Python only for the fallback (S not PD)
+        assert 1 <= got_calls <= 3
     assert len({round(r[5], 9) for r in py}) > 1000  # the predictions move
 
 
-def test_numba_backend_twice_is_bit_identical(runs):
-    (_, _), (nb, nb_cnt), (nb2, nb2_cnt), _, _ = runs
-    assert nb_cnt == nb2_cnt
-    for a, b in zip(nb, nb2):
+def test_same_backend_twice_is_bit_identical(drive, backend, per_backend):
+    (first, first_cnt), _ = per_backend.get("drive", lambda: _counted_drive(drive))
+    second, second_cnt = _run_drive(*drive)
+    assert first_cnt == second_cnt
+    for a, b in zip(first, second):
         for va, vb in zip(a, b):
             assert (va is None and vb is None) or np.array_equal(va, vb, equal_nan=True)
 
 
-def test_cac_prediction_kernel_equals_predict_state():
+def test_cac_prediction_gives_the_python_reference(backend, per_backend):
     """Held and changing inputs (speed changes per event too), states across the range."""
-    pytest.importorskip("numba")
     rng = np.random.default_rng(21)
     cases = []
     for _ in range(300):
@@ -146,8 +142,8 @@ def test_cac_prediction_kernel_equals_predict_state():
     def run():
         return [(predict_state(x, i), predict_cac(x, i)) for x, i in cases]
 
-    py, nb = _under("python", run), _under("numba", run)
-    for (xa, ca), (xb, cb) in zip(py, nb):
+    py, got = per_backend.reference("cac", run), run()
+    for (xa, ca), (xb, cb) in zip(py, got):
         assert np.array_equal(xa, xb) and ca == cb
     assert len({c for _, c in py}) == len(cases)
 

@@ -1,8 +1,10 @@
-"""The steering UKF + fixed-lag smoother under the numba backend (vecu.estimators.steering.kernels)
-give exactly (==, measured max |difference| 0) what the Python backend gives: filter outputs,
-smoothed outputs, the recorded history and every counter, on a long manoeuvre and on a run with
-bad readings, resets, gating and clipping; with the Cholesky fallback; across a backend switch in
-the middle of a run. The kernels' model functions equal steering_model's (no numba needed)."""
+"""The steering UKF + fixed-lag smoother under every kernel backend (numba:
+vecu.estimators.steering.kernels) give exactly (==, measured max |difference| 0) what the Python
+backend gives, and the same again on a second run: filter outputs, smoothed outputs, the recorded
+history and every counter, on a long manoeuvre and on a run with bad readings, resets, gating and
+clipping; with the Cholesky fallback; across a backend switch in the middle of a run. The
+kernels' model functions equal steering_model's. Each property is one test over the backends
+(tests/conftest.py `backend`; the python reference is computed once per module)."""
 
 from __future__ import annotations
 
@@ -10,9 +12,9 @@ import numpy as np
 import pytest
 
 from vecu import kernels
+from vecu.estimators.common.small_linalg import chol4, chol4_or_fallback
 from vecu.estimators.steering import kernels as sk
 from vecu.estimators.steering import model as sm
-from vecu.estimators.common.small_linalg import chol4, chol4_or_fallback
 from vecu.estimators.steering.filters import SteeringUKF
 from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
@@ -79,33 +81,32 @@ def _assert_identical(a, b) -> None:
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
 
 
-@needs_numba
-def test_numba_equals_python_on_a_long_manoeuvre(backend_switch, long_inputs) -> None:
-    py = backend_switch(lambda: _run(long_inputs), "python")
-    nb = backend_switch(lambda: _run(long_inputs), "numba")
-    assert py["lagged"].shape[0] == len(long_inputs) - 25 and py["tail"].shape[0] == 25
-    assert np.all(np.isfinite(py["lagged"]))
-    _assert_identical(py, nb)
+def test_long_manoeuvre_gives_the_python_reference_bit_for_bit(backend, per_backend,
+                                                               long_inputs) -> None:
+    ref = per_backend.reference("long", lambda: _run(long_inputs))
+    got = per_backend.get("long", lambda: _run(long_inputs))
+    assert ref["lagged"].shape[0] == len(long_inputs) - 25 and ref["tail"].shape[0] == 25
+    assert np.all(np.isfinite(ref["lagged"]))
+    _assert_identical(ref, got)
     # same backend twice: bit-identical too
-    _assert_identical(nb, backend_switch(lambda: _run(long_inputs), "numba"))
+    _assert_identical(got, _run(long_inputs))
 
 
-@needs_numba
-def test_numba_equals_python_with_bad_readings(backend_switch, bad_inputs) -> None:
-    py = backend_switch(lambda: _run(bad_inputs, maxlen=300), "python")
-    nb = backend_switch(lambda: _run(bad_inputs, maxlen=300), "numba")
-    c = dict(zip(COUNTERS, py["counters"][0]))
+def test_bad_readings_give_the_python_reference_bit_for_bit(backend, per_backend,
+                                                            bad_inputs) -> None:
+    ref = per_backend.reference("bad", lambda: _run(bad_inputs, maxlen=300))
+    got = per_backend.get("bad", lambda: _run(bad_inputs, maxlen=300))
+    c = dict(zip(COUNTERS, ref["counters"][0]))
     assert c["resets"] >= 1 and c["gated_ay"] > 0 and c["clipped"] > 0 and c["rejected_vx"] > 0
-    assert py["hist"].size == 300 * (4 + 16 + 4 + 16 + 16 + 1)  # the bounded ring wrapped
-    _assert_identical(py, nb)
+    assert ref["hist"].size == 300 * (4 + 16 + 4 + 16 + 16 + 1)  # the bounded ring wrapped
+    _assert_identical(ref, got)
 
 
-@needs_numba
 @pytest.mark.parametrize("lag_s", [0.0, 0.01, 0.5])
-def test_short_and_long_lags(backend_switch, long_inputs, lag_s) -> None:
+def test_short_and_long_lags(backend, per_backend, long_inputs, lag_s) -> None:
     inputs = long_inputs[:400]
-    _assert_identical(backend_switch(lambda: _run(inputs, lag_s), "python"),
-                      backend_switch(lambda: _run(inputs, lag_s), "numba"))
+    _assert_identical(per_backend.reference(lag_s, lambda: _run(inputs, lag_s)),
+                      _run(inputs, lag_s))
 
 
 @needs_numba
@@ -132,8 +133,7 @@ def _non_pd_filter() -> SteeringUKF:
     return f
 
 
-@needs_numba
-def test_cholesky_fallback_under_numba(backend_switch) -> None:
+def test_cholesky_fallback_gives_the_python_reference(backend, per_backend) -> None:
     p_bad = _non_pd_filter()._p
     assert not chol4.py(p_bad)[0]  # the fallback path is the one taken
 
@@ -146,20 +146,22 @@ def test_cholesky_fallback_under_numba(backend_switch) -> None:
             f._x, p_bad, 0.7, 20.0)
         return f.x, f.P, f.history().C, x_ay, p_ay, f.resets
 
-    py = backend_switch(run, "python")
-    nb = backend_switch(run, "numba")
-    assert sk.predict_chol.compiled.signatures and sk.ay_moments_chol.compiled.signatures
-    assert py[5] == nb[5] == 0 and np.all(np.isfinite(py[1]))
-    for a, b in zip(py, nb):
+    ref = per_backend.reference("fallback", run)
+    got = run()
+    if backend == "numba":
+        assert sk.predict_chol.compiled.signatures and sk.ay_moments_chol.compiled.signatures
+    assert ref[5] == got[5] == 0 and np.all(np.isfinite(ref[1]))
+    for a, b in zip(ref, got):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     g = SteeringUKF()
-    assert not sk.ay_moments.compiled(g._x, p_bad, 20.0, g._cst, g._ptab)[0]
-    assert not sk.predict.compiled(g._x, p_bad, 20.0, g._cst, g._ptab, g._scratch, 0, False)[0]
+    assert not sk.ay_moments(g._x, p_bad, 20.0, g._cst, g._ptab)[0]
+    assert not sk.predict(g._x, p_bad, 20.0, g._cst, g._ptab, g._scratch, 0, False)[0]
 
 
-def test_kernel_model_functions_equal_the_reference() -> None:
-    """transition / lateral_accel / chol_unrolled, run as Python, compute steering_model.f /
-    h_ay / steering_filters._chol4 operation for operation (==; compiled: the tests above)."""
+def test_kernel_model_functions_equal_the_reference(backend) -> None:
+    """transition / lateral_accel (run as Python, the kernels they call under the backend) and
+    chol4 compute steering_model.f / h_ay / small_linalg.chol4_or_fallback operation for
+    operation (==; the kernels compiled whole: the tests above)."""
     f = SteeringUKF()
     cst, k = f._cst, f.k
     rng = np.random.default_rng(11)
@@ -170,9 +172,9 @@ def test_kernel_model_functions_equal_the_reference() -> None:
         assert sk.lateral_accel(x[0], x[1], x[2], vx, cst) == sm.h_ay(x, vx, k)
         M = rng.normal(size=(4, 4))
         p = tuple(float(v) for v in (M @ M.T + 1e-3 * np.eye(4))[np.triu_indices(4)])
-        ok, l = chol4.py(p)
+        ok, l = chol4(p)
         assert ok and l == chol4_or_fallback(p)
-    assert not chol4.py((1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0))[0]
+    assert not chol4((1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0))[0]
 
 
 def test_gain_as_python_equals_the_smoother_gain() -> None:

@@ -1,9 +1,11 @@
-"""Compiled (numba) particle step of the production throttle estimator against the numpy path.
+"""The production throttle estimator's particle step and resampling (numba: compiled kernels)
+under every kernel backend against the numpy path (the python reference, computed once).
 
 Measured on the run below (alpha = 1, 40 k steps crossing all modes, a 400-step y=None stretch,
 an isolated 900 W outlier and five in a row): max |theta difference| 1e-12 deg, every decision
 (particle count, Kalman stretch, resampling, rejection) identical at every step. Tolerance
-1e-9 deg / identical decisions.
+1e-9 deg / identical decisions. Accuracy, calibration, same-seed determinism and reset replay
+per backend: tests/test_throttle_production.py.
 """
 
 from __future__ import annotations
@@ -29,14 +31,6 @@ from vecu.estimators.throttle.production import (
 from vecu.plant.throttle import simulate
 
 THETA_TOL_DEG = 1e-9
-BURN_IN = 1000
-
-
-@pytest.fixture
-def backend_restored():
-    """Let a test switch backends; the previous one is restored afterwards."""
-    with kernels.using(kernels.backend()):
-        yield kernels.set_backend
 
 
 @pytest.fixture(scope="module")
@@ -77,49 +71,19 @@ def _trace(est: ThrottleParticleFilter, u, y) -> tuple[np.ndarray, np.ndarray, l
     return out, dec, careful
 
 
-def test_numba_and_numpy_steps_agree_on_a_hard_run(hard_input, backend_restored):
-    pytest.importorskip("numba")
+def test_hard_run_agrees_with_the_python_reference(hard_input, backend, per_backend):
     u, y = hard_input
-    runs = {}
-    for name in ("python", "numba"):
-        backend_restored(name)
-        runs[name] = _trace(make_production_estimator(1.0), u, y)
-    (out_py, dec_py, care_py), (out_nb, dec_nb, care_nb) = runs["python"], runs["numba"]
+    out_py, dec_py, care_py = per_backend.reference(
+        "hard", lambda: _trace(make_production_estimator(1.0), u, y))
+    out_b, dec_b, care_b = per_backend.get(
+        "hard", lambda: _trace(make_production_estimator(1.0), u, y))
     # the run exercises every path: resizes, resampling, Kalman stretches, the careful update
     assert dec_py[-1, 1] > 1000 and dec_py[-1, 2] > 10 and dec_py[-1, 3] > 5000
     assert any(care_py) and dec_py[-1, 4] >= 5 and dec_py[-1, 5] == 0
-    np.testing.assert_array_equal(dec_nb, dec_py)  # same decisions at every step
-    assert care_nb == care_py
-    assert np.max(np.abs(out_nb[:, 0] - out_py[:, 0])) <= THETA_TOL_DEG
-    assert np.max(np.abs(out_nb[:, 1] - out_py[:, 1])) <= THETA_TOL_DEG
-
-
-def test_numba_same_seed_is_bit_identical_and_reset_replays(hard_input, backend_restored):
-    pytest.importorskip("numba")
-    backend_restored("numba")
-    u, y = hard_input[0][:6000], hard_input[1][:6000]
-    a, b = ThrottleParticleFilter(1.0, seed=7), ThrottleParticleFilter(1.0, seed=7)
-    first = _trace(a, u, y)[0]
-    assert np.array_equal(first, _trace(b, u, y)[0])
-    a.reset()
-    assert np.array_equal(_trace(a, u, y)[0], first)
-    assert not np.array_equal(_trace(ThrottleParticleFilter(1.0, seed=8), u, y)[0], first)
-
-
-# Same trace and tolerances as tests/test_throttle_production.py (measured there under numpy:
-# error std 6.05 deg at alpha 1, 1.83 deg at 0.3).
-@pytest.mark.parametrize("alpha, max_std, max_abs_mean", [(1.0, 7.0, 1.5), (0.3, 2.4, 0.5)])
-def test_accuracy_under_numba(alpha, max_std, max_abs_mean, backend_restored):
-    pytest.importorskip("numba")
-    backend_restored("numba")
-    tr = simulate(60_000, seed=11, noise_scale=alpha)
-    est = make_production_estimator(alpha)
-    out = _trace(est, tr.u.tolist(), tr.y.tolist())[0]
-    e = out[BURN_IN:, 0] - tr.theta[BURN_IN:]
-    assert e.std() <= max_std and abs(e.mean()) <= max_abs_mean
-    assert est.resets == 0
-    inside = np.abs(e) < 2 * out[BURN_IN:, 1]
-    assert 0.92 <= inside.mean() <= 0.99
+    np.testing.assert_array_equal(dec_b, dec_py)  # same decisions at every step
+    assert care_b == care_py
+    assert np.max(np.abs(out_b[:, 0] - out_py[:, 0])) <= THETA_TOL_DEG
+    assert np.max(np.abs(out_b[:, 1] - out_py[:, 1])) <= THETA_TOL_DEG
 
 
 def _particles(seed: int, lo: float, hi: float, n: int = 64) -> ThrottleParticleFilter:
@@ -138,48 +102,44 @@ def _particles(seed: int, lo: float, hi: float, n: int = 64) -> ThrottleParticle
 # theta spans: one class (mode 3), straddling the switches (mixed), near 0 (clip at the stop)
 @pytest.mark.parametrize("lo, hi", [(20.0, 88.0), (0.5, 40.0), (0.0, 0.4)])
 @pytest.mark.parametrize("mode, y", [(PRIOR, None), (UPDATE, 6.0), (CAREFUL, 900.0)])
-def test_kernel_step_equals_numpy_step(lo, hi, mode, y, backend_restored):
-    """pf_step (as plain Python, and compiled if numba is here) against the numpy methods on
-    the same frames: predict (class pick, noise, clip), the update variant, the moments."""
+def test_kernel_step_equals_numpy_step(lo, hi, mode, y, backend):
+    """pf_step under the backend (plain Python or compiled) against the numpy methods on the
+    same frames: predict (class pick, noise, clip), the update variant, the moments."""
     est = _particles(3, lo, hi)
     b = est._b
     f, g = b.cur, b.nxt
     f0, lo0, hi0 = f.F.copy(), est._lo, est._hi
-    backend_restored("python")
-    sw = est._propagate(b, f, g, 2.5, y, 101, 202, mode == CAREFUL)
+    with kernels.using("python"):
+        sw = est._propagate(b, f, g, 2.5, y, 101, 202, mode == CAREFUL)
     want = g.F[[0, 1, 2, 6]].copy()
     want_out = (sw, est._sw2, est._lo, est._hi, est.theta_deg, est.theta_std_deg)
-    impls = [pf_step.py] + ([pf_step.compiled] if kernels.numba_available() else [])
-    for impl in impls:
-        g.F[[0, 1, 2, 6]] = np.nan
-        f.F[:] = f0
-        yc = 0.0 if y is None else y + est._y_shift
-        s0, s1, s2, s3, lo_k, hi_k, ci_min = impl(
-            f.F, g.F, est._mats, est._kconst, est._ztab, b.T, 2.5, lo0, hi0, 101, 202, mode, yc)
-        np.testing.assert_allclose(g.F[[0, 1, 2, 6]], want, rtol=1e-12, atol=1e-12)
-        assert math.isclose(s0, want_out[0], rel_tol=1e-12)
-        assert math.isclose(s3, want_out[1], rel_tol=1e-12)
-        assert lo_k == want_out[2] and ci_min == g.ci.min()
-        assert hi_k == g.th.max()
-        th = s1 / s0
-        assert math.isclose(th, float(np.average(g.th, weights=g.w)), rel_tol=1e-12)
-        assert math.isclose(s2 / s0 - th * th, float(np.cov(g.th, aweights=g.w, ddof=0)),
-                            rel_tol=1e-9)
+    g.F[[0, 1, 2, 6]] = np.nan
+    f.F[:] = f0
+    yc = 0.0 if y is None else y + est._y_shift
+    s0, s1, s2, s3, lo_k, hi_k, ci_min = pf_step(
+        f.F, g.F, est._mats, est._kconst, est._ztab, b.T, 2.5, lo0, hi0, 101, 202, mode, yc)
+    np.testing.assert_allclose(g.F[[0, 1, 2, 6]], want, rtol=1e-12, atol=1e-12)
+    assert math.isclose(s0, want_out[0], rel_tol=1e-12)
+    assert math.isclose(s3, want_out[1], rel_tol=1e-12)
+    assert lo_k == want_out[2] and ci_min == g.ci.min()
+    assert hi_k == g.th.max()
+    th = s1 / s0
+    assert math.isclose(th, float(np.average(g.th, weights=g.w)), rel_tol=1e-12)
+    assert math.isclose(s2 / s0 - th * th, float(np.cov(g.th, aweights=g.w, ddof=0)),
+                        rel_tol=1e-9)
 
 
-def test_kernel_resampling_equals_numpy_counts():
-    """pf_resample gives exactly systematic_counts' copies (same draw u0), also into a
-    different particle count."""
+def test_kernel_resampling_equals_numpy_counts(backend):
+    """pf_resample under the backend gives exactly systematic_counts' copies (same draw u0),
+    also into a different particle count."""
     est = _particles(5, 10.0, 60.0, n=64)
     b = est._b
     f = b.cur
     f.w[:] = np.random.default_rng(6).exponential(size=64) ** 3
-    impls = [pf_resample.py] + ([pf_resample.compiled] if kernels.numba_available() else [])
     for n_new in (64, 40, 100):
         counts = systematic_counts(b, f.w, n_new, 0.37)
         want = f.top3.take(b.ar.repeat(counts), axis=1)
-        for impl in impls:
-            dst = np.full((7, n_new), np.nan)
-            assert impl(f.F, dst, n_new, 0.37) == n_new
-            np.testing.assert_array_equal(dst[:3], want)
-            assert np.all(dst[6] == 1.0)
+        dst = np.full((7, n_new), np.nan)
+        assert pf_resample(f.F, dst, n_new, 0.37) == n_new
+        np.testing.assert_array_equal(dst[:3], want)
+        assert np.all(dst[6] == 1.0)
