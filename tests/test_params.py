@@ -119,3 +119,22 @@ def test_cli_params_lists_json_and_reports_bad_paths():
         "vecu: error: parameter 'plant.manifold.engine.zeta': expected a number, got 'abc'"]
     res = _vecu("ecu", "--set", "plant.throttle.noise_scale=2", "--duration", "0.1")
     assert res.returncode == 2 and "takes ecu.* parameters only" in res.stderr
+
+
+def test_scenario_set_table_reaches_the_tree_and_bad_paths_name_the_file(tmp_path):
+    from vecu.scenario.loader import ScenarioError, load_scenario
+
+    good = tmp_path / "mismatch.toml"
+    good.write_text('duration_s = 1.0\n[plant]\nmanifold = true\n'
+                    '[set]\n"plant.manifold.engine.v_im_dm3" = 5.5\n'
+                    '[set.ecu.throttle.tps_monitor]\nplaus_debounce = 120\n')
+    cfg = load_scenario(good).config
+    assert cfg.params.plant.manifold.engine.v_im_dm3 == 5.5
+    assert cfg.params.ecu.manifold.kf.params.v_im_dm3 == 5.0
+    assert cfg.params.ecu.throttle.tps_monitor.plaus_debounce == 120
+    bad = tmp_path / "bad.toml"
+    bad.write_text('duration_s = 1.0\n[set]\n"plant.manifold.engine.v_im" = 5.5\n')
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(bad)
+    assert str(info.value).startswith(f"{bad}: key 'set': unknown parameter")
+    assert "nearest: plant.manifold.engine.v_im_dm3" in str(info.value)

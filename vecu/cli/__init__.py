@@ -15,7 +15,7 @@ from pathlib import Path
 
 from vecu.errors import BadFileError, UserError
 
-SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario")
+SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params")
 KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario")  # use estimators
 
 
@@ -86,6 +86,25 @@ def configure_logging(quiet: bool) -> None:
     """Warnings (rx problems, send failures) on stderr; with --quiet errors only."""
     logging.basicConfig(level=logging.ERROR if quiet else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+
+
+def add_set_option(p: argparse.ArgumentParser, scope: str) -> None:
+    """--set PATH=VALUE (repeatable): override a leaf of the parameter tree (`vecu params`)."""
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
+                   help=f"override a parameter ({scope}; `vecu params` lists them), repeatable")
+
+
+def param_sets(args: argparse.Namespace, only: str | None = None) -> list[tuple[str, str]]:
+    """The --set pairs of args; `only` restricts them to one half of the tree."""
+    from vecu.params import ParamError, parse_set_args
+
+    pairs = parse_set_args(getattr(args, "sets", []) or [])
+    if only is not None:
+        for path, _ in pairs:
+            if not path.startswith(only):
+                raise ParamError(f"--set {path}: `vecu {args.command}` takes {only}* parameters "
+                                 f"only")
+    return pairs
 
 
 def require_output_dirs(*paths: str | None) -> None:

@@ -1,0 +1,30 @@
+"""Behaviour unchanged: the candump log of `vecu run --duration 3 --seed 7` is byte-identical to
+the one recorded before the layered-house refactor (issue 13), on both kernel backends.
+
+A deliberate change of behaviour updates GOLDEN_SHA256 in its own commit, with the reason.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+
+import pytest
+
+from vecu import kernels
+
+GOLDEN_SHA256 = "ef45d7e713a1cc9f5017f3bb594c98703dfbd6480199631e8ac0d312d097e329"
+
+
+@pytest.mark.parametrize("backend", ["python", "numba"])
+def test_vecu_run_3s_seed7_candump_log_is_byte_identical(backend, tmp_path):
+    if backend == "numba" and not kernels.numba_available():
+        pytest.skip("numba not installed")
+    log = tmp_path / "x.log"
+    res = subprocess.run([sys.executable, "-m", "vecu", "run", "--duration", "3", "--seed", "7",
+                          "--log", str(log), "--quiet"], capture_output=True, text=True,
+                         timeout=300, env={**os.environ, "VECU_KERNELS": backend})
+    assert res.returncode == 0, res.stderr
+    assert hashlib.sha256(log.read_bytes()).hexdigest() == GOLDEN_SHA256
