@@ -6,6 +6,7 @@ plant / ECU processes, trace replay (ECU only) and scenarios.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import can
@@ -19,6 +20,7 @@ from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
+from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.faults import FaultInjector
 from vecu.plant.node import (
     LateralPart,
@@ -29,15 +31,14 @@ from vecu.plant.node import (
     ThrottlePart,
 )
 from vecu.plant.throttle import (
-    InputConfig,
     InputGenerator,
     ThrottlePlant,
-    ThrottlePlantConfig,
 )
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 
 TICK_NS = NS_PER_MS
+EstimatorFactory = Callable[..., ThrottleEstimator]
 PRIO_PLANT, PRIO_ECU, PRIO_PROBE, PRIO_RECORD = 0, 10, 20, 30
 
 
@@ -59,32 +60,37 @@ def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
                 injector: FaultInjector | None = None, truth: bool = False) -> PlantNode:
     """The simulated vehicle with the parts config asks for; truth=True adds the debug truth
     frames (dbc/vecu_truth.dbc) so that a recorded trace can be scored on its own."""
+    car = config.params.plant
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     injector = injector if injector is not None else FaultInjector(rngs["faults"])
     parts: list[PlantPart] = [ThrottlePart(
-        codec, ThrottlePlant(ThrottlePlantConfig(noise_scale=config.noise_scale),
-                             rngs["throttle.plant"]),
-        InputGenerator(InputConfig(), rngs["throttle.input"]), injector,
-        config.throttle.calibration)]
+        codec, ThrottlePlant(car.throttle, rngs["throttle.plant"]),
+        InputGenerator(car.input, rngs["throttle.input"]), injector, car.sensors.tps)]
     if config.speed:
-        parts.append(LongitudinalPart(codec, config.seed, config.speed_manoeuvres))
+        parts.append(LongitudinalPart(codec, config.seed, config.speed_manoeuvres,
+                                      car.sensors.wheel, car.sensors.accel))
     if config.steering:
-        parts.append(LateralPart(codec, config.seed, config.duration_s, injector))
+        parts.append(LateralPart(codec, config.seed, config.duration_s, injector, car.lateral,
+                                 car.sensors.lateral))
     plant = PlantNode(bus, codec, injector, parts)
     if config.manifold:
-        plant.manifold = ManifoldPart(codec, config.seed)
+        plant.manifold = ManifoldPart(codec, config.seed, car.manifold)
     if truth:
         plant.enable_truth(codec)
     return plant
 
 
-def build_functions(config: RunConfig, codec: DbcCodec) -> EcuFunctions:
-    estimator = make_throttle_estimator(config.estimator, noise_scale=config.noise_scale)
+def build_functions(config: RunConfig, codec: DbcCodec,
+                    make_estimator: EstimatorFactory = make_throttle_estimator) -> EcuFunctions:
+    """The ECU's functions, built from its half of the parameter tree (its calibration) only;
+    make_estimator(name, noise_scale=...) builds the throttle estimator (a seam for benches)."""
+    cal = config.params.ecu
+    estimator = make_estimator(cal.throttle.estimator, noise_scale=cal.throttle.noise_scale)
     return EcuFunctions(
-        throttle=ThrottleFunction(codec, estimator, config.throttle),
-        speed=SpeedFunction(codec, config=config.speed_fn) if config.speed else None,
-        steering=SteeringFunction(codec, config.steering_fn) if config.steering else None,
-        manifold=ManifoldFunction(codec, config.manifold_filter) if config.manifold else None)
+        throttle=ThrottleFunction(codec, estimator, cal.throttle),
+        speed=SpeedFunction(codec, config=cal.speed) if config.speed else None,
+        steering=SteeringFunction(codec, cal.steering) if config.steering else None,
+        manifold=ManifoldFunction(codec, cal.manifold) if config.manifold else None)
 
 
 def schedule_plant(sched: Scheduler, plant: PlantNode) -> None:

@@ -1,20 +1,24 @@
-"""Bus access, only through python-can.
+"""Bus access, only through python-can; the one module that opens (or defines) a bus.
 
 open_bus() takes python-can's own arguments (interface, channel, bitrate, anything else the
 interface accepts) and honours python-can configuration (CAN_INTERFACE / CAN_CHANNEL environment
 variables, ~/.canrc, can.ini or an explicit config file). With nothing configured anywhere it opens
-the in-process `virtual` bus on channel "vecu".
+the in-process `virtual` bus on channel "vecu". Also here: python-can's own VirtualBus as a
+benchmark baseline (open_baseline_virtual_bus), the replay sink (SinkBus) and BusNode, the
+counted, never-raising sender the plant and the ECU stand on.
 """
 
 from __future__ import annotations
 
+import logging
 import queue
-import time
+from collections.abc import Callable
 from typing import Any
 
 import can
 from can.interfaces.virtual import VirtualBus
 
+from vecu.clock import wall_time
 from vecu.errors import UnavailableError
 
 DEFAULT_INTERFACE = "virtual"
@@ -81,7 +85,7 @@ class FastVirtualBus(VirtualBus):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
-        timestamp = msg.timestamp if self.preserve_timestamps else time.time()
+        timestamp = msg.timestamp if self.preserve_timestamps else wall_time()
         all_sent = True
         for bus_queue in self.channel:
             own = bus_queue is self.queue
@@ -115,3 +119,57 @@ def open_bus(interface: str | None = None, channel: Any = None,
         raise BusOpenError(
             f"cannot open bus interface={cfg['interface']!r} channel={cfg['channel']!r}: {exc}"
         ) from exc
+
+
+def open_baseline_virtual_bus(channel: str) -> can.BusABC:
+    """python-can's own VirtualBus (what open_bus() improves on), timestamps preserved: the
+    baseline of `vecu bench --only bus`."""
+    return can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+
+
+class SinkBus(can.BusABC):
+    """A bus that receives nothing and drops what is sent (the fast-mode replay ECU's bus:
+    frames are handed in, sends are seen through BusNode.tap)."""
+
+    def __init__(self, channel: str = "sink") -> None:
+        super().__init__(channel=channel)
+        self.channel_info = "vecu sink"
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        pass
+
+    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+        return None, False
+
+    def recv(self, timeout: float | None = None) -> None:  # type: ignore[override]
+        return None
+
+
+MAX_LOGGED_SEND_ERRORS = 20
+
+
+class BusNode:
+    """Base of the plant and ECU nodes: send() counts frames and failures instead of raising."""
+
+    def __init__(self, bus: can.BusABC, name: str) -> None:
+        self.bus = bus
+        self.node_name = name
+        self.frames_sent = 0
+        self.send_errors = 0
+        self.tap: Callable[[can.Message], None] | None = None  # sees every frame sent (replay --out)
+        self._log = logging.getLogger(f"vecu.{name}")
+
+    def send(self, msg: can.Message) -> bool:
+        """Send one frame; True when the bus took it (a failure is counted and logged)."""
+        try:
+            self.bus.send(msg)
+            self.frames_sent += 1
+            if self.tap is not None:
+                self.tap(msg)
+            return True
+        except can.CanError as exc:
+            self.send_errors += 1
+            if self.send_errors <= MAX_LOGGED_SEND_ERRORS:
+                self._log.warning("%s: send failed for 0x%X: %s", self.node_name,
+                                  msg.arbitration_id, exc)
+            return False

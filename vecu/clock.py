@@ -1,7 +1,8 @@
 """One clock abstraction for the whole run: simulated (as fast as possible) or wall time.
 
 Time is an integer count of nanoseconds since the start of the run, so periodic deadlines never
-accumulate floating-point drift. Nothing else in vecu reads the system time or sleeps.
+accumulate floating-point drift. Nothing else in vecu reads the system time or sleeps: live
+pacing, frame timestamps and bench / eval timing use the readers and the Stopwatch below.
 """
 
 from __future__ import annotations
@@ -93,3 +94,72 @@ class WallClock:
 
 def seconds(t_ns: int) -> float:
     return t_ns / NS_PER_S
+
+
+# ---- the system's time, for the few places that need it (live pacing, frame timestamps, timing)
+
+def perf_s() -> float:
+    """High-resolution monotonic seconds (time.perf_counter): durations only."""
+    return time.perf_counter()
+
+
+def perf_ns() -> int:
+    """High-resolution monotonic nanoseconds (time.perf_counter_ns): durations and pacing."""
+    return time.perf_counter_ns()
+
+
+def process_s() -> float:
+    """CPU seconds of this process (time.process_time)."""
+    return time.process_time()
+
+
+def monotonic_ns() -> int:
+    """Monotonic nanoseconds (time.monotonic_ns), e.g. for unique names and coarse deadlines."""
+    return time.monotonic_ns()
+
+
+def wall_time() -> float:
+    """Seconds since the epoch (time.time), the base of kernel frame timestamps."""
+    return time.time()
+
+
+def wall_time_ns() -> int:
+    """Nanoseconds since the epoch (time.time_ns)."""
+    return time.time_ns()
+
+
+def sleep(seconds: float) -> None:
+    """Block the calling thread for `seconds` (time.sleep)."""
+    time.sleep(seconds)
+
+
+class Stopwatch:
+    """Elapsed wall (perf_counter) and CPU (process_time) seconds since creation or restart().
+
+    lap() returns the wall seconds since the previous lap() (or the start) and starts the next
+    lap, so a caller can split one pass into timed parts. The readers are injectable.
+    """
+
+    def __init__(self, wall: Callable[[], float] = time.perf_counter,
+                 cpu: Callable[[], float] = time.process_time) -> None:
+        self._wall = wall
+        self._cpu = cpu
+        self.restart()
+
+    def restart(self) -> None:
+        self._w0 = self._lap0 = self._wall()
+        self._c0 = self._cpu()
+
+    def elapsed(self) -> float:
+        """Wall seconds since the start."""
+        return self._wall() - self._w0
+
+    def cpu(self) -> float:
+        """CPU seconds of this process since the start."""
+        return self._cpu() - self._c0
+
+    def lap(self) -> float:
+        """Wall seconds since the previous lap (or the start); the next lap starts now."""
+        now = self._wall()
+        split, self._lap0 = now - self._lap0, now
+        return split

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import gc
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import can
@@ -16,13 +15,14 @@ from vecu.assembly import (
     PRIO_PROBE,
     PRIO_RECORD,
     TICK_NS,
+    EstimatorFactory,
     build_functions,
     build_plant,
     schedule_ecu,
     schedule_plant,
 )
 from vecu.bus import open_bus
-from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock
+from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.codec import DbcCodec
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuNode
@@ -30,6 +30,7 @@ from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import ThrottleFunction
+from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, FaultTarget, ScheduledFault, parse_kind
 from vecu.plant.node import (
     PlantNode,
@@ -59,9 +60,11 @@ class RunResult:
     manifold_series: np.ndarray | None = None  # rows (t_s, true P_im, estimated P_im) per event
 
 
-def run(config: RunConfig, progress: Callable[[float, float], None] | None = None) -> RunResult:
+def run(config: RunConfig, progress: Callable[[float, float], None] | None = None, *,
+        make_estimator: EstimatorFactory = make_throttle_estimator) -> RunResult:
     """Run plant + injector + ECU (+ recorder) for config.duration_s on one scheduler;
-    progress(t_s, duration_s), when given, is called after each simulated second."""
+    progress(t_s, duration_s), when given, is called after each simulated second;
+    make_estimator builds the ECU's throttle estimator (benches pass a timed one)."""
     config.validate()
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     codec = DbcCodec()
@@ -85,7 +88,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         injector = FaultInjector(rngs["faults"])
         plant = build_plant(config, codec, plant_bus, injector,
                             truth=config.truth and recorder is not None)
-        fns = build_functions(config, codec)
+        fns = build_functions(config, codec, make_estimator)
         throttle_fn = fns.throttle
         throttle_part = plant.throttle
         assert throttle_part is not None
@@ -133,7 +136,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
             _schedule_fault(sched, injector, f)
         if config.realtime:
             warm_up(config)
-        wall0 = time.perf_counter()
+        watch = Stopwatch()
         clock.start()  # set-up time must not count against the first deadlines
         if progress is None:
             sched.run_until(end_ns)
@@ -141,7 +144,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
             for chunk_end in range(NS_PER_S, end_ns + NS_PER_S, NS_PER_S):
                 sched.run_until(min(chunk_end, end_ns))
                 progress(min(chunk_end, end_ns) / NS_PER_S, config.duration_s)
-        wall = time.perf_counter() - wall0
+        wall = watch.elapsed()
         ecu.overruns = ecu_task.overruns
         if recorder is not None:
             recorder.drain(end_ns)
@@ -194,7 +197,7 @@ def _run_briefly(config: RunConfig) -> None:
     from dataclasses import replace
 
     run(replace(config, duration_s=0.3, kill_tps_at_s=None, kill_swa_at_s=None, realtime=False,
-                interface="virtual", channel=f"vecu-warm-up-{time.monotonic_ns()}",
+                interface="virtual", channel=f"vecu-warm-up-{monotonic_ns()}",
                 log_path=None, keep_series=False, faults=()))
 
 
@@ -247,7 +250,7 @@ def _summary(config: RunConfig, sched: Scheduler, plant: PlantNode, ecu: EcuNode
     throttle.update(probe.summary())
     sim_s = n_ticks / 1000.0
     return {
-        "config": {k: v for k, v in asdict(config).items() if k != "throttle"},
+        "config": config.summary(),
         "ticks": n_ticks,
         "overruns": sched.overruns,
         "tasks": {t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,

@@ -2,20 +2,23 @@
 
 `python -m vecu.bench.breakdown [seconds]` runs the default configuration (all four estimators,
 all plant parts, TPS killed half way) on the simulated clock twice: once plain (the real
-x-real-time) and once with timers around the components (exclusive times: a part's tick does
-not include the frame encoding and bus send it calls, which are their own rows). The timers
-cost ~0.5 us per timed call, so the instrumented total is larger than the plain one; the rows
-are for proportions, the plain run for the speed.
+x-real-time) and once under cProfile (nothing is patched). A component's row is its exclusive
+time: its cumulative time less the time of the components it calls, directly or through other
+functions (a part's tick does not include the frame encoding and bus send it calls, which are
+their own rows; time reached through a non-component function is split as that function's
+profile splits it). The profiler costs time on every call, so the instrumented total is larger
+than the plain one; the rows are for proportions, the plain run for the speed.
 """
 
 from __future__ import annotations
 
+import cProfile
 import importlib
+import pstats
 import sys
-import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
+
+from vecu.clock import Stopwatch
 
 # (module, class or None for a module function, attribute, row label)
 COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
@@ -31,7 +34,7 @@ COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
     ("vecu.codec", "FrameCodec", "decode", "codec: decode"),
     ("vecu.codec", "FrameCodec", "crc_ok", "codec: E2E CRC check"),
     ("vecu.codec", "FrameCodec", "bad_values", "codec: range check"),
-    ("vecu.node", "BusNode", "_send", "bus: send"),
+    ("vecu.bus", "BusNode", "send", "bus: send"),
     ("vecu.bus", "FastVirtualBus", "recv", "bus: recv (poll)"),
     ("vecu.ecu.node", "EcuNode", "tick", "ecu: node tick (dispatch, status)"),
     ("vecu.ecu.node", "EcuNode", "receive", "ecu: receive + validate"),
@@ -55,56 +58,60 @@ COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
 )
 
 
-class _Timers:
-    def __init__(self) -> None:
-        self.excl: dict[str, float] = {}
-        self.calls: dict[str, int] = {}
-        self._stack: list[float] = []
-
-    def wrap(self, fn: Any, label: str) -> Any:
-        perf = time.perf_counter
-        stack = self._stack
-        excl, calls = self.excl, self.calls
-        excl.setdefault(label, 0.0)
-        calls.setdefault(label, 0)
-
-        def timed(*args: Any, **kwargs: Any) -> Any:
-            stack.append(0.0)
-            t0 = perf()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                el = perf() - t0
-                child = stack.pop()
-                excl[label] += el - child
-                calls[label] += 1
-                if stack:
-                    stack[-1] += el
-
-        return timed
+FuncKey = tuple[str, int, str]  # pstats' (file, first line, name)
 
 
-@contextmanager
-def _instrumented(timers: _Timers) -> Iterator[None]:
-    saved = []
-    try:
-        for mod_name, cls_name, attr, label in COMPONENTS:
-            mod = importlib.import_module(mod_name)
-            owner = getattr(mod, cls_name) if cls_name else mod
-            if attr not in vars(owner) and cls_name is not None:
-                orig = getattr(owner, attr)  # inherited: wrap on this class, delete afterwards
-                saved.append((owner, attr, None))
-            else:
-                orig = vars(owner)[attr]
-                saved.append((owner, attr, orig))
-            setattr(owner, attr, timers.wrap(orig, label))
-        yield
-    finally:
-        for owner, attr, orig in reversed(saved):
-            if orig is None:
-                delattr(owner, attr)
-            else:
-                setattr(owner, attr, orig)
+def _component_keys() -> dict[FuncKey, str]:
+    """The profiler's key of each component's function -> its row label."""
+    keys: dict[FuncKey, str] = {}
+    for mod_name, cls_name, attr, label in COMPONENTS:
+        owner = importlib.import_module(mod_name)
+        if cls_name is not None:
+            owner = getattr(owner, cls_name)
+        code = getattr(getattr(owner, attr), "__code__", None)
+        if code is not None:  # a compiled kernel has none: it is not profiled on its own
+            keys[(code.co_filename, code.co_firstlineno, code.co_name)] = label
+    return keys
+
+
+def exclusive_times(stats: dict[FuncKey, tuple], components: dict[FuncKey, str]
+                    ) -> tuple[dict[str, float], dict[str, int]]:
+    """(seconds, calls) per label from pstats' raw stats {func: (cc, nc, tt, ct, callers)}.
+
+    share(f) = fraction of f's cumulative time spent inside components (1 for a component);
+    a component's exclusive time = its cumulative time - sum over its callees g of
+    (time of the calls to g from it) * share(g).
+    """
+    callees: dict[FuncKey, list[tuple[FuncKey, float]]] = {}
+    for func, (_, _, _, _, callers) in stats.items():
+        for caller, edge in callers.items():
+            callees.setdefault(caller, []).append((func, edge[3]))
+    share: dict[FuncKey, float] = {}
+
+    def share_of(func: FuncKey, active: set[FuncKey]) -> float:
+        if func in components:
+            return 1.0
+        if func in share:
+            return share[func]
+        ct = stats[func][3] if func in stats else 0.0
+        if ct <= 0.0 or func in active:
+            return 0.0
+        active.add(func)
+        inside = sum(t * share_of(g, active) for g, t in callees.get(func, ()))
+        active.discard(func)
+        share[func] = min(inside / ct, 1.0)
+        return share[func]
+
+    excl: dict[str, float] = {label: 0.0 for label in components.values()}
+    calls: dict[str, int] = {label: 0 for label in components.values()}
+    for func, label in components.items():
+        if func not in stats:
+            continue
+        _, nc, _, ct, _ = stats[func]
+        nested = sum(t * share_of(g, set()) for g, t in callees.get(func, ()) if g != func)
+        excl[label] += max(ct - nested, 0.0)
+        calls[label] += nc
+    return excl, calls
 
 
 def breakdown(duration_s: float = 5.0, seed: int = 0) -> dict[str, Any]:
@@ -114,18 +121,21 @@ def breakdown(duration_s: float = 5.0, seed: int = 0) -> dict[str, Any]:
     cfg = RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2, seed=seed)
     run(RunConfig(duration_s=0.2, kill_tps_at_s=0.1, seed=seed))  # first use: imports, compiled-kernel loading
     plain = run(cfg).summary
-    timers = _Timers()
-    with _instrumented(timers):
-        t0 = time.perf_counter()
+    profiler = cProfile.Profile()
+    watch = Stopwatch()
+    profiler.enable()
+    try:
         inst = run(cfg).summary
-        wall_inst = time.perf_counter() - t0
+    finally:
+        profiler.disable()
+    wall_inst = watch.elapsed()
+    excl, calls = exclusive_times(pstats.Stats(profiler).stats,  # type: ignore[attr-defined]
+                                  _component_keys())
     ticks = plain["ticks"]
     rows: dict[str, dict[str, float]] = {}
-    for label, sec in timers.excl.items():
-        row = rows.setdefault(label, {"us_per_tick": 0.0, "calls_per_tick": 0.0})
-        row["us_per_tick"] += sec / ticks * 1e6
-        row["calls_per_tick"] += timers.calls[label] / ticks
-    timed = sum(timers.excl.values())
+    for label, sec in excl.items():
+        rows[label] = {"us_per_tick": sec / ticks * 1e6, "calls_per_tick": calls[label] / ticks}
+    timed = sum(excl.values())
     rows["scheduler, run loop and untimed glue"] = {
         "us_per_tick": (inst["wall_time_s"] - timed) / ticks * 1e6, "calls_per_tick": 0.0}
     for row in rows.values():

@@ -10,14 +10,13 @@ is timed.
 from __future__ import annotations
 
 import itertools
-import time
 from typing import Any
 
 import can
 
 from vecu.assembly import TICK_NS, build_functions, build_plant, schedule_plant
 from vecu.bus import open_bus
-from vecu.clock import SimClock
+from vecu.clock import SimClock, Stopwatch
 from vecu.codec import DbcCodec
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuNode
@@ -59,14 +58,14 @@ def run_ecu(frames: list[list[can.Message]], fast_codec: bool = True) -> dict[st
     try:
         ecu = EcuNode(bus, codec, build_functions(RunConfig(), codec).enabled())
         receive, tick = ecu.receive, ecu.tick
-        w0, c0 = time.perf_counter(), time.process_time()
+        watch = Stopwatch()
         t_ns = 0
         for batch in frames:
             for msg in batch:
                 receive(msg, t_ns)
             tick(t_ns)
             t_ns += TICK_NS
-        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        wall, cpu = watch.elapsed(), watch.cpu()
     finally:
         bus.shutdown()
     n = len(frames)

@@ -14,11 +14,10 @@ from __future__ import annotations
 import json
 import resource
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
-from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock
+from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock, monotonic_ns, perf_s
 from vecu.live.netns import namespace_prefix, python_module, run_in_namespace
 from vecu.live.process import TickMeter
 from vecu.scheduler import Scheduler
@@ -44,7 +43,8 @@ def _rss_kb() -> int:
 
 def bench_memory(minutes: float, estimator: str = "production") -> dict[str, Any]:
     """Plant + ECU (all four functions) on the simulated clock for `minutes` simulated minutes;
-    RSS sampled every simulated minute (the first sample after one minute, past set-up)."""
+    RSS sampled every simulated minute (a quarter of the run when shorter than 4 minutes), the
+    first sample one period in, past set-up."""
     from vecu.assembly import build_functions, build_plant, schedule_ecu, schedule_plant
     from vecu.bus import open_bus
     from vecu.codec import DbcCodec
@@ -52,9 +52,9 @@ def bench_memory(minutes: float, estimator: str = "production") -> dict[str, Any
     from vecu.ecu.node import EcuNode
 
     duration_s = minutes * 60.0
-    config = RunConfig(duration_s=duration_s, kill_tps_at_s=None, estimator=estimator)
+    config = RunConfig(duration_s=duration_s, kill_tps_at_s=None).with_params(estimator=estimator)
     codec = DbcCodec()
-    channel = f"vecu-bench-memory-{time.monotonic_ns()}"
+    channel = f"vecu-bench-memory-{monotonic_ns()}"
     plant_bus, ecu_bus = open_bus(channel=channel), open_bus(channel=channel)
     samples: list[tuple[float, int]] = []
     try:
@@ -63,11 +63,12 @@ def bench_memory(minutes: float, estimator: str = "production") -> dict[str, Any
         sched = Scheduler(SimClock())
         schedule_plant(sched, plant)
         schedule_ecu(sched, ecu)
-        sched.every(60 * NS_PER_S, lambda t: samples.append((t / NS_PER_S, _rss_kb())),
-                    name="rss", offset_ns=60 * NS_PER_S, priority=99)
-        t0 = time.perf_counter()
+        period_ns = int(min(60.0, duration_s / 4) * NS_PER_S)
+        sched.every(period_ns, lambda t: samples.append((t / NS_PER_S, _rss_kb())),
+                    name="rss", offset_ns=period_ns, priority=99)
+        t0 = perf_s()
         sched.run_until(int(duration_s * NS_PER_S) + 1)
-        wall = time.perf_counter() - t0
+        wall = perf_s() - t0
     finally:
         plant_bus.shutdown()
         ecu_bus.shutdown()
@@ -77,6 +78,7 @@ def bench_memory(minutes: float, estimator: str = "production") -> dict[str, Any
             "rss_kb_first": rss[0] if rss else None, "rss_kb_last": rss[-1] if rss else None,
             "rss_kb_max": max(rss) if rss else None,
             "growth_kb_after_first_minute": (max(rss) - rss[0]) if rss else None,
+            "first_sample_s": samples[0][0] if samples else None,
             "samples": samples}
 
 
@@ -85,16 +87,16 @@ def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict
     frames offered vs frames the ECU decoded; frames it answered."""
     from vecu.assembly import build_functions, build_plant, schedule_ecu, schedule_plant
     from vecu.bus import open_bus
-    from vecu.cli.plant import ExtraLoad
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
     from vecu.ecu.node import EcuNode
     from vecu.live.livebus import LiveBus, sent_ids
+    from vecu.live.load import ExtraLoad
     from vecu.runner import warm_up
 
     config = RunConfig(duration_s=seconds, kill_tps_at_s=None)
     codec = DbcCodec()
-    channel = f"vecu-bench-load-{time.monotonic_ns()}"
+    channel = f"vecu-bench-load-{monotonic_ns()}"
     raw_plant, raw_ecu = open_bus(channel=channel), open_bus(channel=channel)
     try:
         plant_bus = LiveBus(raw_plant, sent_ids(codec, "PLANT"), "virtual")
@@ -119,10 +121,10 @@ def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict
         meter.stats = schedule_ecu(sched, ecu)
         warm_up(config)
         clock.start()
-        t0 = time.perf_counter()
+        t0 = perf_s()
         sched.run_until(int(seconds * NS_PER_S))
         ecu_tick(int(seconds * NS_PER_S))  # drain what the last plant tick sent
-        wall = time.perf_counter() - t0
+        wall = perf_s() - t0
     finally:
         raw_plant.shutdown()
         raw_ecu.shutdown()
@@ -244,6 +246,7 @@ def format_live(r: dict[str, Any]) -> str:
         lines.append(f"  throughput udp_multicast: {tu}")
     m = r["memory"]
     lines.append(f"  memory: {m['simulated_min']} simulated min ({m['x_realtime']}x real time): RSS "
-                 f"{m['rss_kb_first']} kB after 1 min, max {m['rss_kb_max']} kB, last "
-                 f"{m['rss_kb_last']} kB (growth {m['growth_kb_after_first_minute']} kB)")
+                 f"{m['rss_kb_first']} kB after {m['first_sample_s']:g} s, max "
+                 f"{m['rss_kb_max']} kB, last {m['rss_kb_last']} kB (growth "
+                 f"{m['growth_kb_after_first_minute']} kB)")
     return "\n".join(lines)

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import hashlib
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
 import can
 
 from vecu.bus import open_bus
+from vecu.clock import perf_ns, perf_s
 from vecu.config import RunConfig
 from vecu.replay.engine import SCHEDULE_ERROR_LIMIT_US, ReplayConfig, replay
 from vecu.stats import DurationHistogram
@@ -20,15 +20,15 @@ from vecu.stats import DurationHistogram
 def record_trace(path: str, duration_s: float, seed: int = 0) -> float:
     """A drive with all four functions, TPS dead at half time, truth frames; returns wall s."""
     from vecu.runner import run
-    t = time.perf_counter()
+    t = perf_s()
     run(RunConfig(duration_s=duration_s, seed=seed, kill_tps_at_s=duration_s / 2, log_path=path))
-    return time.perf_counter() - t
+    return perf_s() - t
 
 
 def read_only_seconds(path: str) -> tuple[float, int]:
-    t = time.perf_counter()
+    t = perf_s()
     n = sum(1 for _ in can.LogReader(path))
-    return time.perf_counter() - t, n
+    return perf_s() - t, n
 
 
 def bench_fast(path: str, estimator: str) -> dict[str, Any]:
@@ -60,10 +60,10 @@ def bench_player_baseline(path: str, seconds: float, channel: str) -> dict[str, 
         start = None
         for msg in can.MessageSync(frames, timestamps=True, gap=0.0001, skip=60):
             if start is None:
-                start = time.perf_counter_ns()
+                start = perf_ns()
             bus.send(msg)
             due = start + int((msg.timestamp - t0_rec) * 1e9)
-            hist.record(time.perf_counter_ns() - due)
+            hist.record(perf_ns() - due)
     finally:
         bus.shutdown()
     return hist.summary()

@@ -12,23 +12,39 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="run the speed benchmarks (ratios against same-run baselines)",
                        description="Benchmarks: paper UKF step (fast vs straightforward numpy), "
                                    "virtual bus (vecu vs python-can), whole pipeline x real time.")
-    p.add_argument("--quick", action="store_true", help="shorter runs (noisier figures)")
+    p.add_argument("--quick", action="store_true",
+                   help="the smallest sizes (seconds per group; noisy figures, a smoke test)")
     p.add_argument("--only", choices=("ukf", "bus", "pipeline", "live", "replay", "ecu",
                                         "breakdown", "kernels"), help="run one benchmark group")
-    p.add_argument("--live-seconds", type=float, default=10.0, metavar="S",
-                   help="live group: seconds of the plant + ECU processes run (target: 60)")
-    p.add_argument("--memory-minutes", type=float, default=10.0, metavar="M",
-                   help="live group: simulated minutes of the memory-flatness run (target: 60)")
-    p.add_argument("--replay-seconds", type=float, default=60.0, metavar="S",
-                   help="replay group: length of the recorded drive replayed (default 60)")
+    p.add_argument("--live-seconds", type=float, default=None, metavar="S",
+                   help="live group: seconds of the plant + ECU processes run (default 10, "
+                        "--quick 1; target: 60)")
+    p.add_argument("--memory-minutes", type=float, default=None, metavar="M",
+                   help="live group: simulated minutes of the memory-flatness run (default 10, "
+                        "--quick 0.25; target: 60)")
+    p.add_argument("--replay-seconds", type=float, default=None, metavar="S",
+                   help="replay group: length of the recorded drive replayed (default 60, "
+                        "--quick 4)")
     p.add_argument("--estimator", default="production",
                    help="ECU estimator for the pipeline run (default production; try arm)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.set_defaults(func=main)
 
 
-def collect(quick: bool, only: str | None, estimator: str, live_seconds: float = 10.0,
-            memory_minutes: float = 10.0, replay_seconds: float = 60.0) -> dict[str, Any]:
+# group sizes: (full, --quick); --quick keeps every group to a few seconds (tests/test_bench_smoke)
+SIZES: dict[str, tuple[float, float]] = {
+    "ukf_steps": (20_000, 2_000), "ukf_repeats": (5, 2), "filter_steps": (5_000, 1_000),
+    "manifold_s": (80.0, 3.0), "production_steps": (20_000, 2_000), "smoother_steps": (2_000, 300),
+    "manifold_fn_s": (40.0, 3.0), "bus_frames": (20_000, 5_000), "pipeline_s": (10.0, 1.0),
+    "ecu_s": (10.0, 1.0), "breakdown_s": (5.0, 1.0), "kernels_s": (5.0, 1.0),
+    "replay_s": (60.0, 4.0), "replay_live_s": (10.0, 1.5), "live_s": (10.0, 1.0),
+    "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0),
+}
+
+
+def collect(quick: bool, only: str | None, estimator: str, live_seconds: float | None = None,
+            memory_minutes: float | None = None,
+            replay_seconds: float | None = None) -> dict[str, Any]:
     from vecu import kernels
     from vecu.bench.estimators import (
         bench_manifold,
@@ -37,42 +53,47 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float =
     )
     from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
 
+    def size(name: str, given: float | None = None) -> Any:
+        return given if given is not None else SIZES[name][1 if quick else 0]
+
     out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine(),
-                           "kernel_backend": kernels.backend()}
+                           "kernel_backend": kernels.backend(), "quick": quick}
     if only in (None, "ukf"):
-        out["ukf"] = bench_throttle_ukf(steps=5_000 if quick else 20_000)
-        out["filters"] = bench_speed_and_steering(steps=2_000 if quick else 5_000)
-        out["manifold"] = bench_manifold(duration_s=10.0 if quick else 80.0)
+        out["ukf"] = bench_throttle_ukf(steps=int(size("ukf_steps")),
+                                        repeats=int(size("ukf_repeats")))
+        out["filters"] = bench_speed_and_steering(steps=int(size("filter_steps")))
+        out["manifold"] = bench_manifold(duration_s=size("manifold_s"))
         from vecu.bench.estimators import (
             bench_manifold_function,
             bench_steering_smoother,
             bench_throttle_production,
         )
         out["estimators"] = [  # the four ECU estimators against straightforward numpy versions
-            bench_throttle_production(steps=5_000 if quick else 20_000),
+            bench_throttle_production(steps=int(size("production_steps"))),
             out["filters"][0],
-            bench_steering_smoother(steps=500 if quick else 2_000),
-            bench_manifold_function(duration_s=10.0 if quick else 40.0)]
+            bench_steering_smoother(steps=int(size("smoother_steps"))),
+            bench_manifold_function(duration_s=size("manifold_fn_s"))]
     if only in (None, "bus"):
-        out["bus"] = bench_virtual_bus(frames=5_000 if quick else 20_000)
+        out["bus"] = bench_virtual_bus(frames=int(size("bus_frames")))
     if only in (None, "pipeline"):
-        out["pipeline"] = bench_pipeline(duration_s=2.0 if quick else 10.0, estimator=estimator)
+        out["pipeline"] = bench_pipeline(duration_s=size("pipeline_s"), estimator=estimator)
     if only in (None, "ecu"):
         from vecu.bench.ecu import bench_ecu
-        out["ecu"] = bench_ecu(duration_s=3.0 if quick else 10.0)
+        out["ecu"] = bench_ecu(duration_s=size("ecu_s"))
     if only in (None, "breakdown"):
         from vecu.bench.breakdown import breakdown
-        out["breakdown"] = breakdown(duration_s=2.0 if quick else 5.0)
+        out["breakdown"] = breakdown(duration_s=size("breakdown_s"))
     if only in (None, "kernels"):
         from vecu.bench.kernels import bench_kernels
-        out["kernels"] = bench_kernels(duration_s=2.0 if quick else 5.0)
+        out["kernels"] = bench_kernels(duration_s=size("kernels_s"))
     if only in (None, "replay"):
         from vecu.bench.replay import bench_replay
-        out["replay"] = bench_replay(10.0 if quick else replay_seconds,
-                                     3.0 if quick else 10.0, estimator)
+        out["replay"] = bench_replay(size("replay_s", replay_seconds), size("replay_live_s"),
+                                     estimator)
     if only in (None, "live"):
         from vecu.bench.live import bench_live
-        out["live"] = bench_live(live_seconds, memory_minutes, 2.0 if quick else 5.0)
+        out["live"] = bench_live(size("live_s", live_seconds), size("memory_min", memory_minutes),
+                                 size("throughput_s"))
     return out
 
 

@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from vecu.cli import UserInputError, configure_logging, require_output_dirs
+from vecu.cli import (
+    UserInputError,
+    add_set_option,
+    configure_logging,
+    param_sets,
+    require_output_dirs,
+)
 from vecu.live.args import add_live_arguments, live_options
 
 # without --duration the precomputed steering manoeuvre covers this much, then holds its end
@@ -17,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="The plant in its own process: sensor frames on the wall clock "
                                    "(1 ms base tick), obeying FI_Command frames (see docs/live.md).")
     add_live_arguments(p)
+    add_set_option(p, "plant.*")
     p.add_argument("--truth", action="store_true",
                    help="also send the debug truth frames (dbc/vecu_truth.dbc)")
     p.add_argument("--extra-load", type=float, default=0.0, metavar="FRAMES_PER_S",
@@ -28,37 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
-class ExtraLoad:
-    """Sends copies of the current ESC_Motion frame at a mean rate, spread over the 1 ms ticks."""
-
-    def __init__(self, codec, plant, per_s: float) -> None:
-        from vecu.units import MPS_PER_KMH
-
-        self._msg = codec["ESC_Motion"]
-        self._part = plant.longitudinal
-        self._send = plant._send
-        self._per_tick = per_s / 1000.0
-        self._owed = 0.0
-        self._kmh = MPS_PER_KMH
-        self.sent = 0
-
-    def tick(self, t_ns: int) -> None:
-        self._owed += self._per_tick
-        n = int(self._owed)
-        if n <= 0:
-            return
-        self._owed -= n
-        part = self._part
-        frame = self._msg.frame({"ESC_WheelSpeed": part.wheel / self._kmh,
-                                 "ESC_LongAccel": part.accel}, t_ns / 1e9)
-        for _ in range(n):
-            self.sent += self._send(frame)
-
-
 def main(args: argparse.Namespace) -> int:
     from vecu.assembly import build_plant, schedule_plant
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
+    from vecu.live.load import ExtraLoad
     from vecu.live.process import LiveProcess
     from vecu.runner import warm_up
 
@@ -71,9 +52,10 @@ def main(args: argparse.Namespace) -> int:
     if not 1.0 <= args.steering_horizon <= 86_400.0:
         raise UserInputError(f"--steering-horizon: expected 1..86400 s, got {args.steering_horizon}")
     horizon = args.duration if args.duration is not None else args.steering_horizon
-    config = RunConfig(duration_s=horizon, seed=args.seed, noise_scale=args.noise_scale,
+    config = RunConfig(duration_s=horizon, seed=args.seed,
                        kill_tps_at_s=None, speed=not args.no_speed, steering=not args.no_steering,
-                       manifold=not args.no_manifold)
+                       manifold=not args.no_manifold,
+                       ).with_params(param_sets(args, only="plant."), noise_scale=args.noise_scale)
     codec = DbcCodec()
     config.validate()
     proc = LiveProcess(live_options(args, "plant"), codec, "PLANT")

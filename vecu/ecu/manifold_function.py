@@ -11,10 +11,9 @@ Events whose frames did not both arrive are counted as lost; the filter predicts
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
-from vecu.clock import NS_PER_MS, NS_PER_S
+from vecu.clock import NS_PER_MS, NS_PER_S, Stopwatch
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
@@ -37,7 +36,9 @@ class ManifoldFunction:
     period_ns = NS_PER_MS  # polls for complete events every base tick
 
     def __init__(self, codec: DbcCodec,
-                 config: ManifoldFunctionConfig = ManifoldFunctionConfig()) -> None:
+                 config: ManifoldFunctionConfig = ManifoldFunctionConfig(),
+                 stopwatch: Stopwatch | None = None) -> None:
+        """stopwatch times the filter and the prediction (filter_seconds, predict_seconds)."""
         self.filter = make_filter(config.filter, config.kf)
         self.filter_name = config.filter
         self._engine = self.filter.params  # the calibration: filter, CAC and prediction
@@ -48,6 +49,7 @@ class ManifoldFunction:
         self.lost_events = 0     # counter gaps (frames lost or rejected)
         self.filter_seconds = 0.0   # time in the filter step (us/event in the summary)
         self.predict_seconds = 0.0  # time in the 6-event CAC prediction
+        self._watch = stopwatch if stopwatch is not None else Stopwatch()
         self._event: dict[str, float] | None = None
         self._iat: tuple[int, float] | None = None
         self._last_counter: int | None = None
@@ -82,17 +84,18 @@ class ManifoldFunction:
         u = nominal_input(ev["ENG_ThrottleSetpoint"] * RAD_PER_DEG, n_rpm, self._engine)
         y = (ev["ENG_ThrottleAngle"] * RAD_PER_DEG, ev["ENG_MAP"],
              t_meas if t_meas is not None else math.nan)  # NaN channel: rejected, others used
-        t0 = time.perf_counter()
+        watch = self._watch
+        watch.lap()
         x = self.filter.step(y, u)
-        t1 = time.perf_counter()
+        filter_s = watch.lap()
         cac = cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, self._engine)
         first = self.filter.last_prediction  # the filter already ran event n+1 from x
         if first is not None and first[0] is u:
             cac6 = predict_cac(first[1], [u] * (HORIZON - 1), self._engine)
         else:
             cac6 = predict_cac(x, [u] * HORIZON, self._engine)
-        self.filter_seconds += t1 - t0
-        self.predict_seconds += time.perf_counter() - t1
+        self.filter_seconds += filter_s
+        self.predict_seconds += watch.lap()
         self.events += 1
         self.last = (self._abs_index, float(x[3]), float(x[4]), cac, cac6)
         self.estimates_sent += send(self._out.frame({

@@ -15,11 +15,11 @@ from typing import Callable, Protocol
 
 import can
 
+from vecu.bus import BusNode
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec, FrameCodec
 from vecu.e2e import AliveCounterCheck
 from vecu.ecu.sensor_monitor import Dtc, SensorMonitor
-from vecu.node import BusNode
 
 log = logging.getLogger(__name__)
 
@@ -228,7 +228,7 @@ class EcuNode(BusNode):
             self.receive(msg, t_ns)
         for fn in self._armed:
             if t_ns % fn.period_ns == 0:
-                fn.run(t_ns, self._send)
+                fn.run(t_ns, self.send)
         if t_ns >= self._next_status_ns:
             self._next_status_ns += self._status_period_ns
             self._send_status(t_ns / NS_PER_S)
@@ -261,7 +261,7 @@ class EcuNode(BusNode):
             signals[f"DIAG_{prefix}Status"] = int(mon.status) if mon else 0
             confirmations += mon.dtc_item.confirmations if mon else 0
         signals["DIAG_Confirmations"] = min(confirmations, 255)
-        self._send(self._diag.frame(signals, t_ns / NS_PER_S))
+        self.send(self._diag.frame(signals, t_ns / NS_PER_S))
         self._diag_counter = (self._diag_counter + 1) & 0xF
 
     def _send_status(self, ts: float) -> None:
@@ -270,7 +270,7 @@ class EcuNode(BusNode):
         for fn in self.functions:
             signals.update(fn.status_signals())
         timeouts = sum(fn.timeouts for fn in self.functions)
-        self._send(self._status.frame({
+        self.send(self._status.frame({
             **signals,
             "ECU_StatusCounter": self._status_counter,
             "ECU_Overruns": min(self.overruns, 65535),

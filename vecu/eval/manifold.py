@@ -15,11 +15,11 @@ first `scipy_events` events of the first run), the cheap-vs-full-DARE SDKF agree
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.clock import perf_s
 from vecu.estimators.manifold.cac_predict import (
     CacPredictionConfig,
     OpenLoopTemperature,
@@ -103,7 +103,7 @@ def run_filter(name: str, trace: ManifoldTrace, inputs: list[EngineInput],
     xs = np.empty((n_ev, 6))
     step = flt.step
     elapsed = 0.0
-    clock = time.perf_counter
+    clock = perf_s
     for n in range(n_ev):
         t0 = clock()
         xs[n] = step(ys[n], inputs[n])

@@ -10,12 +10,12 @@ P0 = I having been forgotten by then). Note: the paper's Table II compares with 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
+from vecu.clock import perf_s
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.plant.throttle import ThrottleTrace, simulate
@@ -60,13 +60,13 @@ def run_estimator(
     sd = [0.0] * n
     step = est.step
     up = 0.0
-    t0 = time.perf_counter()
+    t0 = perf_s()
     for k in range(n):
         step(up, y[k])
         th[k] = est.theta_deg
         sd[k] = est.theta_std_deg
         up = u[k]
-    elapsed = time.perf_counter() - t0
+    elapsed = perf_s() - t0
     return np.asarray(th), np.asarray(sd), elapsed
 
 

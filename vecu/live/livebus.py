@@ -14,11 +14,11 @@ from __future__ import annotations
 import logging
 import os
 import socket
-import time
 from typing import Any
 
 import can
 
+from vecu.clock import wall_time
 from vecu.codec import DbcCodec
 from vecu.stats import DurationHistogram
 
@@ -69,7 +69,7 @@ class FrameLatency:
     'In' is the trigger frame's receive timestamp when the interface gives the arrival time
     (kernel timestamp on udp_multicast and socketcan), else the moment the node took it from
     the bus; 'out' is the return of send() for the next response frame. Both on the system's
-    real-time clock (time.time), like the kernel timestamps.
+    real-time clock (wall_time), like the kernel timestamps.
     """
 
     def __init__(self, trigger: Key, response: Key, arrival_timestamps: bool) -> None:
@@ -80,11 +80,11 @@ class FrameLatency:
         self._pending_s: float | None = None
 
     def on_rx(self, msg: can.Message) -> None:
-        self._pending_s = msg.timestamp if self.arrival_timestamps else time.time()
+        self._pending_s = msg.timestamp if self.arrival_timestamps else wall_time()
 
     def on_tx(self) -> None:
         if self._pending_s is not None:
-            self.hist.record(int((time.time() - self._pending_s) * 1e9))
+            self.hist.record(int((wall_time() - self._pending_s) * 1e9))
             self._pending_s = None
 
 

@@ -12,6 +12,7 @@ import shutil
 import subprocess
 import sys
 
+from vecu.live.children import run_bounded
 from vecu.live.options import UDP_DEFAULT_GROUP
 
 SETUP = "ip link set lo up && ip route add {group}/32 dev lo && exec \"$@\""
@@ -38,8 +39,7 @@ def namespace_prefix() -> tuple[list[str] | None, str]:
     reasons = []
     for prefix in _prefixes():
         try:
-            res = subprocess.run(wrap(["true"], prefix), capture_output=True, text=True,
-                                 timeout=20, check=False)
+            res = run_bounded(wrap(["true"], prefix), timeout=20)
         except (OSError, subprocess.TimeoutExpired) as exc:
             reasons.append(f"{' '.join(prefix)}: {exc}")
             continue
@@ -50,12 +50,13 @@ def namespace_prefix() -> tuple[list[str] | None, str]:
 
 
 def run_in_namespace(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
-    """Run argv in a fresh private network namespace; raises RuntimeError when none is possible."""
+    """Run argv in a fresh private network namespace, killed with everything it started after
+    `timeout` s (TimeoutExpired) or when this process dies; RuntimeError when no namespace is
+    possible."""
     prefix, reason = namespace_prefix()
     if prefix is None:
         raise RuntimeError(reason)
-    return subprocess.run(wrap(argv, prefix), capture_output=True, text=True, timeout=timeout,
-                          check=False)
+    return run_bounded(wrap(argv, prefix), timeout=timeout)
 
 
 def python_module(module: str, *args: str) -> list[str]:

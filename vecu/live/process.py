@@ -12,13 +12,12 @@ import json
 import resource
 import signal
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
 from vecu.bus import open_bus
-from vecu.clock import NS_PER_MS, NS_PER_S, WallClock
+from vecu.clock import NS_PER_MS, NS_PER_S, WallClock, perf_ns, perf_s, wall_time
 from vecu.codec import DbcCodec
 from vecu.live.livebus import (
     ARRIVAL_TIMESTAMP_INTERFACES,
@@ -148,7 +147,7 @@ class LiveProcess:
 
     def signal_ready(self) -> None:
         if self.opts.ready_file:
-            Path(self.opts.ready_file).write_text(f"{time.time():.6f}\n")
+            Path(self.opts.ready_file).write_text(f"{wall_time():.6f}\n")
 
     # ------------------------------------------------------------------- run
     def run(self, start_at_perf_ns: int | None = None) -> None:
@@ -171,16 +170,16 @@ class LiveProcess:
         if start_at_perf_ns is not None:
             waiter = WallClock(spin_ns=self.opts.spin_us * 1000)
             waiter.start()
-            waiter.wait_until(max(0, start_at_perf_ns - time.perf_counter_ns()))
+            waiter.wait_until(max(0, start_at_perf_ns - perf_ns()))
         end_ns = (FOREVER_NS if self.opts.duration_s is None
                   else round(self.opts.duration_s * NS_PER_S))
         self.clock.start()
-        self.start_epoch_s = time.time()
-        wall0 = time.perf_counter()
+        self.start_epoch_s = wall_time()
+        wall0 = perf_s()
         try:
             sched.run_until(end_ns)
         finally:
-            self.elapsed_s = time.perf_counter() - wall0
+            self.elapsed_s = perf_s() - wall0
             if panel is not None:
                 panel.finish()
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from vecu.clock import NS_PER_MS, NS_PER_S, WallClock
+from vecu.live.children import die_with_parent
 from vecu.live.options import UDP_DEFAULT_GROUP
 
 POLL_NS = 20 * NS_PER_MS
@@ -37,8 +38,10 @@ def _wait_for(cond: Callable[[], bool], timeout_s: float) -> bool:
 
 
 def _spawn(argv: list[str], err_path: Path) -> subprocess.Popen:
+    """A node process that dies with this one (vecu.live.children)."""
     with open(err_path, "w") as err:
-        return subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err)
+        return subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err,
+                                preexec_fn=die_with_parent)  # noqa: PLW1509
 
 
 def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, inject_kind: str,

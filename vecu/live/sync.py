@@ -12,10 +12,9 @@ of latency, which the frame-in -> estimate-out figures show.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
-from vecu.clock import NS_PER_MS, NS_PER_S
+from vecu.clock import NS_PER_MS, NS_PER_S, perf_ns, wall_time_ns
 from vecu.live.livebus import LiveBus
 
 PERIOD_NS = NS_PER_MS
@@ -65,12 +64,12 @@ def start_instant(mean_ns: float, late_edge_ns: float, margin_ns: float, now_per
 
 
 def _clock_offset_ns() -> int:
-    """time.time_ns() - time.perf_counter_ns(), the narrowest of a few paired reads."""
+    """wall_time_ns() - perf_ns(), the narrowest of a few paired reads."""
     best = None
     for _ in range(5):
-        a = time.perf_counter_ns()
-        w = time.time_ns()
-        b = time.perf_counter_ns()
+        a = perf_ns()
+        w = wall_time_ns()
+        b = perf_ns()
         if best is None or b - a < best[0]:
             best = (b - a, w - (a + b) // 2)
     return best[1]
@@ -85,9 +84,9 @@ def sync_to_trigger(bus: LiveBus, trigger: tuple[int, bool], frames: int = 100,
     offset = _clock_offset_ns()
     arrivals: list[int] = []
     read = 0
-    deadline = time.perf_counter_ns() + int(timeout_s * NS_PER_S)
+    deadline = perf_ns() + int(timeout_s * NS_PER_S)
     while len(arrivals) < frames and not stop():
-        left = deadline - time.perf_counter_ns()
+        left = deadline - perf_ns()
         if left <= 0:
             break
         msg = bus.recv(min(left / NS_PER_S, 0.05))
@@ -99,10 +98,10 @@ def sync_to_trigger(bus: LiveBus, trigger: tuple[int, bool], frames: int = 100,
         if arrival_timestamps:
             arrivals.append(int(msg.timestamp * NS_PER_S) - offset)
         else:
-            arrivals.append(time.perf_counter_ns())
+            arrivals.append(perf_ns())
     if len(arrivals) < max(10, frames // 10):
         return PhaseSync(len(arrivals), None, None, margin_us, None, read)
     mean, late = arrival_phase(arrivals)
-    start = start_instant(mean, late, margin_us * 1000, time.perf_counter_ns(), lead_ns=2 * PERIOD_NS)
+    start = start_instant(mean, late, margin_us * 1000, perf_ns(), lead_ns=2 * PERIOD_NS)
     return PhaseSync(len(arrivals), round(mean / 1000, 1), round(late / 1000, 1), margin_us, start,
                      read)

@@ -12,23 +12,23 @@ from typing import Protocol
 
 import can
 
+from vecu.bus import BusNode
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
+from vecu.models.lateral import VehicleParams
 from vecu.models.manifold import (
     cylinder_air_charge,
     nominal_input,
     sample_time,
     steady_state_vector,
 )
-from vecu.models.manifold_params import V8_5L7
 from vecu.models.sensors import TpsCalibration
-from vecu.node import BusNode
 from vecu.plant.drive_profile import us06_like
+from vecu.plant.lateral import LateralSensors, simulate_lateral
 from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
-from vecu.plant.lateral import simulate_lateral
+from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig, simulate_speed
 from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
-from vecu.plant.longitudinal import simulate_speed
 from vecu.plant.manifold import ManifoldPlant, ManifoldPlantConfig
 from vecu.plant.throttle import InputGenerator, ThrottlePlant
 from vecu.rng import rng_streams
@@ -103,9 +103,12 @@ class LongitudinalPart:
     period_ns = 2 * NS_PER_MS
     SEQUENCE = ("paper", "launch_brake")
 
-    def __init__(self, codec: DbcCodec, seed: int, sequence: tuple[str, ...] | None = None) -> None:
+    def __init__(self, codec: DbcCodec, seed: int, sequence: tuple[str, ...] | None = None,
+                 wheel: WheelSensorConfig = WheelSensorConfig(),
+                 accel: AccelSensorConfig = AccelSensorConfig()) -> None:
         self._msg = codec["ESC_Motion"]
         self._seed = seed
+        self._sensors = (wheel, accel)
         if sequence:
             self.SEQUENCE = tuple(sequence)
         self._index = 0
@@ -117,7 +120,8 @@ class LongitudinalPart:
     def _next_trace(self):
         kind = self.SEQUENCE[min(self._index, len(self.SEQUENCE) - 1)]
         trace = simulate_speed(seed=(self._seed << 16) + self._index,
-                               manoeuvre=SpeedManoeuvre(kind=kind))
+                               manoeuvre=SpeedManoeuvre(kind=kind), wheel=self._sensors[0],
+                               accel=self._sensors[1])
         self._index += 1
         self._k = 0
         self._cols = (trace.v.tolist(), trace.a.tolist(), trace.wheel.tolist(),
@@ -145,11 +149,13 @@ class LateralPart:
     period_ns = 10 * NS_PER_MS
 
     def __init__(self, codec: DbcCodec, seed: int, duration_s: float,
-                 injector: FaultInjector) -> None:
+                 injector: FaultInjector, vehicle: VehicleParams = VehicleParams(),
+                 sensors: LateralSensors = LateralSensors()) -> None:
         self._lat = codec["CHS_Lateral"]
         self._swa = codec["SWA_Sensor"]
         self.injector = injector
-        tr = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)))
+        tr = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)),
+                              vehicle, sensors)
         self._cols = ((tr.swa * DEG_PER_RAD).tolist(), (tr.beta * DEG_PER_RAD).tolist(),
                       (tr.meas_r * DEG_PER_RAD).tolist(), tr.meas_ay.tolist(), (tr.meas_vx / MPS_PER_KMH).tolist(),
                       (tr.meas_swa * DEG_PER_RAD).tolist())
@@ -184,17 +190,19 @@ class ManifoldPart:
 
     name = "manifold"
 
-    def __init__(self, codec: DbcCodec, seed: int) -> None:
+    def __init__(self, codec: DbcCodec, seed: int,
+                 config: ManifoldPlantConfig = ManifoldPlantConfig()) -> None:
         self._ev = codec["ENG_Event"]
+        self._engine = engine = config.engine
         self._iat = codec["ENG_Intake"]
         self._seed = seed
         self._profile_index = 0
-        self._profile = us06_like(seed)
+        self._profile = us06_like(seed, params=engine)
         self._t0_ns = 0
         n0, sp0 = self._profile.at(0.0)
         rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
-        self.plant = ManifoldPlant(V8_5L7, ManifoldPlantConfig(), rng,
-                                   steady_state_vector(nominal_input(sp0, n0), V8_5L7))
+        self.plant = ManifoldPlant(engine, config, rng,
+                                   steady_state_vector(nominal_input(sp0, n0, engine), engine))
         self.events = 0
         self.truth_msg = None  # TRUTH_Manifold codec when recording truth
         # truth of the events so far (absolute event index -> P_im kPa, T_im K, CAC kg)
@@ -205,14 +213,14 @@ class ManifoldPart:
         t_s = (t_ns - self._t0_ns) / NS_PER_S
         if t_s >= self._profile.duration_s:  # next profile, continuing from the current state
             self._profile_index += 1
-            self._profile = us06_like((self._seed << 8) + self._profile_index)
+            self._profile = us06_like((self._seed << 8) + self._profile_index, params=self._engine)
             self._t0_ns, t_s = t_ns, 0.0
         n, sp = self._profile.at(t_s)
         plant = self.plant
         ta, p_kpa, t_meas = plant.measure()
         k = self.events
         self.truth[k] = (plant.p_im, plant.t_im,
-                         cylinder_air_charge(plant.p_im, plant.t_im, n, V8_5L7))
+                         cylinder_air_charge(plant.p_im, plant.t_im, n, self._engine))
         self.truth.pop(k - 64, None)  # bounded: probes look back a few events only
         ts = t_ns / NS_PER_S
         send(self._ev.frame({"ENG_EventCounter": k & 0xFF, "ENG_Speed": n,
@@ -223,8 +231,8 @@ class ManifoldPart:
             p_true, t_true, cac_true = self.truth[k]
             send(self.truth_msg.frame({"TRU_EventCounter": k & 0xFF, "TRU_MAP": p_true,
                                        "TRU_IMT": t_true - KELVIN_AT_0_DEGC, "TRU_CAC": cac_true * MG_PER_KG}, ts))
-        dt = sample_time(n, V8_5L7.n_cyl)
-        plant.step(nominal_input(sp, n), dt)
+        dt = sample_time(n, self._engine.n_cyl)
+        plant.step(nominal_input(sp, n, self._engine), dt)
         self.events += 1
         return t_ns + max(1, int(round(dt * NS_PER_S)))
 
@@ -262,7 +270,7 @@ class PlantNode(BusNode):
         if self.manifold is None:
             return None
         return self.manifold.event(
-            t_ns, self._send_via_faults if self.injector.frame_stage_active else self._send)
+            t_ns, self._send_via_faults if self.injector.frame_stage_active else self.send)
 
     def tick(self, t_ns: int) -> None:
         inj = self.injector
@@ -270,19 +278,19 @@ class PlantNode(BusNode):
         self._poll_commands(t_ns)
         if len(inj.events) != self._announced:
             self._announce_faults()
-        send = self._send_via_faults if inj.frame_stage_active else self._send
+        send = self._send_via_faults if inj.frame_stage_active else self.send
         for part in self.parts:
             if t_ns % part.period_ns == 0:
                 part.tick(t_ns, send)
         if inj.frame_stage_active:
             for msg in inj.per_tick(t_ns):
-                self._send(msg)
+                self.send(msg)
 
     def _send_via_faults(self, msg: can.Message) -> bool:
         """Send stage while frame faults are active: the injector transforms, drops, delays or
         repeats each outgoing frame (vecu.faults)."""
         for out in self.injector.process(msg):
-            self._send(out)
+            self.send(out)
         return True
 
     def _announce_faults(self) -> None:
@@ -294,7 +302,7 @@ class PlantNode(BusNode):
         for ev in new:
             for kind, active in ([(ev.kind, 1)] if not ev.cleared and ev.kind != 0
                                  else [(k, 0) for k in ev.cleared] or [(ev.kind, 0)]):
-                self._send(self._fi_event.frame(fault_event_signals(
+                self.send(self._fi_event.frame(fault_event_signals(
                     self._codec, ev.target, int(kind), active, ev.source, ev.value),
                     ev.t_ns / NS_PER_S))
 

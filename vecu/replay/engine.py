@@ -14,7 +14,6 @@ import gc
 import logging
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -23,8 +22,8 @@ import can
 
 from vecu import kernels
 from vecu.assembly import PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
-from vecu.bus import open_bus
-from vecu.clock import NS_PER_S, SimClock, WallClock
+from vecu.bus import SinkBus, open_bus
+from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
@@ -62,12 +61,17 @@ class ReplayConfig:
     interface: str | None = None
     channel: str | None = None
     fmt: str | None = None              # reader format when the suffix does not tell
-    estimator: str = "production"
-    manifold_filter: str = "sdkf"
+    estimator: str | None = None        # shortcut for ecu.throttle.estimator (None: default)
+    manifold_filter: str | None = None  # shortcut for ecu.manifold.filter
+    sets: tuple[tuple[str, Any], ...] = ()  # ecu.* calibration overrides (vecu params)
     progress: bool | None = None        # None: when stderr is a terminal
     keep_series: bool = False           # estimate/truth rows for a plot (ReplayResult.series)
 
     def validate(self) -> None:
+        for path, _ in self.sets:
+            if not path.startswith("ecu."):
+                raise BadArgumentError(f"--set {path}: a replay takes ecu.* parameters only (the "
+                                       f"car is the one that recorded the trace)")
         if self.speed is not None and not (self.speed > 0 and self.speed < 1e4):
             raise BadArgumentError(f"--speed must be in (0, 10000), got {self.speed}")
 
@@ -95,8 +99,8 @@ def replay(config: ReplayConfig) -> ReplayResult:
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
             else identity_map(trace_db))
-    run_cfg = RunConfig(estimator=config.estimator, manifold_filter=config.manifold_filter,
-                        kill_tps_at_s=None)
+    run_cfg = RunConfig(kill_tps_at_s=None).with_params(
+        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
     functions = [f for f in build_functions(run_cfg, ecu_codec).enabled()
                  if f.name not in smap.disabled]
     routes = _routes(config, smap, trace_db, ecu_codec, functions)
@@ -116,7 +120,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
             ecu_bus = open_bus(**bus_args)
             buses += [player_bus, ecu_bus]
         else:
-            ecu_bus = _SinkBus()
+            ecu_bus = SinkBus("replay")
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
                       arm_on_input=True)
         def on_sent(msg: can.Message) -> None:
@@ -138,7 +142,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
         if live:  # first numpy / cantools calls and the compiled kernels' loading: not mid-run
             warm_up(run_cfg)
         show = config.progress if config.progress is not None else sys.stderr.isatty()
-        wall0 = time.perf_counter()
+        watch = Stopwatch()
         if live:
             _run_live(sched, clock, feeder, config.speed or 1.0)
         else:
@@ -148,10 +152,10 @@ def replay(config: ReplayConfig) -> ReplayResult:
                 end_ns += CHUNK_NS
                 sched.run_until(end_ns)
                 if show:
-                    _progress(source, feeder, wall0)
+                    _progress(source, feeder, watch)
             # up to the first tick at or after the last frame, so that its estimates go out
             sched.run_until(-(-feeder.last_ns // TICK_NS) * TICK_NS + 1)
-        wall = time.perf_counter() - wall0
+        wall = watch.elapsed()
         if show:
             sys.stderr.write("\n")
         ecu.overruns = ecu_task.overruns
@@ -171,23 +175,6 @@ def replay(config: ReplayConfig) -> ReplayResult:
 
 
 # ------------------------------------------------------------------ pieces
-class _SinkBus(can.BusABC):
-    """The fast-mode ECU's bus: nothing to receive (frames are handed in), sends go to the tap."""
-
-    def __init__(self) -> None:
-        super().__init__(channel="replay")
-        self.channel_info = "vecu replay sink"
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        pass
-
-    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
-        return None, False
-
-    def recv(self, timeout: float | None = None) -> None:  # type: ignore[override]
-        return None
-
-
 class _OutputWriter(can.Listener):
     """The --out writer: counts frames; locked in a live replay, where the player thread copies
     inputs and the ECU thread writes estimates."""
@@ -362,11 +349,11 @@ def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
         raise TraceWriteError(path, f"cannot write: {exc}") from exc
 
 
-def _progress(source: TraceSource, feeder: _Feeder, wall0: float) -> None:
+def _progress(source: TraceSource, feeder: _Feeder, watch: Stopwatch) -> None:
     done = source.bytes_read()
     size = source.size_bytes
     sim = feeder.last_ns / NS_PER_S
-    wall = time.perf_counter() - wall0
+    wall = watch.elapsed()
     rate = f"{sim / wall:6.1f}x" if wall > 0 else ""
     if done is not None and size:
         frac = min(done / size, 1.0)

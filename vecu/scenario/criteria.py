@@ -20,6 +20,29 @@ class CriterionResult:
     passed: bool
 
 
+@dataclass(frozen=True)
+class ScenarioOutcome:
+    """One scenario's verdict: criteria, timing, plot, error (vecu.scenario.runner)."""
+
+    name: str
+    path: str
+    description: str
+    passed: bool
+    criteria: tuple[CriterionResult, ...]
+    sim_s: float
+    wall_s: float        # whole scenario: set-up, run, criteria, plot
+    x_realtime: float    # simulated / wall seconds of the simulation loop (runner summary)
+    x_realtime_cpu: float = 0.0  # simulated / CPU seconds of the whole run (robust on a busy host)
+    plot: str | None = None
+    error: str | None = None
+    diagnostics: dict[str, Any] | None = None
+    fault_events: tuple[dict[str, Any], ...] = ()
+
+    @property
+    def failures(self) -> list[CriterionResult]:
+        return [c for c in self.criteria if not c.passed]
+
+
 def fault_start(scenario: Scenario, sensor: str) -> float | None:
     """Start of the first timeline fault on the sensor's message."""
     message = SENSORS[sensor]

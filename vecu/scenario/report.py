@@ -15,9 +15,8 @@ import numpy as np
 
 from vecu.faults import parse_site
 from vecu.runner import RunResult
-from vecu.scenario.criteria import fault_windows
+from vecu.scenario.criteria import ScenarioOutcome, fault_windows
 from vecu.scenario.loader import Scenario
-from vecu.scenario.runner import ScenarioOutcome
 
 PANEL_MESSAGES = {"tps": ("TPS_Sensor", "ETB_Wattmeter"), "swa": ("SWA_Sensor", "CHS_Lateral"),
                   "wheel": ("ESC_Motion",)}

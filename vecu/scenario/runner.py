@@ -4,45 +4,23 @@ from __future__ import annotations
 
 import multiprocessing
 import sys
-import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
+from vecu.clock import perf_s, process_s
 from vecu.runner import load_kernels, run
-from vecu.scenario.criteria import CriterionResult, evaluate
+from vecu.scenario.criteria import ScenarioOutcome, evaluate
 from vecu.scenario.loader import Scenario
 
 LONG_RUN_S = 30.0  # simulated seconds from which a scenario reports its own progress
 
 
-@dataclass(frozen=True)
-class ScenarioOutcome:
-    name: str
-    path: str
-    description: str
-    passed: bool
-    criteria: tuple[CriterionResult, ...]
-    sim_s: float
-    wall_s: float        # whole scenario: set-up, run, criteria, plot
-    x_realtime: float    # simulated / wall seconds of the simulation loop (runner summary)
-    x_realtime_cpu: float = 0.0  # simulated / CPU seconds of the whole run (robust on a busy host)
-    plot: str | None = None
-    error: str | None = None
-    diagnostics: dict[str, Any] | None = None
-    fault_events: tuple[dict[str, Any], ...] = ()
-
-    @property
-    def failures(self) -> list[CriterionResult]:
-        return [c for c in self.criteria if not c.passed]
-
-
 def run_scenario(scenario: Scenario, report_dir: str | None = None,
                  stream: TextIO | None = None) -> ScenarioOutcome:
     """One scenario: run, evaluate criteria, plot into report_dir (when given)."""
-    wall0 = time.perf_counter()
-    cpu0 = time.process_time()
+    wall0 = perf_s()
+    cpu0 = process_s()
     progress = None
     if stream is not None and scenario.config.duration_s >= LONG_RUN_S:
         step = max(1.0, round(scenario.config.duration_s / 10.0))
@@ -50,10 +28,10 @@ def run_scenario(scenario: Scenario, report_dir: str | None = None,
         def progress(t_s: float, dur: float) -> None:
             if t_s % step < 1e-9 or t_s >= dur:
                 print(f"  {scenario.name}: {t_s:.0f}/{dur:.0f} s simulated "
-                      f"({time.perf_counter() - wall0:.0f} s wall)", file=stream, flush=True)
+                      f"({perf_s() - wall0:.0f} s wall)", file=stream, flush=True)
     try:
         result = run(scenario.config, progress=progress)
-        cpu = time.process_time() - cpu0
+        cpu = process_s() - cpu0
         criteria = tuple(evaluate(scenario, result))
         plot = None
         if report_dir is not None and result.throttle_series is not None:
@@ -62,12 +40,12 @@ def run_scenario(scenario: Scenario, report_dir: str | None = None,
             plot_scenario(scenario, result, plot)
     except Exception as exc:  # noqa: BLE001 - a crash is a failed scenario, reported, not a traceback
         return ScenarioOutcome(scenario.name, scenario.path, scenario.description, False, (),
-                               scenario.config.duration_s, time.perf_counter() - wall0, 0.0,
+                               scenario.config.duration_s, perf_s() - wall0, 0.0,
                                error=f"{type(exc).__name__}: {exc}")
     s = result.summary
     return ScenarioOutcome(
         scenario.name, scenario.path, scenario.description, all(c.passed for c in criteria),
-        criteria, s["sim_time_s"], time.perf_counter() - wall0, s["x_realtime"] or 0.0,
+        criteria, s["sim_time_s"], perf_s() - wall0, s["x_realtime"] or 0.0,
         round(s["sim_time_s"] / cpu, 2) if cpu > 0 else 0.0, plot,
         diagnostics=s["diagnostics"], fault_events=tuple(s["fault_events"]))
 

@@ -1,0 +1,77 @@
+"""`vecu bench --quick` end to end in a real process: exit 0 and every group's figures printed;
+then `--only GROUP` for the groups that take a few seconds. Each run has a time limit and is
+killed with everything it started (vecu.live.children) when it overruns."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import pytest
+
+from vecu.live.children import run_bounded
+from vecu.live.netns import namespace_prefix
+
+NUM = r"[0-9]+(?:\.[0-9]+)?"
+FULL_TIMEOUT_S = 240.0  # ~35 s on an idle 2-core machine; the limit is for a loaded one
+GROUP_TIMEOUT_S = 90.0
+
+# what each group prints, with numbers where the figures go
+EXPECTED = {
+    "ukf": [rf"^\s+arm\s+\d+\s+{NUM}\s+{NUM}\s+{NUM}x",
+            rf"speed KF \(plain floats\)\s+{NUM} us",
+            rf"^\s+sdkf\s+{NUM} us\s+vs {NUM} us",
+            rf"manifold SDKF \+ 6-event CAC prediction\s+{NUM} us"],
+    "bus": [rf"Virtual bus send\+recv: vecu {NUM} us vs python-can VirtualBus {NUM} us"],
+    "pipeline": [rf"pipeline \(no log\)\s+{NUM}x real time\s+\({NUM} us/tick: estimator {NUM}",
+                 rf"vecu run pipeline \(with \.blf\)\s+{NUM}x real time"],
+    "ecu": [rf"{NUM} us/tick = {NUM}x real time",
+            rf"cantools-only encode/decode: {NUM} us/tick"],
+    "breakdown": [rf"{NUM}x real time, {NUM} us/tick",
+                  rf"estimator: throttle production PF/KF\s+{NUM}", rf"bus: send\s+{NUM}"],
+    "kernels": [rf"(x real time vs {NUM}x|Compiled kernels: skipped)"],
+    "replay": [rf"drive\.blf\s+\d+ frames\s+{NUM}x real time",
+               rf"vecu replay\s+schedule error p50 {NUM} us"],
+    "live": [rf"baseline: bare 1 ms WallClock loop, tick jitter p50 {NUM}",
+             r"throughput, virtual bus, one process: offered \d+ frames/s",
+             rf"memory: {NUM} simulated min \({NUM}x real time\): RSS \d+ kB"],
+}
+LIVE_UDP = rf"ECU in its own process \(udp_multicast, {NUM} s\): tick jitter p50 {NUM}"
+FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels")  # a few seconds each
+
+
+def _bench(*args: str, timeout: float) -> str:
+    try:
+        res = run_bounded([sys.executable, "-m", "vecu", "bench", "--quick", *args],
+                          timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"vecu bench --quick {' '.join(args)} took more than {timeout:.0f} s")
+    assert res.returncode == 0, (f"exit {res.returncode}\n{res.stdout[-2000:]}\n"
+                                 f"{res.stderr[-3000:]}")
+    return res.stdout
+
+
+def _missing(out: str, groups: tuple[str, ...]) -> list[str]:
+    return [f"{g}: {pat}" for g in groups for pat in EXPECTED[g]
+            if not re.search(pat, out, re.MULTILINE)]
+
+
+def test_bench_quick_all_groups():
+    out = _bench(timeout=FULL_TIMEOUT_S)
+    missing = _missing(out, tuple(EXPECTED))
+    assert not missing, "\n".join(missing) + "\n" + out
+    if namespace_prefix()[0] is not None:  # else the live group reports the udp runs skipped
+        assert re.search(LIVE_UDP, out), out
+    else:
+        assert "skipped" in out
+
+
+@pytest.mark.parametrize("group", FAST_GROUPS)
+def test_bench_quick_only(group):
+    out = _bench("--only", group, timeout=GROUP_TIMEOUT_S)
+    missing = _missing(out, (group,))
+    assert not missing, "\n".join(missing) + "\n" + out
+    others = [g for g in EXPECTED if g != group and g != "kernels"
+              and all(re.search(p, out, re.MULTILINE) for p in EXPECTED[g])]
+    assert not others, f"--only {group} also ran {others}"
