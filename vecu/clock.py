@@ -8,7 +8,8 @@ pacing, frame timestamps and bench / eval timing use the readers and the Stopwat
 from __future__ import annotations
 
 import time
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 NS_PER_S = 1_000_000_000
 NS_PER_MS = 1_000_000

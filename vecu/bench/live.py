@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, WallClock, monotonic_ns, perf_s
+from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.live.netns import namespace_prefix, python_module, run_in_namespace
 from vecu.live.process import TickMeter
 from vecu.scheduler import Scheduler
@@ -66,9 +66,9 @@ def bench_memory(minutes: float, estimator: str = "production") -> dict[str, Any
         period_ns = int(min(60.0, duration_s / 4) * NS_PER_S)
         sched.every(period_ns, lambda t: samples.append((t / NS_PER_S, _rss_kb())),
                     name="rss", offset_ns=period_ns, priority=99)
-        t0 = perf_s()
+        watch = Stopwatch()
         sched.run_until(int(duration_s * NS_PER_S) + 1)
-        wall = perf_s() - t0
+        wall = watch.elapsed()
     finally:
         plant_bus.shutdown()
         ecu_bus.shutdown()
@@ -85,7 +85,14 @@ def bench_memory(minutes: float, estimator: str = "production") -> dict[str, Any
 def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict[str, Any]:
     """Plant + extra ESC_Motion copies + ECU on one WallClock in this process (virtual bus):
     frames offered vs frames the ECU decoded; frames it answered."""
-    from vecu.assembly import build_functions, build_plant, schedule_ecu, schedule_plant
+    from vecu.assembly import (
+        PRIO_ECU,
+        PRIO_PLANT,
+        TICK_NS,
+        build_functions,
+        build_plant,
+        schedule_plant,
+    )
     from vecu.bus import open_bus
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
@@ -107,24 +114,16 @@ def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict
         extra = ExtraLoad(codec, plant, max(load_per_s - base_per_s, 0.0))
         clock = WallClock(spin_ns=200_000)
         sched = Scheduler(clock)
-        plant_tick = plant.tick
-
-        def tick(t_ns: int) -> None:
-            plant_tick(t_ns)
-            extra.tick(t_ns)
-
-        plant.tick = tick  # type: ignore[method-assign]
         schedule_plant(sched, plant)
-        meter = TickMeter(clock, "ecu")
-        ecu_tick = ecu.tick
-        ecu.tick = meter.wrap(ecu_tick)  # type: ignore[method-assign]
-        meter.stats = schedule_ecu(sched, ecu)
+        sched.every(TICK_NS, extra.tick, name="extra-load", priority=PRIO_PLANT)
+        meter = TickMeter(clock, "ecu")  # the ECU's task as schedule_ecu's, metered
+        meter.stats = sched.every(TICK_NS, meter.wrap(ecu.tick), name="ecu", priority=PRIO_ECU)
         warm_up(config)
         clock.start()
-        t0 = perf_s()
+        watch = Stopwatch()
         sched.run_until(int(seconds * NS_PER_S))
-        ecu_tick(int(seconds * NS_PER_S))  # drain what the last plant tick sent
-        wall = perf_s() - t0
+        ecu.tick(int(seconds * NS_PER_S))  # drain what the last plant tick sent
+        wall = watch.elapsed()
     finally:
         raw_plant.shutdown()
         raw_ecu.shutdown()
