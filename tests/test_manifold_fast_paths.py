@@ -79,9 +79,10 @@ def test_filter_gain_shortcut_matches_the_general_update():
 def test_manifold_function_prediction_reuses_the_filter_step_exactly():
     """The 6-event CAC prediction starting from the filter's own prediction equals the full one."""
     from vecu.codec import DbcCodec
-    from vecu.ecu.manifold_function import RAD, ManifoldFunction
+    from vecu.ecu.manifold_function import ManifoldFunction
     from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
     from vecu.models.manifold_params import EngineInput
+    from vecu.units import RAD_PER_DEG
 
     fn = ManifoldFunction(DbcCodec())
     rng = np.random.default_rng(2)
@@ -96,7 +97,7 @@ def test_manifold_function_prediction_reuses_the_filter_step_exactly():
         fn.run(k * 1_000_000, lambda m: sent.append(m) or True)
         cac6 = fn.last[4]
         x = fn.filter.x_post
-        u = EngineInput(sp * RAD, 1500.0 + 10 * k)  # as the function computes it
+        u = EngineInput(sp * RAD_PER_DEG, 1500.0 + 10 * k)  # as the function computes it
         assert fn.filter.last_prediction is not None
         assert cac6 == predict_cac(x, [u] * HORIZON)
         checked += 1
