@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import argparse
 from collections import deque
-from dataclasses import replace
 from typing import Any
 
-from vecu.cli import UserInputError, configure_logging, require_output_dirs
+from vecu.cli import (
+    UserInputError,
+    add_set_option,
+    configure_logging,
+    param_sets,
+    require_output_dirs,
+)
 from vecu.live.args import add_live_arguments, live_options
 
 MAX_STATUS_CHANGES = 64
@@ -18,8 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="The virtual ECU in its own process: 1 ms base tick on the wall "
                                    "clock, estimates broadcast on the bus (see docs/live.md).")
     add_live_arguments(p)
-    p.add_argument("--estimator", default="production", help="throttle estimator (default production)")
-    p.add_argument("--manifold-filter", default="sdkf", choices=("sdkf", "ekf"),
+    p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
+    add_set_option(p, "ecu.*")
+    p.add_argument("--manifold-filter", default=None, choices=("sdkf", "ekf"),
                    help="manifold filter (default sdkf)")
     p.add_argument("--sync-timeout", type=float, default=10.0, metavar="S",
                    help="wait up to S s for the plant's ETB_Wattmeter frames to put the 1 ms grid "
@@ -38,7 +44,6 @@ def main(args: argparse.Namespace) -> int:
     from vecu.config import RunConfig
     from vecu.ecu.node import EcuNode
     from vecu.ecu.sensor_monitor import SOURCE_SENSOR, SensorStatus
-    from vecu.ecu.throttle_function import ThrottleFunctionConfig
     from vecu.live.process import LiveProcess
     from vecu.live.sync import PhaseSync, sync_to_trigger
     from vecu.runner import warm_up
@@ -48,17 +53,17 @@ def main(args: argparse.Namespace) -> int:
     require_output_dirs(args.log, args.summary, args.ready_file)
     if not 0.0 <= args.sync_timeout <= 3600.0:
         raise UserInputError(f"--sync-timeout: expected 0..3600 s, got {args.sync_timeout}")
-    throttle_cfg = ThrottleFunctionConfig()
+    if args.tps_timeout_cycles is not None and not 1 <= args.tps_timeout_cycles <= 10_000:
+        raise UserInputError(f"--tps-timeout-cycles: expected 1..10000, got "
+                             f"{args.tps_timeout_cycles}")
+    sets = param_sets(args, only="ecu.")
     if args.tps_timeout_cycles is not None:
-        if not 1 <= args.tps_timeout_cycles <= 10_000:
-            raise UserInputError(f"--tps-timeout-cycles: expected 1..10000, got "
-                                 f"{args.tps_timeout_cycles}")
-        throttle_cfg = replace(throttle_cfg, tps_monitor=replace(
-            throttle_cfg.tps_monitor, timeout_cycles=args.tps_timeout_cycles))
-    config = RunConfig(duration_s=args.duration or 1.0, seed=args.seed, throttle=throttle_cfg,
-                       noise_scale=args.noise_scale, kill_tps_at_s=None, estimator=args.estimator,
+        sets.append(("ecu.throttle.tps_monitor.timeout_cycles", args.tps_timeout_cycles))
+    config = RunConfig(duration_s=args.duration or 1.0, seed=args.seed, kill_tps_at_s=None,
                        speed=not args.no_speed, steering=not args.no_steering,
-                       manifold=not args.no_manifold, manifold_filter=args.manifold_filter)
+                       manifold=not args.no_manifold,
+                       ).with_params(sets, noise_scale=args.noise_scale, estimator=args.estimator,
+                                     manifold_filter=args.manifold_filter)
     codec = DbcCodec()
     config.validate()
     fns = build_functions(config, codec)
