@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
-# group sizes: (full, --quick); --quick keeps every group to a few seconds (tests/test_bench_smoke)
+# group sizes: (full, --quick); --quick keeps every group to a few seconds (tests/bench/test_smoke)
 SIZES: dict[str, tuple[float, float]] = {
     "ukf_steps": (20_000, 2_000), "ukf_repeats": (5, 2), "filter_steps": (5_000, 1_000),
     "manifold_s": (80.0, 3.0), "production_steps": (20_000, 2_000), "smoother_steps": (2_000, 300),

@@ -4,7 +4,7 @@ It is the hot loop of every run: the plant steps it once per engine event, the E
 and the 6-event air-charge prediction six times, each event ~15 sub-steps of two right-hand
 sides. It computes exactly what the reference functions of vecu.models.manifold compute
 (`_rhs` = `throttle_flow` + `volumetric_efficiency` + `heat_flow`), in the same floating-point
-operations and order (bit-identical results, tests/test_manifold_fast_paths.py), but:
+operations and order (bit-identical results, tests/estimators/manifold/test_fast_paths.py), but:
 - everything that is constant over one event is computed once per call: the throttle area and
   the C_d table column at the held angle alpha, Xi's factor, eta_N(N) and the pumping constant of
   the held input u, and the parameter set's constants (cached per ManifoldParams object);
@@ -14,7 +14,7 @@ operations and order (bit-identical results, tests/test_manifold_fast_paths.py),
 The whole event is one compiled kernel (`_integrate_event`, vecu.kernels): numba when it is the
 active backend, the same Python function otherwise. Only scalar IEEE arithmetic, sqrt, cos and
 pow are used (no fastmath, no reductions), so both backends give bit-identical results
-(tests/test_kernels_manifold.py). Under the Python backend the tables are tuples of floats and
+(tests/models/test_manifold_integrator.py). Under the Python backend the tables are tuples of floats and
 the searches `bisect.bisect_right` (C); under numba they are float64 arrays and bisect_right is
 the hand-written `_bisect_right_impl` (CPython's algorithm: same index for any input, NaN too).
 Bad input fails as the plain Python code fails (math.ceil's ValueError/OverflowError for a

@@ -13,7 +13,7 @@ finite) a re-run of the event on the Python path, which then decides exactly as 
 The scalar model arithmetic (SDC entries, event map, integrator, air charge) is the Python
 code's operation by operation; the matrix products are the same expressions (numba calls BLAS
 and LAPACK through scipy, numpy through its own copy of OpenBLAS), so on a machine where both
-are the same OpenBLAS build the results are bit-identical (tests/test_kernels_sdkf.py asserts
+are the same OpenBLAS build the results are bit-identical (tests/estimators/manifold/test_kernels.py asserts
 == and reports the difference if a BLAS build ever rounds otherwise).
 
 The Python backend never runs these functions (the numpy code stays the reference); they are

@@ -16,7 +16,7 @@ not positive definite the kernel returns ok = False and Python computes the fall
 
 Each kernel repeats the Python reference's floating-point operations in the same order (scalar
 IEEE arithmetic, libm sin / atan / cos, correctly rounded sqrt; no fastmath, no reductions), so
-both backends give bit-identical results (tests/test_kernels_steering.py). The tyre curve
+both backends give bit-identical results (tests/estimators/steering/test_kernels.py). The tyre curve
 (vecu.models.lateral.tyre_force) and the Cholesky (common.small_linalg.chol4) are the shared
 kernels, called from here.
 

@@ -6,7 +6,7 @@ n = 3 and a scalar wattmeter reading in plain Python floats: unrolled 3x3 Choles
 pre-extracted per mode, eq. (3) inlined, and the Step-3 sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated point.
 No numpy in the normal step; the (rare) Cholesky fallback reuses covariance.cholesky_lower so both
 implementations fall back identically. From the same (x, P) one step matches the numpy reference
-to < 1e-9 relative (tests/test_ukf.py; on free runs see docs/models.md for ARM/AGM at alpha = 1).
+to < 1e-9 relative (tests/estimators/common/test_ukf.py; on free runs see docs/models.md for ARM/AGM at alpha = 1).
 """
 
 from __future__ import annotations

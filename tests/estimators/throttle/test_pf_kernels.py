@@ -5,7 +5,7 @@ Measured on the run below (alpha = 1, 40 k steps crossing all modes, a 400-step 
 an isolated 900 W outlier and five in a row): max |theta difference| 1e-12 deg, every decision
 (particle count, Kalman stretch, resampling, rejection) identical at every step. Tolerance
 1e-9 deg / identical decisions. Accuracy, calibration, same-seed determinism and reset replay
-per backend: tests/test_throttle_production.py.
+per backend: tests/estimators/throttle/test_production.py.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """`vecu eval steering` and `vecu eval manifold` through the CLI (short runs; the full-length
-accuracy targets are asserted in tests/test_steering.py and tests/test_manifold_filters.py)."""
+accuracy targets are asserted in tests/estimators/steering/test_filters.py and tests/estimators/manifold/test_filters.py)."""
 
 from __future__ import annotations
 

@@ -34,7 +34,7 @@ def long_inputs():
 
 @pytest.fixture(scope="module")
 def bad_inputs():
-    """20 s with bad readings on every channel and a_y spikes (as tests/test_steering.py):
+    """20 s with bad readings on every channel and a_y spikes (as tests/estimators/steering/test_filters.py):
     rejections, misses, gating, clipping and one divergence reset."""
     tr = simulate_lateral(7, ManoeuvreConfig(duration_s=20.0))
     vx, r, ay = tr.meas_vx.tolist(), tr.meas_r.tolist(), tr.meas_ay.tolist()

@@ -13,8 +13,8 @@ from vecu.codec import DbcCodec
 from vecu.replay.engine import ReplayConfig, replay
 from vecu.replay.reference import golden_path, references, replay_reference
 
-THIRDPARTY = Path(__file__).resolve().parents[2] / "shared" / "thirdparty"
-TRACES = Path(__file__).resolve().parents[1] / "traces"
+THIRDPARTY = Path(__file__).resolve().parents[3] / "shared" / "thirdparty"
+TRACES = Path(__file__).resolve().parents[2] / "traces"
 LOGS = sorted((THIRDPARTY / "logs").glob("pythoncan_*")) if THIRDPARTY.is_dir() else []
 DBCS = sorted((THIRDPARTY / "dbc").glob("*.dbc")) if THIRDPARTY.is_dir() else []
 needs_thirdparty = pytest.mark.skipif(not LOGS, reason="../shared/thirdparty not present")

@@ -37,7 +37,7 @@ def test_impossible_conversions_raise(src, dst):
 @pytest.fixture(scope="module")
 def vehicle_db():
     from pathlib import Path
-    return DbcCodec([Path(__file__).resolve().parents[1] / "traces" / "dbc" / "vehicle.dbc"])
+    return DbcCodec([Path(__file__).resolve().parents[2] / "traces" / "dbc" / "vehicle.dbc"])
 
 
 @pytest.mark.parametrize("doc,needle", [
@@ -96,7 +96,7 @@ def test_mapped_manifold_inputs_match_native_replay(tmp_path):
 
     from vecu.codec import TRUTH_DBC, builtin_dbc_path
     from vecu.replay.engine import ReplayConfig, replay
-    src = Path(__file__).resolve().parents[1] / "traces" / "drive_tps_dead.blf"
+    src = Path(__file__).resolve().parents[2] / "traces" / "drive_tps_dead.blf"
     trace = str(tmp_path / "lossy.blf")
     intake = 0
     with can.Logger(trace) as w:

@@ -14,7 +14,7 @@ from vecu.scenario.loader import ScenarioError, load_scenario
 from vecu.scenario.report import write_html, write_junit
 from vecu.scenario.runner import run_scenario, run_scenarios
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SHIPPED = sorted((REPO / "scenarios").glob("*.toml"))
 
 BASE = """duration_s = 2.0

@@ -3,7 +3,7 @@ the error contract: a user's mistake is one line `vecu: error: …` with exit co
 its traceback too), a bug is a traceback with exit code 1.
 
 Adding a case is one line in SMOKE: (argv, regular expression the output must contain).
-`vecu bench` has its own smoke test (tests/test_bench_smoke.py).
+`vecu bench` has its own smoke test (tests/bench/test_smoke.py).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import tomllib
 from vecu.cli import add_debug_flag, build_parser, run_command
 from vecu.errors import BadFileError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "VECU_KERNELS": "python"}  # no numba compile in the subprocesses
 
 
