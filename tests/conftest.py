@@ -83,3 +83,39 @@ def backend_switch():
 
     with kernels.using(kernels.backend()):
         yield run
+
+
+@pytest.fixture
+def plant_rig():
+    """make(channel, with_speed=False) -> (codec, plant node, tester bus, injector): a throttle
+    plant (seeded streams 'i', 'p', 'f'), optionally with the longitudinal part, on a virtual bus
+    with a tester bus beside it; both buses shut down after the test."""
+    from vecu.bus import open_bus
+    from vecu.codec import DbcCodec
+    from vecu.faults import FaultInjector
+    from vecu.plant.node import LongitudinalPart, PlantNode, ThrottlePart
+    from vecu.plant.throttle import (
+        InputConfig,
+        InputGenerator,
+        ThrottlePlant,
+        ThrottlePlantConfig,
+    )
+    from vecu.rng import rng_streams
+
+    buses = []
+
+    def make(channel: str, with_speed: bool = False):
+        codec = DbcCodec()
+        rngs = rng_streams(0, ("i", "p", "f"))
+        plant_bus, tester = open_bus(channel=channel), open_bus(channel=channel)
+        buses.extend((plant_bus, tester))
+        inj = FaultInjector(rngs["f"])
+        parts = [ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
+                              InputGenerator(InputConfig(), rngs["i"]), inj)]
+        if with_speed:
+            parts.append(LongitudinalPart(codec, 3, ("paper",)))
+        return codec, PlantNode(plant_bus, codec, inj, parts), tester, inj
+
+    yield make
+    for bus in buses:
+        bus.shutdown()

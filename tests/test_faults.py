@@ -5,34 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS
-from vecu.codec import DbcCodec
 from vecu.e2e import AliveCounterCheck
 from vecu.faults import FaultInjector, FaultKind, make_fault, parse_site
-from vecu.plant.node import LongitudinalPart, PlantNode, ThrottlePart
-from vecu.plant.throttle import (
-    InputConfig,
-    InputGenerator,
-    ThrottlePlant,
-    ThrottlePlantConfig,
-)
-from vecu.rng import rng_streams
 
 
 @pytest.fixture
-def rig():
-    codec = DbcCodec()
-    rngs = rng_streams(0, ("i", "p", "f"))
-    plant_bus, tester = open_bus(channel="faults-test"), open_bus(channel="faults-test")
-    inj = FaultInjector(rngs["f"])
-    parts = [ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
-                          InputGenerator(InputConfig(), rngs["i"]), inj),
-             LongitudinalPart(codec, 3, ("paper",))]
-    node = PlantNode(plant_bus, codec, inj, parts)
-    yield codec, node, tester, inj
-    plant_bus.shutdown()
-    tester.shutdown()
+def rig(plant_rig):
+    return plant_rig("faults-test", with_speed=True)
 
 
 def run_ticks(node, tester, first_ms, n):

@@ -3,32 +3,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS
-from vecu.codec import DbcCodec
-from vecu.faults import FaultInjector, FaultKind, FaultTarget, make_fault, parse_kind
-from vecu.plant.node import PlantNode, ThrottlePart
-from vecu.plant.throttle import (
-    InputConfig,
-    InputGenerator,
-    ThrottlePlant,
-    ThrottlePlantConfig,
-)
-from vecu.rng import rng_streams
+from vecu.faults import FaultKind, FaultTarget, make_fault, parse_kind
 
 
 @pytest.fixture
-def rig():
-    codec = DbcCodec()
-    rngs = rng_streams(0, ("i", "p", "f"))
-    plant_bus, tester = open_bus(channel="plant-test"), open_bus(channel="plant-test")
-    inj = FaultInjector(rngs["f"])
-    part = ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
-                        InputGenerator(InputConfig(), rngs["i"]), inj)
-    node = PlantNode(plant_bus, codec, inj, [part])
-    yield codec, node, tester, inj
-    plant_bus.shutdown()
-    tester.shutdown()
+def rig(plant_rig):
+    return plant_rig("plant-test")
 
 
 def tps_voltages(codec, tester):
