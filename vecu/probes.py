@@ -266,6 +266,7 @@ class ManifoldProbe:
             "filter": fn.filter_name,
             "events": fn.events,
             "lost_events": fn.lost_events,
+            "implausible_inputs": fn.implausible_inputs,  # events refused (e.g. 0 rpm)
             "filter_us_per_event": round(fn.filter_seconds / max(fn.events, 1) * 1e6, 1),
             "cac_prediction_us_per_event": round(fn.predict_seconds / max(fn.events, 1) * 1e6, 1),
             "p_im_error_kpa": self.p_err.as_dict(),
@@ -276,4 +277,5 @@ class ManifoldProbe:
             "p_im_estimate_range_kpa": ([round(self.p_min, 2), round(self.p_max, 2)]
                                         if self.p_err.n else None),
             "filter_resets": fn.filter.resets,
+            "estimator_faults": fn.estimator_faults,
         }

@@ -6,10 +6,14 @@ the function runs its filter (the live SDKF: one warm-started Riccati iteration 
 the EKF) once per complete event, predicts the cylinder air charge 6 events ahead with the
 setpoint held (the ECU does not know future pedal positions), and sends ECU_ManifoldEstimate.
 Events whose frames did not both arrive are counted as lost; the filter predicts through them.
+An event whose input the filter cannot use (engine speed outside `kf.n_range`, e.g. 0 rpm, which
+the DBC allows) is refused when it arrives: counted in `implausible_inputs` (and by the node as an
+rx value error), logged once per burst, never filtered; the event counts as lost.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -17,9 +21,16 @@ from vecu.clock import NS_PER_MS, NS_PER_S, Stopwatch
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
-from vecu.estimators.manifold.filters import ManifoldFilterConfig, make_filter
+from vecu.estimators.manifold.filters import (
+    ManifoldFilterConfig,
+    input_problem,
+    make_filter,
+)
 from vecu.models.manifold import cylinder_air_charge, nominal_input
+from vecu.models.manifold_params import EngineInput
 from vecu.units import KELVIN_AT_0_DEGC, MG_PER_KG, RAD_PER_DEG
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -42,15 +53,19 @@ class ManifoldFunction:
         self.filter = make_filter(config.filter, config.kf)
         self.filter_name = config.filter
         self._engine = self.filter.params  # the calibration: filter, CAC and prediction
+        self._kf = config.kf
         self._out = codec["ECU_ManifoldEstimate"]
         self.timeouts = 0
         self.estimates_sent = 0
         self.events = 0          # complete events filtered
         self.lost_events = 0     # counter gaps (frames lost or rejected)
+        self.implausible_inputs = 0  # ENG_Event frames refused (engine speed outside n_range...)
+        self.estimator_faults = 0    # non-finite CAC outputs caught here (should stay 0)
+        self._refused_in_row = 0
         self.filter_seconds = 0.0   # time in the filter step (us/event in the summary)
         self.predict_seconds = 0.0  # time in the 6-event CAC prediction
         self._watch = stopwatch if stopwatch is not None else Stopwatch()
-        self._event: dict[str, float] | None = None
+        self._event: tuple[dict[str, float], EngineInput] | None = None
         self._iat: tuple[int, float] | None = None
         self._last_counter: int | None = None
         # last outputs, read by probes: (absolute event index, P kPa, T K, CAC kg, CAC+6 kg)
@@ -60,17 +75,34 @@ class ManifoldFunction:
     def subscriptions(self) -> list[Subscription]:
         return [Subscription("ENG_Event", self._on_event), Subscription("ENG_Intake", self._on_iat)]
 
-    def _on_event(self, values: dict[str, float], t_ns: int) -> None:
-        self._event = values
+    def _on_event(self, values: dict[str, float], t_ns: int) -> str | None:
+        u = nominal_input(values["ENG_ThrottleSetpoint"] * RAD_PER_DEG, values["ENG_Speed"],
+                          self._engine)
+        problem = input_problem(u, self._kf)
+        if problem is not None:  # refused: the filter, the CAC and the prediction never see it
+            self.implausible_inputs += 1
+            self._refused_in_row += 1
+            if self._refused_in_row == 1:
+                log.warning("ecu manifold: engine event %d refused: %s (further ones counted, "
+                            "logged again after a plausible event)",
+                            int(values["ENG_EventCounter"]), problem)
+            return problem
+        if self._refused_in_row:
+            log.info("ecu manifold: plausible engine events again after %d refused",
+                     self._refused_in_row)
+            self._refused_in_row = 0
+        self._event = (values, u)
+        return None
 
     def _on_iat(self, values: dict[str, float], t_ns: int) -> None:
         self._iat = (int(values["ENG_IntakeCounter"]), values["ENG_IAT"] + KELVIN_AT_0_DEGC)
 
     def run(self, t_ns: int, send: Send) -> None:
-        ev, iat = self._event, self._iat
-        if ev is None:
+        event, iat = self._event, self._iat
+        if event is None:
             return
         self._event = None
+        ev, u = event
         counter = int(ev["ENG_EventCounter"])
         if self._last_counter is not None:
             gap = (counter - self._last_counter) % 256
@@ -80,8 +112,7 @@ class ManifoldFunction:
             self._abs_index = counter
         self._last_counter = counter
         t_meas = iat[1] if iat is not None and iat[0] == counter else None
-        n_rpm = ev["ENG_Speed"]
-        u = nominal_input(ev["ENG_ThrottleSetpoint"] * RAD_PER_DEG, n_rpm, self._engine)
+        n_rpm = u.n_rpm
         y = (ev["ENG_ThrottleAngle"] * RAD_PER_DEG, ev["ENG_MAP"],
              t_meas if t_meas is not None else math.nan)  # NaN channel: rejected, others used
         watch = self._watch
@@ -96,6 +127,10 @@ class ManifoldFunction:
             cac6 = predict_cac(x, [u] * HORIZON, self._engine)
         self.filter_seconds += filter_s
         self.predict_seconds += watch.lap()
+        if not (math.isfinite(cac) and math.isfinite(cac6)):  # last line of defence
+            self.estimator_faults += 1
+            self.filter.reset()
+            return
         self.events += 1
         self.last = (self._abs_index, float(x[3]), float(x[4]), cac, cac6)
         self.estimates_sent += send(self._out.frame({

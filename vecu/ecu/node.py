@@ -42,7 +42,8 @@ class RxCounters:
     dlc_errors: int = 0
     crc_errors: int = 0
     counter_errors: int = 0
-    value_errors: int = 0      # NaN / inf / outside the DBC range
+    value_errors: int = 0      # NaN / inf / outside the DBC range / refused as implausible
+    implausible: int = 0       # of value_errors: in range, refused by the function (not a bin)
     malformed: int = 0         # anything else the decoder refused
 
     @property
@@ -56,11 +57,12 @@ class RxCounters:
 
 @dataclass(frozen=True)
 class Subscription:
-    """A message a function consumes: validated values go to on_values(values, t_ns);
+    """A message a function consumes: validated values go to on_values(values, t_ns), which
+    may refuse implausible ones by returning the reason (a value error; None: taken);
     E2E failures (CRC or alive counter) to on_e2e_error(), when given."""
 
     message: str
-    on_values: Callable[[dict[str, float], int], None]
+    on_values: Callable[[dict[str, float], int], str | None]
     on_e2e_error: Callable[[], None] | None = None
 
 
@@ -211,8 +213,11 @@ class EcuNode(BusNode):
             rx.value_errors += 1
             self._problem("value", msg, f"bad {', '.join(bad)}")
             return
+        if sub.on_values(values, t_ns):  # the function refused them (it logs them)
+            rx.value_errors += 1
+            rx.implausible += 1
+            return
         rx.accepted += 1
-        sub.on_values(values, t_ns)
         if self._unarmed and id(route) in self._unarmed:
             self._arm(route)
 

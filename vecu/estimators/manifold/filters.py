@@ -107,6 +107,21 @@ class ManifoldFilterConfig:
     bounds: DivergenceBounds = field(default_factory=lambda: MANIFOLD_BOUNDS)
 
 
+def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
+    """Why an event's input is implausible (None: plausible): engine speed outside `n_range`,
+    setpoint outside [-0.2, 1.9] rad, ambient or coolant conditions outside physical bounds.
+    The filter holds its last plausible input instead; the ECU refuses the event (NaN fails)."""
+    lo, hi = config.n_range
+    if not lo <= u.n_rpm <= hi:
+        return f"engine speed {u.n_rpm:g} rpm outside {lo:g}..{hi:g} rpm"
+    if not -0.2 <= u.ta_sp <= 1.9:
+        return f"throttle setpoint {u.ta_sp:g} rad outside -0.2..1.9 rad"
+    if not (50.0 <= u.p_a <= 120.0 and 200.0 <= u.t_a <= 450.0 and 200.0 <= u.t_cool <= 450.0):
+        return (f"ambient {u.p_a:g} kPa / {u.t_a:g} K or coolant {u.t_cool:g} K outside "
+                "50..120 kPa / 200..450 K")
+    return None
+
+
 def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
                   tol: float = 1e-12, max_iter: int = 40) -> tuple[np.ndarray, int]:
     """Prior covariance P of the filter DARE P = A P A^T - A P C^T (C P C^T + R)^-1 C P A^T + Q
@@ -193,10 +208,7 @@ class _ManifoldKF:
             x[i] = min(max(x[i], c.t_box[0]), c.t_box[1])
 
     def _check_input(self, u: EngineInput) -> EngineInput:
-        c = self.config
-        ok = (c.n_range[0] <= u.n_rpm <= c.n_range[1] and -0.2 <= u.ta_sp <= 1.9
-              and 50.0 <= u.p_a <= 120.0 and 200.0 <= u.t_a <= 450.0 and 200.0 <= u.t_cool <= 450.0)
-        if ok:
+        if input_problem(u, self.config) is None:
             self._last_u = u
             return u
         self.bad_inputs += 1
