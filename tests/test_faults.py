@@ -140,3 +140,81 @@ def test_bad_targets_and_values_are_clear_errors():
         with pytest.raises(ValueError, match=needle.replace("[", r"\[").replace("]", r"\]")):
             inj.inject(0, target, kind, value)
     assert parse_site("swa").name == "swa" and parse_site("ESC_Motion").name == "ESC_Motion"
+
+
+def plant_messages(codec):
+    return [fc for fc in (codec[n] for n in ("TPS_Sensor", "ETB_Wattmeter", "ENG_Event",
+                                             "ENG_Intake", "ESC_Motion", "CHS_Lateral",
+                                             "SWA_Sensor"))]
+
+
+def middle_frame(fc, counter=0):
+    values = {s.name: (s.minimum + s.maximum) / 2 for s in fc.signals}
+    for s in fc.signals:
+        if s.name.endswith("Counter"):
+            values[s.name] = counter % (s.maximum + 1)
+    return fc.frame(values, 0.0)
+
+
+@pytest.mark.parametrize("kind,value,expect", [
+    (FaultKind.OFFSET, 300.0, lambda k: (k + 300) % 256),
+    (FaultKind.OFFSET, -1e4, lambda k: (k - 10_000) % 256),
+    (FaultKind.GAIN, 1.0, lambda k: k),
+    (FaultKind.NOISE, 1e4, None),
+    (FaultKind.DRIFT, 1e6, None),
+    (FaultKind.SHORT_SUPPLY, None, lambda k: 255),
+])
+def test_value_faults_on_counters_wrap_modulo_their_range(kind, value, expect):
+    """Issue 14 item 3: an offset or noise fault on ENG_EventCounter overflowed the re-encode."""
+    from vecu.codec import DbcCodec
+
+    codec = DbcCodec()
+    inj = FaultInjector(np.random.default_rng(0), codec)
+    for target in ("ENG_Event.ENG_EventCounter", "ENG_Intake.ENG_IntakeCounter"):
+        inj.inject(0, target, kind, value)
+    for name in ("ENG_Event", "ENG_Intake"):
+        fc = codec[name]
+        counter = fc.signals[0].name
+        for k in range(0, 600, 7):
+            inj.now_ns = k * NS_PER_MS
+            (out,) = inj.process(middle_frame(fc, k))
+            got = fc.decode(out.data)[counter]
+            assert 0 <= got <= 255 and got == int(got)
+            if expect is not None:
+                assert got == expect(k % 256)
+
+
+@pytest.mark.parametrize("kind,value", [
+    (FaultKind.OFFSET, 1e300), (FaultKind.OFFSET, -1e300), (FaultKind.NOISE, 1e300),
+    (FaultKind.DRIFT, 1e300), (FaultKind.DRIFT, -1e300), (FaultKind.QUANTISE, 1e-300),
+    (FaultKind.QUANTISE, 1e300), (FaultKind.SHORT_SUPPLY, None), (FaultKind.GAIN, 0.0),
+])
+def test_any_fault_value_on_any_signal_is_encoded_saturated_or_wrapped(kind, value):
+    from vecu.codec import DbcCodec
+
+    codec = DbcCodec()
+    for fc in plant_messages(codec):
+        for sig in fc.signals:
+            inj = FaultInjector(np.random.default_rng(1), codec)
+            inj.inject(0, f"{fc.name}.{sig.name}", kind, value)
+            for k in range(3):
+                inj.now_ns = (1 + k) * 1_000_000_000
+                out = inj.process(middle_frame(fc, k))
+                for msg in out:
+                    got = fc.decode(msg.data)[sig.name]
+                    assert sig.minimum <= got <= sig.maximum, (fc.name, sig.name, got)
+                    assert fc.crc_ok(msg.data)
+
+
+@pytest.mark.parametrize("value", [1e-300, 5e-324])
+def test_quantise_with_a_tiny_step_passes_the_value_through(value):
+    f = make_fault(FaultKind.QUANTISE, value, np.random.default_rng(0))
+    assert f.apply(2.5) == 2.5 and f.apply(-1e300) == -1e300
+
+
+@pytest.mark.parametrize("kind", [FaultKind.OFFSET, FaultKind.NOISE, FaultKind.DRIFT,
+                                  FaultKind.QUANTISE, FaultKind.GAIN])
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_non_finite_fault_values_are_refused(kind, value):
+    with pytest.raises(ValueError, match="finite"):
+        make_fault(kind, value, np.random.default_rng(0))

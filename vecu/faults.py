@@ -48,6 +48,7 @@ from vecu.fault_kinds import (  # noqa: F401 (re-exported: the fault library's p
     ShortToSupply,
     Stuck,
     check_frame_value,
+    fit_signal,
     make_fault,
     with_data,
 )
@@ -305,7 +306,7 @@ class FaultInjector:
                 v = fault.apply(values[name], self.now_ns)
                 if v is None:
                     return []
-                values[name] = v
+                values[name] = fit_signal(v, fc.signal(name))  # wrapped or saturated
             msg = with_data(msg, fc.encode(values))
         frame = self._frame.get(key)
         if frame is None:
