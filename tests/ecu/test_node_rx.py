@@ -110,3 +110,30 @@ def test_ecu_keeps_broadcasting_through_garbage_and_reports_it_in_status(setup):
     assert status["ECU_RxValueErrors"] > 0 and status["ECU_RxUnknownIds"] > 0
     assert status["ECU_RxDlcErrors"] > 0 and status["ECU_RxTimeouts"] == 1  # no TPS at all
     assert ecu.rx.rejected > 100
+
+
+def test_remote_frames_are_reported_in_ecu_diag(setup):
+    """Remote frames are counted and broadcast (DIAG_RemoteFrames, saturating), not only kept in
+    the run summary; none seen -> 0, so a clean run's ECU_Diag bytes do not change."""
+    codec, ecu, tester = setup
+    diag = codec["ECU_Diag"]
+
+    def last_diag() -> dict:
+        got = None
+        while (msg := tester.recv(0.0)) is not None:
+            if msg.arbitration_id == diag.frame_id:
+                got = diag.decode(msg.data)
+        return got
+
+    ecu.tick(0)
+    assert last_diag()["DIAG_RemoteFrames"] == 0
+    for i in range(3):
+        tester.send(can.Message(arbitration_id=0x100 + i, is_remote_frame=True, dlc=4,
+                                is_extended_id=False))
+    ecu.tick(100 * NS_PER_MS)
+    assert ecu.rx.remote_frames == 3
+    assert last_diag()["DIAG_RemoteFrames"] == 3
+    for _ in range(300):
+        ecu.receive(can.Message(arbitration_id=0x7FF, is_remote_frame=True), 0)
+    ecu.tick(200 * NS_PER_MS)
+    assert last_diag()["DIAG_RemoteFrames"] == 255

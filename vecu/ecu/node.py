@@ -10,8 +10,9 @@ time. Nothing a frame contains can raise out of tick().
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable, Protocol
+from typing import Protocol
 
 import can
 
@@ -134,7 +135,7 @@ class EcuNode(BusNode):
         for fn in functions:
             self.monitors.update(getattr(fn, "monitors", dict)())
         self.bus_dtc = Dtc(heal_ms=BUS_DTC_HEAL_MS)
-        self._diag = codec["ECU_Diag"] if "ECU_Diag" in codec else None
+        self._diag = codec["ECU_Diag"] if "ECU_Diag" in codec else None  # noqa: SIM401 (no .get)
         self._diag_dirty = False
         self._diag_counter = 0
         self._errors_seen = 0
@@ -186,7 +187,7 @@ class EcuNode(BusNode):
                     self._problem("unknown-id", msg)
                 return
             self._validate_and_deliver(msg, t_ns, route)
-        except Exception as exc:  # a decoder or function bug must not stop the ECU
+        except Exception as exc:  # noqa: BLE001 - a decoder or function bug must not stop the ECU
             rx.malformed += 1
             self._problem("malformed", msg, f"{type(exc).__name__}: {exc}")
 
@@ -258,6 +259,7 @@ class EcuNode(BusNode):
             return
         signals = {"DIAG_Counter": self._diag_counter, "DIAG_BusDtc": int(self.bus_dtc.state),
                    "DIAG_ErrorFrames": min(self.rx.error_frames, 255),
+                   "DIAG_RemoteFrames": min(self.rx.remote_frames, 255),
                    "DIAG_OnChange": int(on_change)}
         confirmations = self.bus_dtc.confirmations
         for name, prefix in (("tps", "Tps"), ("swa", "Swa"), ("wheel", "Wheel")):
