@@ -101,7 +101,8 @@ def test_plant_throttle_model_is_the_plants_own():
 
 
 def _vecu(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "vecu", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "vecu", *args], check=False, capture_output=True,
+                          text=True,
                           timeout=120, env={"VECU_KERNELS": "python", "PATH": "/usr/bin:/bin"})
 
 
@@ -138,3 +139,38 @@ def test_scenario_set_table_reaches_the_tree_and_bad_paths_name_the_file(tmp_pat
         load_scenario(bad)
     assert str(info.value).startswith(f"{bad}: key 'set': unknown parameter")
     assert "nearest: plant.manifold.engine.v_im_dm3" in str(info.value)
+
+
+@pytest.mark.parametrize("path,value,message", [
+    ("ecu.throttle.tps_monitor.dtc_heal_ms", 1e308, "must be >= 0 and <= 1e+10"),
+    ("ecu.throttle.tps_monitor.heal_ms", "-1", "must be >= 0"),
+    ("plant.manifold.noise_scale", 1e300, "must be >= 0 and <= 1000"),
+    ("plant.throttle.noise_scale", "1e300", "must be >= 0 and <= 1000"),
+    ("plant.manifold.engine.tau_temp_s", "1e8", "must be >= 0 and <= 1e+07 s"),
+    ("ecu.steering.lag_s", "10", "must be >= 0.01 and <= 4 s"),
+    ("plant.manifold.engine.n_cyl", "0", "must be >= 1 and <= 16"),
+    ("ecu.manifold.kf.params.max_substeps", "1000000", "must be >= 1 and <= 1000"),
+    ("plant.manifold.engine.v_im_dm3", "1e300", "<= 1e+09"),
+    ("ecu.manifold.kf.n_range", "300,1e300", "<= 1e+09"),
+    ("ecu.throttle.tps_monitor.timeout_cycles", str(2**62), "<= 1e+09"),
+])
+def test_values_a_run_cannot_honour_are_refused_naming_the_leaf(path, value, message):
+    """Issue 14 item 3: dtc_heal_ms = 1e308 or noise_scale = 1e300 passed and crashed the run."""
+    with pytest.raises(ParamError) as info:
+        ParamTree().set([(path, value)])
+    text = str(info.value)
+    assert message in text and "\n" not in text and path.split("[")[0] in text, text
+
+
+def test_every_default_lies_within_its_leaf_bounds():
+    from vecu.params import bounds_of, leaves
+
+    for leaf in leaves(ParamTree()):
+        lo, hi = bounds_of(leaf.path)
+        values = leaf.value if isinstance(leaf.value, tuple) else (leaf.value,)
+        flat = [v for x in values for v in (x if isinstance(x, tuple) else (x,))]
+        for v in flat:
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                assert lo <= v <= hi, (leaf.path, v, (lo, hi))
+    assert bounds_of("ecu.throttle.tps_monitor.dtc_heal_ms") == (0.0, 1e10)
+    assert ParamTree().set([("ecu.throttle.tps_monitor.dtc_heal_ms", 1e9)])  # 11.6 days: fine

@@ -75,6 +75,16 @@ NAME_UNITS: dict[str, str] = {
 }
 
 
+# Sane bounds per leaf: a value a run cannot honour (a time that overflows the ns clock, a noise
+# scale whose square overflows, a count beyond any run) is refused when it is set. The field's
+# metadata "bounds" (lo, hi) wins; else times by unit (0 .. 1e7 s, ~116 days), scales by name
+# (0 .. 1e3), and any other number within +-MAX_MAGNITUDE.
+MAX_TIME_S = 1e7
+MAX_SCALE = 1e3
+MAX_MAGNITUDE = 1e9
+UNIT_BOUNDS: dict[str, tuple[float, float]] = {"s": (0.0, MAX_TIME_S), "ms": (0.0, MAX_TIME_S * 1e3)}
+
+
 class ParamError(BadArgumentError):
     """An unknown parameter path or a value that does not fit it (one line, exit 2)."""
 
@@ -121,6 +131,29 @@ def source_of(path: str, field: dataclasses.Field | None = None) -> str:
     return ""
 
 
+def bounds_of(path: str, field: dataclasses.Field | None = None) -> tuple[float, float]:
+    """(lo, hi) a number at this leaf (each number of a tuple leaf) must lie within."""
+    if field is not None and "bounds" in field.metadata:
+        return field.metadata["bounds"]
+    name = path.rsplit(".", 1)[-1].split("[")[0]
+    unit = unit_of(name, field)
+    if unit in UNIT_BOUNDS:
+        return UNIT_BOUNDS[unit]
+    if name.endswith("scale"):
+        return (0.0, MAX_SCALE)
+    return (-MAX_MAGNITUDE, MAX_MAGNITUDE)
+
+
+def _check_bounds(path: str, value: float, bounds: tuple[float, float] | None) -> None:
+    if bounds is None:
+        return
+    lo, hi = bounds
+    if not lo <= value <= hi:
+        unit = unit_of(path.rsplit(".", 1)[-1].split("[")[0])
+        what = f" {unit}" if unit != "1" and not unit.startswith("(") else ""
+        raise ParamError(f"parameter '{path}' must be >= {lo:g} and <= {hi:g}{what}, got {value:g}")
+
+
 def leaves(tree: Any, prefix: str = "") -> Iterator[Leaf]:
     """Every leaf of a tree of frozen dataclasses, depth first in field order."""
     for f in _fields(tree):
@@ -156,8 +189,10 @@ def _unknown(tree: Any, path: str) -> ParamError:
     return ParamError(f"unknown parameter '{path}'{hint}")
 
 
-def parse_value(path: str, text: Any, current: Any) -> Any:
-    """`text` (a string from the command line, or a TOML value) converted to current's type."""
+def parse_value(path: str, text: Any, current: Any,
+                bounds: tuple[float, float] | None = None) -> Any:
+    """`text` (a string from the command line, or a TOML value) converted to current's type;
+    numbers checked against `bounds` (lo, hi) when given (see bounds_of)."""
     kind = type(current)
     try:
         if isinstance(current, bool):
@@ -175,6 +210,7 @@ def parse_value(path: str, text: Any, current: Any) -> Any:
             value = int(text) if not isinstance(text, float) or text.is_integer() else None
             if value is None:
                 raise TypeError
+            _check_bounds(path, value, bounds)
             return value
         if isinstance(current, float):
             if isinstance(text, bool):
@@ -182,6 +218,7 @@ def parse_value(path: str, text: Any, current: Any) -> Any:
             value = float(text)
             if not math.isfinite(value):
                 raise ParamError(f"parameter '{path}': expected a finite number, got {text}")
+            _check_bounds(path, value, bounds)
             return value
         if isinstance(current, str):
             return str(text)
@@ -190,7 +227,7 @@ def parse_value(path: str, text: Any, current: Any) -> Any:
             if len(items) != len(current):
                 raise ParamError(f"parameter '{path}': expected {len(current)} values, "
                                  f"got {len(items)}")
-            return tuple(parse_value(f"{path}[{i}]", v, c)
+            return tuple(parse_value(f"{path}[{i}]", v, c, bounds)
                          for i, (v, c) in enumerate(zip(items, current)))
     except ParamError:
         raise
@@ -213,7 +250,8 @@ def _replace(node: Any, parts: list[str], value: Any, tree: Any, path: str) -> A
         if _is_tree(child):
             raise ParamError(f"'{path}' is a group, not a parameter; set one of: "
                              f"{', '.join(paths(child)[:6])}")
-        new = parse_value(path, value, child)
+        fld = next(f for f in _fields(node) if f.name == name)
+        new = parse_value(path, value, child, bounds_of(path, fld))
     else:
         new = _replace(child, parts[1:], value, tree, path)
     try:

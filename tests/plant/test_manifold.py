@@ -333,3 +333,21 @@ def test_f_is_the_noise_free_plant_step():
     # steady state is a fixed point of the event map
     xs = steady_state_vector(u0)
     assert np.allclose(f(xs, u0), xs, rtol=0, atol=1e-9)
+
+
+class _Head:
+    """The first `duration_s` of a drive profile."""
+
+    def __init__(self, profile, duration_s: float) -> None:
+        self._profile, self.duration_s = profile, duration_s
+
+    def at(self, t: float) -> tuple[float, float]:
+        return self._profile.at(t)
+
+
+def test_any_noise_scale_the_parameter_tree_admits_stays_finite():
+    """Issue 14 item 3: plant.manifold.noise_scale up to the tree's bound (1e3) must run; at 300
+    the noise drove T_im below 0 K and the event integrator raised on NaN."""
+    tr = simulate(_Head(us06_like(0), 10.0), seed=0, config=ManifoldPlantConfig(noise_scale=1e3))
+    assert np.all(np.isfinite(tr.x)) and np.all(np.isfinite(tr.y)) and np.all(np.isfinite(tr.cac))
+    assert tr.x[:, 3].min() >= 5.0 and 150.0 <= tr.x[:, 4].min() and tr.x[:, 4].max() <= 1000.0

@@ -30,7 +30,8 @@ SWA_LIMIT_DEG = 780.0  # lock to lock of a passenger car, about 2.2 turns each w
 
 @dataclass(frozen=True)
 class SteeringFunctionConfig:
-    lag_s: float = 0.25
+    # the smoother keeps lag_s / 10 ms steps; STS_LagMs carries at most 4095 ms
+    lag_s: float = field(default=0.25, metadata={"bounds": (0.01, 4.0)})
     # 10 ms frames; the sensor has 0.1 deg noise on a 0.05 deg LSB, so two equal consecutive
     # readings happen ~14 % of the time: 10 in a row ~ 2e-8 per frame.
     monitor: SensorMonitorConfig = field(default_factory=lambda: SensorMonitorConfig(
@@ -95,7 +96,7 @@ class SteeringFunction:
             "STE_SwaStatus": int(status)}, ts))
         self._tx_counter = (self._tx_counter + 1) & 0xF
         if lagged is not None:
-            lag_ms = int(round(lagged.lag_steps * self.period_ns / NS_PER_MS))
+            lag_ms = round(lagged.lag_steps * self.period_ns / NS_PER_MS)
             self.lagged = (lag_ms, lagged.swa_rad * DEG_PER_RAD, lagged.side_slip_rad * DEG_PER_RAD)
         lag = self.lagged
         send(self._smoothed.frame({

@@ -9,7 +9,7 @@ T in K, throttle angle in rad, mass flow in kg/s, heat flow in W, engine speed i
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
@@ -22,7 +22,7 @@ class ManifoldParams:
     # Displacement V_d and cylinder count; V_cyl = V_d / n_cyl is the per-event volume in eq. 5-6
     # (manifold.md: the pumping term uses V_d/8, not V_d). eq. 8 uses V_d itself.
     v_d_dm3: float = 5.7
-    n_cyl: int = 8
+    n_cyl: int = field(default=8, metadata={"bounds": (1, 16)})  # vecu params --set bounds
     v_im_dm3: float = 5.0  # intake manifold volume V_im (manifold.md)
     # Throttle body: bore 75 mm, A_th = pi R^2 (1 - cos alpha) (eq. 4; R from manifold.md).
     r_th_m: float = 0.0375
@@ -75,7 +75,7 @@ class ManifoldParams:
     lam_dt_max: float = 1.0
     dp_step_max_kpa: float = 0.5  # largest P_im change per sub-step (accuracy in fast transients)
     dt_step_max_k: float = 0.5  # largest T_im change per sub-step
-    max_substeps: int = 40
+    max_substeps: int = field(default=40, metadata={"bounds": (1, 1000)})  # a bounded event cost
 
     @property
     def v_cyl_dm3(self) -> float:

@@ -13,7 +13,6 @@ from typing import Protocol
 import numpy as np
 
 from vecu.models.manifold import (
-    P_FLOOR_KPA,
     actuator_coeffs,
     cylinder_air_charge,
     iat_coeffs,
@@ -34,6 +33,13 @@ from vecu.models.manifold_params import (
 from vecu.rng import rng_streams
 
 # ------------------------------------------------------------------------- stochastic plant
+# The truth's physical envelope: pressure and temperatures saturate here, so that any noise scale
+# the parameter tree admits (<= 1e3) keeps the simulation finite (the event integrator fails at
+# the model's own floor P_FLOOR_KPA). Nominal drives stay far inside (P_im 16..115 kPa, T 250..380
+# K at noise_scale <= 10), where these bounds change nothing.
+P_MIN_KPA, P_MAX_KPA = 5.0, 1000.0
+T_MIN_K, T_MAX_K = 150.0, 1000.0
+
 
 @dataclass(frozen=True)
 class ManifoldPlantConfig:
@@ -42,6 +48,9 @@ class ManifoldPlantConfig:
     engine: ManifoldParams = V8_5L7  # the simulated engine (the truth)
     noise_scale: float = 1.0
     noise: ManifoldNoise = PAPER_NOISE
+    # measurement gain errors of the sensors (TA, P_im, T_im.out): y = G (x + v); 1 = exact
+    # (Dutka Table 2 varies them by +-3 %, +-2 %, +-2 %)
+    sensor_gains: tuple[float, float, float] = (1.0, 1.0, 1.0)
     # noise rows drawn at a time (the stream does not depend on it): not a parameter of the car
     block: int = field(default=1024, metadata={"param": False})
 
@@ -89,8 +98,9 @@ class ManifoldPlant:
     def measure(self) -> tuple[float, float, float]:
         """y_n = (TA rad, P_im kPa, T_im.out K) with the paper's R (eq. 1, 7, 9)."""
         w = self._row()
-        return (self.x[1] + self._sig_r[0] * w[4], self.x[3] + self._sig_r[1] * w[5],
-                self.x[5] + self._sig_r[2] * w[6])
+        g = self.config.sensor_gains
+        return ((self.x[1] + self._sig_r[0] * w[4]) * g[0], (self.x[3] + self._sig_r[1] * w[5]) * g[1],
+                (self.x[5] + self._sig_r[2] * w[6]) * g[2])
 
     def step(self, u: EngineInput, dt: float | None = None) -> int:
         """Advance one engine event (dt defaults to T_s = 120/(8N)); returns the sub-steps used."""
@@ -107,9 +117,9 @@ class ManifoldPlant:
             u.ta_sp,
             a1 * alpha + a2 * alpha_prev + b1 * u.ta_sp + b2 * u_prev + sq[0] * w[0],
             alpha,
-            max(p_n + sq[1] * w[1], P_FLOOR_KPA),
-            t_n + sq[2] * w[2],
-            a_t * tm + b_t * t + sq[3] * w[3],
+            min(max(p_n + sq[1] * w[1], P_MIN_KPA), P_MAX_KPA),
+            min(max(t_n + sq[2] * w[2], T_MIN_K), T_MAX_K),
+            min(max(a_t * tm + b_t * t + sq[3] * w[3], T_MIN_K), T_MAX_K),
         ]
         self.last_substeps = m
         return m

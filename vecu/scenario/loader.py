@@ -20,12 +20,12 @@ except ModuleNotFoundError:  # Python 3.10
 import numpy as np
 
 from vecu.codec import DbcCodec
-from vecu.config import ParamTree, RunConfig, shortcut_sets
+from vecu.config import ParamTree, RunConfig, shortcut_sets, validate_tree
 from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.errors import BadFileError
 from vecu.estimators.registry import THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
-from vecu.params import ParamError, flatten_toml
+from vecu.params import ParamError, apply_sets, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
 
 MONITOR_PATHS = {"tps": "ecu.throttle.tps_monitor", "swa": "ecu.steering.monitor",
@@ -172,15 +172,25 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         monitors[sensor] = over
     faults = _faults(chk, data.get("faults", []), duration, parts, codec)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
-    sets: list[tuple[str, Any]] = []
+    # (scenario key, tree path, value): a value the tree refuses names the key it came from
+    sets: list[tuple[str, str, Any]] = []
     for sensor, group in MONITOR_PATHS.items():
-        sets += [(f"{group}.{key}", value) for key, value in monitors[sensor].items()]
-    sets += shortcut_sets(noise_scale=noise, estimator=estimator, manifold_filter=filt)
-    sets += flatten_toml(data.get("set", {}))  # [set]: any leaf of `vecu params`, last wins
+        sets += [(f"ecu.{sensor}.{key}", f"{group}.{key}", value)
+                 for key, value in monitors[sensor].items()]
+    for key, name, value in (("plant.noise_scale", "noise_scale", noise),
+                             ("ecu.estimator", "estimator", estimator),
+                             ("ecu.manifold_filter", "manifold_filter", filt)):
+        sets += [(key, leaf, v) for leaf, v in shortcut_sets(**{name: value})]
+    # [set]: any leaf of `vecu params`, last wins
+    sets += [("set", leaf, value) for leaf, value in flatten_toml(data.get("set", {}))]
+    params = ParamTree()
     try:
-        params = ParamTree().set(sets)
+        for key, leaf, value in sets:
+            params = apply_sets(params, [(leaf, value)])
+        key = "set"
+        validate_tree(params)
     except ParamError as exc:
-        raise ScenarioError(path, f"key 'set': {exc}") from None
+        raise ScenarioError(path, f"key '{key}': {exc}") from None
     config = RunConfig(
         duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,

@@ -1,0 +1,50 @@
+"""Scenario loader: settings the run cannot honour are refused before the run, one line naming
+the file and the key (issue 14 item 3); value faults on counters are accepted (they wrap)."""
+
+from __future__ import annotations
+
+import pytest
+
+from vecu.scenario.loader import ScenarioError, load_scenario
+from vecu.scenario.runner import run_scenario
+
+
+@pytest.mark.parametrize("text,key,needle", [
+    ("[ecu.tps]\ndtc_heal_ms = 1e308\n", "ecu.tps.dtc_heal_ms", "<= 1e+10"),
+    ("[ecu.swa]\nheal_ms = 1e12\n", "ecu.swa.heal_ms", "<= 1e+10"),
+    ("[ecu.wheel]\nplaus_debounce = 9000000000000000000\n", "ecu.wheel.plaus_debounce",
+     "<= 1e+09"),
+    ("[plant]\nnoise_scale = 1e300\n", "plant.noise_scale", "<= 1000"),
+    ('[set]\n"plant.manifold.noise_scale" = 1e300\n', "set", "plant.manifold.noise_scale"),
+    ('[set]\n"ecu.throttle.tps_monitor.dtc_heal_ms" = 1e308\n', "set", "<= 1e+10"),
+])
+def test_settings_the_run_cannot_honour_are_one_line_naming_the_key(tmp_path, text, key, needle):
+    path = tmp_path / "bad.toml"
+    path.write_text("duration_s = 0.5\n" + text)
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario(path)
+    msg = str(exc.value)
+    assert len(msg.splitlines()) == 1 and msg.startswith(f"{path}: key '{key}':"), msg
+    assert needle in msg, msg
+
+
+@pytest.mark.parametrize("target,kind,value", [
+    ("ENG_Event.ENG_EventCounter", "offset", 300.0),
+    ("ENG_Intake.ENG_IntakeCounter", "noise", 50.0),
+    ("ENG_Event.ENG_Speed", "dead", None),
+    ("ENG_Event.ENG_Speed", "gain", 0.0),
+    ("ENG_Event.ENG_Speed", "offset", -1e4),
+    ("ENG_Event.ENG_Speed", "noise", 1e4),
+])
+def test_issue_fault_sweep_cases_end_pass_or_fail_never_error(tmp_path, target, kind, value):
+    """Issue 14 items 1 and 3: these declared faults ended in ERROR (ZeroDivisionError in the
+    ECU, cantools OverflowError in the plant's re-encode)."""
+    path = tmp_path / "fault.toml"
+    path.write_text(f'duration_s = 0.4\n[plant]\nmanifold = true\n[[faults]]\ntarget = "{target}"\n'
+                    f'kind = "{kind}"\nstart_s = 0.1\n'
+                    + ("" if value is None else f"value = {value}\n"))
+    outcome = run_scenario(load_scenario(path))
+    assert outcome.error is None, outcome.error
+    if kind != "offset" or "Counter" not in target:
+        return
+    assert outcome.passed  # a shifted counter is one gap, nothing the criteria judge
