@@ -22,7 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--report", metavar="DIR", help="write DIR/index.html with PNG plots")
     r.add_argument("--jobs", type=int, default=1, metavar="N",
                    help="run N scenarios in parallel processes (default 1)")
-    r.add_argument("--quiet", action="store_true", help="print nothing but errors and the verdict")
+    r.add_argument("--quiet", action="store_true",
+                   help="print nothing but errors and the verdict (and, on a terminal, the "
+                        "progress of a long scenario every 2 s)")
     r.set_defaults(func=main)
 
 
@@ -45,8 +47,10 @@ def main(args: argparse.Namespace) -> int:
             Path(args.report).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise BadFileError(args.report, f"cannot create directory: {exc.strerror}") from exc
+    # --quiet: no result lines, and progress only for a person at a terminal (not in CI logs)
+    progress = sys.stderr if not args.quiet or sys.stderr.isatty() else None
     outcomes = run_scenarios(scenarios, jobs=args.jobs, report_dir=args.report,
-                             stream=None if args.quiet else sys.stderr)
+                             stream=None if args.quiet else sys.stderr, progress=progress)
     if args.junit:
         write_junit(outcomes, args.junit)
     if args.report:

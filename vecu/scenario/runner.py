@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import multiprocessing
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import TextIO
@@ -13,22 +14,43 @@ from vecu.runner import load_kernels, run
 from vecu.scenario.criteria import ScenarioOutcome, evaluate
 from vecu.scenario.loader import Scenario
 
-LONG_RUN_S = 30.0  # simulated seconds from which a scenario reports its own progress
+PROGRESS_INTERVAL_S = 2.0  # wall seconds between a running scenario's progress lines
+
+
+class Progress:
+    """A running scenario's progress on `stream`, paced by wall time: a line once `interval_s`
+    has passed since the start or the last line (whatever the run's length), and a last line at
+    the end when any came before; a scenario done within `interval_s` prints none. Called by
+    vecu.runner.run after each simulated second."""
+
+    def __init__(self, name: str, stream: TextIO, interval_s: float = PROGRESS_INTERVAL_S,
+                 now: Callable[[], float] = perf_s) -> None:
+        self.name = name
+        self.stream = stream
+        self.interval_s = interval_s
+        self._now = now
+        self._start = self._last = now()
+        self.lines = 0
+
+    def __call__(self, t_s: float, duration_s: float) -> None:
+        now = self._now()
+        if now - self._last < self.interval_s and not (t_s >= duration_s and self.lines):
+            return
+        self._last = now
+        self.lines += 1
+        print(f"  {self.name}: {t_s:.0f}/{duration_s:.0f} s simulated "
+              f"({100.0 * t_s / duration_s:.0f} %, {now - self._start:.0f} s wall)",
+              file=self.stream, flush=True)
 
 
 def run_scenario(scenario: Scenario, report_dir: str | None = None,
-                 stream: TextIO | None = None) -> ScenarioOutcome:
-    """One scenario: run, evaluate criteria, plot into report_dir (when given)."""
+                 stream: TextIO | None = None,
+                 progress_interval_s: float = PROGRESS_INTERVAL_S) -> ScenarioOutcome:
+    """One scenario: run, evaluate criteria, plot into report_dir (when given); progress lines
+    on `stream` (when given) every progress_interval_s of wall time."""
     wall0 = perf_s()
     cpu0 = process_s()
-    progress = None
-    if stream is not None and scenario.config.duration_s >= LONG_RUN_S:
-        step = max(1.0, round(scenario.config.duration_s / 10.0))
-
-        def progress(t_s: float, dur: float) -> None:
-            if t_s % step < 1e-9 or t_s >= dur:
-                print(f"  {scenario.name}: {t_s:.0f}/{dur:.0f} s simulated "
-                      f"({perf_s() - wall0:.0f} s wall)", file=stream, flush=True)
+    progress = None if stream is None else Progress(scenario.name, stream, progress_interval_s)
     try:
         result = run(scenario.config, progress=progress)
         cpu = process_s() - cpu0
@@ -50,14 +72,22 @@ def run_scenario(scenario: Scenario, report_dir: str | None = None,
         diagnostics=s["diagnostics"], fault_events=tuple(s["fault_events"]))
 
 
-def _worker(args: tuple[Scenario, str | None]) -> ScenarioOutcome:
-    return run_scenario(args[0], args[1], stream=sys.stderr)
+def _worker(args: tuple[Scenario, str | None, bool, float]) -> ScenarioOutcome:
+    scenario, report_dir, progress, interval_s = args
+    return run_scenario(scenario, report_dir, sys.stderr if progress else None, interval_s)
 
 
 def run_scenarios(scenarios: list[Scenario], jobs: int = 1, report_dir: str | None = None,
-                  stream: TextIO | None = sys.stderr) -> list[ScenarioOutcome]:
+                  stream: TextIO | None = sys.stderr, progress: TextIO | bool | None = True,
+                  progress_interval_s: float = PROGRESS_INTERVAL_S) -> list[ScenarioOutcome]:
     """All scenarios, in input order; jobs > 1 runs each in its own worker process (same
-    results as serial: every run is seeded and independent)."""
+    results as serial: every run is seeded and independent).
+
+    stream: one result line per scenario (None: none). progress: where a running scenario's
+    progress lines go every progress_interval_s of wall time: True follows `stream`, a stream
+    of its own (e.g. stderr under --quiet on a terminal), False / None: nowhere. Worker
+    processes write theirs to their stderr."""
+    target = stream if progress is True else (progress or None)
     total = len(scenarios)
     outcomes: list[ScenarioOutcome] = []
     load_kernels()  # once, before the first timed run (forked workers inherit them)
@@ -74,13 +104,14 @@ def run_scenarios(scenarios: list[Scenario], jobs: int = 1, report_dir: str | No
 
     if jobs <= 1 or total <= 1:
         for i, sc in enumerate(scenarios, 1):
-            outcomes.append(run_scenario(sc, report_dir, stream))
+            outcomes.append(run_scenario(sc, report_dir, target, progress_interval_s))
             report(i, outcomes[-1])
         return outcomes
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    work = [(sc, report_dir, target is not None, progress_interval_s) for sc in scenarios]
     with ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=ctx) as pool:
-        for i, outcome in enumerate(pool.map(_worker, [(sc, report_dir) for sc in scenarios]), 1):
+        for i, outcome in enumerate(pool.map(_worker, work), 1):
             outcomes.append(outcome)
             report(i, outcome)
     return outcomes
