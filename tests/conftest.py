@@ -11,6 +11,11 @@ THIRDPARTY = REPO.parent / "shared" / "thirdparty"
 
 
 @pytest.fixture
+def repo_root() -> Path:
+    return REPO
+
+
+@pytest.fixture
 def thirdparty() -> Path:
     if not THIRDPARTY.is_dir():
         pytest.skip(f"third-party data not found at {THIRDPARTY}")

@@ -2,13 +2,52 @@
 
 from __future__ import annotations
 
+import importlib
+from pathlib import PurePath
+
 import can
 
-from vecu.errors import BadFileError
+from vecu.errors import BadFileError, UnavailableError
+
+MF4_HINT = "writing .mf4 needs the asammdf package: pip install 'vecu[mf4]'"
 
 
 class TraceWriteError(BadFileError):
     """The log file cannot be written: TraceWriteError(path, problem)."""
+
+
+def writer_suffixes() -> list[str]:
+    """The suffixes python-can writes here (with the dot), e.g. ['.asc', '.blf', …]."""
+    logger = can.io.logger
+    if hasattr(logger, "_update_writer_plugins"):
+        logger._update_writer_plugins()
+    return sorted(getattr(logger, "MESSAGE_WRITERS", {}))
+
+
+def check_log_path(path: str) -> None:
+    """Raise before anything is opened when python-can has no writer for path's suffix (python-can's
+    rule: the last suffix, or the one before .gz), or when the writer's package is missing (asammdf
+    for .mf4): TraceWriteError or UnavailableError, one line."""
+    writers = writer_suffixes()
+    known = f"python-can writes {', '.join(writers)}, and .gz of the text formats"
+    suffixes = [s.lower() for s in PurePath(path).suffixes]
+    suffix = suffixes[-1] if suffixes else ""
+    if suffix == ".gz":
+        inner = suffixes[-2] if len(suffixes) == 2 else ""
+        cls = can.io.logger.MESSAGE_WRITERS.get(inner) if inner not in (".blf", ".db") else None
+        if cls is None or not issubclass(cls, (can.io.generic.BinaryIOMessageWriter,
+                                               can.io.generic.TextIOMessageWriter)):
+            raise TraceWriteError(path, f"cannot write log: no compressed format named like this "
+                                        f"({known}, e.g. trace.log.gz)")
+        suffix = inner
+    if suffix not in writers:
+        raise TraceWriteError(path, f"cannot write log: unknown format {suffix!r} ({known})"
+                              if suffix else f"cannot write log: no suffix to tell the format ({known})")
+    if suffix == ".mf4":
+        try:
+            importlib.import_module("asammdf")
+        except ImportError:
+            raise UnavailableError(f"{path}: {MF4_HINT}") from None
 
 
 class Recorder:
@@ -21,8 +60,11 @@ class Recorder:
     def __init__(self, bus: can.BusABC, path: str) -> None:
         self.bus = bus
         self.path = path
+        check_log_path(path)
         try:
             self._writer = can.Logger(path)
+        except NotImplementedError as exc:  # python-can's word for a missing optional package
+            raise UnavailableError(f"{path}: cannot write log: {exc}") from exc
         except (ValueError, OSError, ImportError) as exc:
             raise TraceWriteError(path, f"cannot write log: {exc}") from exc
         self.frames = 0

@@ -87,7 +87,7 @@ def test_run_log_is_a_candump_trace_of_every_frame(recorded) -> None:
 
 # ------------------------------------------------------------------ error contract
 USER_MISTAKES = [
-    (["run", "--duration", "-1"], "duration must be a positive number"),
+    (["run", "--duration", "1", "--kill-tps-at", "5"], "kill time 5.0 s is outside the run"),
     (["replay", "missing.log"], "missing.log: no such file"),
     (["scenario", "run", "{bad_scenario}"], "bad.toml: key 'plant.wheels': unknown key"),
     (["eval", "steering", "--duration", "0.1"], "--duration: expected 1..3600 s"),
@@ -113,8 +113,8 @@ def test_user_mistake_is_one_line_exit_2(argv: list[str], needle: str, bad_scena
 
 
 @pytest.mark.parametrize("argv", [
-    ["--debug", "run", "--duration", "-1"],
-    ["run", "--duration", "-1", "--debug"],
+    ["--debug", "run", "--duration", "1", "--kill-tps-at", "5"],
+    ["run", "--duration", "1", "--kill-tps-at", "5", "--debug"],
     ["eval", "--debug", "steering", "--duration", "0.1"],
 ])
 def test_debug_shows_the_traceback_of_a_user_error(argv: list[str], workdir: Path) -> None:

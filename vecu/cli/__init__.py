@@ -11,19 +11,30 @@ import importlib
 import logging
 import sys
 import traceback
-from pathlib import Path
+from typing import NoReturn
 
-from vecu.errors import BadFileError, UserError
+from vecu.cli.outputs import check_outputs as check_outputs
+from vecu.errors import UserError
 
-SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params")
-KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario")  # use estimators
+SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
+               "campaign")
+KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario",
+                   "campaign")  # use estimators
 
 
 DEBUG_HELP = "on a user error, print its traceback too"
 
 
+class VecuArgumentParser(argparse.ArgumentParser):
+    """argparse under vecu's error contract: a bad command line is one line `vecu: error: …`
+    and exit code 2 (the usage is left to --help). Subcommand parsers inherit the class."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"vecu: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vecu", description="Virtual ECU gateway for CAN")
+    parser = VecuArgumentParser(prog="vecu", description="Virtual ECU gateway for CAN")
     parser.add_argument("--debug", action="store_true", help=DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True)
     for name in SUBCOMMANDS:
@@ -105,13 +116,6 @@ def param_sets(args: argparse.Namespace, only: str | None = None) -> list[tuple[
                 raise ParamError(f"--set {path}: `vecu {args.command}` takes {only}* parameters "
                                  f"only")
     return pairs
-
-
-def require_output_dirs(*paths: str | None) -> None:
-    """Fail before a run, not after it, when an output file's directory does not exist."""
-    for path in paths:
-        if path and not Path(path).resolve().parent.is_dir():
-            raise BadFileError(path, "directory does not exist")
 
 
 if __name__ == "__main__":

@@ -7,6 +7,8 @@ import json
 import platform
 from typing import Any
 
+from vecu import argtypes
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="run the speed benchmarks (ratios against same-run baselines)",
@@ -16,15 +18,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the smallest sizes (seconds per group; noisy figures, a smoke test)")
     p.add_argument("--only", choices=("ukf", "bus", "pipeline", "live", "replay", "ecu",
                                         "breakdown", "kernels"), help="run one benchmark group")
-    p.add_argument("--live-seconds", type=float, default=None, metavar="S",
+    p.add_argument("--live-seconds", type=argtypes.bounded(0.5, 3600.0), default=None, metavar="S",
                    help="live group: seconds of the plant + ECU processes run (default 10, "
-                        "--quick 1; target: 60)")
-    p.add_argument("--memory-minutes", type=float, default=None, metavar="M",
+                        "--quick 1; 0.5..3600; target: 60)")
+    p.add_argument("--memory-minutes", type=argtypes.bounded(0.05, 600.0), default=None, metavar="M",
                    help="live group: simulated minutes of the memory-flatness run (default 10, "
-                        "--quick 0.25; target: 60)")
-    p.add_argument("--replay-seconds", type=float, default=None, metavar="S",
+                        "--quick 0.25; 0.05..600; target: 60)")
+    p.add_argument("--replay-seconds", type=argtypes.bounded(1.0, 3600.0), default=None, metavar="S",
                    help="replay group: length of the recorded drive replayed (default 60, "
-                        "--quick 4)")
+                        "--quick 4; 1..3600)")
     p.add_argument("--estimator", default="production",
                    help="ECU estimator for the pipeline run (default production; try arm)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")

@@ -6,12 +6,12 @@ import argparse
 from collections import deque
 from typing import Any
 
+from vecu import argtypes
 from vecu.cli import (
-    UserInputError,
     add_set_option,
+    check_outputs,
     configure_logging,
     param_sets,
-    require_output_dirs,
 )
 from vecu.live.args import add_live_arguments, live_options
 
@@ -27,18 +27,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_set_option(p, "ecu.*")
     p.add_argument("--manifold-filter", default=None, choices=("sdkf", "ekf"),
                    help="manifold filter (default sdkf)")
-    p.add_argument("--sync-timeout", type=float, default=10.0, metavar="S",
+    p.add_argument("--sync-timeout", type=argtypes.bounded(0.0, 3600.0), default=10.0, metavar="S",
                    help="wait up to S s for the plant's ETB_Wattmeter frames to put the 1 ms grid "
                         "just after their arrival; 0: start at once, unaligned (default 10)")
-    p.add_argument("--sync-margin-us", type=float, default=150.0, metavar="US",
-                   help="start each tick US after the late edge of the arrivals (default 150)")
-    p.add_argument("--tps-timeout-cycles", type=int, metavar="N",
+    p.add_argument("--sync-margin-us", type=argtypes.bounded(0.0, 1000.0, unit="us"), default=150.0, metavar="US",
+                   help="start each tick US after the late edge of the arrivals, 0..1000 (default 150)")
+    p.add_argument("--tps-timeout-cycles", type=argtypes.bounded(1, 10_000, integer=True), metavar="N",
                    help="TPS frames missing for N periods is a timeout fault (default: the "
                         "monitor's, 3); raise it on a machine that stalls processes")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
+    configure_logging(args.quiet)
+    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
+
     from vecu.assembly import build_functions, schedule_ecu
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
@@ -49,13 +52,6 @@ def main(args: argparse.Namespace) -> int:
     from vecu.runner import warm_up
     from vecu.stats import RunningStats
 
-    configure_logging(args.quiet)
-    require_output_dirs(args.log, args.summary, args.ready_file)
-    if not 0.0 <= args.sync_timeout <= 3600.0:
-        raise UserInputError(f"--sync-timeout: expected 0..3600 s, got {args.sync_timeout}")
-    if args.tps_timeout_cycles is not None and not 1 <= args.tps_timeout_cycles <= 10_000:
-        raise UserInputError(f"--tps-timeout-cycles: expected 1..10000, got "
-                             f"{args.tps_timeout_cycles}")
     sets = param_sets(args, only="ecu.")
     if args.tps_timeout_cycles is not None:
         sets.append(("ecu.throttle.tps_monitor.timeout_cycles", args.tps_timeout_cycles))

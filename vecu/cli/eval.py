@@ -8,29 +8,10 @@ import json
 import sys
 from typing import Any
 
+from vecu import argtypes
 from vecu.errors import BadArgumentError
 
 DEFAULT_THROTTLE_FILTERS = ("ahsm", "arm", "agm", "open-loop", "production")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
-    return v
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not v >= 0.0 or v == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return v
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,15 +22,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "throttle", help="throttle angle from the wattmeter (Vargas et al. 2015)",
         description="Simulate the throttle plant and score each filter's theta estimate against "
                     "the true simulated angle (error = estimate - truth, after a 1000-step burn-in).")
-    t.add_argument("--steps", type=_positive_int, default=200_000, metavar="N",
+    t.add_argument("--steps", type=argtypes.positive_int, default=200_000, metavar="N",
                    help="1 ms steps to simulate (default 200000)")
-    t.add_argument("--noise-scale", type=_non_negative_float, default=1.0, metavar="A",
-                   help="process-noise scale alpha of plant and filters (1 = paper, default 1)")
+    t.add_argument("--noise-scale", type=argtypes.noise_scale, default=1.0, metavar="A",
+                   help="process-noise scale alpha of plant and filters (1 = paper, default 1; "
+                        f"0..{argtypes.NOISE_SCALE_MAX:g})")
     t.add_argument("--filters", default=None, metavar="LIST",
                    help="comma-separated estimator names (default "
                         f"{','.join(DEFAULT_THROTTLE_FILTERS)}; 'production' is skipped with a "
                         "warning if unavailable and not asked for explicitly)")
-    t.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
+    t.add_argument("--seed", type=argtypes.seed, default=1, help="simulation seed (default 1)")
     t.add_argument("--json", action="store_true", help="print JSON instead of a table")
     t.set_defaults(func=main_throttle)
     s = models.add_parser(
@@ -59,9 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "accelerometer (acceleration).")
     s.add_argument("--manoeuvre", default="paper",
                    help="paper (84 km/h -> standstill), gentle, abs, launch_brake, or 'all'")
-    s.add_argument("--runs", type=_positive_int, default=10, metavar="K",
+    s.add_argument("--runs", type=argtypes.positive_int, default=10, metavar="K",
                    help="manoeuvres per seed (default 10)")
-    s.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
+    s.add_argument("--seed", type=argtypes.seed, default=1, help="simulation seed (default 1)")
     s.add_argument("--json", action="store_true", help="print JSON instead of a table")
     s.set_defaults(func=main_speed)
     st = models.add_parser(
@@ -69,9 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Simulate the single-track vehicle on the 300 s manoeuvre and score EKF, UKF, "
                     "fixed-lag and full unscented RTS smoother against the true steering-wheel "
                     "angle (the SWA sensor itself is not used: the dead-sensor case).")
-    st.add_argument("--seed", type=int, default=1, help="simulation seed (default 1)")
-    st.add_argument("--duration", type=float, default=300.0, metavar="S", help="seconds (default 300)")
-    st.add_argument("--lag", type=float, default=0.25, metavar="S", help="fixed lag (default 0.25 s)")
+    st.add_argument("--seed", type=argtypes.seed, default=1, help="simulation seed (default 1)")
+    st.add_argument("--duration", type=argtypes.finite, default=300.0, metavar="S", help="seconds (default 300)")
+    st.add_argument("--lag", type=argtypes.positive, default=0.25, metavar="S", help="fixed lag (default 0.25 s)")
     st.add_argument("--mismatch", action="store_true",
                     help="filter with cornering stiffness -15 %% and a 0.3 deg/s gyro bias")
     st.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -81,12 +63,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run the 80 s US06-like profile(s) and print the Table 1 analogue: integrated "
                     "|dCAC| and dCAC^2 of the 6-event CAC prediction for direct measurements, "
                     "direct + open-loop temperature, EKF and SDKF, and us per event.")
-    mf.add_argument("--seed", type=int, default=1, help="first profile seed (default 1)")
-    mf.add_argument("--runs", type=_positive_int, default=1, metavar="K", help="profiles (default 1)")
-    mf.add_argument("--stride", type=_positive_int, default=4,
+    mf.add_argument("--seed", type=argtypes.seed, default=1, help="first profile seed (default 1)")
+    mf.add_argument("--runs", type=argtypes.positive_int, default=1, metavar="K", help="profiles (default 1)")
+    mf.add_argument("--stride", type=argtypes.positive_int, default=4,
                     help="predict at every n-th event (default 4; sums scaled back)")
     mf.add_argument("--no-dare", action="store_true", help="skip the full-DARE SDKF baseline")
-    mf.add_argument("--duration", type=float, metavar="S",
+    mf.add_argument("--duration", type=argtypes.finite, metavar="S",
                     help="truncate each 80 s profile to S seconds (quick checks)")
     mf.add_argument("--json", action="store_true", help="print JSON instead of a table")
     mf.set_defaults(func=main_manifold)
@@ -137,10 +119,10 @@ def main_throttle(args: argparse.Namespace) -> int:
 def format_throttle_report(r: dict[str, Any]) -> str:
     """The table printed by `vecu eval throttle`."""
     lines = [
-        f"throttle: {r['steps']} steps (burn-in {r['burn_in']}), seed {r['seed']}, "
-        f"noise scale {r['noise_scale']:g}; error = theta_hat - theta_true (deg)",
-        f"spread of theta_true itself (error of a constant estimate, ignoring u and y): "
-        f"{r['theta_true_std_deg']:.2f} deg",
+        (f"throttle: {r['steps']} steps (burn-in {r['burn_in']}), seed {r['seed']}, "
+        f"noise scale {r['noise_scale']:g}; error = theta_hat - theta_true (deg)"),
+        (f"spread of theta_true itself (error of a constant estimate, ignoring u and y): "
+        f"{r['theta_true_std_deg']:.2f} deg"),
         f"{'filter':<14}{'mean':>8}{'std':>8}{'rms':>8}{'sigma':>8}{'us/step':>10}{'resets':>8}",
     ]
     for x in r["results"]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from vecu import argtypes
 from vecu.errors import BadArgumentError, UnavailableError
 from vecu.live.args import add_bus_arguments
 
@@ -17,10 +18,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--target", required=True, help="sensor: tps or swa")
     p.add_argument("--kind", required=True,
                    help="dead, short_supply, stuck, frames_stop, offset, gain, noise, or clear")
-    p.add_argument("--value", type=float, metavar="X",
+    p.add_argument("--value", type=argtypes.finite, metavar="X",
                    help="offset (V for TPS, deg for SWA; default 0.5), gain G in [0,1] (0.5), "
                         "noise sigma (0.3)")
-    p.add_argument("--at", type=float, default=0.0, metavar="S",
+    p.add_argument("--at", type=argtypes.bounded(0.0, 86_400.0), default=0.0, metavar="S",
                    help="send S seconds after this command starts (default: at once)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=main)

@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from vecu import argtypes
 from vecu.cli import (
     UserInputError,
     add_set_option,
+    check_outputs,
     configure_logging,
     param_sets,
-    require_output_dirs,
 )
 from vecu.live.args import add_live_arguments, live_options
 
@@ -26,16 +27,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_set_option(p, "plant.*")
     p.add_argument("--truth", action="store_true",
                    help="also send the debug truth frames (dbc/vecu_truth.dbc)")
-    p.add_argument("--extra-load", type=float, default=0.0, metavar="FRAMES_PER_S",
+    p.add_argument("--extra-load", type=argtypes.bounded(0.0, 100_000.0), default=0.0, metavar="FRAMES_PER_S",
                    help="pad the bus with this many extra ESC_Motion frames per second (copies of "
                         "the current one), for throughput tests; needs the speed part")
-    p.add_argument("--steering-horizon", type=float, default=STEERING_HORIZON_S, metavar="S",
+    p.add_argument("--steering-horizon", type=argtypes.bounded(1.0, 86_400.0), default=STEERING_HORIZON_S, metavar="S",
                    help="without --duration: the precomputed steering manoeuvre covers S s, then "
                         f"holds its last sample (default {STEERING_HORIZON_S:g})")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
+    configure_logging(args.quiet)
+    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
+
     from vecu.assembly import build_plant, schedule_plant
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
@@ -43,14 +47,8 @@ def main(args: argparse.Namespace) -> int:
     from vecu.live.process import LiveProcess
     from vecu.runner import warm_up
 
-    configure_logging(args.quiet)
-    require_output_dirs(args.log, args.summary, args.ready_file)
-    if not 0.0 <= args.extra_load <= 100_000.0:
-        raise UserInputError(f"--extra-load: expected 0..100000 frames/s, got {args.extra_load}")
     if args.extra_load and args.no_speed:
         raise UserInputError("--extra-load sends ESC_Motion copies: it needs the speed part")
-    if not 1.0 <= args.steering_horizon <= 86_400.0:
-        raise UserInputError(f"--steering-horizon: expected 1..86400 s, got {args.steering_horizon}")
     horizon = args.duration if args.duration is not None else args.steering_horizon
     config = RunConfig(duration_s=horizon, seed=args.seed,
                        kill_tps_at_s=None, speed=not args.no_speed, steering=not args.no_steering,

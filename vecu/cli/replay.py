@@ -7,7 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vecu.cli import add_set_option, configure_logging, param_sets, require_output_dirs
+from vecu import argtypes
+from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--with-inputs", action="store_true", help="also copy the trace's frames to --out")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--fast", action="store_true", help="simulated clock (default)")
-    mode.add_argument("--speed", type=float, metavar="X", help="live: replay onto a bus at X times")
+    mode.add_argument("--speed", type=argtypes.bounded(0.0, 10_000.0, lo_open=True), metavar="X",
+                      help="live: replay onto a bus at X times the recorded pace, (0..10000]")
     p.add_argument("--interface", help="python-can interface for --speed (default: config, else virtual)")
     p.add_argument("--channel", help="python-can channel for --speed")
     p.add_argument("--format", dest="fmt", metavar="FMT",
@@ -44,11 +46,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    configure_logging(args.quiet)
+    check_outputs(out=args.out, summary=args.summary, plot=args.plot)  # before any work
+
     from vecu.replay.engine import ReplayConfig, replay
     from vecu.replay.source import TraceReadError
 
-    configure_logging(args.quiet)
-    require_output_dirs(args.out, args.summary, args.plot)
     config = ReplayConfig(
         trace=args.trace, dbc=tuple(args.dbc), signal_map=args.signal_map, out=args.out,
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
@@ -70,8 +73,8 @@ def main(args: argparse.Namespace) -> int:
 
 def format_summary(s: dict[str, Any]) -> str:
     fr = s["frames"]
-    lines = [f"vecu replay ({s['mode']}): {s['trace']}: {s['trace_duration_s']:.3f} s of trace in "
-             f"{s['wall_time_s']:.2f} s ({s['x_realtime']}x real time, {s['frames_per_s']} frames/s)",
+    lines = [(f"vecu replay ({s['mode']}): {s['trace']}: {s['trace_duration_s']:.3f} s of trace in "
+             f"{s['wall_time_s']:.2f} s ({s['x_realtime']}x real time, {s['frames_per_s']} frames/s)"),
              f"frames: read {fr['read']}, decoded {fr['decoded']} (truth {fr['truth']}), unknown id "
              f"{fr['unknown_id']}, error frames {fr['error_frames']}, remote {fr['remote_frames']}, "
              f"rejected {fr['rejected']}"

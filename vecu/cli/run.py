@@ -7,18 +7,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vecu.cli import add_set_option, configure_logging, param_sets, require_output_dirs
-
-
-def _kill_time(text: str) -> float | str | None:
-    if text.lower() in ("none", "never", "off"):
-        return None
-    if text == "half":
-        return text
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds or 'none', got {text!r}") from None
+from vecu import argtypes
+from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,24 +16,26 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Run the throttle plant, the fault injector and the virtual ECU "
                                    "on one python-can bus (default: in-process virtual bus, "
                                    "simulated clock).")
-    p.add_argument("--duration", type=float, default=10.0, metavar="S", help="seconds (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--duration", type=argtypes.run_seconds, default=10.0, metavar="S",
+                   help=f"seconds, {argtypes.TICK_S:g}..{argtypes.RUN_MAX_S:g} (default 10)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed, 0..2**63-1 (default 0)")
     p.add_argument("--interface", help="python-can interface (default: python-can config, else virtual)")
     p.add_argument("--channel", help="python-can channel (default: config, else 'vecu')")
-    p.add_argument("--bitrate", type=int, help="bitrate for interfaces that need one")
-    p.add_argument("--kill-tps-at", type=_kill_time, default="half", metavar="T",
+    p.add_argument("--bitrate", type=argtypes.positive_int, help="bitrate for interfaces that need one")
+    p.add_argument("--kill-tps-at", type=argtypes.kill_time, default="half", metavar="T",
                    help="inject the TPS fault at T s, or 'none' (default: half the duration)")
     p.add_argument("--fault", default="dead",
                    help="dead, short_supply, stuck, frames_stop, offset, gain, noise (default dead)")
-    p.add_argument("--fault-value", type=float, metavar="X",
+    p.add_argument("--fault-value", type=argtypes.finite, metavar="X",
                    help="offset in V (default 0.5), gain G in [0,1] (0.5), noise sigma in V (0.3)")
-    p.add_argument("--kill-swa-at", type=_kill_time, default=None, metavar="T",
+    p.add_argument("--kill-swa-at", type=argtypes.kill_time, default=None, metavar="T",
                    help="inject a steering-wheel-angle sensor fault at T s (default: none)")
     p.add_argument("--swa-fault", default="dead", metavar="KIND",
                    help="SWA fault kind, as --fault (offset/noise in deg, default dead)")
-    p.add_argument("--swa-fault-value", type=float, metavar="X", help="SWA fault value")
-    p.add_argument("--noise-scale", type=float, default=None, metavar="A",
-                   help="process-noise scale alpha of the throttle model, plant and ECU (1 = paper)")
+    p.add_argument("--swa-fault-value", type=argtypes.finite, metavar="X", help="SWA fault value")
+    p.add_argument("--noise-scale", type=argtypes.noise_scale, default=None, metavar="A",
+                   help="process-noise scale alpha of the throttle model, plant and ECU (1 = paper; "
+                        f"0..{argtypes.NOISE_SCALE_MAX:g})")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production; = --set ecu.throttle.estimator=NAME)")
     add_set_option(p, "plant.* and ecu.*")
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
@@ -57,9 +49,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    configure_logging(args.quiet)
+    check_outputs(log=args.log, summary=args.summary, plot=args.plot)  # before any work
+
     from vecu.runner import RunConfig, run
 
-    configure_logging(args.quiet)
     config = RunConfig(
         duration_s=args.duration, seed=args.seed,
         kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at,
@@ -70,7 +64,6 @@ def main(args: argparse.Namespace) -> int:
         swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value,
     ).with_params(param_sets(args), noise_scale=args.noise_scale, estimator=args.estimator)
     config.validate()  # user errors before any output is touched
-    require_output_dirs(args.log, args.summary, args.plot)
     result = run(config)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
@@ -85,9 +78,9 @@ def main(args: argparse.Namespace) -> int:
 def format_summary(s: dict[str, Any]) -> str:
     th = s["throttle"]
     fr = s["frames"]
-    lines = [f"vecu run: {s['sim_time_s']:.3f} s in {s['wall_time_s']:.2f} s wall "
+    lines = [(f"vecu run: {s['sim_time_s']:.3f} s in {s['wall_time_s']:.2f} s wall "
              f"({s['x_realtime']}x real time, {s['kernels']} kernels), {s['ticks']} ticks, "
-             f"{s['overruns']} overruns"]
+             f"{s['overruns']} overruns")]
     if th["kill_time_s"] is None:
         lines.append("TPS: no fault injected")
     elif th["detected"]:

@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from vecu.cli import configure_logging, require_output_dirs
+from vecu import argtypes
+from vecu.cli import check_outputs, configure_logging
 from vecu.errors import BadArgumentError, BadFileError
 
 
@@ -20,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("files", nargs="+", metavar="FILE", help="scenario .toml files")
     r.add_argument("--junit", metavar="OUT.xml", help="write JUnit XML")
     r.add_argument("--report", metavar="DIR", help="write DIR/index.html with PNG plots")
-    r.add_argument("--jobs", type=int, default=1, metavar="N",
+    r.add_argument("--jobs", type=argtypes.bounded(1, 256, integer=True), default=1, metavar="N",
                    help="run N scenarios in parallel processes (default 1)")
     r.add_argument("--quiet", action="store_true",
                    help="print nothing but errors and the verdict (and, on a terminal, the "
@@ -34,9 +35,7 @@ def main(args: argparse.Namespace) -> int:
     from vecu.scenario.runner import run_scenarios
 
     configure_logging(quiet=True)  # errors only: the scenario lines are the output
-    if args.jobs < 1:
-        raise BadArgumentError(f"--jobs must be >= 1, got {args.jobs}")
-    require_output_dirs(args.junit)
+    check_outputs(junit=args.junit, report=args.report)
     scenarios = [load_scenario(f) for f in args.files]
     names = [s.name for s in scenarios]
     dup = sorted({n for n in names if names.count(n) > 1})

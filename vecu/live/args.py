@@ -3,35 +3,30 @@
 from __future__ import annotations
 
 import argparse
-import math
+from typing import TYPE_CHECKING
 
-from vecu.live.options import LiveOptions
+from vecu import argtypes
 
-
-def positive_seconds(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {text!r}")
-    return v
+if TYPE_CHECKING:
+    from vecu.live.options import LiveOptions
 
 
 def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interface", help="python-can interface (default: python-can config, else virtual)")
     p.add_argument("--channel", help="python-can channel (default: config, else 'vecu'; "
                                      "udp_multicast: 239.74.163.2)")
-    p.add_argument("--bitrate", type=int, help="bitrate for interfaces that need one")
+    p.add_argument("--bitrate", type=argtypes.positive_int, help="bitrate for interfaces that need one")
 
 
 def add_live_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_arguments(p)
-    p.add_argument("--duration", type=positive_seconds, metavar="S",
-                   help="run S seconds (default: until Ctrl-C / SIGTERM)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--noise-scale", type=float, default=None, metavar="A",
-                   help="process-noise scale alpha of the throttle model (1 = paper)")
+    p.add_argument("--duration", type=argtypes.live_seconds, metavar="S",
+                   help=f"run S seconds, {argtypes.TICK_S:g}..{argtypes.RUN_MAX_S:g} (default: until "
+                        "Ctrl-C / SIGTERM)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed, 0..2**63-1 (default 0)")
+    p.add_argument("--noise-scale", type=argtypes.noise_scale, default=None, metavar="A",
+                   help="process-noise scale alpha of the throttle model (1 = paper; "
+                        f"0..{argtypes.NOISE_SCALE_MAX:g})")
     p.add_argument("--no-speed", action="store_true", help="leave out the speed part/function")
     p.add_argument("--no-steering", action="store_true", help="leave out the steering part/function")
     p.add_argument("--no-manifold", action="store_true", help="leave out the manifold part/function")
@@ -40,8 +35,9 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary on exit")
     p.add_argument("--ready-file", metavar="FILE",
                    help="write FILE when the bus is open and set-up is done (for scripts)")
-    p.add_argument("--spin-us", type=int, default=200, metavar="US",
-                   help="busy-wait the last US microseconds before each deadline (default 200)")
+    p.add_argument("--spin-us", type=argtypes.tick_us, default=200, metavar="US",
+                   help="busy-wait the last US microseconds before each deadline, 0..1000 "
+                        "(default 200)")
     status = p.add_mutually_exclusive_group()
     status.add_argument("--status", dest="status", action="store_true", default=None,
                         help="show the status panel on stderr (default: when it is a terminal)")
@@ -51,6 +47,8 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def live_options(args: argparse.Namespace, role: str) -> LiveOptions:
+    from vecu.live.options import LiveOptions  # here: parsing needs no python-can
+
     return LiveOptions(role=role, duration_s=args.duration, interface=args.interface,
                        channel=args.channel, bitrate=args.bitrate, log_path=args.log,
                        summary_path=args.summary, ready_file=args.ready_file,

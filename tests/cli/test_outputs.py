@@ -1,0 +1,108 @@
+"""Output files (vecu/cli/outputs.py): a directory, an unwritable place, a format matplotlib or
+python-can cannot write, or no suffix at all is one line and exit 2 BEFORE the run (issue 14
+item 7), in every subcommand that writes files: run, replay, plant, ecu, scenario."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vecu.cli import main
+from vecu.cli.outputs import check_outputs
+from vecu.errors import BadArgumentError, BadFileError, UserError
+
+ENV = {**os.environ, "VECU_KERNELS": "python"}
+
+
+@pytest.mark.parametrize("kwargs,needle", [
+    ({"summary": "{d}"}, "is a directory (--summary wants a file name)"),
+    ({"junit": "{d}"}, "is a directory"),
+    ({"summary": "/proc/x.json"}, "cannot create a file in /proc"),
+    ({"summary": "{d}/missing/x.json"}, "directory does not exist"),
+    ({"plot": "{d}/run.xyz"}, "matplotlib cannot write '.xyz' plots"),
+    ({"plot": "{d}/run"}, "no suffix to tell the plot format (e.g. {d}/run.png"),
+    ({"plot": "{d}"}, "is a directory (--plot wants a file name)"),
+    ({"log": "{d}/x.bogus"}, "cannot write log: unknown format '.bogus'"),
+    ({"out": "{d}/x"}, "cannot write log: no suffix"),
+    ({"log": "{d}/x.blf.gz"}, "cannot write log: no compressed format"),
+    ({"report": "{d}/file.txt"}, "not a directory"),
+    ({"report": "/proc/vecu-report"}, "cannot create a file in /proc"),
+])
+def test_bad_output_is_a_user_error_naming_the_file(kwargs, needle: str, tmp_path: Path) -> None:
+    (tmp_path / "file.txt").write_text("keep")
+    kwargs = {k: v.format(d=tmp_path) for k, v in kwargs.items()}
+    with pytest.raises(UserError) as exc:
+        check_outputs(**kwargs)
+    assert needle.format(d=tmp_path) in str(exc.value)
+    assert isinstance(exc.value, BadFileError) and len(str(exc.value).splitlines()) == 1
+
+
+def test_good_outputs_pass_and_nothing_is_created_or_changed(tmp_path: Path) -> None:
+    (tmp_path / "old.json").write_text("keep")
+    check_outputs(log=str(tmp_path / "a.blf"), out=str(tmp_path / "b.log.gz"),
+                  summary=str(tmp_path / "old.json"), plot=str(tmp_path / "p.svg"),
+                  junit=str(tmp_path / "j.xml"), ready_file=None,
+                  report=str(tmp_path / "new" / "report"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.json"]
+    assert (tmp_path / "old.json").read_text() == "keep"
+
+
+def test_two_outputs_on_one_file(tmp_path: Path) -> None:
+    with pytest.raises(BadArgumentError, match="--summary and --plot name the same file"):
+        check_outputs(summary=str(tmp_path / "x.png"), plot=str(tmp_path / "x.png"))
+
+
+# ------------------------------------------------------------------ every subcommand, for real
+@pytest.fixture(scope="module")
+def place(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A directory with a two-frame candump trace and a short scenario."""
+    d = tmp_path_factory.mktemp("outputs")
+    (d / "t.log").write_text("(0.000000) vecu 100#F4008813\n(0.001000) vecu 100#F4008813\n")
+    (d / "s.toml").write_text('name = "short"\nduration_s = 0.2\n')
+    (d / "sub").mkdir()
+    return d
+
+
+CASES = [
+    ["run", "--duration", "0.3", "--summary", "sub"],
+    ["run", "--duration", "0.3", "--summary", "/proc/x.json"],
+    ["run", "--duration", "0.3", "--plot", "run.xyz"],
+    ["run", "--duration", "0.3", "--plot", "sub"],
+    ["run", "--duration", "0.3", "--plot", "runplot"],  # would be runplot.png behind the back
+    ["replay", "t.log", "--plot", "sub"],
+    ["replay", "t.log", "--summary", "/proc/x.json"],
+    ["replay", "t.log", "--plot", "replayplot"],
+    ["plant", "--duration", "0.3", "--summary", "/proc/x.json"],
+    ["ecu", "--duration", "0.3", "--sync-timeout", "0", "--summary", "sub"],
+    ["scenario", "run", "s.toml", "--junit", "sub"],
+    ["scenario", "run", "s.toml", "--junit", "/proc/x.xml"],
+]
+
+
+def _one_line(rc: int, err: str) -> str:
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.mark.parametrize("argv", CASES, ids=[" ".join(a) for a in CASES])
+def test_bad_output_fails_before_the_run_in_one_line(argv: list[str], place: Path, capsys,
+                                                      monkeypatch) -> None:
+    monkeypatch.chdir(place)
+    before = sorted(p.name for p in place.iterdir())
+    line = _one_line(main(argv), capsys.readouterr().err)
+    assert line.startswith(f"vecu: error: {argv[-1]}: "), line
+    assert capsys.readouterr().out == ""  # no run, no summary
+    assert sorted(p.name for p in place.iterdir()) == before  # nothing written
+
+
+@pytest.mark.parametrize("argv", [CASES[4], CASES[7], CASES[10]], ids=["run", "replay", "scenario"])
+def test_in_a_real_process_too(argv: list[str], place: Path) -> None:
+    res = subprocess.run([sys.executable, "-m", "vecu", *argv], capture_output=True, text=True,
+                         env=ENV, cwd=place, timeout=120, check=False)
+    assert _one_line(res.returncode, res.stderr).startswith(f"vecu: error: {argv[-1]}: ")
+    assert res.stdout == ""
