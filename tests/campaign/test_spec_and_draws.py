@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vecu.campaign.draws import draw, tree_for
-from vecu.campaign.spec import load_campaign
+from vecu.campaign.draws import draw, load_campaign, tree_for
 from vecu.config import ParamTree
 from vecu.errors import BadFileError
 

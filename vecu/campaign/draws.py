@@ -13,7 +13,7 @@ import numpy as np
 from scipy.stats import truncnorm
 
 from vecu import params as ptree
-from vecu.campaign.spec import CampaignSpec, Vary
+from vecu.campaign.spec import CampaignSpec, Vary, read_campaign
 from vecu.config import ParamTree
 from vecu.errors import BadFileError
 
@@ -117,3 +117,10 @@ def check_spec(spec: CampaignSpec) -> None:
 
 def _numbers(values: Any) -> list[float]:
     return [float(x) for x in values if isinstance(x, (int, float)) and not isinstance(x, bool)]
+
+
+def load_campaign(path: str) -> CampaignSpec:
+    """Read a campaign file and check it against the parameter tree (one line per problem)."""
+    spec = read_campaign(path)
+    check_spec(spec)  # every path exists, every value fits its leaf (one draw, as run 0 would)
+    return spec

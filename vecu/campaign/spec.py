@@ -17,6 +17,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
 from vecu.errors import BadFileError
+from vecu.params import flatten_toml
 
 KINDS = ("manifold", "drive")
 DISTS = ("truncnorm", "uniform", "choice", "fixed")
@@ -124,8 +125,9 @@ def _vary(path: str, i: int, item: Any, kind: str) -> Vary:
     return Vary(p, dist, apply, choices=choices, value=item.get("value"), **kw)
 
 
-def load_campaign(path: str | Path) -> CampaignSpec:
-    """Read and validate a campaign file; every problem is one BadFileError line."""
+def read_campaign(path: str | Path) -> CampaignSpec:
+    """Read a campaign file and check its keys and values (vecu.campaign.draws.load_campaign
+    also checks the paths against the parameter tree); every problem is one BadFileError line."""
     path = str(path)
     try:
         with open(path, "rb") as fh:
@@ -169,15 +171,9 @@ def load_campaign(path: str | Path) -> CampaignSpec:
     fixed = data.get("set", {})
     if not isinstance(fixed, dict):
         raise _fail(path, "set", "expected a table")
-    from vecu.params import flatten_toml
-
     metrics = data.get("metrics", [])
     if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
         raise _fail(path, "metrics", "expected an array of names")
-    spec = CampaignSpec(path, str(data.get("name", Path(path).stem)),
+    return CampaignSpec(path, str(data.get("name", Path(path).stem)),
                         str(data.get("description", "")), kind, runs, seed, dict(run), vary,
                         tuple(flatten_toml(fixed)), tuple(metrics))
-    from vecu.campaign.draws import check_spec
-
-    check_spec(spec)  # every path exists, every value fits its leaf (one draw, as run 0 would)
-    return spec

@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _spec(path: str, runs: int | None = None, seed: int | None = None):
-    from vecu.campaign.spec import load_campaign
+    from vecu.campaign.draws import load_campaign
 
     spec = load_campaign(path)
     if runs is not None:
