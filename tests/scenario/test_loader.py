@@ -48,3 +48,17 @@ def test_issue_fault_sweep_cases_end_pass_or_fail_never_error(tmp_path, target, 
     if kind != "offset" or "Counter" not in target:
         return
     assert outcome.passed  # a shifted counter is one gap, nothing the criteria judge
+
+
+def test_a_file_that_is_not_utf8_is_one_line_naming_it(tmp_path, capsys):
+    """Issue 14 item 9: was a UnicodeDecodeError traceback (TOML files are UTF-8)."""
+    from vecu.cli import main
+
+    path = tmp_path / "latin1.toml"
+    path.write_bytes('duration_s = 0.5\ndescription = "Drosselklappe geöffnet"\n'.encode("latin-1"))
+    with pytest.raises(ScenarioError) as exc:
+        load_scenario(path)
+    assert str(exc.value) == (f"{path}: not UTF-8 text (byte 0xf6 at offset 48, line 2): TOML "
+                              f"files must be UTF-8")
+    assert main(["scenario", "run", str(path)]) == 2
+    assert capsys.readouterr().err == f"vecu: error: {exc.value}\n"

@@ -134,6 +134,10 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         raise ScenarioError(path, f"cannot read: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(path, f"TOML syntax error: {exc}".splitlines()[0]) from None
+    except UnicodeDecodeError as exc:  # tomllib decodes the bytes as UTF-8
+        line = exc.object[:exc.start].count(b"\n") + 1
+        raise ScenarioError(path, f"not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
+                                  f"{exc.start}, line {line}): TOML files must be UTF-8") from None
     chk.table(data, TOP_KEYS, "")
     if "duration_s" not in data:
         raise chk.fail("duration_s", "required key missing")
