@@ -63,6 +63,9 @@ SMOKE: list[tuple[list[str], str]] = [
     (["inject", "--help"], r"usage: vecu inject.*--target"),
     (["plant", "--help"], r"usage: vecu plant"),
     (["ecu", "--help"], r"usage: vecu ecu"),
+    (["params", "ecu.manifold.kf.params.omega0"], r"ecu\.manifold\.kf\.params\.omega0 +50\.0 +rad/s"),
+    (["run", "--duration", "0.3", "--set", "plant.manifold.engine.zeta=0.7"], r"300 ticks"),
+    (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
 ]
 
 
