@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import html
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -20,6 +22,19 @@ from vecu.scenario.loader import Scenario
 
 PANEL_MESSAGES = {"tps": ("TPS_Sensor", "ETB_Wattmeter"), "swa": ("SWA_Sensor", "CHS_Lateral"),
                   "wheel": ("ESC_Motion",)}
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+
+
+def plot_file_name(name: str) -> str:
+    """The file of a scenario's plot in the report directory: NAME.png when the name is a plain
+    file name (letters, digits, '.', '_', '-'; no leading dot; up to 100 characters), else the
+    name with every other run of characters as '_' and 8 hex digits of its SHA-1, so that a '/'
+    or '..' stays inside the directory and different names never share a file."""
+    if SAFE_NAME.fullmatch(name):
+        return f"{name}.png"
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._-")[:80] or "scenario"
+    digest = hashlib.sha1(name.encode("utf-8", "surrogatepass")).hexdigest()[:8]
+    return f"{stem}-{digest}.png"
 
 
 def write_junit(outcomes: list[ScenarioOutcome], path: str) -> None:

@@ -57,8 +57,8 @@ def run_scenario(scenario: Scenario, report_dir: str | None = None,
         criteria = tuple(evaluate(scenario, result))
         plot = None
         if report_dir is not None and result.throttle_series is not None:
-            from vecu.scenario.report import plot_scenario
-            plot = str(Path(report_dir) / f"{scenario.name}.png")
+            from vecu.scenario.report import plot_file_name, plot_scenario
+            plot = str(Path(report_dir) / plot_file_name(scenario.name))
             plot_scenario(scenario, result, plot)
     except Exception as exc:  # noqa: BLE001 - a crash is a failed scenario, reported, not a traceback
         return ScenarioOutcome(scenario.name, scenario.path, scenario.description, False, (),
