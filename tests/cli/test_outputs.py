@@ -13,7 +13,7 @@ import pytest
 
 from vecu.cli import main
 from vecu.cli.outputs import check_outputs
-from vecu.errors import BadArgumentError, BadFileError, UserError
+from vecu.errors import BadArgumentError, BadFileError, UnavailableError, UserError
 
 ENV = {**os.environ, "VECU_KERNELS": "python"}
 
@@ -54,6 +54,14 @@ def test_good_outputs_pass_and_nothing_is_created_or_changed(tmp_path: Path) -> 
 def test_two_outputs_on_one_file(tmp_path: Path) -> None:
     with pytest.raises(BadArgumentError, match="--summary and --plot name the same file"):
         check_outputs(summary=str(tmp_path / "x.png"), plot=str(tmp_path / "x.png"))
+
+
+def test_mf4_without_asammdf_names_the_extra(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "asammdf", None)  # `import asammdf` raises ImportError
+    with pytest.raises(UnavailableError) as exc:
+        check_outputs(log=str(tmp_path / "x.mf4"))
+    assert str(exc.value) == (f"{tmp_path / 'x.mf4'}: writing .mf4 needs the asammdf package: "
+                              "pip install 'vecu[mf4]'")
 
 
 # ------------------------------------------------------------------ every subcommand, for real
@@ -106,3 +114,20 @@ def test_in_a_real_process_too(argv: list[str], place: Path) -> None:
                          env=ENV, cwd=place, timeout=120, check=False)
     assert _one_line(res.returncode, res.stderr).startswith(f"vecu: error: {argv[-1]}: ")
     assert res.stdout == ""
+
+
+@pytest.mark.parametrize("argv", [["run", "--duration", "0.3", "--log", "x.mf4"],
+                                  ["replay", "t.log", "--out", "x.mf4"]], ids=["run", "replay"])
+def test_mf4_without_asammdf_fails_before_the_run(argv: list[str], place: Path,
+                                                  tmp_path: Path) -> None:
+    """Issue 14 item 9: `vecu run --log x.mf4` without asammdf was a NotImplementedError traceback
+    from python-can after the set-up. Here asammdf is hidden by a module that cannot be imported."""
+    hide = tmp_path / "hide"
+    hide.mkdir()
+    (hide / "asammdf.py").write_text("raise ImportError(\"No module named 'asammdf'\")\n")
+    env = {**ENV, "PYTHONPATH": os.pathsep.join(p for p in (str(hide), ENV.get("PYTHONPATH")) if p)}
+    res = subprocess.run([sys.executable, "-m", "vecu", *argv], capture_output=True, text=True,
+                         env=env, cwd=place, timeout=120, check=False)
+    assert _one_line(res.returncode, res.stderr) == (
+        "vecu: error: x.mf4: writing .mf4 needs the asammdf package: pip install 'vecu[mf4]'")
+    assert res.stdout == "" and not (place / "x.mf4").exists()
