@@ -37,6 +37,7 @@ EXPECTED = {
              r"throughput, virtual bus, one process: offered \d+ frames/s",
              rf"memory: {NUM} simulated min \({NUM}x real time\): RSS \d+ kB"],
 }
+CAMPAIGN = rf"sequential {NUM} s \({NUM} s/run\), campaign {NUM} s: {NUM}x"
 LIVE_UDP = rf"ECU in its own process \(udp_multicast, {NUM} s\): tick jitter p50 {NUM}"
 FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels")  # a few seconds each
 
@@ -75,3 +76,9 @@ def test_bench_quick_only(group):
     others = [g for g in EXPECTED if g != group and g != "kernels"
               and all(re.search(p, out, re.MULTILINE) for p in EXPECTED[g])]
     assert not others, f"--only {group} also ran {others}"
+
+
+def test_bench_quick_campaign_group():
+    """--only campaign (not in the default set: minutes at full size) on a real LocalCluster."""
+    out = _bench("--only", "campaign", timeout=GROUP_TIMEOUT_S)
+    assert re.search(CAMPAIGN, out), out

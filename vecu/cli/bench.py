@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "virtual bus (vecu vs python-can), whole pipeline x real time.")
     p.add_argument("--quick", action="store_true",
                    help="the smallest sizes (seconds per group; noisy figures, a smoke test)")
-    p.add_argument("--only", choices=("ukf", "bus", "pipeline", "live", "replay", "ecu",
+    p.add_argument("--only", choices=("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu",
                                         "breakdown", "kernels"), help="run one benchmark group")
     p.add_argument("--live-seconds", type=argtypes.bounded(0.5, 3600.0), default=None, metavar="S",
                    help="live group: seconds of the plant + ECU processes run (default 10, "
@@ -40,7 +40,8 @@ SIZES: dict[str, tuple[float, float]] = {
     "manifold_fn_s": (40.0, 3.0), "bus_frames": (20_000, 5_000), "pipeline_s": (10.0, 1.0),
     "ecu_s": (10.0, 1.0), "breakdown_s": (5.0, 1.0), "kernels_s": (5.0, 1.0),
     "replay_s": (60.0, 4.0), "replay_live_s": (10.0, 1.5), "live_s": (10.0, 1.0),
-    "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0),
+    "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0), "campaign_runs": (8, 4),
+    "campaign_s": (80.0, 2.0),
 }
 
 
@@ -92,6 +93,10 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float |
         from vecu.bench.replay import bench_replay
         out["replay"] = bench_replay(size("replay_s", replay_seconds), size("replay_live_s"),
                                      estimator)
+    if only == "campaign":  # minutes at full size: only when asked for
+        from vecu.bench.campaign import bench_campaign
+        out["campaign"] = bench_campaign(runs=int(size("campaign_runs")),
+                                         duration_s=size("campaign_s"))
     if only in (None, "live"):
         from vecu.bench.live import bench_live
         out["live"] = bench_live(size("live_s", live_seconds), size("memory_min", memory_minutes),
@@ -147,6 +152,9 @@ def main(args: argparse.Namespace) -> int:
     if "replay" in res:
         from vecu.bench.replay import format_replay
         print(format_replay(res["replay"]))
+    if "campaign" in res:
+        from vecu.bench.campaign import format_campaign
+        print(format_campaign(res["campaign"]))
     if "live" in res:
         from vecu.bench.live import format_live
         print(format_live(res["live"]))
