@@ -1,7 +1,8 @@
 """`vecu` command line: one module per subcommand, each exposing register(subparsers).
 
 Exit codes: 0 done, 1 a bug (traceback) or a failed check the subcommand reports, 2 a user error
-(one line `vecu: error: …`; with --debug its traceback first), 130 interrupted.
+(one line `vecu: error: …`; with --debug its traceback first), 130 interrupted, 143 a SIGTERM
+while the command had child processes (stopped first, vecu.live.children).
 """
 
 from __future__ import annotations
@@ -70,6 +71,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def run_command(args: argparse.Namespace) -> int:
     """Run args.func(args) and map the outcome to an exit code (see the module docstring)."""
+    from vecu.live.children import EXIT_TERMINATED, Terminated
+
     try:
         from vecu import kernels
 
@@ -80,6 +83,8 @@ def run_command(args: argparse.Namespace) -> int:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except Terminated:  # a SIGTERM while children ran: they are stopped (vecu.live.children)
+        return EXIT_TERMINATED
     except UserError as exc:
         if getattr(args, "debug", False):
             traceback.print_exc()

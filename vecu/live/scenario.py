@@ -1,6 +1,8 @@
 """A live run as separate processes: ECU first, then the plant for at least S seconds,
 optionally a `vecu inject` part way (the plant then runs until `after_s` past the command), then
-SIGTERM to the plant and to the ECU. Used by the live tests and the live benchmark.
+SIGTERM to the plant and to the ECU; optionally a third process on the bus (`--logger`:
+python-can's logger). Used by the live tests and the live benchmark. A SIGTERM to this process
+stops the nodes the same way, then it exits 143; every child also has a time limit of its own.
 
 `python -m vecu.live.scenario OUT_DIR [options]` writes OUT_DIR/scenario.json (exit codes, the
 paths of each process's summary JSON, log and stderr). Run it inside a private network namespace
@@ -10,6 +12,7 @@ for udp_multicast (vecu.live.netns.run_in_namespace).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import subprocess
@@ -19,7 +22,13 @@ from pathlib import Path
 from typing import Any
 
 from vecu.clock import NS_PER_MS, NS_PER_S, WallClock
-from vecu.live.children import die_with_parent
+from vecu.live.children import (
+    EXIT_TERMINATED,
+    GRACE_S,
+    Terminated,
+    sigterm_unwinds,
+    spawn,
+)
 from vecu.live.options import UDP_DEFAULT_GROUP
 
 POLL_NS = 20 * NS_PER_MS
@@ -38,34 +47,60 @@ def _wait_for(cond: Callable[[], bool], timeout_s: float) -> bool:
 
 
 def _spawn(argv: list[str], err_path: Path) -> subprocess.Popen:
-    """A node process that dies with this one (vecu.live.children)."""
+    """A node process that dies with this one, in this process group (vecu.live.children)."""
     with open(err_path, "w") as err:
-        return subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err,
-                                preexec_fn=die_with_parent)  # noqa: PLW1509
+        return spawn(argv, new_group=False, stdout=subprocess.DEVNULL, stderr=err)
+
+
+def _stop(proc: subprocess.Popen, sig: int, grace_s: float = GRACE_S) -> None:
+    """Send sig (a node flushes its log and summary on SIGTERM, the logger on SIGINT), wait up to
+    grace_s, then SIGKILL; always reaped."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(sig)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=grace_s)
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
 
 
 def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, inject_kind: str,
                  extra_load: float, interface: str, channel: str, ecu_args: list[str],
                  plant_args: list[str], log: bool, after_s: float = 1.5,
-                 start_timeout_s: float = 90.0) -> dict[str, Any]:
+                 start_timeout_s: float = 90.0, logger: bool = False) -> dict[str, Any]:
+    """The live run; logger: a third process on the bus (`python -m can.logger` writing
+    OUT/logger.log), started before the ECU. Every child has a time limit of its own (--duration,
+    well past the planned stop) and dies with this process; on Terminated (a SIGTERM under
+    sigterm_unwinds) the nodes are stopped as on their own SIGTERM and scenario.json records it."""
     out.mkdir(parents=True, exist_ok=True)
     vecu = [sys.executable, "-m", "vecu"]
     bus = ["--interface", interface, "--channel", channel, "--no-status", "--quiet"]
     res: dict[str, Any] = {"plant_seconds": plant_seconds, "interface": interface,
                            "channel": channel, "ecu_summary": str(out / "ecu.json"),
                            "plant_summary": str(out / "plant.json"),
-                           "ecu_log": str(out / "ecu.log") if log else None}
-    ecu_cmd = [*vecu, "ecu", *bus, "--summary", str(out / "ecu.json"),
-               "--ready-file", str(out / "ecu.ready"), "--sync-timeout", str(start_timeout_s),
-               *(["--log", str(out / "ecu.log")] if log else []), *ecu_args]
-    ecu = _spawn(ecu_cmd, out / "ecu.err")
-    procs = {"ecu": ecu}
+                           "ecu_log": str(out / "ecu.log") if log else None,
+                           "logger_log": str(out / "logger.log") if logger else None,
+                           "stopped_by": "plan"}
+    # backstops: the plant's planned run plus the inject wait, the ECU's on top of the plant's
+    plant_limit_s = plant_seconds + (inject_at or 0.0) + after_s + start_timeout_s + 60.0
+    ecu_limit_s = plant_limit_s + start_timeout_s + 60.0
+    procs: dict[str, subprocess.Popen] = {}
     try:
+        if logger:
+            procs["logger"] = _spawn([sys.executable, "-m", "can.logger", "-i", interface,
+                                      "-c", channel, "-f", str(out / "logger.log")],
+                                     out / "logger.err")
+        ecu_cmd = [*vecu, "ecu", *bus, "--summary", str(out / "ecu.json"),
+                   "--ready-file", str(out / "ecu.ready"), "--sync-timeout", str(start_timeout_s),
+                   "--duration", f"{ecu_limit_s:g}",
+                   *(["--log", str(out / "ecu.log")] if log else []), *ecu_args]
+        ecu = procs["ecu"] = _spawn(ecu_cmd, out / "ecu.err")
         if not _wait_for(lambda: (out / "ecu.ready").exists() or ecu.poll() is not None,
                          start_timeout_s):
             res["error"] = "ECU did not get ready"
         plant_cmd = [*vecu, "plant", *bus, "--summary", str(out / "plant.json"),
-                     "--ready-file", str(out / "plant.ready"),
+                     "--ready-file", str(out / "plant.ready"), "--duration", f"{plant_limit_s:g}",
                      "--steering-horizon", str(max(plant_seconds + start_timeout_s, 20.0)),
                      *(["--extra-load", str(extra_load)] if extra_load else []), *plant_args]
         plant = procs["plant"] = _spawn(plant_cmd, out / "plant.err")
@@ -81,19 +116,22 @@ def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, injec
             inject.wait(timeout=start_timeout_s + inject_at)
             end_ns = max(end_ns, clock.now_ns() + int(after_s * NS_PER_S))
         clock.wait_until(end_ns)
-        plant.send_signal(signal.SIGTERM)
-        plant.wait(timeout=60)
+        _stop(plant, signal.SIGTERM, 60.0)
         _wait_for(lambda: False, 0.5)  # let the ECU drain what is still queued
-        ecu.send_signal(signal.SIGTERM)
-        ecu.wait(timeout=60)
-    finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.kill()
-                p.wait()
-    res["returncodes"] = {name: p.returncode for name, p in procs.items()}
-    res["stderr"] = {name: (out / f"{name}.err").read_text()[-2000:] for name in procs}
-    (out / "scenario.json").write_text(json.dumps(res, indent=2) + "\n")
+        _stop(ecu, signal.SIGTERM, 60.0)
+    except Terminated:
+        res["stopped_by"] = "SIGTERM"
+        raise
+    finally:  # plant before the ECU (it drains), the logger last (it sees everything)
+        for name in ("inject", "plant", "ecu", "logger"):
+            if name in procs:
+                _stop(procs[name], signal.SIGINT if name == "logger" else signal.SIGTERM)
+        res["returncodes"] = {name: p.returncode for name, p in procs.items()}
+        res["stderr"] = {name: (out / f"{name}.err").read_text()[-2000:] for name in procs}
+        if logger and (out / "logger.log").exists():
+            with open(out / "logger.log", "rb") as f:
+                res["logger_frames"] = sum(1 for _ in f)
+        (out / "scenario.json").write_text(json.dumps(res, indent=2) + "\n")
     return res
 
 
@@ -107,12 +145,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--interface", default="udp_multicast")
     p.add_argument("--channel", default=UDP_DEFAULT_GROUP)
     p.add_argument("--no-log", action="store_true")
+    p.add_argument("--logger", action="store_true",
+                   help="a third process on the bus: python -m can.logger -> OUT/logger.log")
     p.add_argument("--ecu-arg", action="append", default=[], help="extra `vecu ecu` argument")
     p.add_argument("--plant-arg", action="append", default=[], help="extra `vecu plant` argument")
     a = p.parse_args(argv)
-    res = run_scenario(a.out, a.plant_seconds, a.inject_at, a.inject_kind, a.extra_load,
-                       a.interface, a.channel, a.ecu_arg, a.plant_arg, not a.no_log)
-    return 0 if all(rc == 0 for rc in res["returncodes"].values()) else 1
+    try:
+        with sigterm_unwinds():
+            res = run_scenario(a.out, a.plant_seconds, a.inject_at, a.inject_kind, a.extra_load,
+                               a.interface, a.channel, a.ecu_arg, a.plant_arg, not a.no_log,
+                               logger=a.logger)
+    except Terminated:
+        return EXIT_TERMINATED
+    return 0 if all(rc == 0 for name, rc in res["returncodes"].items() if name != "logger") else 1
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TextIO
 
 from vecu.clock import perf_s, process_s
+from vecu.live.children import die_with_parent
 from vecu.runner import load_kernels, run
 from vecu.scenario.criteria import ScenarioOutcome, evaluate
 from vecu.scenario.loader import Scenario
@@ -81,7 +82,7 @@ def run_scenarios(scenarios: list[Scenario], jobs: int = 1, report_dir: str | No
                   stream: TextIO | None = sys.stderr, progress: TextIO | bool | None = True,
                   progress_interval_s: float = PROGRESS_INTERVAL_S) -> list[ScenarioOutcome]:
     """All scenarios, in input order; jobs > 1 runs each in its own worker process (same
-    results as serial: every run is seeded and independent).
+    results as serial: every run is seeded and independent; a worker dies with this process).
 
     stream: one result line per scenario (None: none). progress: where a running scenario's
     progress lines go every progress_interval_s of wall time: True follows `stream`, a stream
@@ -110,7 +111,9 @@ def run_scenarios(scenarios: list[Scenario], jobs: int = 1, report_dir: str | No
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
     work = [(sc, report_dir, target is not None, progress_interval_s) for sc in scenarios]
-    with ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=ctx) as pool:
+    # each worker dies with this process: a SIGTERM here must not leave a day-long run behind
+    with ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=ctx,
+                             initializer=die_with_parent) as pool:
         for i, outcome in enumerate(pool.map(_worker, work), 1):
             outcomes.append(outcome)
             report(i, outcome)
