@@ -16,6 +16,25 @@ class TraceWriteError(BadFileError):
     """The log file cannot be written: TraceWriteError(path, problem)."""
 
 
+TIME_RESOLUTION_NS = 1_000  # 1 us: the time resolution every trace format keeps (docs/replay.md)
+TICK_GRID_NS = 1_000_000  # the ECU's 1 ms ticks on a simulated run's time base
+
+
+def record_stamp(t_s: float, before_ns: int | None = None) -> float:
+    """A frame's timestamp as recorded: at 1 us (so every format stores the same time), on the
+    same side of every ECU tick as the frame itself. Rounded to the nearest us, except that a frame
+    sent just after a tick is not stamped on it (the ECU's next tick took it, not that one: +1 us),
+    and a frame sent before `before_ns` (the end of a run, where no tick followed) stays before it
+    (-1 us). A replay then hands every frame to the same ECU tick as the live run did."""
+    t_ns = round(t_s * 1e9)
+    q = (t_ns + TIME_RESOLUTION_NS // 2) // TIME_RESOLUTION_NS * TIME_RESOLUTION_NS
+    if q < t_ns and q % TICK_GRID_NS == 0:
+        q += TIME_RESOLUTION_NS
+    if before_ns is not None and t_ns < before_ns <= q:
+        q = before_ns - TIME_RESOLUTION_NS
+    return q / 1e9
+
+
 def writer_suffixes() -> list[str]:
     """The suffixes python-can writes here (with the dot), e.g. ['.asc', '.blf', …]."""
     logger = can.io.logger
@@ -70,10 +89,14 @@ class Recorder:
         self.frames = 0
         self._closed = False
 
-    def drain(self, t_ns: int = 0) -> None:
+    def drain(self, t_ns: int = 0, before_ns: int | None = None) -> None:
+        """Write every frame received so far, stamped by record_stamp(); before_ns: the end of
+        the run (these frames were sent after the ECU's last tick)."""
         recv = self.bus.recv
         write = self._writer.on_message_received
         while (msg := recv(0.0)) is not None:
+            if msg.timestamp is not None:
+                msg.timestamp = record_stamp(msg.timestamp, before_ns)
             write(msg)
             self.frames += 1
 

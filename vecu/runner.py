@@ -146,8 +146,8 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
                 progress(min(chunk_end, end_ns) / NS_PER_S, config.duration_s)
         wall = watch.elapsed()
         ecu.overruns = ecu_task.overruns
-        if recorder is not None:
-            recorder.drain(end_ns)
+        if recorder is not None:  # frames sent after the ECU's last tick: stamped before end
+            recorder.drain(end_ns, before_ns=end_ns)
         summary = _summary(config, sched, plant, ecu, throttle_fn, probe, injector, kill_ns,
                            n_ticks, wall, recorder)
         summary["diagnostics"] = {**{name: mon.report() for name, mon in ecu.monitors.items()},
