@@ -165,7 +165,10 @@ class EcuNode(BusNode):
                         " (further ones counted, not logged)" if n == MAX_LOGGED_PER_KIND else "")
 
     def receive(self, msg: can.Message, t_ns: int) -> None:
-        """Validate one frame and hand its values to the subscribed function; never raises."""
+        """Validate one frame and hand its values to the subscribed function. A frame the ECU
+        cannot take is counted and logged, never raised; an exception out of the function it
+        feeds is a bug, not the frame's fault: it propagates (like one out of the function's
+        run()), so that it is a traceback, not a count of malformed frames."""
         rx = self.rx
         rx.received += 1
         try:
@@ -186,35 +189,43 @@ class EcuNode(BusNode):
                     rx.unknown_id += 1
                     self._problem("unknown-id", msg)
                 return
-            self._validate_and_deliver(msg, t_ns, route)
-        except Exception as exc:  # noqa: BLE001 - a decoder or function bug must not stop the ECU
+            values = self._validate(msg, route)
+        except Exception as exc:  # noqa: BLE001 - a frame the decoder cannot take: counted
             rx.malformed += 1
             self._problem("malformed", msg, f"{type(exc).__name__}: {exc}")
+            return
+        if values is not None:
+            self._deliver(values, t_ns, route)
 
-    def _validate_and_deliver(self, msg: can.Message, t_ns: int, route: Route) -> None:
+    def _validate(self, msg: can.Message, route: Route) -> dict[str, float] | None:
+        """The frame's values, or None when a check refuses it (counted, logged)."""
         rx = self.rx
         fc, sub, counter = route.codec, route.subscription, route.counter
         data = msg.data
         if len(data) != fc.length:
             rx.dlc_errors += 1
             self._problem("dlc", msg, f"expected {fc.length} bytes")
-            return
+            return None
         if fc.e2e is not None and not fc.crc_ok(data):
             rx.crc_errors += 1
             self._e2e_failure("crc", msg, sub)
-            return
+            return None
         values = fc.decode(data)
         # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
         if counter is not None and not counter.check(int(values[fc.e2e.counter_signal])):
             rx.counter_errors += 1
             self._e2e_failure("alive-counter", msg, sub)
-            return
+            return None
         bad = fc.bad_values(values)
         if bad:
             rx.value_errors += 1
             self._problem("value", msg, f"bad {', '.join(bad)}")
-            return
-        if sub.on_values(values, t_ns):  # the function refused them (it logs them)
+            return None
+        return values
+
+    def _deliver(self, values: dict[str, float], t_ns: int, route: Route) -> None:
+        rx = self.rx
+        if route.subscription.on_values(values, t_ns):  # the function refused them (it logs them)
             rx.value_errors += 1
             rx.implausible += 1
             return
