@@ -82,6 +82,12 @@ def format_summary(s: dict[str, Any]) -> str:
                 if fr["rejected"] else "")
              + (f"; out of order {fr['out_of_order']} (re-ordered), late {fr['late']}"
                 if fr["out_of_order"] or fr["late"] else "")]
+    gaps = s.get("idle_gaps") or {}
+    if gaps.get("count"):
+        at, length = gaps["first"][0]
+        lines.append(f"idle gaps: {gaps['count']} longer than {gaps['threshold_s']:g} s, "
+                     f"{gaps['skipped_s']:.3f} s skipped (the ECU ran {gaps['threshold_s']:g} s "
+                     f"of each silence); the first at {at:.3f} s, {length:.3f} s long")
     for name, f in s["functions"].items():
         if not f["enabled"] or not f["ran"]:
             lines.append(f"{name}: {f['reason']}")

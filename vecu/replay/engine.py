@@ -3,7 +3,7 @@
 Fast mode (default): the simulated clock; the trace's frames reach EcuNode.receive() at their
 timestamps, in order, ahead of the ECU's 1 ms tick due at the same time (as in a live run, where
 the plant sends before the ECU runs), so a trace recorded by `vecu run --log` replays to the same
-estimates. Live mode (speed X): the wall clock; a player bus sends every frame at X times its
+estimates. The ECU's last tick is the last one at or before the trace's last frame. Live mode (speed X): the wall clock; a player bus sends every frame at X times its
 recorded pace onto a python-can bus, the ECU listens on its own bus; each frame's schedule error
 is measured. One event loop either way: vecu.scheduler.
 """
@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import sys
 import threading
 from collections.abc import Iterator
@@ -21,7 +22,7 @@ from typing import Any
 import can
 
 from vecu import kernels
-from vecu.assembly import PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
+from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import SinkBus, open_bus
 from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
@@ -36,7 +37,7 @@ from vecu.replay.signal_map import (
     load_signal_map,
     mapped_routes,
 )
-from vecu.replay.source import TraceReadError, TraceSource
+from vecu.replay.source import IDLE_GAP_NS, TraceReadError, TraceSource
 from vecu.runner import warm_up
 from vecu.scheduler import Scheduler
 from vecu.stats import DurationHistogram
@@ -47,7 +48,9 @@ OUT_CHANNEL = "vecu"  # channel name of the ECU's frames in --out
 PLAYER_SPIN_NS = 100_000
 SCHEDULE_ERROR_LIMIT_US = 200_000  # 1 us bins up to 200 ms; beyond: counted, max kept
 SWITCH_INTERVAL_S = 2e-5
-CHUNK_NS = NS_PER_S  # fast mode runs the scheduler a simulated second at a time (progress)
+STEP_NS = NS_PER_S // 10  # the scheduler runs this much simulated time between progress checks
+PROGRESS_EVERY_S = 1.0  # wall time between progress lines
+PRIO_TRACE_END = PRIO_ECU - 1  # the end-of-trace check: after the frames due, before the ECU
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,8 @@ class ReplayConfig:
     manifold_filter: str | None = None  # shortcut for ecu.manifold.filter
     sets: tuple[tuple[str, Any], ...] = ()  # ecu.* calibration overrides (vecu params)
     progress: bool | None = None        # None: when stderr is a terminal
+    progress_every_s: float = PROGRESS_EVERY_S  # wall time between progress lines
+    idle_gap_s: float = IDLE_GAP_NS / NS_PER_S  # a longer silence is shortened to this
     keep_series: bool = False           # estimate/truth rows for a plot (ReplayResult.series)
 
     def validate(self) -> None:
@@ -74,6 +79,11 @@ class ReplayConfig:
                                        f"car is the one that recorded the trace)")
         if self.speed is not None and not (self.speed > 0 and self.speed < 1e4):
             raise BadArgumentError(f"--speed must be in (0, 10000), got {self.speed}")
+        if not (math.isfinite(self.progress_every_s) and self.progress_every_s >= 0):
+            raise BadArgumentError(f"progress interval must be >= 0 s, got {self.progress_every_s}")
+        if not (math.isfinite(self.idle_gap_s) and self.idle_gap_s > 0):
+            raise BadArgumentError(f"idle gap must be a positive number of seconds, got "
+                                   f"{self.idle_gap_s}")
 
 
 @dataclass
@@ -104,7 +114,8 @@ def replay(config: ReplayConfig) -> ReplayResult:
     functions = [f for f in build_functions(run_cfg, ecu_codec).enabled()
                  if f.name not in smap.disabled]
     routes = _routes(config, smap, trace_db, ecu_codec, functions)
-    source = TraceSource(config.trace, config.fmt)
+    source = TraceSource(config.trace, config.fmt,
+                         idle_gap_ns=round(config.idle_gap_s * NS_PER_S))
     live = config.speed is not None
     writer = _open_writer(config.out, locked=live)
     buses: list[can.BusABC] = []
@@ -115,7 +126,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
         sched = Scheduler(clock)
         scorer = TruthScorer(ecu_codec, keep_series=config.keep_series)
         if live:
-            bus_args = dict(interface=config.interface, channel=config.channel)
+            bus_args = {"interface": config.interface, "channel": config.channel}
             player_bus = open_bus(**bus_args)
             ecu_bus = open_bus(**bus_args)
             buses += [player_bus, ecu_bus]
@@ -124,10 +135,11 @@ def replay(config: ReplayConfig) -> ReplayResult:
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
                       arm_on_input=True)
         def on_sent(msg: can.Message) -> None:
-            t_ns = clock.now_ns() if not live else int(round(msg.timestamp * NS_PER_S))
+            t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
             scorer.on_estimate(msg, t_ns)
-            if writer is not None:
-                msg.timestamp += source.t0_s or 0.0  # back on the trace's time base
+            if writer is not None:  # back on the trace's time base (skipped idle time too)
+                skipped = source.skipped_before(int(t_ns * config.speed) if live else t_ns)
+                msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
                 if msg.channel is None:
                     msg.channel = OUT_CHANNEL
                 writer.on_message_received(msg)
@@ -139,25 +151,24 @@ def replay(config: ReplayConfig) -> ReplayResult:
             feeder.player = player_bus
             feeder.speed = config.speed
         ecu_task = schedule_ecu(sched, ecu)
+        trace_end = _TraceEnd(sched, feeder, live)
+        sched.every(TICK_NS, trace_end, name="trace-end", priority=PRIO_TRACE_END)
         if live:  # first numpy / cantools calls and the compiled kernels' loading: not mid-run
             warm_up(run_cfg)
         show = config.progress if config.progress is not None else sys.stderr.isatty()
-        watch = Stopwatch()
+        progress = _Progress(source, clock, config.speed or 1.0,
+                             config.progress_every_s if show else None)
         if live:
-            _run_live(sched, clock, feeder, config.speed or 1.0)
+            _run_live(sched, clock, feeder, trace_end, progress)
         else:
             sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
             end_ns = 0
-            while not feeder.done:
-                end_ns += CHUNK_NS
+            while not trace_end.reached:
+                end_ns += STEP_NS
                 sched.run_until(end_ns)
-                if show:
-                    _progress(source, feeder, watch)
-            # up to the first tick at or after the last frame, so that its estimates go out
-            sched.run_until(-(-feeder.last_ns // TICK_NS) * TICK_NS + 1)
-        wall = watch.elapsed()
-        if show:
-            sys.stderr.write("\n")
+                progress.update()
+        wall = progress.watch.elapsed()
+        progress.close()
         ecu.overruns = ecu_task.overruns
     finally:
         if writer is not None:
@@ -276,7 +287,76 @@ class _Feeder:
         self.schedule_error.record(self.clock.now_ns() - due_ns)
 
 
-def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float) -> None:
+class _TraceEnd:
+    """Scheduler task at every tick, after the frames due then and before the ECU's tick: stops
+    the run after the ECU's last tick for the trace. Fast: the last tick at or before the last frame, so the ECU runs over the trace's
+    span and no further (a run recorded by `vecu run` ends with its ECU's last tick; frames after
+    it, e.g. an engine event just before the end, are received but no tick follows them, as in
+    the live run). Live: the first tick after the last frame was sent, which drains it from the
+    bus."""
+
+    def __init__(self, sched: Scheduler, feeder: _Feeder, live: bool) -> None:
+        self.sched, self.feeder, self.live = sched, feeder, live
+        self.reached = False
+
+    def __call__(self, t_ns: int) -> None:
+        feeder = self.feeder
+        if not feeder.done:
+            return
+        if self.live:
+            last_tick = (int(feeder.last_ns / feeder.speed) // TICK_NS + 1) * TICK_NS
+        else:
+            last_tick = feeder.last_ns // TICK_NS * TICK_NS
+        if t_ns > last_tick:
+            self.reached = True
+            self.sched.stop()
+
+
+class _Progress:
+    """Progress on stderr every `every_s` of wall time (None: never): how far into the trace,
+    x real time, idle time skipped. On a terminal one line rewritten in place, else lines."""
+
+    def __init__(self, source: TraceSource, clock: SimClock | WallClock, speed: float,
+                 every_s: float | None) -> None:
+        self.source, self.clock, self.speed, self.every_s = source, clock, speed, every_s
+        self.watch = Stopwatch()
+        self.next_s = every_s
+        self.shown = False
+        self.end = "\r" if sys.stderr.isatty() else "\n"
+
+    def update(self) -> None:
+        if self.next_s is None or self.every_s is None:
+            return
+        wall = self.watch.elapsed()
+        if wall < self.next_s:
+            return
+        self.next_s = wall + self.every_s
+        source = self.source
+        now_ns = int(self.clock.now_ns() * self.speed)  # the replay's time in the trace
+        sim = now_ns / NS_PER_S
+        trace = sim + source.skipped_before(now_ns) / NS_PER_S
+        rate = f"{sim / wall:6.1f}x" if wall > 0 else ""
+        skipped = source.stats.skipped_ns / NS_PER_S
+        idle = f"  (idle {skipped:.1f} s skipped)" if skipped else ""
+        done, size = source.bytes_read(), source.size_bytes
+        if done is not None and size:
+            frac = min(done / size, 1.0)
+            head = f"[{'#' * int(frac * 30):<30}] {frac * 100:5.1f}%"
+        else:
+            head = f"{source.stats.frames_read} frames"
+        line = f"{head}  {trace:8.1f} s  {rate}{idle}"
+        sys.stderr.write(f"\r{line}" if self.end == "\r" else f"{line}\n")
+        sys.stderr.flush()
+        self.shown = True
+
+    def close(self) -> None:
+        if self.shown and self.end == "\r":
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, trace_end: _TraceEnd,
+              progress: _Progress) -> None:
     """The player in its own thread on its own scheduler (same clock origin) and the ECU on this
     one: a long ECU tick does not hold back the frames due meanwhile. The GIL switch interval
     drops to SWITCH_INTERVAL_S for the run so that the player gets the GIL within that."""
@@ -291,7 +371,7 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float)
         try:
             end = 0
             while not feeder.done:
-                end += CHUNK_NS // 10
+                end += STEP_NS
                 player.run_until(end)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
             failure.append(exc)
@@ -305,12 +385,11 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, speed: float)
     try:
         thread.start()
         end = 0
-        while not feeder.done:
-            end += CHUNK_NS // 10
+        while not trace_end.reached:
+            end += STEP_NS
             sched.run_until(end)
+            progress.update()
         thread.join()
-        last = int(feeder.last_ns / speed)
-        sched.run_until(-(-last // TICK_NS) * TICK_NS + 1)
     finally:
         sys.setswitchinterval(previous)
         gc.unfreeze()
@@ -349,27 +428,13 @@ def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
         raise TraceWriteError(path, f"cannot write: {exc}") from exc
 
 
-def _progress(source: TraceSource, feeder: _Feeder, watch: Stopwatch) -> None:
-    done = source.bytes_read()
-    size = source.size_bytes
-    sim = feeder.last_ns / NS_PER_S
-    wall = watch.elapsed()
-    rate = f"{sim / wall:6.1f}x" if wall > 0 else ""
-    if done is not None and size:
-        frac = min(done / size, 1.0)
-        bar = "#" * int(frac * 30)
-        sys.stderr.write(f"\r[{bar:<30}] {frac * 100:5.1f}%  {sim:8.1f} s  {rate}")
-    else:
-        sys.stderr.write(f"\r{source.stats.frames_read} frames  {sim:8.1f} s  {rate}")
-    sys.stderr.flush()
-
-
 def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: FrameTally,
              ecu: EcuNode, smap: SignalMap, functions: list[EcuFunction], scorer: TruthScorer,
              wall_s: float, written: int) -> dict[str, Any]:
     rx = ecu.rx.as_dict()
     sim_s = feeder.last_ns / NS_PER_S
     st = source.stats
+    trace_s = sim_s + st.skipped_ns / NS_PER_S
     rejected = {k: v for k, v in rx.items()
                 if k in ("dlc_errors", "crc_errors", "counter_errors", "value_errors",
                          "malformed") and v}
@@ -388,7 +453,8 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: 
     out: dict[str, Any] = {
         "trace": config.trace,
         "mode": "live" if config.speed is not None else "fast",
-        "config": {k: v for k, v in asdict(config).items() if k not in ("progress", "keep_series")},
+        "config": {k: v for k, v in asdict(config).items()
+                   if k not in ("progress", "progress_every_s", "keep_series")},
         "error": source.error,
         "frames": {
             "read": st.frames_read,
@@ -407,7 +473,13 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: 
         },
         "functions": fn_report,
         "map": {"file": config.signal_map, "notes": list(smap.notes)},
-        "trace_duration_s": round(sim_s, 6),
+        "trace_duration_s": round(trace_s, 6),
+        "simulated_s": round(sim_s, 6),  # what the ECU ran: the trace less the idle time skipped
+        "idle_gaps": {"threshold_s": config.idle_gap_s, "count": st.gaps,
+                      "skipped_s": round(st.skipped_ns / NS_PER_S, 6),
+                      "longest_s": round(st.longest_gap_ns / NS_PER_S, 6),
+                      "first": [[round(a / NS_PER_S, 6), round(g / NS_PER_S, 6)]
+                                for a, g in st.gap_list]},
         "wall_time_s": round(wall_s, 4),
         "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
         "frames_per_s": round(st.frames_read / wall_s) if wall_s > 0 else None,
@@ -421,4 +493,4 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: 
     return out
 
 
-__all__ = ["ReplayConfig", "ReplayResult", "replay", "TraceReadError", "FrameTally"]
+__all__ = ["FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError", "replay"]

@@ -39,8 +39,8 @@ class ReferenceTrace:
 NATIVE = {
     "drive_tps_dead.blf": ("all four functions, 3 s, seed 1, TPS dead at 1.5 s",
                            RunConfig(duration_s=3.0, seed=1, kill_tps_at_s=1.5)),
-    "drive_swa_stuck.log.gz": ("all four functions, 3 s, seed 2, TPS offset +0.5 V at 1.0 s, "
-                               "SWA sensor stuck at 1.2 s (candump -L, gzip)",
+    "drive_swa_stuck.log.gz": (("all four functions, 3 s, seed 2, TPS offset +0.5 V at 1.0 s, "
+                                "SWA sensor stuck at 1.2 s (candump -L, gzip)"),
                                RunConfig(duration_s=3.0, seed=2, kill_tps_at_s=1.0,
                                          fault="offset", fault_value=0.5, kill_swa_at_s=1.2,
                                          swa_fault="stuck")),
@@ -81,9 +81,9 @@ def write_oxts_trace(path: Path, dbc_path: Path, seed: int, duration_s: float) -
     lon = simulate_speed(seed=seed)
     lat = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)))
     deg = 180.0 / math.pi
-    n = int(round(duration_s * 500))
+    n = round(duration_s * 500)
 
-    def zeros(fc):  # noqa: ANN001, ANN202
+    def zeros(fc):
         return {s: 0.0 for s in fc.ranges}
 
     with can.Logger(str(path)) as w:

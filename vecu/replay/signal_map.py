@@ -178,7 +178,7 @@ def _mapped_input(path: str, key: str, fn_name: str, name: str, spec: object,
                              f'{{ signal = "Message.Signal", unit = "km/h" }}')
     unknown = set(spec) - {"signal", "unit", "scale", "offset"}
     if unknown:
-        raise SignalMapError(path, f"{key}: unknown key {sorted(unknown)[0]!r} "
+        raise SignalMapError(path, f"{key}: unknown key {min(unknown)!r} "
                              f"(allowed: signal, unit, scale, offset)")
     ref = spec.get("signal")
     if not isinstance(ref, str) or ref.count(".") != 1:

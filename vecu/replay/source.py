@@ -1,30 +1,47 @@
 """Trace input: python-can's readers (chosen by suffix) behind one iterator that never raises
 mid-run, puts frames on a relative nanosecond time base, orders them by timestamp within a window,
-and finds truncated files.
+shortens idle gaps and finds truncated files.
 
-Out-of-order timestamps (decision, docs/replay.md): frames are re-ordered inside a sliding window of
-REORDER_WINDOW_NS; a frame older than what has already been released is delivered at the current
-time and counted as `late`. Every backwards step in the file is counted as `out_of_order`.
+Decisions (docs/replay.md):
+- Out-of-order timestamps: frames are re-ordered inside a sliding window of REORDER_WINDOW_NS; a
+  frame older than what has already been released is delivered at the current time and counted as
+  `late`. Every backwards step in the file is counted as `out_of_order`.
+- Time resolution: a frame's time (relative to the first frame) is rounded to the nearest
+  TIME_RESOLUTION_NS (1 us, what every format keeps: candump .log, .asc and .trc store it, BLF
+  ns, CSV and MF4 floats). So each format gives the same times: python-can's MF4 writer stores them
+  relative to the wall clock at open and they come back up to ~1e-7 s off. (vecu's recorder
+  stamps frames at 1 us on the right side of each ECU tick: vecu.recorder.record_stamp.)
+- Idle gaps: a silence longer than the idle gap (no frame at all) is shortened to it; later frames
+  move earlier by what was skipped (`gaps`, `skipped_before()` maps a time back to the trace's).
 """
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import gzip
 import heapq
+import io
 import logging
+import math
 import os
+import traceback
+from bisect import bisect_right
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import can
 
 from vecu.clock import NS_PER_S
 from vecu.errors import BadArgumentError, BadFileError
+from vecu.recorder import TIME_RESOLUTION_NS
 
 log = logging.getLogger(__name__)
 
 REORDER_WINDOW_NS = 50_000_000  # 50 ms: covers multi-channel loggers that flush per channel
+IDLE_GAP_NS = 10 * NS_PER_S  # a longer silence is shortened to this (docs/replay.md)
+MAX_GAPS_LISTED = 10
 # Text formats whose writers end every line (candump -L, CANoe ASC, python-can CSV): a last line
 # without a newline there is a cut-off file, and python-can would read its stub as a short frame.
 # (TRC is left out: PCAN writers may omit the final newline, and python-can's TRC reader skips
@@ -32,8 +49,40 @@ REORDER_WINDOW_NS = 50_000_000  # 50 ms: covers multi-channel loggers that flush
 LINE_TERMINATED = {"asc", "log", "csv"}
 
 
+QUIET_LOGGERS = ("asammdf",)  # readers that log tracebacks of a corrupt file on stderr themselves
+
+
 class TraceReadError(BadFileError):
     """The trace cannot be read: TraceReadError(path, problem)."""
+
+
+@contextlib.contextmanager
+def quiet_reader_logs() -> Iterator[None]:
+    """The readers' own loggers silenced while a trace is opened and read: vecu reports a bad file
+    in one line (TraceReadError, TraceSource.error), their tracebacks would only bury it."""
+    loggers = [logging.getLogger(name) for name in QUIET_LOGGERS]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
+
+def _drop_half_built(exc: BaseException) -> None:
+    """Let go now of what a reader that failed to open left in exc's frames, with the messages
+    of their __del__ kept off stderr (asammdf's MDF4.__del__ raises on a half-built object:
+    'Exception ignored in ...'); the traceback keeps its lines for --debug."""
+    with contextlib.redirect_stderr(io.StringIO()):
+        seen: set[int] = set()
+        e: BaseException | None = exc
+        while e is not None and id(e) not in seen:
+            seen.add(id(e))
+            traceback.clear_frames(e.__traceback__)
+            e = e.__cause__ or e.__context__
+        gc.collect()
 
 
 @dataclass
@@ -42,6 +91,11 @@ class SourceStats:
     out_of_order: int = 0   # timestamp lower than the previous frame's in the file
     late: int = 0           # so late that it fell outside the re-order window (delivered now)
     non_finite_time: int = 0  # NaN/inf timestamps: delivered at the current time
+    gaps: int = 0           # idle gaps shortened to the idle gap
+    skipped_ns: int = 0     # silence skipped in them
+    longest_gap_ns: int = 0
+    # the first MAX_GAPS_LISTED gaps: (start, length) in ns on the trace's own time base
+    gap_list: list[tuple[int, int]] = field(default_factory=list)
 
 
 def reader_formats() -> list[str]:
@@ -63,16 +117,21 @@ def open_reader(path: str | Path, fmt: str | None = None) -> can.io.generic.Mess
             raise BadArgumentError(f"unknown format {fmt!r} (python-can reads: "
                                    f"{', '.join(readers)})")
     try:
-        if fmt is None:
-            return can.LogReader(path)
-        cls = readers[fmt]
-        if path.endswith(".gz"):
-            text = issubclass(cls, can.io.generic.TextIOMessageReader)
-            return cls(gzip.open(path, mode="rt" if text else "rb"))
-        return cls(file=path)
-    except ImportError as exc:
-        raise TraceReadError(path, f"this format needs an optional package: {exc}") from exc
-    except Exception as exc:  # noqa: BLE001 - python-can raises many kinds; one line each
+        with quiet_reader_logs():
+            if fmt is None:
+                return can.LogReader(path)
+            cls = readers[fmt]
+            if path.endswith(".gz"):
+                text = issubclass(cls, can.io.generic.TextIOMessageReader)
+                return cls(gzip.open(path, mode="rt" if text else "rb"))
+            return cls(file=path)
+    except (ImportError, NotImplementedError) as exc:  # python-can: an optional package missing
+        need = ("the asammdf package: pip install 'vecu[mf4]'"
+                if (fmt or Path(path.removesuffix(".gz")).suffix.lower().lstrip(".")) == "mf4"
+                else f"an optional package: {exc}")
+        raise TraceReadError(path, f"reading this format needs {need}") from exc
+    except Exception as exc:  # python-can raises many kinds; one line each
+        _drop_half_built(exc)
         raise TraceReadError(path, f"cannot open trace: {_one_line(exc)}") from exc
 
 
@@ -89,10 +148,14 @@ class TraceSource:
     """
 
     def __init__(self, path: str | Path, fmt: str | None = None,
-                 window_ns: int = REORDER_WINDOW_NS) -> None:
+                 window_ns: int = REORDER_WINDOW_NS, idle_gap_ns: int = IDLE_GAP_NS) -> None:
         self.path = str(path)
         self.fmt = fmt
         self.window_ns = window_ns
+        self.idle_gap_ns = idle_gap_ns
+        # where each shortened gap ends on the replay's time base, and what was skipped up to it
+        self._gap_ends: list[int] = []
+        self._skipped_at: list[int] = []
         self.stats = SourceStats()
         self.error: str | None = None
         self.t0_s: float | None = None  # timestamp of the first frame (the time origin)
@@ -112,6 +175,10 @@ class TraceSource:
 
     # ---------------------------------------------------------------- iteration
     def _raw(self) -> Iterator[can.Message]:
+        with quiet_reader_logs():  # for as long as the file is read
+            yield from self._read()
+
+    def _read(self) -> Iterator[can.Message]:
         stats = self.stats
         it = iter(self._reader)
         while True:
@@ -130,8 +197,8 @@ class TraceSource:
             self.error = self._truncation()
         try:
             self._reader.stop()
-        except Exception:  # noqa: BLE001
-            pass
+        except Exception as exc:  # noqa: BLE001 - closing a reader that has failed may fail too
+            log.debug("%s: closing the reader: %s", self.path, exc)
 
     def _where(self) -> str:
         ts = getattr(self, "_last_ts", None)
@@ -161,15 +228,38 @@ class TraceSource:
             return f"{path}: {_one_line(exc)}"
         return None
 
+    def skipped_before(self, t_ns: int) -> int:
+        """Idle time skipped before t_ns (replay time base): t_ns + this is the trace's time."""
+        i = bisect_right(self._gap_ends, t_ns)
+        return self._skipped_at[i - 1] if i else 0
+
     def __iter__(self) -> Iterator[tuple[int, can.Message]]:
+        """(t_ns, msg) in timestamp order (within the re-order window), idle gaps shortened."""
+        last = None  # trace time of the last frame handed out
+        skipped = 0
+        stats = self.stats
+        for t_ns, msg in self._ordered():
+            if last is not None and t_ns - last > self.idle_gap_ns:
+                gap = t_ns - last
+                skipped += gap - self.idle_gap_ns
+                stats.gaps += 1
+                stats.skipped_ns = skipped
+                stats.longest_gap_ns = max(stats.longest_gap_ns, gap)
+                if len(stats.gap_list) < MAX_GAPS_LISTED:
+                    stats.gap_list.append((last, gap))
+                self._gap_ends.append(t_ns - skipped)
+                self._skipped_at.append(skipped)
+            last = t_ns
+            yield t_ns - skipped, msg
+
+    def _ordered(self) -> Iterator[tuple[int, can.Message]]:
         """(t_ns, msg) in timestamp order (within the re-order window)."""
         stats = self.stats
         heap: list[tuple[int, int, can.Message]] = []
         window = self.window_ns
         released = None  # t_ns of the last frame handed out
         prev_ts = None
-        seq = 0
-        for msg in self._raw():
+        for seq, msg in enumerate(self._raw()):
             ts = msg.timestamp
             if self.t0_s is None:
                 self.t0_s = ts if _finite(ts) else 0.0
@@ -180,7 +270,7 @@ class TraceSource:
                 if prev_ts is not None and ts < prev_ts:
                     stats.out_of_order += 1
                 prev_ts = ts
-                t_ns = int(round((ts - self.t0_s) * NS_PER_S))
+                t_ns = _quantise(ts - self.t0_s)
                 if t_ns < 0:  # earlier than the first frame: deliver at the start
                     stats.late += 1
                     t_ns = 0
@@ -188,7 +278,6 @@ class TraceSource:
                 stats.late += 1
                 t_ns = released
             heapq.heappush(heap, (t_ns, seq, msg))
-            seq += 1
             while heap and heap[0][0] <= t_ns - window:
                 released, _, out = heapq.heappop(heap)
                 yield released, out
@@ -197,8 +286,13 @@ class TraceSource:
             yield released, out
 
 
+def _quantise(dt_s: float) -> int:
+    """Seconds -> ns, rounded to the nearest TIME_RESOLUTION_NS (half up)."""
+    return math.floor(dt_s * (NS_PER_S // TIME_RESOLUTION_NS) + 0.5) * TIME_RESOLUTION_NS
+
+
 def _finite(x: float) -> bool:
-    return x == x and x not in (float("inf"), float("-inf"))
+    return math.isfinite(x)
 
 
 def _file_size(path: str) -> int | None:
