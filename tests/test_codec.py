@@ -90,3 +90,16 @@ def test_every_third_party_dbc_compiles_strictly(thirdparty):
             except cantools.database.DecodeError:
                 continue  # e.g. a multiplexer value 0 that selects no branch
             assert isinstance(fc.bad_values(values), list)
+
+
+def test_fit_wraps_full_range_integers_and_saturates_the_rest():
+    """What a fault may push into a signal (vecu.faults frame stage), made encodable."""
+    ev = DbcCodec()["ENG_Event"]
+    nan, inf = float("nan"), float("inf")
+    assert [ev.fit("ENG_EventCounter", v) for v in (255 + 1, 250 + 10, -1, 17.4, 1e300)] == [
+        0, 4, 255, 17, (round(1e300)) % 256]
+    assert [ev.fit("ENG_EventCounter", v) for v in (inf, -inf, nan)] == [255, 0, 0]
+    assert [ev.fit("ENG_Speed", v) for v in (-5.0, 1e9, 1234.5, nan, inf)] == [
+        0.0, 8000.0, 1234.5, 0.0, 8000.0]
+    with pytest.raises(KeyError):
+        ev.fit("ENG_Nope", 1.0)

@@ -104,12 +104,15 @@ class FrameCodec:
         # encode and range-checking on decode; counters, CRCs and full-range enums cannot.
         self._saturate: list[tuple[str, float, float]] = []
         self._checked: list[tuple[str, float | None, float | None]] = []
+        self._wrap: dict[str, tuple[int, int]] = {}  # the others (counters, CRCs): lo, 2**bits
         for sig in message.signals:
             lo, hi = self.ranges[sig.name]
             raw_lo, raw_hi = _raw_bounds(sig)
             if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi) \
                     or sig.scale != 1 or sig.offset != 0:
                 self._saturate.append((sig.name, *_encode_bounds(sig, lo, hi)))
+            else:
+                self._wrap[sig.name] = (int(raw_lo), 1 << sig.length)
             if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi):
                 self._checked.append((sig.name, lo, hi))
         self.e2e = _e2e_layout(message)
@@ -131,6 +134,22 @@ class FrameCodec:
         restricted = copy.copy(self)
         restricted._checked = [c for c in self._checked if c[0] in keep]
         return restricted
+
+    def fit(self, name: str, value: float) -> float:
+        """`value` as signal `name` can carry it (a fault pushed it anywhere): a signal whose DBC
+        range is its whole raw range (counters, CRCs: integer, scale 1, offset 0) wraps modulo
+        2**bits (255 + 1 -> 0); any other saturates at its DBC minimum / maximum as encode() does
+        (NaN: the minimum). A non-finite value on a wrapping signal saturates too."""
+        wrap = self._wrap.get(name)
+        if wrap is None:
+            for sat_name, lo, hi in self._saturate:
+                if sat_name == name:
+                    return lo if not value >= lo else min(value, hi)
+            raise KeyError(f"{self.name} has no signal {name!r}")
+        lo_w, modulus = wrap
+        if math.isfinite(value):
+            return lo_w + (round(value) - lo_w) % modulus
+        return lo_w if not value >= lo_w else lo_w + modulus - 1
 
     def encode(self, values: Mapping[str, float]) -> bytes:
         """Physical values -> payload, saturated to the DBC [minimum, maximum] (NaN -> minimum).

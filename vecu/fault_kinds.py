@@ -21,7 +21,7 @@ import numpy as np
 from vecu.errors import BadArgumentError
 
 if TYPE_CHECKING:
-    from vecu.codec import FrameCodec, SignalInfo
+    from vecu.codec import FrameCodec
 
 class FaultKind(enum.IntEnum):
     """Values match FI_Kind / FI_EvKind in dbc/vecu.dbc."""
@@ -265,31 +265,6 @@ def make_fault(kind: FaultKind, value: float | None, rng: np.random.Generator,
             raise BadArgumentError(f"quantise fault: step must be > 0, got {value}")
         return Quantise(value)
     raise ValueError(f"no signal fault of kind {kind.name.lower()!r}")
-
-
-def fit_signal(value: float, sig: SignalInfo) -> float:
-    """A faulted value as the signal can carry it. An integer signal whose DBC range is its whole
-    raw range (counters, CRCs: scale 1, offset 0) wraps modulo 2**bits (ENG_EventCounter 255 + 1
-    -> 0); any other signal saturates at its DBC minimum / maximum, and a non-finite value at the
-    end it points to (NaN: the minimum), as the codec's saturating encode does."""
-    if sig.is_float:
-        raw_lo, raw_hi = -3.0e38, 3.0e38
-    elif sig.is_signed:
-        raw_lo, raw_hi = -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
-    else:
-        raw_lo, raw_hi = 0, (1 << sig.length) - 1
-    if sig.scale == 1 and sig.offset == 0:
-        lo = raw_lo if sig.minimum is None else max(sig.minimum, raw_lo)
-        hi = raw_hi if sig.maximum is None else min(sig.maximum, raw_hi)
-    else:
-        ends = sorted((raw_lo * sig.scale + sig.offset, raw_hi * sig.scale + sig.offset))
-        lo = ends[0] if sig.minimum is None else max(sig.minimum, ends[0])
-        hi = ends[1] if sig.maximum is None else min(sig.maximum, ends[1])
-    cyclic = (not sig.is_float and sig.scale == 1 and sig.offset == 0
-              and lo == raw_lo and hi == raw_hi)
-    if cyclic and math.isfinite(value):
-        return raw_lo + (round(value) - raw_lo) % (raw_hi - raw_lo + 1)
-    return lo if not value >= lo else min(value, hi)
 
 
 def check_value(kind: FaultKind, value: float | None) -> None:

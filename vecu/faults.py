@@ -48,7 +48,6 @@ from vecu.fault_kinds import (  # noqa: F401 (re-exported: the fault library's p
     ShortToSupply,
     Stuck,
     check_frame_value,
-    fit_signal,
     make_fault,
     with_data,
 )
@@ -306,7 +305,7 @@ class FaultInjector:
                 v = fault.apply(values[name], self.now_ns)
                 if v is None:
                     return []
-                values[name] = fit_signal(v, fc.signal(name))  # wrapped or saturated
+                values[name] = fc.fit(name, v)  # wrapped (counters) or saturated
             msg = with_data(msg, fc.encode(values))
         frame = self._frame.get(key)
         if frame is None:
