@@ -50,3 +50,80 @@ def test_a_silence_shorter_than_the_idle_gap_is_kept(tmp_path, gap_s):
     src = TraceSource(str(path))
     assert [t for t, _ in src] == [0, round(gap_s * NS_PER_S)]
     assert src.stats.gaps == 0 and src.skipped_before(10 * NS_PER_S) == 0
+
+
+# ------------------------------------------------------------------ a corrupt MF4 (issue 14 item 9)
+# asammdf prints on its own: a logger with its own stderr handler logs a traceback while it opens a
+# corrupt file, and the half-built MDF4 object raises in __del__ ('Exception ignored in ...'). This
+# stand-in does both, so the test runs where asammdf is not installed (python-can needs only these
+# names from it to load its MF4 reader).
+FAKE_ASAMMDF = {
+    "__init__.py": (
+        "import logging, sys\n"
+        "logger = logging.getLogger('asammdf')\n"
+        "logger.addHandler(logging.StreamHandler(sys.stderr))\n"
+        "class Signal: pass\n"
+        "class Source: pass\n"),
+    "blocks/__init__.py": "",
+    "blocks/v4_blocks.py": "class ChannelGroup: pass\nclass SourceInformation: pass\n",
+    "blocks/v4_constants.py": "BUS_TYPE_CAN = 2\nFLAG_CG_BUS_EVENT = 2\nSOURCE_BUS = 2\n",
+    "blocks/mdf_v4.py": (
+        "import logging\n"
+        "class MdfException(Exception): pass\n"
+        "class MDF4:\n"
+        "    def __init__(self, name, **kwargs):\n"
+        "        try:\n"
+        "            raise ValueError('CAN logging block broken')\n"
+        "        except ValueError:\n"
+        "            logging.getLogger('asammdf').exception('Error during CAN logging processing')\n"
+        "        raise MdfException(f'Incomplete block in {name}')\n"
+        "    def __del__(self):\n"
+        "        self.close()\n"
+        "    def close(self):\n"
+        "        self._file.close()  # never set: AttributeError, as asammdf's\n"),
+    "mdf.py": "from asammdf.blocks.mdf_v4 import MDF4 as MDF\n",
+}
+
+
+def _replay(trace, cwd, pythonpath=None):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "VECU_KERNELS": "python"}
+    if pythonpath:
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(pythonpath), env.get("PYTHONPATH")) if p)
+    return subprocess.run([sys.executable, "-m", "vecu", "replay", str(trace), "--no-progress"],
+                          capture_output=True, text=True, env=env, cwd=cwd, timeout=120,
+                          check=False)
+
+
+def test_a_corrupt_mf4_is_one_line_without_the_readers_own_tracebacks(tmp_path):
+    fake = tmp_path / "fake"
+    for name, text in FAKE_ASAMMDF.items():
+        (fake / "asammdf" / name).parent.mkdir(parents=True, exist_ok=True)
+        (fake / "asammdf" / name).write_text(text)
+    (tmp_path / "bad.mf4").write_bytes(b"MDF     4.10    " + bytes(48))
+    res = _replay("bad.mf4", tmp_path, pythonpath=fake)
+    assert res.returncode == 2 and res.stderr == (
+        "vecu: error: bad.mf4: cannot open trace: MdfException: Incomplete block in bad.mf4\n")
+
+
+@pytest.mark.parametrize("damage", ["truncated", "overwritten"])
+def test_a_corrupt_mf4_with_asammdf_is_one_line(tmp_path, damage):
+    pytest.importorskip("asammdf")
+    good = tmp_path / "good.mf4"
+    with can.Logger(str(good)) as w:
+        for k in range(2000):
+            w.on_message_received(can.Message(timestamp=k * 1e-3, arbitration_id=0x100,
+                                              data=bytes([k % 256, 1, 2, 3]), is_extended_id=False))
+    data = bytearray(good.read_bytes())
+    if damage == "truncated":
+        data = data[:len(data) // 2]
+    else:
+        data[len(data) // 2:len(data) // 2 + 64] = b"\xa5" * 64
+    (tmp_path / "bad.mf4").write_bytes(bytes(data))
+    res = _replay("bad.mf4", tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert lines[0].startswith("vecu: error: bad.mf4: "), lines[0]
