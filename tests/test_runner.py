@@ -221,3 +221,13 @@ def test_manifold_runs_on_engine_events_with_accurate_estimates(tmp_path):
     estimates = [out.decode(m.data) for m in frames if m.arbitration_id == out.frame_id]
     assert len(estimates) == mf["events"]
     assert all(15.0 <= e["MFD_Pressure"] <= 105.0 for e in estimates)
+
+
+@pytest.mark.parametrize("duration_s", [0.0004, 0.0009])
+def test_a_run_shorter_than_one_tick_is_refused(duration_s):
+    """Issue 14 item 8: 0.0004 s ran no tick and reported 'TPS fault ... NOT detected' (a
+    scenario of that length passed)."""
+    from vecu.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="shorter than one 1 ms tick"):
+        RunConfig(duration_s=duration_s, kill_tps_at_s=None).validate()

@@ -156,6 +156,8 @@ class RunConfig:
         """Raise a UserError (ConfigError, BadArgumentError) on an impossible configuration."""
         if not (self.duration_s > 0 and math.isfinite(self.duration_s)):
             raise ConfigError(f"duration must be a positive number of seconds, got {self.duration_s}")
+        if self.duration_s < 1e-3:  # the base tick: a shorter run runs nothing and reports it
+            raise ConfigError(f"duration {self.duration_s} s is shorter than one 1 ms tick")
         if self.kill_tps_at_s is not None and not 0 <= self.kill_tps_at_s < self.duration_s:
             raise ConfigError(f"kill time {self.kill_tps_at_s} s is outside the run (0..{self.duration_s} s)")
         validate_tree(self.params)

@@ -62,3 +62,11 @@ def test_a_file_that_is_not_utf8_is_one_line_naming_it(tmp_path, capsys):
                               f"files must be UTF-8")
     assert main(["scenario", "run", str(path)]) == 2
     assert capsys.readouterr().err == f"vecu: error: {exc.value}\n"
+
+
+def test_a_scenario_shorter_than_one_tick_is_refused(tmp_path):
+    """Issue 14 item 8: duration_s = 0.0004 ran no tick and passed."""
+    path = tmp_path / "tiny.toml"
+    path.write_text("duration_s = 0.0004\n")
+    with pytest.raises(ScenarioError, match=r"key 'duration_s': must be in \[0.001, 86400\] s"):
+        load_scenario(path)

@@ -142,8 +142,8 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     if "duration_s" not in data:
         raise chk.fail("duration_s", "required key missing")
     duration = float(data["duration_s"])
-    if not 0 < duration <= 24 * 3600:
-        raise chk.fail("duration_s", f"must be in (0, 86400] s, got {duration}")
+    if not 1e-3 <= duration <= 24 * 3600:  # at least one 1 ms tick
+        raise chk.fail("duration_s", f"must be in [0.001, 86400] s, got {duration}")
     seed = data.get("seed", 0)
     if seed < 0:
         raise chk.fail("seed", f"must be >= 0, got {seed}")
