@@ -27,7 +27,7 @@ CANTOOLS_TYPES = frozenset({
 })
 SLEEP_OR_CLOCK_CALLS = frozenset({"sleep", "perf_counter", "perf_counter_ns", "process_time",
                                   "process_time_ns", "monotonic", "monotonic_ns", "time_ns"})
-FOUNDATION = ("vecu.units", "vecu.rng", "vecu.clock", "vecu.errors")
+FOUNDATION = ("vecu.units", "vecu.rng", "vecu.clock", "vecu.errors", "vecu.argtypes")
 
 
 @dataclass
