@@ -65,6 +65,9 @@ VALUE_MEANING = {FaultKind.OFFSET: "added offset", FaultKind.GAIN: "gain G in [0
                  FaultKind.ERROR_FRAMES: "error frames per ms",
                  FaultKind.SHORT_SUPPLY: "supply level (default: TPS 5 V, else the DBC maximum)"}
 SUPPLY_V = 5.0
+FRAME_VALUE_LIMITS = {FaultKind.DROPOUT: (0.0, 1.0), FaultKind.BAD_CRC: (0.0, 1.0),
+                      FaultKind.DELAY: (0.0, 10_000.0), FaultKind.BURST: (1.0, 100.0),
+                      FaultKind.BABBLE: (0.0, 100.0), FaultKind.ERROR_FRAMES: (0.0, 100.0)}
 
 
 class Fault(Protocol):
@@ -276,10 +279,7 @@ def check_value(kind: FaultKind, value: float | None) -> None:
 
 
 def check_frame_value(kind: FaultKind, value: float) -> None:
-    limits = {FaultKind.DROPOUT: (0.0, 1.0), FaultKind.BAD_CRC: (0.0, 1.0),
-              FaultKind.DELAY: (0.0, 10_000.0), FaultKind.BURST: (1.0, 100.0),
-              FaultKind.BABBLE: (0.0, 100.0), FaultKind.ERROR_FRAMES: (0.0, 100.0)}
-    lo, hi = limits.get(kind, (-math.inf, math.inf))
+    lo, hi = FRAME_VALUE_LIMITS.get(kind, (-math.inf, math.inf))
     if not lo <= value <= hi:
         raise BadArgumentError(f"{kind.name.lower()} fault: {VALUE_MEANING[kind]} must be in "
                                f"[{lo:g}, {hi:g}], got {value}")
