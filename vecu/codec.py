@@ -176,7 +176,7 @@ class FrameCodec:
         sat = dict(values)
         for name, lo, hi in self._saturate:
             v = sat[name]
-            sat[name] = lo if not v >= lo else (hi if v > hi else v)
+            sat[name] = lo if not v >= lo else min(v, hi)
         data = bytearray(self._encode(sat, scaling=True, padding=False, strict=False))
         if self.e2e is not None:
             data[self.e2e.crc_byte] = e2e_crc(self.frame_id, data, self.e2e.crc_byte)

@@ -185,7 +185,7 @@ class SteeringProbe:
         self.beta_ukf.add(ukf.side_slip_rad * 180.0 / math.pi - beta)
         if fn.lagged is not None:
             lag_ms, swa_s, beta_s = fn.lagged
-            back = int(round(lag_ms * 1e6 / fn.period_ns))
+            back = round(lag_ms * 1e6 / fn.period_ns)
             if back < len(self._truth):
                 swa_then, beta_then = self._truth[-1 - back]
                 self.smoothed.add(swa_s - swa_then)
