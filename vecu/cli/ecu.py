@@ -16,6 +16,7 @@ from vecu.cli import (
 from vecu.live.args import add_live_arguments, live_options
 
 MAX_STATUS_CHANGES = 64
+HOST_GAP_MS = 100.0  # longer than the stalls of a loaded machine, short for a lost sender
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +36,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tps-timeout-cycles", type=argtypes.bounded(1, 10_000, integer=True), metavar="N",
                    help="TPS frames missing for N periods is a timeout fault (default: the "
                         "monitor's, 3); raise it on a machine that stalls processes")
+    p.add_argument("--host-gap-ms", type=argtypes.bounded(0.0, 10_000.0, unit="ms"),
+                   default=HOST_GAP_MS, metavar="MS",
+                   help="a silence of every frame on the bus shorter than MS is a stalled sender "
+                        "(the host), not a silent sensor: no timeout, the estimate is broadcast; "
+                        f"0: off (default {HOST_GAP_MS:g}; docs/live.md)")
     p.set_defaults(func=main)
 
 
@@ -67,7 +73,7 @@ def main(args: argparse.Namespace) -> int:
                        latency=("ETB_Wattmeter", "ECU_ThrottleEstimate"))
     summary: dict[str, Any] | None = None
     try:
-        ecu = EcuNode(proc.bus, codec, fns.enabled())
+        ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms)
         thr = fns.throttle
         accuracy = RunningStats()
         meter = proc.meter("ecu")
@@ -92,7 +98,8 @@ def main(args: argparse.Namespace) -> int:
                          name="overrun-count", priority=45)  # ECU_Status reports them
         proc.status_lines = lambda: [(
             f"  throttle: {'sensor' if thr.source == SOURCE_SENSOR else 'ESTIMATE'}, TPS "
-            f"{thr.status.name.lower()}, DTC {thr.monitor.dtc.name.lower()}; rx accepted "
+            f"{thr.status.name.lower()}, DTC {thr.monitor.dtc.name.lower()}, host gaps "
+            f"{thr.monitor.host_gaps}; rx accepted "
             f"{ecu.rx.accepted}, rejected {ecu.rx.rejected}, ignored {ecu.rx.ignored}")]
         warm_up(config)
         proc.signal_ready()
@@ -152,6 +159,10 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
             "first_fault_epoch_s": (None if first is None or proc.start_epoch_s is None
                                     else proc.start_epoch_s + first / NS_PER_S),
             "detected_as": mon.first_fault_status.name.lower() if mon.first_fault_status else None,
+            # silences past the TPS deadline the host caused (the ECU not running, or every
+            # frame silent for < --host-gap-ms): no timeout, the estimate broadcast meanwhile
+            "host_gaps": mon.host_gaps,
+            "ecu_stalled_ms": round(ecu.host.stalled_ns / 1e6, 1),
             "dtc": mon.dtc.name.lower(),
             "final_source": "sensor" if thr.source == 0 else "estimate",
             "final_status": thr.status.name.lower(),
@@ -178,6 +189,7 @@ def format_ecu_summary(s: dict[str, Any]) -> str:
          f"{s['rx']['rejected']}, own echo {s['bus']['own_echo']}, rx errors "
          f"{s['bus']['rx_errors']}; sent {s['frames']['ecu_sent']}"),
         (f"  throttle: estimate - sensor {th['estimate_vs_sensor_deg']}; TPS fault {fault}; "
+         f"{th['host_gaps']} host gaps (ECU not running {th['ecu_stalled_ms']} ms); "
          f"broadcasting the {th['final_source']}"),
     ]
     return "\n".join(lines)

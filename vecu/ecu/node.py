@@ -20,7 +20,7 @@ from vecu.bus import BusNode
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec, FrameCodec
 from vecu.e2e import AliveCounterCheck
-from vecu.ecu.sensor_monitor import Dtc, SensorMonitor
+from vecu.ecu.sensor_monitor import Dtc, HostClock, SensorMonitor
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +90,7 @@ class Route:
     subscription: Subscription
     counter: AliveCounterCheck | None
     feeds: tuple[EcuFunction, ...]
+    cycle_ns: int = 0  # the message's cycle time (0: event-driven or unknown)
 
 
 def native_routes(codec: DbcCodec, functions: list[EcuFunction]) -> dict[tuple[int, bool], Route]:
@@ -99,7 +100,8 @@ def native_routes(codec: DbcCodec, functions: list[EcuFunction]) -> dict[tuple[i
         for sub in fn.subscriptions():
             fc = codec[sub.message]
             counter = AliveCounterCheck() if fc.e2e is not None else None
-            routes[(fc.frame_id, fc.is_extended)] = Route(fc, sub, counter, (fn,))
+            routes[(fc.frame_id, fc.is_extended)] = Route(
+                fc, sub, counter, (fn,), round((fc.cycle_time_ms or 0) * NS_PER_MS))
     return routes
 
 
@@ -108,14 +110,21 @@ class EcuNode(BusNode):
 
     def __init__(self, bus: can.BusABC, codec: DbcCodec, functions: list[EcuFunction], *,
                  routes: dict[tuple[int, bool], Route] | None = None,
-                 rx_codec: DbcCodec | None = None, arm_on_input: bool = False) -> None:
+                 rx_codec: DbcCodec | None = None, arm_on_input: bool = False,
+                 tick_ns: int = NS_PER_MS, host_gap_ms: float = 0.0) -> None:
         """codec encodes the ECU's own frames. By default the functions consume their messages
         of that codec; `routes` (trace replay with a signal map) replaces that table, and
         `rx_codec` is the database that tells an ignored (known) ID from an unknown one.
 
         Functions run from boot (a missing sensor is then a timeout); with arm_on_input (trace
         replay) each one starts at its first accepted input, so a trace without a function's
-        inputs gives no estimates from nothing."""
+        inputs gives no estimates from nothing.
+
+        tick_ns: the base tick's period; a later tick means the node was not running (its
+        releases were skipped), which the sensor monitors do not charge to a sensor.
+        host_gap_ms (live bus): a sensor silence shorter than this while the sender's traffic
+        at the sensor's rate stopped too is a stalled sender, not a silent sensor (HostClock;
+        0 on the simulated clock)."""
         super().__init__(bus, "ecu")
         self.codec = codec
         self.rx_codec = rx_codec if rx_codec is not None else codec
@@ -141,6 +150,12 @@ class EcuNode(BusNode):
         self._errors_seen = 0
         for dtc in [m.dtc_item for m in self.monitors.values()] + [self.bus_dtc]:
             dtc.on_change = self._mark_diag
+        self.host = HostClock(host_gap_ns=round(host_gap_ms * NS_PER_MS))
+        for mon in self.monitors.values():
+            mon.host = self.host
+        self._tick_ns = tick_ns
+        self._track_senders = host_gap_ms > 0
+        self._last_tick_ns: int | None = None
         self._logged: dict[str, int] = {}
 
     @property
@@ -225,6 +240,8 @@ class EcuNode(BusNode):
 
     def _deliver(self, values: dict[str, float], t_ns: int, route: Route) -> None:
         rx = self.rx
+        if self._track_senders and route.cycle_ns:  # live: the sender is running (HostClock)
+            self.host.saw(route.cycle_ns, t_ns)
         if route.subscription.on_values(values, t_ns):  # the function refused them (it logs them)
             rx.value_errors += 1
             rx.implausible += 1
@@ -240,6 +257,11 @@ class EcuNode(BusNode):
 
     # ------------------------------------------------------------------- tick
     def tick(self, t_ns: int) -> None:
+        host = self.host
+        last = self._last_tick_ns
+        if last is not None and t_ns - last > self._tick_ns:  # releases skipped: not running
+            host.stalled_ns += t_ns - last - self._tick_ns
+        self._last_tick_ns = t_ns
         recv = self.bus.recv
         while (msg := recv(0.0)) is not None:
             self.receive(msg, t_ns)

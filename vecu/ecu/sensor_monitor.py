@@ -39,6 +39,37 @@ class DtcState(enum.IntEnum):
     HEALED = 3
 
 
+SENDER_ALIVE_TICKS = 2  # ticks with the sender's traffic at a sensor's rate: it is running
+
+
+@dataclass
+class HostClock:
+    """What the ECU node knows of its own running, shared with its sensor monitors (EcuNode
+    keeps it): a gap the host caused must not read as a silent sensor.
+
+    stalled_ns: total time the node was not running, i.e. base-tick releases it skipped (0 on
+    the simulated clock). host_gap_ns: how long a silence may be excused as a stalled sender
+    (0: never - simulated clock, replay; > 0 on a live bus, where saw() counts, per cycle time
+    of the consumed periodic messages, the ticks that took a valid frame of one)."""
+
+    stalled_ns: int = 0
+    host_gap_ns: int = 0
+    _ticks: dict[int, int] = field(default_factory=dict)  # cycle -> ticks with such a frame
+    _last: dict[int, int] = field(default_factory=dict)   # cycle -> the last of those ticks
+
+    def saw(self, cycle_ns: int, t_ns: int) -> None:
+        if self._last.get(cycle_ns) != t_ns:
+            self._last[cycle_ns] = t_ns
+            self._ticks[cycle_ns] = self._ticks.get(cycle_ns, 0) + 1
+
+    def activity(self, cycle_ns: int, before_ns: int | None = None) -> int:
+        """Ticks so far (before before_ns, when given) that took a frame of a message sent at
+        least as often as cycle_ns."""
+        last = self._last
+        return sum(n - (last[cycle] == before_ns) for cycle, n in self._ticks.items()
+                   if cycle <= cycle_ns)
+
+
 class Dtc:
     """DTC lifecycle of one monitored item; report() once per evaluation.
 
@@ -106,6 +137,11 @@ class SensorMonitor:
 
     raw_low/raw_high bound the valid raw signal (range checks run on the raw value, e.g. volts);
     to_physical maps a raw value to the quantity compared with the estimator (deg).
+
+    Receive deadline: the silence since the last frame is charged to the sensor less the time
+    the ECU was not running (`host`, set by EcuNode); a silence of the sender's traffic at the
+    sensor's rate (the sender stalled) is excused up to host.host_gap_ns (live). An excused gap is a `host_gap`: status stays ok, the
+    estimate is broadcast (the last sample is stale), and `host_gaps` counts them.
     """
 
     def __init__(self, config: SensorMonitorConfig, raw_low: float, raw_high: float,
@@ -129,6 +165,12 @@ class SensorMonitor:
         self._plaus = 0
         self._clean_since_ns: int | None = None
         self._timeout_ns = int(config.timeout_cycles * config.cycle_ms * NS_PER_MS)
+        self._cycle_ns = int(config.cycle_ms * NS_PER_MS)
+        self.host = HostClock()   # replaced by the node's own (EcuNode)
+        self._stalled_at_rx = 0
+        self._activity_at_rx = 0
+        self.host_gap = False     # the current sample is stale, but not for the sensor's fault
+        self.host_gaps = 0        # host gaps seen (each counted once)
 
     @classmethod
     def for_tps(cls, config: SensorMonitorConfig, cal: TpsCalibration) -> SensorMonitor:
@@ -145,6 +187,10 @@ class SensorMonitor:
         self._range_low = self._range_low + 1 if raw < self._low else 0
         self._range_high = self._range_high + 1 if raw > self._high else 0
         self.value = self._to_physical(raw)
+        host = self.host
+        self._stalled_at_rx = host.stalled_ns
+        if host.host_gap_ns:
+            self._activity_at_rx = host.activity(self._cycle_ns)
 
     def on_e2e_error(self) -> None:
         self._e2e_bad += 1
@@ -153,9 +199,10 @@ class SensorMonitor:
         cfg = self.cfg
         finding = SensorStatus.OK
         last_rx = 0 if self._last_rx_ns is None else self._last_rx_ns  # run start counts as rx
+        gap = False
         if not cfg.enabled:
             pass
-        elif t_ns - last_rx >= self._timeout_ns:
+        elif t_ns - last_rx >= self._timeout_ns and not (gap := self._host_gap(t_ns, last_rx)):
             finding = SensorStatus.TIMEOUT
         else:
             if self._e2e_bad >= cfg.e2e_debounce:
@@ -176,7 +223,26 @@ class SensorMonitor:
                 if self._plaus >= cfg.plaus_debounce:
                     finding = SensorStatus.IMPLAUSIBLE
         self._fresh = False
+        if gap and not self.host_gap:
+            self.host_gaps += 1
+        self.host_gap = gap
         return self._update(t_ns, finding)
+
+    def _host_gap(self, t_ns: int, last_rx: int) -> bool:
+        """A silence past the deadline that the host caused: less than a timeout of it while
+        the ECU ran, or (live, shorter than host_gap_ns) the sender's traffic at this sensor's
+        rate has stopped too: fewer than SENDER_ALIVE_TICKS ticks since the sensor's last frame
+        took a frame of a message sent at least as often. Not counted: the current tick (a
+        sender back from a stall may send its other frames first); tolerated: one such tick
+        before (a sender stalled mid-tick finishes that tick's frames late). A sensor whose
+        companion frames go on is silent."""
+        host = self.host
+        charged = t_ns - last_rx - (host.stalled_ns - self._stalled_at_rx)
+        if charged < self._timeout_ns:
+            return True
+        if charged >= host.host_gap_ns:
+            return False
+        return host.activity(self._cycle_ns, t_ns) - self._activity_at_rx < SENDER_ALIVE_TICKS
 
     def _update(self, t_ns: int, finding: SensorStatus) -> SensorStatus:
         status = self.status
@@ -210,6 +276,7 @@ class SensorMonitor:
         dtc = self.dtc_item
         return {"status": self.status.name.lower(), "dtc": dtc.state.name.lower(),
                 "confirmations": dtc.confirmations, "timeouts": self.timeouts,
+                "host_gaps": self.host_gaps,
                 "first_fault_s": None if self.first_fault_ns is None else self.first_fault_ns / 1e9,
                 "first_fault_status": (self.first_fault_status.name.lower()
                                        if self.first_fault_status else None),
@@ -224,7 +291,7 @@ class SensorMonitor:
         status = self.evaluate(t_ns, est, est_std)
         if was_ok and status == SensorStatus.TIMEOUT:
             self.timeouts += 1
-        if status == SensorStatus.OK and self.value is not None:
+        if status == SensorStatus.OK and self.value is not None and not self.host_gap:
             return self.value, SOURCE_SENSOR, status
         return est, SOURCE_ESTIMATE, status
 
