@@ -3,7 +3,8 @@
 open_bus() takes python-can's own arguments (interface, channel, bitrate, anything else the
 interface accepts) and honours python-can configuration (CAN_INTERFACE / CAN_CHANNEL environment
 variables, ~/.canrc, can.ini or an explicit config file). With nothing configured anywhere it opens
-the in-process `virtual` bus on channel "vecu". Also here: python-can's own VirtualBus as a
+the in-process `virtual` bus on channel "vecu"; `virtual` and `udp_multicast` buses come with a
+cheaper poll (FastVirtualBus, FastUdpMulticastBus). Also here: python-can's own VirtualBus as a
 benchmark baseline (open_baseline_virtual_bus), the replay sink (SinkBus) and BusNode, the
 counted, never-raising sender the plant and the ECU stand on.
 """
@@ -12,10 +13,13 @@ from __future__ import annotations
 
 import logging
 import queue
+import socket
+import struct
 from collections.abc import Callable
 from typing import Any
 
 import can
+from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.virtual import VirtualBus
 
 from vecu.clock import wall_time
@@ -106,14 +110,85 @@ class FastVirtualBus(VirtualBus):
             raise can.CanOperationError("Could not send message to one or more recipients")
 
 
+Key = tuple[int, bool]  # (CAN ID, extended)
+
+
+class FastUdpMulticastBus(UdpMulticastBus):
+    """python-can's udp_multicast bus with a cheaper poll.
+
+    BusABC.recv(0) costs a select() per datagram, the filter loop and python-can's unpacking
+    (~15 us a frame). A poll (timeout 0, no software filters) here reads the socket with
+    MSG_DONTWAIT instead of select() and decodes the datagram as python-can does (msgpack, the
+    kernel receive timestamp, a checked can.Message). A frame whose (ID, extended) is in
+    `skip_keys` - set by the owner to its own IDs, which this interface echoes to every socket
+    of the group - is dropped after the msgpack decode, before a can.Message is built, and
+    counted in `skipped`. Blocking waits, filters, or a python-can whose internals differ take
+    python-can's own recv. Used by open_bus() whenever interface="udp_multicast"."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.skip_keys: frozenset[Key] = frozenset()
+        self.skipped = 0
+        mc = getattr(self, "_multicast", None)
+        sock = getattr(mc, "_socket", None)
+        self._sock = sock if isinstance(sock, socket.socket) else None
+        self._bufsize = int(getattr(mc, "max_buffer", 4096))
+        self._anc_size = (int(getattr(mc, "received_ancillary_buffer_size", 0))
+                          if getattr(mc, "timestamp_nanosecond", False) else 0)
+        self._ts_struct = str(getattr(mc, "received_timestamp_struct", "@ll"))
+        self._no_fd = getattr(self, "_can_protocol", None) is not can.CanProtocol.CAN_FD
+        try:
+            import msgpack
+            self._unpackb = msgpack.unpackb
+        except ImportError:
+            self._sock = None
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if timeout == 0 and self._sock is not None and self._filters is None:
+            return self._poll()
+        return super().recv(timeout)
+
+    def _poll(self) -> can.Message | None:
+        sock, anc_size = self._sock, self._anc_size
+        while True:
+            try:
+                if anc_size:
+                    data, anc, _, _ = sock.recvmsg(self._bufsize, anc_size, socket.MSG_DONTWAIT)
+                else:
+                    data, _ = sock.recvfrom(self._bufsize, socket.MSG_DONTWAIT)
+                    anc = None
+            except (BlockingIOError, InterruptedError):
+                return None
+            except OSError as exc:
+                raise can.CanOperationError(f"failed to receive from the socket: {exc}") from exc
+            try:
+                fields = self._unpackb(data, raw=False)
+                if (fields["arbitration_id"], fields["is_extended_id"]) in self.skip_keys:
+                    self.skipped += 1
+                    continue
+                if anc:
+                    sec, nsec = struct.unpack(self._ts_struct, anc[0][2])
+                    fields["timestamp"] = sec + nsec * 1.0e-9
+                else:
+                    fields["timestamp"] = wall_time()
+                msg = can.Message(check=True, **fields)
+            except Exception as exc:  # an odd datagram: what python-can raises for it
+                raise can.CanOperationError("could not unpack received message") from exc
+            if msg.is_fd and self._no_fd:
+                continue
+            return msg
+
+
 def open_bus(interface: str | None = None, channel: Any = None,
              config_file: str | None = None, **kwargs: Any) -> can.BusABC:
     """Open a python-can bus; errors become one clear BusOpenError line."""
     cfg = resolve_bus_config(interface, channel, config_file, **kwargs)
     try:
+        args = {k: v for k, v in cfg.items() if k != "interface"}
         if cfg["interface"] == "virtual":
-            args = {k: v for k, v in cfg.items() if k != "interface"}
             return FastVirtualBus(**args)
+        if cfg["interface"] == "udp_multicast":
+            return FastUdpMulticastBus(**args)
         return can.Bus(**cfg)
     except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:
         raise BusOpenError(

@@ -19,15 +19,18 @@ from typing import Any
 
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.live.netns import namespace_prefix, python_module, run_in_namespace
-from vecu.live.process import TickMeter
+from vecu.live.options import DEFAULT_SPIN_US
+from vecu.live.process import TickMeter, tighten_timer_slack
 from vecu.scheduler import Scheduler
 
 SENSOR_NODE = "PLANT"
 
 
 def bench_idle_loop(seconds: float) -> dict[str, Any]:
-    """Baseline: a 1 ms WallClock task doing nothing, same spin as the live processes."""
-    clock = WallClock(spin_ns=200_000)
+    """Baseline: a 1 ms WallClock task doing nothing, same spin and timer slack as the live
+    processes."""
+    tighten_timer_slack()
+    clock = WallClock(spin_ns=DEFAULT_SPIN_US * 1000)
     sched = Scheduler(clock)
     meter = TickMeter(clock, "idle")
     meter.stats = sched.every(NS_PER_MS, meter.wrap(lambda t: None), name="idle")
@@ -112,7 +115,7 @@ def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict
         ecu = EcuNode(ecu_bus, codec, build_functions(config, codec).enabled())
         base_per_s = 2000 + 500 + 200 + 2 * 100  # throttle, speed, steering, ~engine events
         extra = ExtraLoad(codec, plant, max(load_per_s - base_per_s, 0.0))
-        clock = WallClock(spin_ns=200_000)
+        clock = WallClock(spin_ns=DEFAULT_SPIN_US * 1000)
         sched = Scheduler(clock)
         schedule_plant(sched, plant)
         sched.every(TICK_NS, extra.tick, name="extra-load", priority=PRIO_PLANT)

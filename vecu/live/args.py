@@ -35,9 +35,10 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary on exit")
     p.add_argument("--ready-file", metavar="FILE",
                    help="write FILE when the bus is open and set-up is done (for scripts)")
-    p.add_argument("--spin-us", type=argtypes.tick_us, default=200, metavar="US",
+    # default: vecu.live.options.DEFAULT_SPIN_US (not imported: the parser stays light)
+    p.add_argument("--spin-us", type=argtypes.tick_us, default=50, metavar="US",
                    help="busy-wait the last US microseconds before each deadline, 0..1000 "
-                        "(default 200)")
+                        "(default 50)")
     status = p.add_mutually_exclusive_group()
     status.add_argument("--status", dest="status", action="store_true", default=None,
                         help="show the status panel on stderr (default: when it is a terminal)")

@@ -98,12 +98,19 @@ class LiveBus:
         self.interface = interface
         self.own_ids = frozenset(own_ids)
         self.latency = latency
-        self.own_echo = 0
+        self._echo = 0
+        if hasattr(bus, "skip_keys"):  # FastUdpMulticastBus: drops them before decoding
+            bus.skip_keys = self.own_ids
         self.received = 0     # frames handed to the node
         self.rx_errors = 0    # frames the interface could not deliver (e.g. undecodable datagram)
         self.rx_by_id: dict[Key, int] = {}
         self.tx_by_id: dict[Key, int] = {}
         self.rcvbuf_bytes = enlarge_receive_buffer(bus) if interface == "udp_multicast" else None
+
+    @property
+    def own_echo(self) -> int:
+        """Own frames dropped (here, or already by the bus: FastUdpMulticastBus.skipped)."""
+        return self._echo + getattr(self.bus, "skipped", 0)
 
     @property
     def channel_info(self) -> str:
@@ -124,7 +131,7 @@ class LiveBus:
                 return None
             key = (msg.arbitration_id, msg.is_extended_id)
             if not msg.is_rx or key in own:
-                self.own_echo += 1
+                self._echo += 1
                 timeout = 0.0
                 continue
             self.received += 1

@@ -9,6 +9,10 @@ from typing import Any
 from vecu.bus import resolve_bus_config
 
 UDP_DEFAULT_GROUP = "239.74.163.2"  # python-can's IPv4 group (its IPv6 default fails on lo)
+# busy-wait before each 1 ms deadline: 200 us cost a live node a fifth of a core, which a small
+# machine's other processes (a logger) missed; with the timer slack at 1 us (LiveProcess) the
+# sleep itself wakes within ~50 us, so 50 us keeps the ticks on time (docs/live.md)
+DEFAULT_SPIN_US = 50
 
 
 @dataclass(frozen=True)
@@ -23,7 +27,7 @@ class LiveOptions:
     log_path: str | None = None
     summary_path: str | None = None
     ready_file: str | None = None
-    spin_us: int = 200              # final busy-wait before each deadline
+    spin_us: int = DEFAULT_SPIN_US  # final busy-wait before each deadline
     status: bool | None = None      # None: when stderr is a terminal
 
 
