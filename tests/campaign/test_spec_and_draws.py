@@ -94,7 +94,7 @@ def test_bad_campaign_files_are_one_line_naming_file_and_key(tmp_path, old, new,
 def test_unreadable_campaign_file(tmp_path):
     bad = tmp_path / "bin.toml"
     bad.write_bytes(b"\xff\xfe\x00kind")
-    with pytest.raises(BadFileError, match="not a TOML file"):
+    with pytest.raises(BadFileError, match="not UTF-8 text"):
         load_campaign(bad)
     with pytest.raises(BadFileError, match="no such file"):
         load_campaign(tmp_path / "missing.toml")

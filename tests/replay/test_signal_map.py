@@ -82,7 +82,7 @@ def test_load_signal_map_errors(tmp_path, vehicle_db):
         load_signal_map(tmp_path / "none.toml", vehicle_db)
     bad = tmp_path / "bad.toml"
     bad.write_text("[speed\n")
-    with pytest.raises(SignalMapError, match="bad.toml: not valid TOML"):
+    with pytest.raises(SignalMapError, match="bad.toml: TOML syntax error"):
         load_signal_map(bad, vehicle_db)
 
 

@@ -11,13 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib  # type: ignore[no-redef]
-
 from vecu.errors import BadFileError
 from vecu.params import flatten_toml
+from vecu.tomlfile import read_toml
 
 KINDS = ("manifold", "drive")
 DISTS = ("truncnorm", "uniform", "choice", "fixed")
@@ -129,15 +125,7 @@ def read_campaign(path: str | Path) -> CampaignSpec:
     """Read a campaign file and check its keys and values (vecu.campaign.draws.load_campaign
     also checks the paths against the parameter tree); every problem is one BadFileError line."""
     path = str(path)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise BadFileError(path, "no such file") from None
-    except OSError as exc:
-        raise BadFileError(path, f"cannot read: {exc.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise BadFileError(path, f"not a TOML file: {str(exc).splitlines()[0]}") from None
+    data = read_toml(path)
     top = {"name", "description", "kind", "runs", "seed", "run", "vary", "set", "metrics"}
     for k in data:
         if k not in top:

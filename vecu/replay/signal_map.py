@@ -17,11 +17,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import tomllib
-
 from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuFunction, Route, Subscription
 from vecu.errors import BadFileError
+from vecu.tomlfile import read_toml
 
 
 class SignalMapError(BadFileError):
@@ -131,14 +130,7 @@ class SignalMap:
 def load_signal_map(path: str | Path, db: DbcCodec) -> SignalMap:
     """Read and check a TOML map against the trace's database; errors name file and key."""
     path = str(path)
-    try:
-        with open(path, "rb") as f:
-            doc = tomllib.load(f)
-    except FileNotFoundError as exc:
-        raise SignalMapError(path, "no such file") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SignalMapError(path, f"not valid TOML: {exc}") from exc
-    return build_signal_map(doc, db, path)
+    return build_signal_map(read_toml(path, SignalMapError), db, path)
 
 
 def build_signal_map(doc: dict, db: DbcCodec, path: str = "<map>") -> SignalMap:

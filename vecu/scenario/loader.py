@@ -12,11 +12,6 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib  # type: ignore[no-redef]
-
 import numpy as np
 
 from vecu.codec import DbcCodec
@@ -27,6 +22,7 @@ from vecu.estimators.registry import THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
 from vecu.params import ParamError, apply_sets, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
+from vecu.tomlfile import read_toml
 
 MONITOR_PATHS = {"tps": "ecu.throttle.tps_monitor", "swa": "ecu.steering.monitor",
                  "wheel": "ecu.speed.wheel_monitor"}
@@ -125,19 +121,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     """Read and validate one scenario file; raises ScenarioError (one line) on any problem."""
     path = str(path)
     chk = _Checker(path)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ScenarioError(path, "no such file") from None
-    except OSError as exc:
-        raise ScenarioError(path, f"cannot read: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, f"TOML syntax error: {exc}".splitlines()[0]) from None
-    except UnicodeDecodeError as exc:  # tomllib decodes the bytes as UTF-8
-        line = exc.object[:exc.start].count(b"\n") + 1
-        raise ScenarioError(path, f"not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
-                                  f"{exc.start}, line {line}): TOML files must be UTF-8") from None
+    data = read_toml(path, ScenarioError)
     chk.table(data, TOP_KEYS, "")
     if "duration_s" not in data:
         raise chk.fail("duration_s", "required key missing")
