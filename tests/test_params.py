@@ -31,6 +31,7 @@ def test_every_leaf_has_a_unit_and_a_source_and_plant_equals_ecu_by_default():
     assert tree.ecu.manifold.kf.params is not None
     assert tree.ecu.throttle.calibration == tree.plant.sensors.tps
     assert tree.ecu.steering.model.params == tree.plant.lateral
+    assert tree.ecu.throttle.model == tree.plant.throttle.model  # Table I on both sides
     paper = {leaf.path.split(".", 1)[1] for leaf in leaves if "Table I" in leaf.source}
     assert {"throttle.model.mode1.a12", "throttle.model.mode3.c3"} <= paper
 
@@ -98,6 +99,18 @@ def test_plant_throttle_model_is_the_plants_own():
     b = run(base.with_params({"plant.throttle.model.mode3.b": 0.05})).throttle_series
     assert a is not None and b is not None
     assert (a.theta_true != b.theta_true).any()
+
+
+def test_ecu_throttle_model_is_the_estimators_calibration():
+    """`ecu.throttle.model` (what `vecu identify throttle` writes) changes the ECU's estimate and
+    nothing of the simulated car (issue 18)."""
+    base = RunConfig(duration_s=0.5, seed=2, kill_tps_at_s=None, steering=False, speed=False,
+                     manifold=False, keep_series=True)
+    a = run(base).throttle_series
+    b = run(base.with_params({"ecu.throttle.model.mode3.b": 0.05})).throttle_series
+    assert a is not None and b is not None
+    assert (a.theta_true == b.theta_true).all()
+    assert (a.theta_est != b.theta_est).any()
 
 
 def _vecu(*args: str) -> subprocess.CompletedProcess:

@@ -83,9 +83,11 @@ def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
 def build_functions(config: RunConfig, codec: DbcCodec,
                     make_estimator: EstimatorFactory = make_throttle_estimator) -> EcuFunctions:
     """The ECU's functions, built from its half of the parameter tree (its calibration) only;
-    make_estimator(name, noise_scale=...) builds the throttle estimator (a seam for benches)."""
+    make_estimator(name, noise_scale=..., model=...) builds the throttle estimator (a seam for
+    benches); model is the ECU's throttle calibration `ecu.throttle.model`."""
     cal = config.params.ecu
-    estimator = make_estimator(cal.throttle.estimator, noise_scale=cal.throttle.noise_scale)
+    estimator = make_estimator(cal.throttle.estimator, noise_scale=cal.throttle.noise_scale,
+                               model=cal.throttle.model)
     return EcuFunctions(
         throttle=ThrottleFunction(codec, estimator, cal.throttle),
         speed=SpeedFunction(codec, config=cal.speed) if config.speed else None,

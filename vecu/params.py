@@ -49,6 +49,8 @@ SOURCES: dict[str, str] = {
     "ecu.throttle.calibration": "vecu decision, docs/models.md 'TPS transfer law'",
     "ecu.throttle.estimator": "vecu decision, docs/models.md 'Production throttle estimator'",
     "ecu.throttle.noise_scale": "Vargas 2015 Section III-B (alpha scales F)",
+    "ecu.throttle.model": "Vargas 2015 eq. 3, Table I (the ECU's calibration; `vecu identify "
+                          "throttle` fits it to a trace, docs/reproduction.md)",
     "ecu.speed.filter": "vecu decision, docs/models.md 'Vehicle speed and acceleration' "
                         "(after Hernandez 2005 eq. 24-25)",
     "ecu.steering.lag_s": "vecu decision, docs/models.md 'Steering'",

@@ -62,8 +62,8 @@ def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> l
 
     timed: list[_TimedEstimator] = []
 
-    def make(name: str, noise_scale: float = 1.0) -> Any:
-        est = _TimedEstimator(make_throttle_estimator(name, noise_scale))
+    def make(name: str, noise_scale: float = 1.0, model: Any = None) -> Any:
+        est = _TimedEstimator(make_throttle_estimator(name, noise_scale, model))
         timed.append(est)
         return est
 

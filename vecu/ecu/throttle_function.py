@@ -22,6 +22,7 @@ from vecu.ecu.sensor_monitor import (
 )
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.models.sensors import TpsCalibration
+from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel
 
 MAX_BACKLOG = 20  # wattmeter samples the estimator catches up on in one run (20 ms of stall)
 
@@ -38,6 +39,9 @@ class ThrottleFunctionConfig:
     calibration: TpsCalibration = field(default_factory=TpsCalibration)  # the TPS law it believes
     estimator: str = "production"  # vecu.estimators.registry name
     noise_scale: float = 1.0  # the alpha the estimator assumes for F (Q = (alpha F)^2)
+    # the throttle body the estimator believes: eq. 3 modes, switching angles, F, H (Table I by
+    # default; `vecu identify throttle` fits one to a trace, docs/reproduction.md)
+    model: ThrottleModel = PAPER_THROTTLE
 
 
 class ThrottleFunction:

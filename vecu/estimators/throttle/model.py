@@ -3,6 +3,8 @@
 f(x, u): the noise-free eq. (3) step (vecu.models.throttle.step_mean) with theta clipped to the
 mechanical stops [0, 90] deg, as in the plant (rho and i untouched).
 h(x) = i^2 (eq. 4). Q = FF^T = diag((alpha F_ii)^2), R = HH^T = 1. x0 = 0, P0 = I (Section III-C).
+Every filter takes its calibration, a ThrottleModel (the ECU's `ecu.throttle.model`; default
+Table I): the modes of eq. 3, the switching angles, F and H.
 """
 
 from __future__ import annotations
@@ -12,7 +14,14 @@ import numpy as np
 from vecu.estimators.common.covariance import DivergenceBounds
 from vecu.estimators.common.sigma_sets import SigmaSet, paper_set
 from vecu.estimators.common.ukf import UnscentedFilter
-from vecu.models.throttle import F_DIAG, H_WATTMETER, clip_theta, step_mean
+from vecu.models.throttle import (
+    F_DIAG,
+    H_WATTMETER,
+    PAPER_THROTTLE,
+    ThrottleModel,
+    clip_theta,
+    step_mean,
+)
 
 N_STATE = 3
 X0: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -21,9 +30,10 @@ X0: tuple[float, float, float] = (0.0, 0.0, 0.0)
 THROTTLE_BOUNDS = DivergenceBounds(max_trace=1e6, max_abs_state=1e6)
 
 
-def f(x: np.ndarray, u: float) -> np.ndarray:
+def f(x: np.ndarray, u: float, model: ThrottleModel = PAPER_THROTTLE) -> np.ndarray:
     """x_{k+1} = step_mean(x_k, u_k) with theta clipped to [0, 90] (eq. 3 without w)."""
-    th, rho, i = step_mean(float(x[0]), float(x[1]), float(x[2]), u)
+    th, rho, i = step_mean(float(x[0]), float(x[1]), float(x[2]), u, model.modes,
+                           model.mode_bounds_deg)
     return np.array([clip_theta(th), rho, i])
 
 
@@ -32,31 +42,37 @@ def h(x: np.ndarray) -> np.ndarray:
     return np.array([x[2] * x[2]])
 
 
-def process_noise_diag(noise_scale: float = 1.0) -> tuple[float, float, float]:
+def process_noise_diag(noise_scale: float = 1.0,
+                       f_diag: tuple[float, float, float] = F_DIAG) -> tuple[float, float, float]:
     """Diagonal of FF^T with F scaled by alpha (plant's noise_scale)."""
     a = float(noise_scale)
-    return ((a * F_DIAG[0]) ** 2, (a * F_DIAG[1]) ** 2, (a * F_DIAG[2]) ** 2)
+    return ((a * f_diag[0]) ** 2, (a * f_diag[1]) ** 2, (a * f_diag[2]) ** 2)
 
 
-def process_noise_cov(noise_scale: float = 1.0) -> np.ndarray:
-    """Q = FF^T, F = alpha diag(sqrt 0.35, 0, sqrt 0.18)."""
-    return np.diag(process_noise_diag(noise_scale))
+def process_noise_cov(noise_scale: float = 1.0,
+                      f_diag: tuple[float, float, float] = F_DIAG) -> np.ndarray:
+    """Q = FF^T, F = alpha diag(sqrt 0.35, 0, sqrt 0.18) (Table I's F by default)."""
+    return np.diag(process_noise_diag(noise_scale, f_diag))
 
 
-def measurement_noise_var() -> float:
-    """R = HH^T = 1 (standard Gaussian wattmeter noise)."""
-    return H_WATTMETER * H_WATTMETER
+def measurement_noise_var(h_wattmeter: float = H_WATTMETER) -> float:
+    """R = HH^T (1: standard Gaussian wattmeter noise)."""
+    return h_wattmeter * h_wattmeter
 
 
 class NumpyThrottleUKF:
     """ThrottleEstimator over the generic numpy UnscentedFilter (the reference / baseline)."""
 
-    def __init__(self, sigma_set: SigmaSet | str, noise_scale: float = 1.0) -> None:
+    def __init__(self, sigma_set: SigmaSet | str, noise_scale: float = 1.0,
+                 model: ThrottleModel = PAPER_THROTTLE) -> None:
         s = paper_set(sigma_set) if isinstance(sigma_set, str) else sigma_set
         self.name = f"{s.name}-numpy"
         self.noise_scale = float(noise_scale)
+        self.model = model
+        fx = f if model == PAPER_THROTTLE else (lambda x, u: f(x, u, model))
         self.ukf = UnscentedFilter(
-            f, h, process_noise_cov(noise_scale), np.array([[measurement_noise_var()]]), s,
+            fx, h, process_noise_cov(noise_scale, model.f_diag),
+            np.array([[measurement_noise_var(model.h_wattmeter)]]), s,
             np.array(X0), np.eye(N_STATE), THROTTLE_BOUNDS,
         )
 

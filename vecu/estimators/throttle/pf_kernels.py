@@ -37,13 +37,18 @@ CAREFUL = 2  # the same with the clamped correction and log-domain weights
 _INV_C2, _KAPPA, _NEG_K2, _NEG_FOUR_S2, _CLIP_LO, _CLIP_HI, _B0 = range(7)
 
 
-def step_constants(s_i: float, class_b: tuple[float, ...]) -> np.ndarray:
-    """Constants of pf_step, computed exactly as Bank / ThrottleParticleFilter._update do."""
+_BOUND0 = _B0 + 4  # the class bounds (1, b1, b2) follow the four classes' b
+
+
+def step_constants(s_i: float, class_b: tuple[float, ...], r_watt: float = 1.0,
+                   bounds: tuple[float, float, float] = (1.0, 8.0, 16.0)) -> np.ndarray:
+    """Constants of pf_step, computed exactly as Bank / ThrottleParticleFilter._update do
+    (r_watt: the wattmeter noise variance HH^T; bounds: the class bounds 1, b1, b2 in deg)."""
     inv_c = 1.0 / (2.0 * s_i)
     kappa = np.sqrt(0.5) * inv_c
     s2 = s_i * s_i
-    return np.array([inv_c * inv_c, kappa, -kappa * kappa, -4.0 * s_i * s_i,
-                     -0.25 / s2, 0.125 / s2, *class_b], dtype=np.float64)
+    return np.array([r_watt * (inv_c * inv_c), kappa, -kappa * kappa, -4.0 * s_i * s_i,
+                     -0.25 / s2, 0.125 / s2, *class_b, *bounds], dtype=np.float64)
 
 
 @kernel(error_model="numpy")  # x / 0 -> inf / NaN as numpy, no check per division
@@ -64,9 +69,10 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
     th, rh, ci, w = dst[0], dst[1], dst[2], dst[6]
     zth, zi, zq = ztab[0, o1:o1 + n], ztab[1, o2:o2 + n], ztab[2, o2:o2 + n]
     t1, q, t3 = tmp[0], tmp[1], tmp[2]
-    # bisect.bisect_left((1, 8, 16), x): the number of bounds below x (0 for NaN)
-    c_lo = (1 if lo_prev > 1.0 else 0) + (1 if lo_prev > 8.0 else 0) + (1 if lo_prev > 16.0 else 0)
-    c_hi = (1 if hi_prev > 1.0 else 0) + (1 if hi_prev > 8.0 else 0) + (1 if hi_prev > 16.0 else 0)
+    # bisect.bisect_left((1, b1, b2), x): the number of bounds below x (0 for NaN)
+    k0, k1, k2 = cst[_BOUND0], cst[_BOUND0 + 1], cst[_BOUND0 + 2]
+    c_lo = (1 if lo_prev > k0 else 0) + (1 if lo_prev > k1 else 0) + (1 if lo_prev > k2 else 0)
+    c_hi = (1 if hi_prev > k0 else 0) + (1 if hi_prev > k1 else 0) + (1 if hi_prev > k2 else 0)
     # eq. (3): th = mats row 3c . [theta, rho, i, 1, sgn rho] (+ noise, clipped), likewise rho
     # and the predicted current m (into row ci; its constant column is b_c u)
     if c_lo == 3 or c_lo == c_hi:
@@ -98,8 +104,8 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
             x1 = rh0[j]
             x2 = ci0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            # class by ceil(theta) as the numpy lookup (NaN -> class 0)
-            c = 0 if not x0 > 1.0 else (1 if x0 <= 8.0 else (2 if x0 <= 16.0 else 3))
+            # class by the bounds as the numpy lookup (NaN -> class 0)
+            c = 0 if not x0 > k0 else (1 if x0 <= k1 else (2 if x0 <= k2 else 3))
             r = 3 * c
             t = (mats[r, 0] * x0 + mats[r, 1] * x1 + mats[r, 2] * x2 + mats[r, 3]
                  + mats[r, 4] * sg)

@@ -1,12 +1,13 @@
 """Parts of the production throttle estimator (vecu.estimators.throttle.production).
 
-Eq. (3) coefficient tables (Vargas et al. 2015, Table I) laid out for the particle filter, and
-its particle buffers. The filter splits theta into four classes, inside each of which eq. (3) is
-linear in [theta, rho, i, 1, sgn(rho)]:
+Eq. (3) coefficient tables (Vargas et al. 2015, Table I, or the calibration the filter is given,
+a ThrottleModel) laid out for the particle filter, and its particle buffers. The filter splits
+theta into four classes, inside each of which eq. (3) is linear in [theta, rho, i, 1, sgn(rho)]
+(b1, b2: the mode switching angles, 8 and 16 deg in Table I):
   class 0: theta <= 1        mode 1, sgn(theta - 1) = -1
-  class 1: 1 < theta <= 8    mode 1, sgn(theta - 1) = +1
-  class 2: 8 < theta <= 16   mode 2
-  class 3: theta > 16        mode 3
+  class 1: 1 < theta <= b1   mode 1, sgn(theta - 1) = +1
+  class 2: b1 < theta <= b2  mode 2
+  class 3: theta > b2        mode 3
 (theta = 1 exactly has sgn 0 in eq. 3; the filter uses -1 there: a 0.007 change of rho on a
 measure-zero set.)
 """
@@ -18,7 +19,12 @@ import math
 import numpy as np
 
 from vecu.estimators.common.small_linalg import chol3_floored
-from vecu.models.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG
+from vecu.models.throttle import (
+    MODE_BOUNDS_DEG,
+    PAPER_THROTTLE,
+    THETA_MAX_DEG,
+    ThrottleModel,
+)
 
 CLASS_BOUNDS_DEG: tuple[float, float, float] = (1.0, MODE_BOUNDS_DEG[0], MODE_BOUNDS_DEG[1])
 HIGH_CLASS = 3
@@ -36,9 +42,15 @@ Y_MIN_W = -50.0
 U_COL = 3
 
 
-def _class_rows(c: int) -> list[list[float]]:
+def class_bounds(model: ThrottleModel = PAPER_THROTTLE) -> tuple[float, float, float]:
+    """The class boundaries (1, b1, b2) in deg for a calibration."""
+    b1, b2 = model.mode_bounds_deg
+    return (1.0, float(b1), float(b2))
+
+
+def _class_rows(c: int, model: ThrottleModel) -> list[list[float]]:
     """3x5: [theta, rho, i, 1, sgn(rho)] -> [theta', rho', E i'] for class c (eq. 3)."""
-    p = TABLE_I[_CLASS_MODE[c]]
+    p = model.modes[_CLASS_MODE[c]]
     k = p.c2 * _CLASS_SGN_THETA[c] + p.c3
     return [
         [1.0, p.a12, 0.0, 0.0, 0.0],
@@ -47,12 +59,17 @@ def _class_rows(c: int) -> list[list[float]]:
     ]
 
 
-def class_matrix_stack() -> np.ndarray:
+def class_matrix_stack(model: ThrottleModel = PAPER_THROTTLE) -> np.ndarray:
     """12x5: the four classes' 3x5 matrices stacked (a fresh, writable copy)."""
-    return np.array([row for c in range(4) for row in _class_rows(c)])
+    return np.array([row for c in range(4) for row in _class_rows(c, model)])
 
 
-CLASS_B: tuple[float, ...] = tuple(TABLE_I[_CLASS_MODE[c]].b for c in range(4))
+def class_b(model: ThrottleModel = PAPER_THROTTLE) -> tuple[float, ...]:
+    """b of each class's mode (the input gain of the current row)."""
+    return tuple(model.modes[_CLASS_MODE[c]].b for c in range(4))
+
+
+CLASS_B: tuple[float, ...] = class_b()
 
 
 class Frame:
@@ -71,7 +88,8 @@ class Bank:
     """Buffers for one particle count: current / next frame, scratch rows and every constant of
     the step pre-broadcast to length n (numpy is ~40 % slower with a Python-float operand)."""
 
-    def __init__(self, n: int, s_i: float) -> None:
+    def __init__(self, n: int, s_i: float, r_watt: float = 1.0,
+                 bounds: tuple[float, float, float] = CLASS_BOUNDS_DEG) -> None:
         self.n = n
         self.cur, self.nxt = Frame(n), Frame(n)
         self.T = np.empty((3, n))  # scratch rows (also the compiled step's, careful mode)
@@ -86,11 +104,14 @@ class Bank:
         self.idx = np.empty((3, n), dtype=np.intp)
         self.ar = np.arange(n)
         # class * 3n by ceil(theta) in 0..90: ceil <= 1 -> 0, 2..8 -> 1, 9..16 -> 2, >= 17 -> 3
-        ceil_class = np.searchsorted(np.array(CLASS_BOUNDS_DEG), np.arange(91.0))
-        self.class_offset = ceil_class * (3 * n)
-        inv_c = 1.0 / (2.0 * s_i)  # S = 1 + (2 s m)^2 = (2 s)^2 (1/(2s)^2 + m^2)
+        # (exact for whole-degree bounds; others: class_offset None, classes by searchsorted)
+        self.bounds = np.array(bounds)
+        whole = all(float(b).is_integer() for b in bounds)
+        ceil_class = np.searchsorted(self.bounds, np.arange(91.0))
+        self.class_offset = ceil_class * (3 * n) if whole else None
+        inv_c = 1.0 / (2.0 * s_i)  # S = R + (2 s m)^2 = (2 s)^2 (R/(2s)^2 + m^2)
         kappa = np.sqrt(0.5) * inv_c
-        self.inv_c2 = np.full(n, inv_c * inv_c)
+        self.inv_c2 = np.full(n, r_watt * (inv_c * inv_c))
         self.kappa = np.full(n, kappa)  # q = kappa / h = sqrt(0.5 / S), h^2 = 1/(2s)^2 + m^2
         self.neg_k2 = np.full(n, -kappa * kappa)  # -0.5 / S = neg_k2 / h^2
         self.neg_four_s2 = np.full(n, -4.0 * s_i * s_i)
@@ -121,14 +142,16 @@ class ModeThreeKalman:
         "p22",
         "q_i",
         "q_th",
+        "r",
         "rh",
         "th",
     )
 
-    def __init__(self, q_th: float, q_i: float) -> None:
-        p = TABLE_I[2]
+    def __init__(self, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE) -> None:
+        p = model.modes[2]
         self.coef = (p.a12, p.a21, p.a22, p.a23, p.c2 + p.c3, p.c1, p.a32, p.a33, p.b)
         self.q_th, self.q_i = q_th, q_i
+        self.r = model.h_wattmeter * model.h_wattmeter
         self.th = self.rh = self.ci = 0.0
         self.p00 = self.p01 = self.p02 = self.p11 = self.p12 = self.p22 = 0.0
 
@@ -182,7 +205,7 @@ class ModeThreeKalman:
     def innovation(self, y: float) -> tuple[float, float]:
         """(y - E[y], Var[y]) under the current Gaussian (eq. 4 moments)."""
         m, s2 = self.ci, self.p22
-        return y - (m * m + s2), 4.0 * m * m * s2 + 2.0 * s2 * s2 + 1.0
+        return y - (m * m + s2), 4.0 * m * m * s2 + 2.0 * s2 * s2 + self.r
 
     def update(self, r: float, s: float) -> None:
         """Linear minimum-variance update with Cov(x, y) = 2 m P[:, i]."""

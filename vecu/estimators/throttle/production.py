@@ -43,7 +43,6 @@ from vecu.estimators.throttle.pf_kernels import (
     step_constants,
 )
 from vecu.estimators.throttle.pf_parts import (
-    CLASS_B,
     CLASS_BOUNDS_DEG,
     HIGH_CLASS,
     U_COL,
@@ -51,11 +50,18 @@ from vecu.estimators.throttle.pf_parts import (
     Y_MIN_W,
     Bank,
     ModeThreeKalman,
+    class_b,
+    class_bounds,
     class_matrix_stack,
     systematic_counts,
 )
 from vecu.kernels import backend
-from vecu.models.throttle import F_DIAG, THETA_MAX_DEG, THETA_MIN_DEG
+from vecu.models.throttle import (
+    PAPER_THROTTLE,
+    THETA_MAX_DEG,
+    THETA_MIN_DEG,
+    ThrottleModel,
+)
 
 DEFAULT_N_HIGH = 300
 DEFAULT_N_LOW = 600
@@ -63,6 +69,8 @@ N_LOW_NOISY = 1000  # make_production_estimator: n_low for alpha > NOISY_ALPHA
 NOISY_ALPHA = 0.65
 LOW_ENTER_DEG = 22.0  # some particle below this: use n_low particles
 LOW_EXIT_DEG = 30.0  # all particles above this: back to n_high
+# (22 and 30 deg for Table I's mode-3 bound b2 = 16 deg: a calibration with another b2 shifts
+# LOW_ENTER / LOW_EXIT and the KF_ENTER / KF_EXIT angles below by b2 - 16)
 DEFAULT_SEED = 20150923
 NORMAL_TABLE = 1 << 17  # standard normals drawn once; each step reads windows at random offsets
 OFFSET_BLOCK = 4096  # window offsets drawn per refill
@@ -101,7 +109,7 @@ class ThrottleParticleFilter:
         self, noise_scale: float = 1.0, n_high: int = DEFAULT_N_HIGH,
         n_low: int = DEFAULT_N_LOW, seed: int = DEFAULT_SEED,
         std_inflation: float = DEFAULT_STD_INFLATION, init: str = "rest",
-        use_kalman: bool = True,
+        use_kalman: bool = True, model: ThrottleModel = PAPER_THROTTLE,
     ) -> None:
         if min(n_high, n_low) < 8:
             raise ValueError("particle counts must be >= 8")
@@ -113,19 +121,29 @@ class ThrottleParticleFilter:
         self.std_inflation = float(std_inflation)
         self.init = init
         self.use_kalman = bool(use_kalman)
-        self._s_th = max(a * F_DIAG[0], 1e-3)
-        s = max(a * F_DIAG[2], 1e-3)  # prior std of the current's step noise
+        self.model = model
+        f_diag = model.f_diag
+        r_watt = model.h_wattmeter * model.h_wattmeter
+        self._s_th = max(a * f_diag[0], 1e-3)
+        s = max(a * f_diag[2], 1e-3)  # prior std of the current's step noise
         self._s_i = s
-        self._y_shift = 1.0 / (4.0 * s * s) - s * s  # r = y - s^2 - m^2 = y + shift - h^2
+        self._y_shift = r_watt / (4.0 * s * s) - s * s  # r = y - s^2 - m^2 = y + shift - h^2
+        self._cb = cb = class_bounds(model)
+        shift = cb[2] - CLASS_BOUNDS_DEG[2]  # the angle thresholds follow the mode-3 bound
+        self._low_enter, self._low_exit = LOW_ENTER_DEG + shift, LOW_EXIT_DEG + shift
+        self._kf_enter = (KF_ENTER[0] + shift, *KF_ENTER[1:])
+        self._kf_exit = (KF_EXIT[0] + shift, *KF_EXIT[1:])
+        cls_b = class_b(model)
         self._n_high, self._n_low = int(n_high), int(n_low)
-        self._banks = {n: Bank(n, s) for n in {self._n_high, self._n_low}}
-        self._mats = class_matrix_stack()
+        self._banks = {n: Bank(n, s, r_watt, cb) for n in {self._n_high, self._n_low}}
+        self._mats = class_matrix_stack(model)
         self._mviews = [self._mats[3 * c:3 * c + 3] for c in range(4)]
         self._bcol = self._mats[2::3, U_COL]
-        self._bvec = np.array(CLASS_B)
+        self._bvec = np.array(cls_b)
+        self._cls_b = cls_b
         self._yc = np.zeros(())  # 0-d array: y + shift of the current step
-        self._kf = ModeThreeKalman(self._s_th ** 2, s * s)
-        self._kconst = step_constants(s, CLASS_B)  # the compiled step's constants
+        self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model)
+        self._kconst = step_constants(s, cls_b, r_watt, cb)  # the compiled step's constants
         self._extremes: tuple[float, float] | None = None  # compiled step: max theta, min i
         self.resets = self.rejected = self.resamples = self.resizes = 0
         self.kalman_steps = self.steps = 0
@@ -156,7 +174,7 @@ class ThrottleParticleFilter:
             f.ci[:] = rng.standard_normal(n)
         else:  # unknown state: any angle, wide rho, |i| from y when it is informative
             f.th[:] = rng.uniform(THETA_MIN_DEG, THETA_MAX_DEG, n)
-            f.rh[:] = rng.standard_normal(n) * np.where(f.th > CLASS_BOUNDS_DEG[-1], 5.0, 60.0)
+            f.rh[:] = rng.standard_normal(n) * np.where(f.th > self._cb[-1], 5.0, 60.0)
             r = math.sqrt(y) if y is not None and y > 1.0 else 0.0
             f.ci[:] = np.where(rng.random(n) < 0.85, r, -r) + rng.standard_normal(n)
         f.w.fill(1.0)
@@ -245,10 +263,11 @@ class ThrottleParticleFilter:
             self._sw2 = self._sw2 * inv * inv
             self._sw = sw = 1.0
         lo, n = self._lo, b.n
-        target = self._n_low if lo < LOW_ENTER_DEG else (self._n_high if lo > LOW_EXIT_DEG else n)
+        target = (self._n_low if lo < self._low_enter
+                  else (self._n_high if lo > self._low_exit else n))
         if target != n or sw * sw < ESS_FRACTION * n * self._sw2:
             self._resample(target)
-        elif (lo > KF_ENTER[0] and self.use_kalman and self.steps % KF_CHECK_EVERY == 0
+        elif (lo > self._kf_enter[0] and self.use_kalman and self.steps % KF_CHECK_EVERY == 0
               and self._fits_kalman(g)):
             self._to_kalman(g)
 
@@ -263,7 +282,7 @@ class ThrottleParticleFilter:
                 f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u, self._lo, self._hi,
                 o1, o2, mode, yc)
             self._lo = lo
-            self._hi = hi if lo <= CLASS_BOUNDS_DEG[-1] else THETA_MAX_DEG
+            self._hi = hi if lo <= self._cb[-1] else THETA_MAX_DEG
             self._extremes = (hi, ci_min)
             return self._take_moments(sw, s_th, s_th2, s_w2)
         self._extremes = None
@@ -280,20 +299,24 @@ class ThrottleParticleFilter:
             th_max, ci_min = float(_max(g.th)), float(_min(g.ci))
         else:
             th_max, ci_min = self._extremes
-        return th_max < KF_ENTER[1] and ci_min > KF_ENTER[2]
+        return th_max < self._kf_enter[1] and ci_min > self._kf_enter[2]
 
     def _predict(self, b: Bank, f, g, u: float, o1: int) -> None:
         """Eq. (3) for every particle into frame g, theta noise added and clipped to [0, 90]."""
         np.sign(f.rh, out=f.sg)
-        c = bisect.bisect_left(CLASS_BOUNDS_DEG, self._lo)
-        if c == HIGH_CLASS or c == bisect.bisect_left(CLASS_BOUNDS_DEG, self._hi):
-            self._mats[3 * c + 2, U_COL] = CLASS_B[c] * u
+        cb = self._cb
+        c = bisect.bisect_left(cb, self._lo)
+        if c == HIGH_CLASS or c == bisect.bisect_left(cb, self._hi):
+            self._mats[3 * c + 2, U_COL] = self._cls_b[c] * u
             np.dot(self._mviews[c], f.top5, out=g.top3)
         else:  # particles straddle a mode switch: all four classes, then pick per particle
             np.multiply(self._bvec, u, out=self._bcol)
             np.dot(self._mats, f.top5, out=b.Y)
-            np.ceil(f.th, out=b.cls, casting="unsafe")  # exact class lookup by ceil(theta)
-            b.class_offset.take(b.cls, out=b.cls, mode="clip")  # class * 3n
+            if b.class_offset is not None:  # whole-degree bounds: class by ceil(theta)
+                np.ceil(f.th, out=b.cls, casting="unsafe")  # exact class lookup by ceil(theta)
+                b.class_offset.take(b.cls, out=b.cls, mode="clip")  # class * 3n
+            else:  # other bounds: the number of bounds below theta, x 3n
+                b.cls[:] = np.searchsorted(b.bounds, f.th, side="left") * (3 * b.n)
             np.add(b.base, b.cls, out=b.idx)
             b.Yflat.take(b.idx, out=g.top3, mode="clip")
         th = g.th
@@ -304,7 +327,7 @@ class ThrottleParticleFilter:
             np.maximum(th, b.zero, out=th)
             lo = THETA_MIN_DEG
         self._lo = lo
-        self._hi = float(_max(th)) if lo <= CLASS_BOUNDS_DEG[-1] else THETA_MAX_DEG
+        self._hi = float(_max(th)) if lo <= self._cb[-1] else THETA_MAX_DEG
 
     def _prior_current(self, b: Bank, f, g, o2: int) -> None:
         """No measurement: i from its prior N(m, s^2), weights unchanged."""
@@ -411,7 +434,7 @@ class ThrottleParticleFilter:
                 self._gated = 0
                 kf.update(r, s)
         self.kalman_steps += 1
-        if kf.leave(*KF_EXIT):
+        if kf.leave(*self._kf_exit):
             self._from_kalman(o1)
         else:
             self._set_output(kf.th, kf.p00)
@@ -425,7 +448,7 @@ class ThrottleParticleFilter:
             self._lost(None)
             return
         l00, l10, l11, l20, l21, l22 = kf.cholesky()
-        low = kf.th - 3.0 * math.sqrt(kf.p00) < LOW_ENTER_DEG
+        low = kf.th - 3.0 * math.sqrt(kf.p00) < self._low_enter
         b = self._banks[self._n_low if low else self._n_high]
         f, n, z = b.cur, b.n, self._normals
         o2, o3 = (o1 + 7919) % NORMAL_TABLE, (o1 + 15859) % NORMAL_TABLE
@@ -439,7 +462,8 @@ class ThrottleParticleFilter:
         self._summarise(f)
 
 
-def make_production_estimator(noise_scale: float = 1.0) -> ThrottleParticleFilter:
+def make_production_estimator(noise_scale: float = 1.0,
+                              model: ThrottleModel = PAPER_THROTTLE) -> ThrottleParticleFilter:
     """The ECU's throttle estimator (registry name 'production'), see ThrottleParticleFilter.
 
     Near the mode switches the posterior is wider at the paper's noise (alpha = 1) than at a
@@ -447,4 +471,4 @@ def make_production_estimator(noise_scale: float = 1.0) -> ThrottleParticleFilte
     alpha = 1 (1000: 6.30), while at alpha = 0.3 600 suffice (docs/models.md).
     """
     n_low = N_LOW_NOISY if noise_scale > NOISY_ALPHA else DEFAULT_N_LOW
-    return ThrottleParticleFilter(noise_scale, n_low=n_low)
+    return ThrottleParticleFilter(noise_scale, n_low=n_low, model=model)

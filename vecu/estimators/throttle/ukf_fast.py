@@ -3,7 +3,7 @@
 Same algorithm, guards and reset semantics as ukf.UnscentedFilter + throttle_model, written for
 n = 3 and a scalar wattmeter reading in plain Python floats: unrolled 3x3 Cholesky
 (common.small_linalg.chol3_or_fallback), the sigma pattern pre-extracted into tuples, Table I
-pre-extracted per mode, eq. (3) inlined, and the Step-3 sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated point.
+(or the calibration given) pre-extracted per mode, eq. (3) inlined, and the Step-3 sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated point.
 No numpy in the normal step; the (rare) Cholesky fallback reuses covariance.cholesky_lower so both
 implementations fall back identically. From the same (x, P) one step matches the numpy reference
 to < 1e-9 relative (tests/estimators/common/test_ukf.py; on free runs see docs/models.md for ARM/AGM at alpha = 1).
@@ -24,13 +24,20 @@ from vecu.estimators.throttle.model import (
     measurement_noise_var,
     process_noise_diag,
 )
-from vecu.models.throttle import MODE_BOUNDS_DEG, TABLE_I, THETA_MAX_DEG, THETA_MIN_DEG
-
-_MODES = tuple(
-    (p.a12, p.a21, p.a22, p.a23, p.a32, p.a33, p.b, p.c1, p.c2, p.c3) for p in TABLE_I
+from vecu.models.throttle import (
+    PAPER_THROTTLE,
+    THETA_MAX_DEG,
+    THETA_MIN_DEG,
+    ThrottleModel,
 )
-_B1, _B2 = MODE_BOUNDS_DEG
+
 _LO, _HI = THETA_MIN_DEG, THETA_MAX_DEG
+
+
+def mode_tuples(model: ThrottleModel) -> tuple[tuple[float, ...], ...]:
+    """Each mode's eq. (3) coefficients as (a12, a21, a22, a23, a32, a33, b, c1, c2, c3)."""
+    return tuple((p.a12, p.a21, p.a22, p.a23, p.a32, p.a33, p.b, p.c1, p.c2, p.c3)
+                 for p in model.modes)
 
 
 class FastThrottleUKF:
@@ -38,7 +45,7 @@ class FastThrottleUKF:
 
     def __init__(
         self, sigma_set: SigmaSet | str, noise_scale: float = 1.0,
-        bounds: DivergenceBounds = THROTTLE_BOUNDS,
+        bounds: DivergenceBounds = THROTTLE_BOUNDS, model: ThrottleModel = PAPER_THROTTLE,
     ) -> None:
         s = paper_set(sigma_set) if isinstance(sigma_set, str) else sigma_set
         if s.n != 3:
@@ -51,8 +58,11 @@ class FastThrottleUKF:
             (float(s.Z[0, j]), float(s.Z[1, j]), float(s.Z[2, j]), float(s.w[j]))
             for j in range(s.points)
         )
-        self._q = process_noise_diag(noise_scale)
-        self._r = measurement_noise_var()
+        self.model = model
+        self._modes = mode_tuples(model)
+        self._b1, self._b2 = (float(b) for b in model.mode_bounds_deg)
+        self._q = process_noise_diag(noise_scale, model.f_diag)
+        self._r = measurement_noise_var(model.h_wattmeter)
         self.resets = 0
         self.reset()
 
@@ -93,7 +103,7 @@ class FastThrottleUKF:
         """Reset to (x0, P0) and return y_pred, Pxy, Pyy of its (unpropagated) sigma points."""
         self.reset()
         l00, l10, l11, l20, l21, l22 = chol3_or_fallback(self.p)
-        x0, x1, x2 = self.x
+        x2 = self.x[2]
         pts = []
         for z0, z1, z2, w in self._pattern:
             c = x2 + ((l20 * z0 + l21 * z1) + l22 * z2)
@@ -112,8 +122,8 @@ class FastThrottleUKF:
         """Step 2 (draw) + Step 3 (predict with u_prev; update with y unless None / non-finite)."""
         l00, l10, l11, l20, l21, l22 = chol3_or_fallback(self.p)
         x0, x1, x2 = self.x
-        m0, m1, m2 = _MODES
-        b1, b2, lo, hi = _B1, _B2, _LO, _HI
+        m0, m1, m2 = self._modes
+        b1, b2, lo, hi = self._b1, self._b2, _LO, _HI
         u = u_prev
         first = True
         r0 = r1 = r2 = ry = 0.0
