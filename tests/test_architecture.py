@@ -384,6 +384,9 @@ def test_layering():
         "vecu.plant", "vecu.bus", "vecu.codec", "vecu.ecu", "vecu.cli"))
     bad += _layer_violations("vecu.plant", None, ("vecu.estimators",))
     bad += _layer_violations("vecu.ecu", None, ("vecu.plant",))
+    # the UDS server stands on the ECU (floor 5); the ECU knows it only as a Protocol
+    bad += _layer_violations("vecu.uds", None, ("vecu.plant", "vecu.estimators.registry"))
+    bad += _layer_violations("vecu.ecu", None, ("vecu.uds",))
     for name in FOUNDATION:
         bad += _layer_violations(name, ())
     _report(bad, "layering (docs/architecture.md)")

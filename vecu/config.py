@@ -28,6 +28,7 @@ from vecu.plant.lateral import LateralSensors
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
 from vecu.plant.manifold import ManifoldPlantConfig
 from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
+from vecu.uds.config import UdsConfig, UdsStep
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class EcuParams:
     speed: SpeedFunctionConfig = field(default_factory=SpeedFunctionConfig)
     steering: SteeringFunctionConfig = field(default_factory=SteeringFunctionConfig)
     manifold: ManifoldFunctionConfig = field(default_factory=ManifoldFunctionConfig)
+    uds: UdsConfig = field(default_factory=UdsConfig)  # diagnostics server (docs/uds.md)
 
 
 @dataclass(frozen=True)
@@ -102,6 +104,17 @@ def validate_tree(tree: ParamTree) -> None:
     if tree.ecu.manifold.filter not in MANIFOLD_FILTERS:
         raise ptree.ParamError(f"parameter 'ecu.manifold.filter': expected one of "
                                f"{', '.join(MANIFOLD_FILTERS)}, got {tree.ecu.manifold.filter!r}")
+    uds = tree.ecu.uds
+    if len(uds.vin) != 17 or not uds.vin.isascii() or not uds.vin.isprintable():
+        raise ptree.ParamError(f"parameter 'ecu.uds.vin': expected 17 printable ASCII "
+                               f"characters, got {uds.vin!r}")
+    if not 1 <= len(uds.serial) <= 32 or not uds.serial.isascii() or not uds.serial.isprintable():
+        raise ptree.ParamError(f"parameter 'ecu.uds.serial': expected 1 to 32 printable ASCII "
+                               f"characters, got {uds.serial!r}")
+    ids = {uds.request_id, uds.response_id, uds.functional_id}
+    if uds.enabled and len(ids) < 3:
+        raise ptree.ParamError("parameters 'ecu.uds.request_id', 'response_id', 'functional_id' "
+                               f"must differ, got {sorted(ids)}")
 
 
 @dataclass(frozen=True)
@@ -129,6 +142,7 @@ class RunConfig:
     params: ParamTree = field(default_factory=ParamTree)  # plant.* and ecu.* (vecu params)
     speed_manoeuvres: tuple[str, ...] | None = None  # longitudinal plant sequence (None: default)
     faults: tuple[ScheduledFault, ...] = ()  # fault timeline (scenarios), on top of the kills
+    uds_steps: tuple[UdsStep, ...] = ()  # a tester's requests (scenarios; docs/uds.md)
 
     def with_params(self, sets: object = (), **shortcuts: object) -> RunConfig:
         """This configuration with parameter-tree overrides: (path, value) pairs or a mapping,
@@ -146,6 +160,8 @@ class RunConfig:
         manifold filter, and every parameter that differs from the defaults (path: value)."""
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "params"}
         out["faults"] = [asdict(f) for f in self.faults]
+        out["uds_steps"] = [{k: v.hex(" ") if isinstance(v, bytes) else v
+                             for k, v in asdict(u).items()} for u in self.uds_steps]
         out["noise_scale"] = self.params.plant.throttle.noise_scale
         out["estimator"] = self.estimator
         out["manifold_filter"] = self.params.ecu.manifold.filter

@@ -62,6 +62,7 @@ SOURCES: dict[str, str] = {
     "ecu.manifold.kf": "vecu decision, docs/models.md 'Intake manifold' (guards, gating)",
     "ecu.manifold.kf.params": "Dutka 2006 eq. 1-9; engine values shared/design/manifold.md",
     "ecu.manifold.kf.noise": "Dutka 2006 Section IV (Q, R)",
+    "ecu.uds": "ISO 14229-1 (UDS), ISO 15765-2 (ISO-TP); vecu decision, docs/uds.md",
 }
 
 # Units of names that carry none in a suffix (model units where a paper defines its own).
@@ -209,6 +210,8 @@ def parse_value(path: str, text: Any, current: Any,
         if isinstance(current, int):
             if isinstance(text, bool):
                 raise TypeError
+            if isinstance(text, str) and text.strip().lower().startswith(("0x", "-0x")):
+                text = int(text, 16)  # CAN IDs: ecu.uds.request_id=0x7E0
             value = int(text) if not isinstance(text, float) or text.is_integer() else None
             if value is None:
                 raise TypeError

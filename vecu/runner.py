@@ -47,6 +47,8 @@ from vecu.probes import (
 from vecu.recorder import Recorder
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
+from vecu.uds.server import attach_uds
+from vecu.uds.tester import SimTester
 
 __all__ = ["RunConfig", "RunResult", "detection", "run"]
 
@@ -107,6 +109,13 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         if fns.manifold is not None and plant.manifold is not None:
             manifold_probe = ManifoldProbe(plant.manifold, fns.manifold, config.keep_series)
         ecu = EcuNode(ecu_bus, codec, fns.enabled())
+        uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
+        tester = None
+        if config.uds_steps:  # a scenario's tester, before the ECU in each tick
+            tester_bus = open_bus(**bus_args)
+            buses.append(tester_bus)
+            tester = SimTester(tester_bus, config.params.ecu.uds, config.uds_steps)
+            sched.every(TICK_NS, tester.tick, name="uds-tester", priority=PRIO_PLANT + 5)
         probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
         schedule_plant(sched, plant)
         ecu_task = schedule_ecu(sched, ecu)
@@ -153,6 +162,10 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         summary["diagnostics"] = {**{name: mon.report() for name, mon in ecu.monitors.items()},
                                   "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
                                           "confirmations": ecu.bus_dtc.confirmations}}
+        if uds is not None:
+            summary["uds"] = uds.summary()
+        if tester is not None:
+            summary["uds_steps"] = tester.summary()
         if speed_probe is not None:
             summary["speed"] = speed_probe.summary()
             summary["speed"]["coast_steps"] = fns.speed.coast_steps

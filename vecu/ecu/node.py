@@ -46,6 +46,7 @@ class RxCounters:
     value_errors: int = 0      # NaN / inf / outside the DBC range / refused as implausible
     implausible: int = 0       # of value_errors: in range, refused by the function (not a bin)
     malformed: int = 0         # anything else the decoder refused
+    diagnostic: int = 0        # frames on the diagnostic server's IDs (UDS requests, echoes)
 
     @property
     def rejected(self) -> int:
@@ -81,6 +82,18 @@ class EcuFunction(Protocol):
     def status_signals(self) -> dict[str, int]: ...
 
 
+class DiagnosticServer(Protocol):
+    """A diagnostic server on the node (vecu.uds): it claims CAN IDs (frames on them go to
+    on_frame() instead of the functions) and works in bounded steps from tick(), called after
+    the functions have sent this tick's broadcast."""
+
+    ids: frozenset[tuple[int, bool]]
+
+    def on_frame(self, msg: can.Message, t_ns: int) -> None: ...
+
+    def tick(self, t_ns: int) -> None: ...
+
+
 @dataclass(frozen=True)
 class Route:
     """How one received CAN ID reaches the functions: its codec, the subscription, the alive
@@ -103,6 +116,11 @@ def native_routes(codec: DbcCodec, functions: list[EcuFunction]) -> dict[tuple[i
             routes[(fc.frame_id, fc.is_extended)] = Route(
                 fc, sub, counter, (fn,), round((fc.cycle_time_ms or 0) * NS_PER_MS))
     return routes
+
+
+def _muted(msg: can.Message) -> bool:
+    """The send of a node whose broadcast a tester stopped: nothing goes out."""
+    return False
 
 
 class EcuNode(BusNode):
@@ -157,6 +175,35 @@ class EcuNode(BusNode):
         self._track_senders = host_gap_ms > 0
         self._last_tick_ns: int | None = None
         self._logged: dict[str, int] = {}
+        # diagnostics (vecu.uds): a server on its own IDs, the broadcast switch (0x28) and the
+        # sensor values a tester overrides (0x2F), by message: {signal: value}
+        self.diagnostics: DiagnosticServer | None = None
+        self._diag_ids: frozenset[tuple[int, bool]] = frozenset()
+        self._app_send: Send = self.send
+        self.broadcast_enabled = True
+        self.overrides: dict[str, dict[str, float]] = {}
+
+    def attach(self, server: DiagnosticServer) -> None:
+        """Serve diagnostics: frames on server.ids go to it, and it ticks after the functions."""
+        self.diagnostics = server
+        self._diag_ids = server.ids
+
+    def set_broadcast(self, enabled: bool) -> None:
+        """CommunicationControl: the functions and ECU_Status / ECU_Diag stop or resume sending
+        (they still run; a muted frame counts as not sent)."""
+        self.broadcast_enabled = enabled
+        self._app_send = self.send if enabled else _muted
+
+    def set_override(self, message: str, signal: str, value: float | None) -> None:
+        """InputOutputControl: the value the functions see for message.signal (None: the
+        sensor's own again). Applied to each frame that passed the receive checks."""
+        over = self.overrides.setdefault(message, {})
+        if value is None:
+            over.pop(signal, None)
+            if not over:
+                del self.overrides[message]
+        else:
+            over[signal] = value
 
     @property
     def armed(self) -> list[EcuFunction]:
@@ -198,6 +245,10 @@ class EcuNode(BusNode):
             key = (msg.arbitration_id, msg.is_extended_id)
             route = self._consumers.get(key)
             if route is None:
+                if key in self._diag_ids:
+                    rx.diagnostic += 1
+                    self.diagnostics.on_frame(msg, t_ns)  # type: ignore[union-attr]
+                    return
                 if key in self.rx_codec.by_id:
                     rx.ignored += 1
                 else:
@@ -242,6 +293,8 @@ class EcuNode(BusNode):
         rx = self.rx
         if self._track_senders and route.cycle_ns:  # live: the sender is running (HostClock)
             self.host.saw(route.cycle_ns, t_ns)
+        if self.overrides and route.subscription.message in self.overrides:
+            values = {**values, **self.overrides[route.subscription.message]}
         if route.subscription.on_values(values, t_ns):  # the function refused them (it logs them)
             rx.value_errors += 1
             rx.implausible += 1
@@ -265,9 +318,10 @@ class EcuNode(BusNode):
         recv = self.bus.recv
         while (msg := recv(0.0)) is not None:
             self.receive(msg, t_ns)
+        send = self._app_send
         for fn in self._armed:
             if t_ns % fn.period_ns == 0:
-                fn.run(t_ns, self.send)
+                fn.run(t_ns, send)
         if t_ns >= self._next_status_ns:
             self._next_status_ns += self._status_period_ns
             self._send_status(t_ns / NS_PER_S)
@@ -275,6 +329,8 @@ class EcuNode(BusNode):
             self._send_diag(t_ns, on_change=False)
         elif self._diag_dirty:
             self._send_diag(t_ns, on_change=True)
+        if self.diagnostics is not None:
+            self.diagnostics.tick(t_ns)
 
     def _mark_diag(self) -> None:
         self._diag_dirty = True
@@ -301,7 +357,7 @@ class EcuNode(BusNode):
             signals[f"DIAG_{prefix}Status"] = int(mon.status) if mon else 0
             confirmations += mon.dtc_item.confirmations if mon else 0
         signals["DIAG_Confirmations"] = min(confirmations, 255)
-        self.send(self._diag.frame(signals, t_ns / NS_PER_S))
+        self._app_send(self._diag.frame(signals, t_ns / NS_PER_S))
         self._diag_counter = (self._diag_counter + 1) & 0xF
 
     def _send_status(self, ts: float) -> None:
@@ -310,7 +366,7 @@ class EcuNode(BusNode):
         for fn in self.functions:
             signals.update(fn.status_signals())
         timeouts = sum(fn.timeouts for fn in self.functions)
-        self.send(self._status.frame({
+        self._app_send(self._status.frame({
             **signals,
             "ECU_StatusCounter": self._status_counter,
             "ECU_Overruns": min(self.overruns, 65535),

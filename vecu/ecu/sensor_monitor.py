@@ -115,6 +115,17 @@ class Dtc:
                 self.on_change()
         return new
 
+    def clear(self, t_ns: int) -> None:
+        """Forget the DTC (a tester's ClearDiagnosticInformation): state NONE, never confirmed;
+        a fault still present confirms it again at the next evaluation."""
+        self._healthy_since = None
+        self._was_confirmed = False
+        if self.state != DtcState.NONE:
+            self.state = DtcState.NONE
+            self.history.append((t_ns, DtcState.NONE))
+            if self.on_change is not None:
+                self.on_change()
+
 
 @dataclass(frozen=True)
 class SensorMonitorConfig:
@@ -266,6 +277,16 @@ class SensorMonitor:
         self.dtc_item.report(t_ns, finding != SensorStatus.OK, bool(suspicious),
                              status == SensorStatus.OK)
         return status
+
+    @property
+    def raw(self) -> float | None:
+        """The last valid raw reading (e.g. the TPS voltage), None before the first frame."""
+        return self._raw
+
+    @property
+    def last_rx_ns(self) -> int | None:
+        """When the last valid frame came (None: none yet)."""
+        return self._last_rx_ns
 
     @property
     def dtc(self) -> DtcState:

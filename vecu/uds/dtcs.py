@@ -1,0 +1,184 @@
+"""DTCs for UDS: SAE J2012 codes per fault the ECU detects, the ISO 14229-1 status byte driven by
+the sensor monitors' lifecycle (vecu/ecu/sensor_monitor.py), snapshots and extended data.
+
+A monitor's confirmed finding (SensorStatus) selects the code: the TPS reading 0 V is RANGE_LOW,
+so P0122-00. Status bits (ISO 14229-1 D.2):
+bit 0 testFailed: the finding is present now; bit 1 testFailedThisOperationCycle; bit 2
+pendingDTC: failed in this or the previous operation cycle (an ECUReset ends a cycle); bit 3
+confirmedDTC: set with the finding, cleared when the monitor's DTC heals (ages out, dtc_heal_ms
+of health) or by 0x14; bit 4 testNotCompletedSinceLastClear and bit 6
+testNotCompletedThisOperationCycle: until the monitor has a frame or a finding; bit 5
+testFailedSinceLastClear; bit 7 warningIndicatorRequested: not supported (mask 0x7F).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from vecu.clock import NS_PER_S
+from vecu.ecu.sensor_monitor import Dtc, DtcState, SensorMonitor
+from vecu.ecu.sensor_monitor import SensorStatus as S
+
+TF, TFTOC, PDTC, CDTC, TNCSLC, TFSLC, TNCTOC, WIR = (1 << i for i in range(8))
+AVAILABILITY_MASK = 0x7F
+CLEARED = TNCSLC | TNCTOC
+
+
+@dataclass(frozen=True)
+class DtcSpec:
+    number: int          # 3 bytes: J2012 code (2 bytes) and failure type byte
+    source: str          # monitor name ("tps", "swa", "wheel") or "bus"
+    findings: tuple[S, ...]
+    text: str
+
+    @property
+    def code(self) -> str:
+        """The J2012 display form, e.g. P0122-00."""
+        hi = self.number >> 16
+        letter = "PCBU"[hi >> 6]
+        return f"{letter}{(hi >> 4) & 3}{hi & 0xF:X}{(self.number >> 8) & 0xFF:02X}-" \
+               f"{self.number & 0xFF:02X}"
+
+
+# failure type bytes (SAE J2012-DA): 0x21/0x22 signal amplitude < min / > max, 0x64 signal
+# plausibility failure, 0x83 value of signal protection calculation incorrect (CRC / alive
+# counter), 0x87 missing message
+DTC_TABLE: tuple[DtcSpec, ...] = (
+    DtcSpec(0x012200, "tps", (S.RANGE_LOW,), "TPS A circuit low (open / short to ground)"),
+    DtcSpec(0x012300, "tps", (S.RANGE_HIGH,), "TPS A circuit high (short to supply)"),
+    DtcSpec(0x012100, "tps", (S.IMPLAUSIBLE, S.STUCK),
+            "TPS A circuit range/performance (implausible against the estimate, or stuck)"),
+    DtcSpec(0x012087, "tps", (S.TIMEOUT,), "TPS A: missing message (TPS_Sensor timeout)"),
+    DtcSpec(0x012083, "tps", (S.E2E_ERROR,), "TPS A: signal protection (E2E CRC / alive counter)"),
+    DtcSpec(0x403587, "wheel", (S.TIMEOUT,), "wheel speed sensor: missing message (ESC_Motion)"),
+    DtcSpec(0x403521, "wheel", (S.RANGE_LOW,), "wheel speed sensor: signal below minimum"),
+    DtcSpec(0x403522, "wheel", (S.RANGE_HIGH,), "wheel speed sensor: signal above maximum"),
+    DtcSpec(0x403564, "wheel", (S.IMPLAUSIBLE, S.STUCK),
+            "wheel speed sensor: implausible against the speed filter"),
+    DtcSpec(0x446087, "swa", (S.TIMEOUT,), "steering angle sensor: missing message"),
+    DtcSpec(0x446083, "swa", (S.E2E_ERROR,), "steering angle sensor: signal protection (E2E)"),
+    DtcSpec(0x446021, "swa", (S.RANGE_LOW,), "steering angle sensor: signal below minimum"),
+    DtcSpec(0x446022, "swa", (S.RANGE_HIGH,), "steering angle sensor: signal above maximum"),
+    DtcSpec(0x446064, "swa", (S.IMPLAUSIBLE, S.STUCK),
+            "steering angle sensor: implausible against the estimate, or stuck"),
+    DtcSpec(0xC00100, "bus", (), "high speed CAN bus: error frames (>= 10 per 100 ms)"),
+)
+
+
+@dataclass
+class DtcRecord:
+    spec: DtcSpec
+    status: int = CLEARED
+    occurrences: int = 0                 # testFailed 0 -> 1 since the last clear
+    healthy_since_ns: int | None = None  # when the finding last went away
+    snapshot: bytes | None = None        # record 0x01: (DID, data)* at the last confirmation
+    snapshot_count: int = 0
+
+
+@dataclass
+class _Source:
+    """One monitor (or the bus DTC) and what was last seen of it."""
+
+    dtc: Dtc
+    monitor: SensorMonitor | None
+    records: list[DtcRecord] = field(default_factory=list)
+    seen: tuple[int, int] = (-1, -1)     # lengths of its status and DTC histories
+
+
+class DtcMemory:
+    """The ECU's DTCs; update(t_ns) once per tick (cheap when nothing changed)."""
+
+    def __init__(self, monitors: dict[str, SensorMonitor], bus_dtc: Dtc,
+                 snapshot: Callable[[], tuple[bytes, int]]) -> None:
+        self._snapshot = snapshot
+        self.records: dict[int, DtcRecord] = {}
+        self._sources: list[_Source] = []
+        for name, dtc in [(n, m.dtc_item) for n, m in monitors.items()] + [("bus", bus_dtc)]:
+            src = _Source(dtc, monitors.get(name))
+            for spec in DTC_TABLE:
+                if spec.source == name:
+                    rec = DtcRecord(spec)
+                    src.records.append(rec)
+                    self.records[spec.number] = rec
+            self._sources.append(src)
+        self.enabled = True   # ControlDTCSetting: off freezes every status bit
+        self._incomplete = True
+
+    def update(self, t_ns: int) -> None:
+        if not self.enabled:
+            return
+        for src in self._sources:
+            mon = src.monitor
+            seen = (len(mon.status_history) if mon else 0, len(src.dtc.history))
+            if seen != src.seen:
+                src.seen = seen
+                self._evaluate(src, t_ns)
+        if self._incomplete:
+            self._incomplete = False
+            for src in self._sources:
+                mon = src.monitor
+                done = mon is None or mon.last_rx_ns is not None or mon.status != S.OK
+                for rec in src.records:
+                    if rec.status & (TNCSLC | TNCTOC):
+                        if done:
+                            rec.status &= ~(TNCSLC | TNCTOC)
+                        else:
+                            self._incomplete = True
+
+    def _evaluate(self, src: _Source, t_ns: int) -> None:
+        mon = src.monitor
+        healed = src.dtc.state == DtcState.HEALED
+        for rec in src.records:
+            failing = (src.dtc.state == DtcState.CONFIRMED if mon is None
+                       else mon.status in rec.spec.findings)
+            st = rec.status
+            if failing and not st & TF:
+                rec.occurrences = min(rec.occurrences + 1, 255)
+                rec.healthy_since_ns = None
+                st |= TF | TFTOC | PDTC | TFSLC
+                st &= ~(TNCSLC | TNCTOC)
+                if not st & CDTC:
+                    st |= CDTC
+                    rec.snapshot, rec.snapshot_count = self._snapshot()
+            elif not failing and st & TF:
+                st &= ~TF
+                rec.healthy_since_ns = t_ns
+            if healed and not failing:
+                st &= ~CDTC
+            rec.status = st
+
+    def clear(self, numbers: list[int], t_ns: int) -> None:
+        """0x14: forget these DTCs; a finding still present sets them again at once."""
+        for src in self._sources:
+            hit = [r for r in src.records if r.spec.number in numbers]
+            for rec in hit:
+                rec.status, rec.occurrences, rec.snapshot, rec.snapshot_count = CLEARED, 0, None, 0
+                rec.healthy_since_ns = None
+            if hit and len(hit) == len(src.records):  # the monitor's lifecycle too
+                src.dtc.clear(t_ns)
+            if hit:
+                src.seen = (-1, -1)
+        self._incomplete = True
+
+    def new_operation_cycle(self) -> None:
+        """ECUReset: pending keeps only what failed in the cycle that ends."""
+        for rec in self.records.values():
+            st = rec.status
+            st = (st | PDTC) if st & TFTOC else (st & ~PDTC)
+            rec.status = (st & ~TFTOC) | TNCTOC
+        for src in self._sources:
+            src.seen = (-1, -1)
+        self._incomplete = True
+
+    def resume(self) -> None:
+        """ControlDTCSetting on: catch up with the monitors."""
+        self.enabled = True
+        for src in self._sources:
+            src.seen = (-1, -1)
+
+    def aging_counter(self, rec: DtcRecord, t_ns: int) -> int:
+        """Whole seconds healthy since the finding went away (0 while failing, max 255)."""
+        if rec.status & TF or rec.healthy_since_ns is None:
+            return 0
+        return min(255, (t_ns - rec.healthy_since_ns) // NS_PER_S)
