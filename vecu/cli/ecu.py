@@ -22,7 +22,10 @@ HOST_GAP_MS = 100.0  # longer than the stalls of a loaded machine, short for a l
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("ecu", help="run the virtual ECU alone, live, on a CAN bus",
                        description="The virtual ECU in its own process: 1 ms base tick on the wall "
-                                   "clock, estimates broadcast on the bus (see docs/live.md).")
+                                   "clock, estimates broadcast on the bus (see docs/live.md). "
+                                   "It serves UDS on ISO-TP: requests on 0x7E0 (functional "
+                                   "0x7DF), responses on 0x7E8; --set ecu.uds.request_id=... "
+                                   "moves them (docs/uds.md).")
     add_live_arguments(p)
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.*")
@@ -57,6 +60,7 @@ def main(args: argparse.Namespace) -> int:
     from vecu.live.sync import PhaseSync, sync_to_trigger
     from vecu.runner import warm_up
     from vecu.stats import RunningStats
+    from vecu.uds.server import attach_uds
 
     sets = param_sets(args, only="ecu.")
     if args.tps_timeout_cycles is not None:
@@ -74,6 +78,7 @@ def main(args: argparse.Namespace) -> int:
     summary: dict[str, Any] | None = None
     try:
         ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms)
+        uds = attach_uds(ecu, config.params.ecu.uds, args.seed)  # a tester's UDS (docs/uds.md)
         thr = fns.throttle
         accuracy = RunningStats()
         meter = proc.meter("ecu")
@@ -100,7 +105,11 @@ def main(args: argparse.Namespace) -> int:
             f"  throttle: {'sensor' if thr.source == SOURCE_SENSOR else 'ESTIMATE'}, TPS "
             f"{thr.status.name.lower()}, DTC {thr.monitor.dtc.name.lower()}, host gaps "
             f"{thr.monitor.host_gaps}; rx accepted "
-            f"{ecu.rx.accepted}, rejected {ecu.rx.rejected}, ignored {ecu.rx.ignored}")]
+            f"{ecu.rx.accepted}, rejected {ecu.rx.rejected}, ignored {ecu.rx.ignored}")] + (
+            [] if uds is None else [
+                f"  uds: {uds.stats.requests} requests ({uds.stats.negative} negative), session "
+                f"{uds.session}, security {'unlocked' if uds.security.unlocked else 'locked'}, "
+                f"broadcast {'on' if ecu.broadcast_enabled else 'OFF'}"])
         warm_up(config)
         proc.signal_ready()
         sync = PhaseSync(0, None, None, args.sync_margin_us, None)
@@ -115,6 +124,8 @@ def main(args: argparse.Namespace) -> int:
         finally:
             ecu.overruns = task.overruns
             summary = proc.summary(_ecu_summary(proc, ecu, fns, accuracy, sync, changes))
+            if uds is not None:
+                summary["uds"] = uds.summary()
             proc.write_summary(summary)
     finally:
         proc.close()

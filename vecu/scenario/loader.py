@@ -23,6 +23,7 @@ from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
 from vecu.params import ParamError, apply_sets, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
 from vecu.tomlfile import read_toml
+from vecu.uds.config import UdsStep
 
 MONITOR_PATHS = {"tps": "ecu.throttle.tps_monitor", "swa": "ecu.steering.monitor",
                  "wheel": "ecu.speed.wheel_monitor"}
@@ -35,7 +36,8 @@ MAX_SERIES_S = 600.0  # longer runs keep no per-tick series (memory): no plots, 
 NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
-            "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict}
+            "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
+            "uds": list}
 PLANT_KEYS = {"noise_scale": NUMBER, "speed": BOOL, "steering": BOOL, "manifold": BOOL,
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, "tps": dict, "swa": dict, "wheel": dict}
@@ -47,6 +49,8 @@ SENSOR_CRITERIA = {"detect_within_ms": NUMBER, "detected_as": list, "fallback_wi
                    "max_error_after_fallback": NUMBER, "rms_error_after_fallback": NUMBER,
                    "dtc": STR, "fault_at_s": NUMBER, "not_detected": BOOL}
 BUS_CRITERIA = {"dtc": STR}
+UDS_KEYS = {"at_s": NUMBER, "request": STR, "functional": BOOL, "key": BOOL, "expect": STR,
+            "expect_nrc": INT, "expect_contains": STR, "expect_absent": STR, "expect_none": BOOL}
 
 
 class ScenarioError(BadFileError):
@@ -160,6 +164,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         monitors[sensor] = over
     faults = _faults(chk, data.get("faults", []), duration, parts, codec)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
+    uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     # (scenario key, tree path, value): a value the tree refuses names the key it came from
     sets: list[tuple[str, str, Any]] = []
     for sensor, group in MONITOR_PATHS.items():
@@ -182,7 +187,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     config = RunConfig(
         duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
-        params=params, **parts)
+        params=params, uds_steps=uds_steps, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
                     config, criteria)
 
@@ -257,3 +262,39 @@ def _criteria(chk: _Checker, data: dict, duration: float, parts: dict[str, bool]
     return Criteria(no_nan=data.get("no_nan", True), no_overruns=data.get("no_overruns", True),
                     no_false_dtc=data.get("no_false_dtc", True), sensors=tuple(sensors),
                     bus_dtc=bus.get("dtc"))
+
+
+def _hex(chk: _Checker, key: str, text: str) -> bytes:
+    try:
+        data = bytes.fromhex(text.replace("0x", "").replace(",", " "))
+    except ValueError:
+        raise chk.fail(key, f"expected hex bytes like '22 F1 90', got {text!r}") from None
+    return data
+
+
+def _uds_steps(chk: _Checker, items: list, duration: float) -> tuple[UdsStep, ...]:
+    """[[uds]]: requests a tester sends at at_s, and what each response must be."""
+    out = []
+    for i, item in enumerate(items):
+        pre = f"uds[{i}]."
+        chk.table(item, UDS_KEYS, pre)
+        for req in ("at_s", "request"):
+            if req not in item:
+                raise chk.fail(pre + req, "required key missing")
+        at = float(item["at_s"])
+        if not 0 <= at < duration:
+            raise chk.fail(pre + "at_s", f"{at:g} s is outside the run (0..{duration:g} s)")
+        request = _hex(chk, pre + "request", item["request"])
+        if not 1 <= len(request) <= 4095:
+            raise chk.fail(pre + "request", f"expected 1 to 4095 bytes, got {len(request)}")
+        if item.get("functional") and len(request) > 7:
+            raise chk.fail(pre + "request", "a functional request fits one frame (<= 7 bytes)")
+        nrc = item.get("expect_nrc")
+        if nrc is not None and not 0 < nrc <= 0xFF:
+            raise chk.fail(pre + "expect_nrc", f"expected a code 1..255, got {nrc}")
+        out.append(UdsStep(
+            at, request, functional=item.get("functional", False), key=item.get("key", False),
+            expect_nrc=nrc, expect_none=item.get("expect_none", False),
+            **{k: _hex(chk, pre + k, item[k]) for k in
+               ("expect", "expect_contains", "expect_absent") if k in item}))
+    return tuple(out)
