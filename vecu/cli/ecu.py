@@ -106,10 +106,10 @@ def main(args: argparse.Namespace) -> int:
             f"{thr.status.name.lower()}, DTC {thr.monitor.dtc.name.lower()}, host gaps "
             f"{thr.monitor.host_gaps}; rx accepted "
             f"{ecu.rx.accepted}, rejected {ecu.rx.rejected}, ignored {ecu.rx.ignored}")] + (
-            [] if uds is None else [
+            [] if uds is None else [(
                 f"  uds: {uds.stats.requests} requests ({uds.stats.negative} negative), session "
                 f"{uds.session}, security {'unlocked' if uds.security.unlocked else 'locked'}, "
-                f"broadcast {'on' if ecu.broadcast_enabled else 'OFF'}"])
+                f"broadcast {'on' if ecu.broadcast_enabled else 'OFF'}")])
         warm_up(config)
         proc.signal_ready()
         sync = PhaseSync(0, None, None, args.sync_margin_us, None)
