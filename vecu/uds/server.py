@@ -74,7 +74,8 @@ class SelfTest:
 @dataclass
 class UdsStats:
     requests: int = 0
-    positive: int = 0
+    responses: int = 0           # sent
+    positive: int = 0            # of the requests (sent or suppressed)
     negative: int = 0
     suppressed: int = 0          # no response: suppressPosRspMsgIndicationBit / functional NRC
     frames_dropped: int = 0      # CAN frames beyond the inbox (a flood)
@@ -203,20 +204,23 @@ class UdsServer:
             spr = service[2] and sid != 0x19 and bool(payload[1] & 0x80)
             result = service[0](payload, t_ns)
         if isinstance(result, int):
+            stats.negative += 1
             if functional and result in FUNCTIONAL_SILENT:
                 stats.suppressed += 1
                 return None
-            stats.negative += 1
+            stats.responses += 1
             return bytes([0x7F, sid, result])
         stats.positive += 1
         if spr:
             stats.suppressed += 1
             return None
+        stats.responses += 1
         return bytes([sid + 0x40]) + result  # type: ignore[operator]
 
     def _enter(self, session: int) -> None:
         self.security.lock()
         self.session = session
+        self._awake = True  # S3 runs from now
         self._s3_deadline = self._now + round(self.cfg.s3_ms * NS_PER_MS)
         if session == DEFAULT:  # what a non-default session enabled ends with it
             self.node.set_broadcast(True)
