@@ -18,9 +18,9 @@ from vecu.cli.outputs import check_outputs as check_outputs
 from vecu.errors import UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
-               "campaign")
+               "campaign", "excite", "identify", "figures")
 KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario",
-                   "campaign")  # use estimators
+                   "campaign", "excite", "identify", "figures")  # use estimators
 
 
 DEBUG_HELP = "on a user error, print its traceback too"
@@ -104,8 +104,13 @@ def configure_logging(quiet: bool) -> None:
                         format="%(levelname)s %(name)s: %(message)s")
 
 
-def add_set_option(p: argparse.ArgumentParser, scope: str) -> None:
-    """--set PATH=VALUE (repeatable): override a leaf of the parameter tree (`vecu params`)."""
+def add_set_option(p: argparse.ArgumentParser, scope: str, params_file: bool = False) -> None:
+    """--set PATH=VALUE (repeatable): override a leaf of the parameter tree (`vecu params`);
+    params_file: also --params FILE.toml (a [set] table, read first; --set wins)."""
+    if params_file:
+        p.add_argument("--params", dest="params_file", metavar="PARAMS.toml",
+                       help="parameter file: a [set] table of tree paths, e.g. the calibration "
+                            "`vecu identify throttle --out` writes (--set overrides it)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
                    help=f"override a parameter ({scope}; `vecu params` lists them), repeatable")
 
@@ -115,11 +120,39 @@ def param_sets(args: argparse.Namespace, only: str | None = None) -> list[tuple[
     from vecu.params import ParamError, parse_set_args
 
     pairs = parse_set_args(getattr(args, "sets", []) or [])
+    if getattr(args, "params_file", None):
+        pairs = read_params_file(args.params_file, only) + pairs
     if only is not None:
         for path, _ in pairs:
             if not path.startswith(only):
                 raise ParamError(f"--set {path}: `vecu {args.command}` takes {only}* parameters "
                                  f"only")
+    return pairs
+
+
+def read_params_file(path: str, only: str | None = None) -> list[tuple[str, object]]:
+    """The (path, value) pairs of a PARAMS.toml: a [set] table of tree paths (dotted keys or
+    nested tables, as a scenario's [set]); every pair checked against the tree, a bad one a
+    BadFileError naming the file and the key. only: the half of the tree the command takes."""
+    from vecu.config import ParamTree
+    from vecu.errors import BadFileError
+    from vecu.params import ParamError, flatten_toml
+    from vecu.tomlfile import read_toml
+
+    doc = read_toml(path)
+    extra = sorted(set(doc) - {"set"})
+    if extra or not isinstance(doc.get("set"), dict):
+        raise BadFileError(path, "expected a [set] table of parameter paths (e.g. "
+                           '"ecu.throttle.model.mode3.b" = 0.05)'
+                           + (f", not {', '.join(extra)}" if extra else ""))
+    pairs = flatten_toml(doc["set"])
+    try:
+        for key, value in pairs:
+            if only is not None and not key.startswith(only):
+                raise ParamError(f"this command takes {only}* parameters only")
+            ParamTree().set([(key, value)])
+    except ParamError as exc:
+        raise BadFileError(path, f"[set] key '{key}': {exc}") from None
     return pairs
 
 

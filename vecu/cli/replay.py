@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", dest="fmt", metavar="FMT",
                    help="reader when the suffix does not tell (asc, blf, log, trc, csv, mf4)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
-    add_set_option(p, "ecu.* calibration only")
+    add_set_option(p, "ecu.* calibration only", params_file=True)
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
     prog = p.add_mutually_exclusive_group()

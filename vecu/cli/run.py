@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="process-noise scale alpha of the throttle model, plant and ECU (1 = paper; "
                         f"0..{argtypes.NOISE_SCALE_MAX:g})")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production; = --set ecu.throttle.estimator=NAME)")
-    add_set_option(p, "plant.* and ecu.*")
+    add_set_option(p, "plant.* and ecu.*", params_file=True)
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
     p.add_argument("--no-truth", dest="truth", action="store_false",

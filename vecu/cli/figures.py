@@ -1,0 +1,34 @@
+"""`vecu figures`: every seed figure reproduced as a PNG from vecu's own runs."""
+
+from __future__ import annotations
+
+import argparse
+
+FAMILIES = ("throttle", "manifold", "steering", "speed")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("figures", help="reproduce the seed papers' figures as PNGs",
+                       description="Run vecu and redraw each seed figure (titled with the "
+                                   "paper's figure number) into --out; docs/reproduction.md "
+                                   "sets them beside the papers'.")
+    p.add_argument("--out", default="figures", metavar="DIR", help="directory (default figures)")
+    p.add_argument("--only", choices=FAMILIES, action="append", default=None,
+                   help="one family (repeatable; default all)")
+    p.add_argument("--quick", action="store_true", help="reduced lengths (CI): same figures")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from vecu.errors import BadArgumentError
+    from vecu.figures import make_figures
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise BadArgumentError(f"--out {args.out}: not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    for path, note in make_figures(out, args.only or list(FAMILIES), quick=args.quick):
+        print(f"{path}  {note}")
+    return 0

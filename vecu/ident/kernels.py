@@ -1,0 +1,56 @@
+"""Compiled loops of the throttle identification (vecu.kernels: numba with vecu[fast])."""
+
+from __future__ import annotations
+
+import math
+
+from vecu.kernels import kernel
+
+
+@kernel
+def one_step_predict(P, b1, b2, u, th, ci, out_th, out_i, out_rho):
+    """Eq. (3) one step ahead from the measured angle th_k and current ci_k, rho simulated.
+
+    P: 3x10 rows (a12, a21, a22, a23, a32, a33, b, c1, c2, c3) of modes 1-3, b1 / b2 the
+    switching angles. rho is not measured: it runs on eq. (3) driven by the measured th and ci
+    (a series-parallel predictor). Writes the predictions th_{k+1|k} (clipped to [0, 90]) and
+    i_{k+1|k} for k + 1 = 1..n-1 (index 0 holds the measurement) and rho_k.
+    """
+    n = u.size
+    r = 0.0
+    out_th[0] = th[0]
+    out_i[0] = ci[0]
+    for k in range(n - 1):
+        t = th[k]
+        c = ci[k]
+        s = 0 if t <= b1 else (1 if t <= b2 else 2)
+        sr = 1.0 if r > 0.0 else (-1.0 if r < 0.0 else 0.0)
+        st = 1.0 if t > 1.0 else (-1.0 if t < 1.0 else 0.0)
+        out_rho[k] = r
+        tn = t + P[s, 0] * r
+        out_th[k + 1] = 0.0 if tn < 0.0 else (min(tn, 90.0))
+        out_i[k + 1] = P[s, 4] * r + P[s, 5] * c + P[s, 6] * u[k]
+        r = (P[s, 1] * t + P[s, 2] * r + P[s, 3] * c + P[s, 7] * sr + P[s, 8] * st + P[s, 9])
+        if not math.isfinite(r) or abs(r) > 1e9:  # a trial parameter set that blows up
+            r = 1e9 if r > 0.0 else -1e9
+    out_rho[n - 1] = r
+
+
+@kernel
+def free_run(P, b1, b2, u, th0, i0, out_th, out_i):
+    """Eq. (3) with w = 0 from (th0, rho = 0, i0): the paper's simulated trajectory (Fig. 2)."""
+    n = u.size
+    t = th0
+    r = 0.0
+    c = i0
+    for k in range(n):
+        out_th[k] = t
+        out_i[k] = c
+        s = 0 if t <= b1 else (1 if t <= b2 else 2)
+        sr = 1.0 if r > 0.0 else (-1.0 if r < 0.0 else 0.0)
+        st = 1.0 if t > 1.0 else (-1.0 if t < 1.0 else 0.0)
+        tn = t + P[s, 0] * r
+        rn = P[s, 1] * t + P[s, 2] * r + P[s, 3] * c + P[s, 7] * sr + P[s, 8] * st + P[s, 9]
+        c = P[s, 4] * r + P[s, 5] * c + P[s, 6] * u[k]
+        t = 0.0 if tn < 0.0 else (min(tn, 90.0))
+        r = rn
