@@ -12,7 +12,12 @@ from vecu.estimators.registry import make_throttle_estimator
 from vecu.ident.throttle import identify_throttle
 from vecu.ident.trace import ThrottleData, TraceFitError, check_fit_support
 from vecu.models.throttle import PAPER_THROTTLE
-from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig
+from vecu.plant.throttle import (
+    InputConfig,
+    InputGenerator,
+    ThrottlePlant,
+    ThrottlePlantConfig,
+)
 from vecu.rng import rng_streams
 
 N = 20_000  # 20 s at 1 kHz (the paper used 3 x 10 000 points)
