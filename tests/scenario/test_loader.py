@@ -70,3 +70,20 @@ def test_a_scenario_shorter_than_one_tick_is_refused(tmp_path):
     path.write_text("duration_s = 0.0004\n")
     with pytest.raises(ScenarioError, match=r"key 'duration_s': must be in \[0.001, 86400\] s"):
         load_scenario(path)
+
+
+@pytest.mark.parametrize(("step", "needle"), [
+    ('at_s = 0.1\nrequest = "22 F1 9G"', "key 'uds[0].request': expected hex bytes"),
+    ('at_s = 5.0\nrequest = "3E 00"', "key 'uds[0].at_s': 5 s is outside the run"),
+    ('request = "3E 00"', "key 'uds[0].at_s': required key missing"),
+    ('at_s = 0.1\nrequest = "22 F1 90 F1 8C F1 95 01"\nfunctional = true',
+     "a functional request fits one frame"),
+    ('at_s = 0.1\nrequest = "3E 00"\nexpect_nrc = 300', "key 'uds[0].expect_nrc'"),
+])
+def test_bad_uds_steps_are_one_line_naming_the_key(tmp_path, step, needle):
+    """Issue 17: [[uds]] steps in a scenario file."""
+    path = tmp_path / "bad.toml"
+    path.write_text(f"duration_s = 1.0\n[[uds]]\n{step}\n")
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(path)
+    assert needle in str(err.value) and "\n" not in str(err.value)
