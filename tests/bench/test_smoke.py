@@ -37,7 +37,8 @@ EXPECTED = {
              r"throughput, virtual bus, one process: offered \d+ frames/s",
              rf"memory: {NUM} simulated min \({NUM}x real time\): RSS \d+ kB"],
 }
-CAMPAIGN = rf"sequential {NUM} s \({NUM} s/run\), campaign {NUM} s: {NUM}x"
+CAMPAIGN = (rf"batch engine {NUM} s/run .*\n  campaign {NUM} s = {NUM} s/run: {NUM}x sequential "
+            r"`vecu eval manifold`")
 LIVE_UDP = rf"ECU in its own process \(udp_multicast, {NUM} s\): tick jitter p50 {NUM}"
 FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels")  # a few seconds each
 

@@ -57,7 +57,8 @@ class CampaignSpec:
     metrics: tuple[str, ...] = ()  # drive: summary paths (empty: the kind's defaults)
 
 
-RUN_KEYS = {"manifold": {"duration_s": float, "stride": int},
+ENGINES = ("batch", "scalar")  # manifold studies: runs of events per compiled call, or stepped
+RUN_KEYS = {"manifold": {"duration_s": float, "stride": int, "engine": str},
             "drive": {"duration_s": float, "speed": bool, "steering": bool, "manifold": bool}}
 
 
@@ -146,6 +147,8 @@ def read_campaign(path: str | Path) -> CampaignSpec:
         if want is None:
             raise _fail(path, f"run.{k}", f"unknown key for kind '{kind}' "
                                           f"(known: {', '.join(RUN_KEYS[kind])})")
+        if want is str and v not in ENGINES:
+            raise _fail(path, f"run.{k}", f"expected one of {', '.join(ENGINES)}, got {v!r}")
         if want is bool and not isinstance(v, bool):
             raise _fail(path, f"run.{k}", f"expected true or false, got {v!r}")
         if want is int and (isinstance(v, bool) or not isinstance(v, int) or v < 1):

@@ -39,20 +39,30 @@ def metric_names(spec: CampaignSpec) -> tuple[str, ...]:
     return spec.metrics or (*DRIVE_METRICS, "dtc_confirmations", "dtcs_per_hour")
 
 
-def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1) -> dict[str, Any]:
+def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
+                   engine: str = "batch") -> dict[str, Any]:
+    """One Table 3 run. engine "batch": whole runs of events per compiled call (the plant's
+    simulate_events, the filters' run_events, the open-loop observer and all predictions at
+    once); "scalar": event by event as the ECU steps (ManifoldPlant.step, filter.step(),
+    one prediction per call). Same seeds, same numbers (tests/campaign/test_batch.py)."""
     from vecu.estimators.manifold.cac_predict import (
         CacPredictionConfig,
         prediction_errors,
     )
+    from vecu.estimators.manifold.filters import make_filter
     from vecu.eval.manifold import (
         direct_ol_states,
         direct_states,
         run_filter,
+        trace_input_array,
         trace_inputs,
     )
     from vecu.plant.drive_profile import DriveProfile, us06_like
     from vecu.plant.manifold import simulate
 
+    if engine not in ("batch", "scalar"):
+        raise ValueError(f"engine must be 'batch' or 'scalar', got {engine!r}")
+    batch = engine == "batch"
     tree = tree_for(d)
     truth = tree.plant.manifold
     kf = tree.ecu.manifold.kf
@@ -60,18 +70,23 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1) -> dic
     prof = us06_like(d.sim_seed, params=truth.engine)
     k = round(duration_s / prof.dt_s) + 1
     prof = DriveProfile(prof.dt_s, prof.n_rpm[:k], prof.ta_sp[:k])
-    trace = simulate(prof, seed=d.sim_seed, params=truth.engine, config=truth)
-    inputs = trace_inputs(trace, belief)  # the ECU's nominal ambient and coolant conditions
-    states = {"direct": direct_states(trace), "direct_ol": direct_ol_states(trace, inputs, belief)}
+    trace = simulate(prof, seed=d.sim_seed, params=truth.engine, config=truth, compiled=batch)
+    # the ECU's nominal ambient and coolant conditions
+    inputs = None if batch else trace_inputs(trace, belief)
+    states = {"direct": direct_states(trace),
+              "direct_ol": direct_ol_states(trace, inputs, belief, compiled=batch)}
     out: dict[str, Any] = {"events": len(trace.t)}
     for name in ("ekf", "sdkf"):
-        xs, _, flt = run_filter(name, trace, inputs, kf)
-        states[name] = xs
+        if inputs is None:
+            flt = make_filter(name, kf)
+            states[name] = flt.run_events(trace.y, trace_input_array(trace, belief))
+        else:
+            states[name], _, flt = run_filter(name, trace, inputs, kf)
         out[f"{name}_resets"] = flt.resets
     pc = CacPredictionConfig(stride=stride)
     for m in METHODS:
         _, pred, actual = prediction_errors(states[m], trace.ta_sp, trace.n_rpm, trace.cac,
-                                            belief, pc)
+                                            belief, pc, compiled=batch)
         err = 1e6 * (pred - actual)  # mg per cylinder event
         out[f"{m}_iae"] = stride * float(np.abs(err).sum())
         out[f"{m}_ise"] = stride * float((err ** 2).sum())
@@ -125,7 +140,8 @@ def run_one(spec: CampaignSpec, run_id: int) -> dict[str, Any]:
     try:
         if spec.kind == "manifold":
             metrics = manifold_study(d, float(spec.run.get("duration_s", 80.0)),
-                                     int(spec.run.get("stride", 1)))
+                                     int(spec.run.get("stride", 1)),
+                                     str(spec.run.get("engine", "batch")))
         else:
             metrics = drive_study(spec, d)
         bad = [k for k, v in metrics.items() if isinstance(v, float) and not math.isfinite(v)]

@@ -101,22 +101,36 @@ def table3(rows: list[dict[str, str]]) -> dict[str, Any]:
 
 
 def _hist_png(spec: CampaignSpec, rows: list[dict[str, str]], names: list[str], title: str,
-              path: Path) -> None:
+              path: Path, panels: bool = False) -> None:
+    """Histograms of the named columns on shared bins: overlaid, or (panels) one panel per
+    column stacked on a shared x axis with its mean marked, as the paper's Figs. 4 and 5."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 3.6))
     data = [column(rows, n) for n in names]
     allv = np.concatenate([d for d in data if len(d)]) if any(len(d) for d in data) else np.zeros(1)
     bins = np.linspace(float(allv.min()), float(allv.max()) + 1e-12, 40)
-    for n, d in zip(names, data):
-        if len(d):
-            ax.hist(d, bins=bins, histtype="step", linewidth=1.4, label=n)
-    ax.set_title(title, fontsize=10)
-    ax.set_ylabel("runs")
-    ax.legend(fontsize=8)
+    if panels:
+        fig, axes = plt.subplots(len(names), 1, figsize=(7, 1.7 * len(names) + 0.8),
+                                 sharex=True, squeeze=False)
+        for ax, n, d in zip(axes[:, 0], names, data):
+            if len(d):
+                ax.hist(d, bins=bins, color="tab:blue", alpha=0.8)
+                ax.axvline(float(d.mean()), color="k", linewidth=1.0)
+            ax.set_ylabel("runs", fontsize=8)
+            ax.set_title(f"{n} (mean {float(d.mean()) if len(d) else math.nan:.4g})",
+                         fontsize=9, loc="left")
+        fig.suptitle(title, fontsize=10)
+    else:
+        fig, ax = plt.subplots(figsize=(7, 3.6))
+        for n, d in zip(names, data):
+            if len(d):
+                ax.hist(d, bins=bins, histtype="step", linewidth=1.4, label=n)
+        ax.set_title(title, fontsize=10)
+        ax.set_ylabel("runs")
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -140,7 +154,8 @@ def write_report(spec: CampaignSpec, rows: list[dict[str, str]], summary: dict[s
             name = f"hist_{k}.png"
             _hist_png(spec, rows, [f"{m}_{k}" for m in METHODS],
                       f"{fig} analogue: integrated {'absolute' if k == 'iae' else 'squared'} "
-                      f"6-event CAC prediction error ({len(rows)} runs)", out / name)
+                      f"6-event CAC prediction error ({len(rows)} runs)", out / name,
+                      panels=True)
             figs.append((name, fig))
     else:
         for m in metric_names(spec):

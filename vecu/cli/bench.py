@@ -40,8 +40,8 @@ SIZES: dict[str, tuple[float, float]] = {
     "manifold_fn_s": (40.0, 3.0), "bus_frames": (20_000, 5_000), "pipeline_s": (10.0, 1.0),
     "ecu_s": (10.0, 1.0), "breakdown_s": (5.0, 1.0), "kernels_s": (5.0, 1.0),
     "replay_s": (60.0, 4.0), "replay_live_s": (10.0, 1.5), "live_s": (10.0, 1.0),
-    "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0), "campaign_runs": (8, 4),
-    "campaign_s": (80.0, 2.0),
+    "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0), "campaign_runs": (60, 4),
+    "campaign_s": (80.0, 2.0), "campaign_baseline_runs": (3, 1),
 }
 
 
@@ -96,7 +96,8 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float |
     if only == "campaign":  # minutes at full size: only when asked for
         from vecu.bench.campaign import bench_campaign
         out["campaign"] = bench_campaign(runs=int(size("campaign_runs")),
-                                         duration_s=size("campaign_s"))
+                                         duration_s=size("campaign_s"),
+                                         baseline_runs=int(size("campaign_baseline_runs")))
     if only in (None, "live"):
         from vecu.bench.live import bench_live
         out["live"] = bench_live(size("live_s", live_seconds), size("memory_min", memory_minutes),

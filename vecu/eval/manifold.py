@@ -23,7 +23,7 @@ from vecu.clock import perf_s
 from vecu.estimators.manifold.cac_predict import (
     CacPredictionConfig,
     OpenLoopTemperature,
-    direct_state,
+    open_loop_temperatures,
     prediction_errors,
 )
 from vecu.estimators.manifold.filters import ManifoldFilterConfig, make_filter
@@ -88,6 +88,13 @@ class ManifoldEvalReport:
         raise KeyError(name)
 
 
+def trace_input_array(trace: ManifoldTrace, params: ManifoldParams = V8_5L7) -> np.ndarray:
+    """trace_inputs as rows (TA_SP, N, P_a, T_a, T_cool), for ManifoldKF.run_events."""
+    n = len(trace.t)
+    return np.column_stack([trace.ta_sp, trace.n_rpm, np.full(n, params.p_a_kpa),
+                            np.full(n, params.t_a_k), np.full(n, params.t_cool_k)])
+
+
 def trace_inputs(trace: ManifoldTrace, params: ManifoldParams = V8_5L7) -> list[EngineInput]:
     return [EngineInput(float(sp), float(n), params.p_a_kpa, params.t_a_k, params.t_cool_k)
             for sp, n in zip(trace.ta_sp, trace.n_rpm)]
@@ -112,22 +119,27 @@ def run_filter(name: str, trace: ManifoldTrace, inputs: list[EngineInput],
 
 
 def direct_states(trace: ManifoldTrace) -> np.ndarray:
+    """cac_predict.direct_state at every event (the readings; event 0 uses itself as n-1)."""
     y = trace.y
-    sp = trace.ta_sp
-    out = np.empty((len(y), 6))
-    for n in range(len(y)):
-        k = max(n - 1, 0)
-        out[n] = direct_state(y[n], y[k], sp[k])
-    return out
+    k = np.maximum(np.arange(len(y)) - 1, 0)
+    return np.column_stack([trace.ta_sp[k], y[:, 0], y[k, 0], y[:, 1], y[:, 2], y[:, 2]])
 
 
-def direct_ol_states(trace: ManifoldTrace, inputs: list[EngineInput],
-                     params: ManifoldParams = V8_5L7) -> np.ndarray:
+def direct_ol_states(trace: ManifoldTrace, inputs: list[EngineInput] | None,
+                     params: ManifoldParams = V8_5L7, compiled: bool = True) -> np.ndarray:
+    """direct_states with T_im from the open-loop observer driven by the measured angle (the
+    ambient and coolant conditions of `inputs`; None: the nominal ones of params, as
+    trace_inputs(trace, params) gives; compiled: one call)."""
     out = direct_states(trace)
+    nominal = inputs is None or all(
+        (u.p_a, u.t_a, u.t_cool) == (params.p_a_kpa, params.t_a_k, params.t_cool_k) for u in inputs)
+    if inputs is None or (compiled and nominal):
+        out[:, 4] = open_loop_temperatures(trace.y[:, 0], trace.n_rpm, trace.y[0, 1],
+                                           trace.y[0, 2], params)
+        return out
     ol = OpenLoopTemperature(trace.y[0, 1], trace.y[0, 2], params)
     for n in range(len(out)):
-        t = ol.step(float(trace.y[n, 0]), inputs[n])
-        out[n, 4] = t
+        out[n, 4] = ol.step(float(trace.y[n, 0]), inputs[n])
     return out
 
 

@@ -152,11 +152,17 @@ class ManifoldTrace:
 
 
 def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
-             config: ManifoldPlantConfig = ManifoldPlantConfig()) -> ManifoldTrace:
-    """Run the plant event by event over the profile, starting at rest at its first point."""
+             config: ManifoldPlantConfig = ManifoldPlantConfig(),
+             compiled: bool = True) -> ManifoldTrace:
+    """Run the plant event by event over the profile, starting at rest at its first point.
+    Under the numba backend (compiled) the whole loop is one call
+    (manifold_kernel.simulate_events, bit-identical); compiled=False steps ManifoldPlant."""
     rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
     n0, sp0 = profile.at(0.0)
     x0 = steady_state_vector(nominal_input(sp0, n0, params), params)
+    fast = _simulate_compiled(profile, params, config, rng, x0) if compiled else None
+    if fast is not None:
+        return fast
     plant = ManifoldPlant(params, config, rng, x0)
     rows: list[tuple[float, ...]] = []
     xs: list[list[float]] = []
@@ -178,4 +184,53 @@ def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
     return ManifoldTrace(
         t=a[:, 0], ts=a[:, 1], n_rpm=a[:, 2], ta_sp=a[:, 3], x=np.array(xs), y=np.array(ys),
         mdot_at=a[:, 4], mdot_ac=a[:, 5], cac=a[:, 6], substeps=a[:, 7].astype(int),
+    )
+
+
+def _simulate_compiled(profile: Profile, params: ManifoldParams, config: ManifoldPlantConfig,
+                       rng: np.random.Generator, x0: np.ndarray) -> ManifoldTrace | None:
+    """simulate's loop as one compiled call (manifold_kernel.simulate_events) under the numba
+    backend for a DriveProfile; None: run the Python loop (python backend, another profile type,
+    a parameter set the compiled integrator does not take)."""
+    from vecu.kernels import backend
+    from vecu.models import manifold_integrator as mi
+    from vecu.plant.drive_profile import DriveProfile
+    from vecu.plant.manifold_kernel import N_PLANT_CONSTS, simulate_events
+
+    if backend() != "numba" or not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
+        return None
+    tables = mi._tables(params)[2]
+    if tables is None:
+        return None
+    if not mi._numba_sig_ready:
+        mi._prepare_numba()
+    prof_n = np.ascontiguousarray(profile.n_rpm, dtype=np.float64)
+    prof_sp = np.ascontiguousarray(profile.ta_sp, dtype=np.float64)
+    n_min = float(prof_n.min())
+    if not (math.isfinite(n_min) and n_min > 0.0):
+        return None
+    cap = int(profile.duration_s / sample_time(float(prof_n.max()), params.n_cyl)) + 2
+    block = config.block
+    noise = rng.standard_normal((-(-cap // block) * block, 7))  # as ManifoldPlant._row draws
+    s = config.noise_scale
+    q, r = config.noise.q_diag(), config.noise.r_diag()
+    g = config.sensor_gains
+    pc = np.array([params.zeta, params.omega0, params.tau_temp_s, params.v_cyl_dm3,
+                   float(params.n_cyl), params.p_a_kpa, params.t_a_k, params.t_cool_k,
+                   *(s * math.sqrt(q[i]) for i in (1, 3, 4, 5)), *(s * math.sqrt(v) for v in r),
+                   g[0], g[1], g[2], P_MIN_KPA, P_MAX_KPA, T_MIN_K, T_MAX_K, profile.duration_s,
+                   profile.dt_s], dtype=np.float64)
+    assert len(pc) == N_PLANT_CONSTS
+    rows = np.empty((cap, 8))
+    xs = np.empty((cap, 6))
+    ys = np.empty((cap, 3))
+    k = simulate_events.compiled(np.asarray(x0, dtype=np.float64), prof_n, prof_sp, noise, pc,
+                                 *tables, rows, xs, ys)
+    if k < 0:
+        return None
+    a = rows[:k]
+    return ManifoldTrace(
+        t=a[:, 0].copy(), ts=a[:, 1].copy(), n_rpm=a[:, 2].copy(), ta_sp=a[:, 3].copy(),
+        x=xs[:k].copy(), y=ys[:k].copy(), mdot_at=a[:, 4].copy(), mdot_ac=a[:, 5].copy(),
+        cac=a[:, 6].copy(), substeps=a[:, 7].astype(int),
     )

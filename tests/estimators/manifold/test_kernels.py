@@ -39,11 +39,11 @@ def drive():
     return trace.y.tolist(), trace_inputs(trace)
 
 
-def _run_drive(ys, inputs):
-    """SDKF over the drive with bad data mixed in; per event (x_post, P, P_post, prediction,
+def _run_drive(ys, inputs, name="sdkf"):
+    """The filter (SDKF or EKF) over the drive with bad data mixed in; per event (x_post, P, P_post, prediction,
     CAC+6 from the filter's prediction, CAC+6 from x_post), plus the counters."""
     rng = np.random.default_rng(12)
-    flt = mf.make_filter("sdkf")
+    flt = mf.make_filter(name)
     bad_y = [None, (math.nan, 50.0, 300.0), (0.3, math.nan, math.nan), (1e9, -5.0, math.inf),
              ("x", None, 3.0), (0.3, 1e6, 300.0)]
     bad_u = [EngineInput(math.nan, 2000.0), EngineInput(0.3, 1e9), EngineInput(0.3, 2000.0, 5.0)]
@@ -59,9 +59,9 @@ def _run_drive(ys, inputs):
         if 400 <= n < 430:
             y = [y[0] if y else 0.3, 99.0, 300.0]  # a pressure step: gated, then believed
         if n == 700:
-            flt.P_post[3, 3] = math.nan  # forced divergence: the next event resets
+            flt.P_post[3, 3] = flt.P[3, 3] = math.nan  # forced divergence: the event resets
         if n == 900:
-            flt.P_post[:] = -10.0 * np.eye(6)  # S not positive definite: the jitter fallbacks
+            flt.P_post[:] = flt.P[:] = -10.0 * np.eye(6)  # S not PD: the jitter fallbacks
         x = flt.step(y, u)
         pred = flt.last_prediction
         c6 = predict_cac(pred[1], [pred[0]] * (HORIZON - 1)) if pred else math.nan
@@ -70,7 +70,7 @@ def _run_drive(ys, inputs):
     return out, {k: getattr(flt, k) for k in COUNTERS}
 
 
-def _counted_drive(drive):
+def _counted_drive(drive, name="sdkf"):
     """_run_drive plus the number of events the Python path ran (ManifoldKF._event calls)."""
     calls = {"python_event": 0}
     base = mf._ManifoldKF._event
@@ -81,7 +81,7 @@ def _counted_drive(drive):
 
     mf._ManifoldKF._event = counting
     try:
-        out = _run_drive(*drive)
+        out = _run_drive(*drive, name)
     finally:
         mf._ManifoldKF._event = base
     return out, calls["python_event"]
@@ -93,9 +93,13 @@ def _max_rel(a, b):
     return float(np.max(np.abs(a - b)[both] / np.maximum(np.abs(a[both]), 1e-300), initial=0.0))
 
 
-def test_sdkf_event_gives_the_python_reference_over_a_bad_drive(drive, backend, per_backend):
-    (py, py_cnt), py_calls = per_backend.reference("drive", lambda: _counted_drive(drive))
-    (got, got_cnt), got_calls = per_backend.get("drive", lambda: _counted_drive(drive))
+@pytest.mark.parametrize("name", ["sdkf", "ekf"])
+def test_filter_event_gives_the_python_reference_over_a_bad_drive(drive, backend, per_backend,
+                                                                  name):
+    """sdkf_event / ekf_event (numba) against the numpy path of the same filter."""
+    key = f"drive-{name}"
+    (py, py_cnt), py_calls = per_backend.reference(key, lambda: _counted_drive(drive, name))
+    (got, got_cnt), got_calls = per_backend.get(key, lambda: _counted_drive(drive, name))
     assert len(py) == len(got) > 1500
     names = ("x_post", "P", "P_post", "prediction", "CAC+6 reused", "CAC+6")
     for n, (a, b) in enumerate(zip(py, got)):
@@ -115,7 +119,7 @@ def test_sdkf_event_gives_the_python_reference_over_a_bad_drive(drive, backend, 
 
 
 def test_same_backend_twice_is_bit_identical(drive, backend, per_backend):
-    (first, first_cnt), _ = per_backend.get("drive", lambda: _counted_drive(drive))
+    (first, first_cnt), _ = per_backend.get("drive-sdkf", lambda: _counted_drive(drive))
     second, second_cnt = _run_drive(*drive)
     assert first_cnt == second_cnt
     for a, b in zip(first, second):
@@ -152,7 +156,9 @@ def test_python_backend_never_prepares_or_calls_the_kernels(monkeypatch):
     def boom(*a):
         raise AssertionError("kernel used under the python backend")
 
-    monkeypatch.setattr(mf, "prepare_kernels", boom)
+    from vecu.estimators.manifold import compiled
+
+    monkeypatch.setattr(compiled, "prepare_kernels", boom)
     monkeypatch.setattr(kernels.Kernel, "compiled", property(boom))
 
     def run():

@@ -30,6 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.estimators.manifold.block_kernels import (
+    open_loop_temperatures as open_loop_temperatures_kernel,
+)
+from vecu.estimators.manifold.block_kernels import predict_at_events
 from vecu.estimators.manifold.kernels import (
     model_constants,
     numba_tables,
@@ -164,15 +168,60 @@ class OpenLoopTemperature:
 
 def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       cac_actual: np.ndarray, params: ManifoldParams = V8_5L7,
-                      config: CacPredictionConfig = CacPredictionConfig()
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      config: CacPredictionConfig = CacPredictionConfig(),
+                      compiled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For events n = 0, stride, 2 stride, ... with n + horizon in range:
-    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg."""
+    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg. Under the numba backend (compiled)
+    all predictions in one call (block_kernels.predict_at_events: the same numbers)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
     pred = np.empty(len(idx))
+    if compiled and _predict_block(states, idx, ta_sp, n_rpm, params, config, pred):
+        return idx, pred, cac_actual[idx + hz]
     sp = ta_sp.tolist()
     for j, n in enumerate(idx):
         inputs = horizon_inputs(sp, int(n), float(n_rpm[n]), params, config)
         pred[j] = predict_cac(states[n], inputs, params)
     return idx, pred, cac_actual[idx + hz]
+
+
+def _predict_block(states: np.ndarray, idx: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
+                   params: ManifoldParams, config: CacPredictionConfig, pred: np.ndarray) -> bool:
+    """prediction_errors' predictions into pred by one compiled call; False: not available."""
+    if predict_events.impl() is _PREDICT_EVENTS_PY or config.horizon < 1 or not len(idx):
+        return False
+    tables = numba_tables(params)
+    if tables is None:
+        return False
+    prepare_kernels()
+    u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
+    predict_at_events.compiled(np.ascontiguousarray(states, dtype=np.float64), idx,
+                               np.ascontiguousarray(ta_sp, dtype=np.float64),
+                               np.ascontiguousarray(n_rpm, dtype=np.float64), config.horizon,
+                               config.known_setpoint, u_amb, pred, model_constants(params),
+                               *tables)
+    return True
+
+
+def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0: float,
+                           params: ManifoldParams = V8_5L7) -> np.ndarray:
+    """T_im,n of OpenLoopTemperature(p0, t0) stepped with (TA_n, nominal input at N_n) over the
+    events; under the numba backend one compiled call (block_kernels.open_loop_temperatures)."""
+    from vecu.models import manifold_integrator as mi
+
+    n_ev = len(ta_meas)
+    out = np.empty(n_ev)
+    tables = mi._tables(params)[2]
+    if predict_events.impl() is not _PREDICT_EVENTS_PY and tables is not None:
+        prepare_kernels()
+        u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
+        open_loop_temperatures_kernel.compiled(
+            np.ascontiguousarray(ta_meas, dtype=np.float64),
+            np.ascontiguousarray(n_rpm, dtype=np.float64), float(p0), float(t0), u_amb,
+            float(params.n_cyl), *tables, out)
+        return out
+    ol = OpenLoopTemperature(p0, t0, params)
+    for n in range(n_ev):
+        out[n] = ol.step(float(ta_meas[n]), EngineInput(0.0, float(n_rpm[n]), params.p_a_kpa,
+                                                         params.t_a_k, params.t_cool_k))
+    return out

@@ -51,16 +51,9 @@ from vecu.estimators.common.covariance import (
     symmetrise,
 )
 from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
-from vecu.estimators.manifold.kernels import (
-    DIVERGED,
-    FALLBACK,
-    filter_constants,
-    numba_tables,
-    sdkf_event,
-)
-from vecu.estimators.manifold.kernels import prepare as prepare_kernels
+from vecu.estimators.manifold.compiled import CompiledEvents
+from vecu.estimators.manifold.kernels import ekf_event, sdkf_event
 from vecu.estimators.manifold.model import (
-    ALPHA_SDC_MIN,
     N_X,
     Y_INDEX,
     event_dt,
@@ -80,7 +73,6 @@ from vecu.models.manifold_params import (
 )
 
 RICCATI_MODES = ("iterate", "doubling", "scipy")
-_SDKF_EVENT_PY = sdkf_event.py
 MANIFOLD_BOUNDS = DivergenceBounds(max_trace=1e5, max_abs_state=1e4)
 
 
@@ -147,7 +139,7 @@ def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
     return symmetrise(hh), max_iter
 
 
-class _ManifoldKF:
+class _ManifoldKF(CompiledEvents):
     """Shared measurement update, guards and counters (subclasses: prior covariance, predict);
     a manifold.base.ManifoldEstimator."""
 
@@ -370,6 +362,19 @@ class ManifoldEKF(_ManifoldKF):
 
     name = "ekf"
 
+    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
+        """Under the numba backend one compiled call (kernels.ekf_event), see _compiled_event."""
+        if not self._compiled_event(u, ts, chans):
+            super()._event(y, u, ts, chans)
+
+    def _call_kernel(self, args: tuple, xo: np.ndarray, Po: np.ndarray, u: EngineInput,
+                     ts: float, mask: int) -> int:
+        ly = self._last_y
+        gr = self._gated_run
+        return ekf_event.compiled(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a,
+                                  u.t_cool, ts, ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2],
+                                  args[0], args[1], args[2], *args[3:])
+
     def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
         x_n, F = f_and_jacobian(x_post, u, self.params, ts)
         self.last_prediction = (u, x_n.copy())
@@ -389,8 +394,6 @@ class ManifoldSDKF(_ManifoldKF):
             raise ValueError(f"riccati must be one of {RICCATI_MODES}, got {config.riccati!r}")
         self.dare_failures = 0
         self.doublings = 0
-        self._kernel_args: tuple | None = None  # numba constants and tables, on first use
-        self._kernel_args_ready = False
         super().__init__(config, x0)
         self._C = np.zeros((3, N_X))
         for i, j in enumerate(Y_INDEX):
@@ -420,56 +423,18 @@ class ManifoldSDKF(_ManifoldKF):
 
     def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
         """Under the numba backend ("iterate" only) the whole event is one compiled call
-        (vecu.estimators.manifold.kernels.sdkf_event); the Python path otherwise, and for the
-        rare events the kernel hands back (S not positive definite or not finite)."""
-        run = sdkf_event.impl()
-        if run is _SDKF_EVENT_PY or self.config.riccati != "iterate":
-            return super()._event(y, u, ts, chans)
-        args = self._kernel_args
-        if args is None:
-            if self._kernel_args_ready:
-                return super()._event(y, u, ts, chans)
-            args = self._prepare_kernel()
-            if args is None:
-                return super()._event(y, u, ts, chans)
-        mask = 0
-        for i in chans:
-            mask |= 1 << i
-        ly = self._last_y  # the valid channels' readings (_valid_channels)
-        gr = self._gated_run
-        xo = np.empty((3, N_X))
-        Po = np.empty((2, N_X, N_X))
-        try:
-            code = run(self.x, self.P, self.P_post, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a,
-                       u.t_cool, ts, ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2],
-                       self.events > 1, *args)
-        except (FloatingPointError, ValueError, np.linalg.LinAlgError):
-            self._reset_in_step()
-            return None
-        if code & FALLBACK:
-            return super()._event(y, u, ts, chans)
-        for i in chans:
-            if code >> i & 1:
-                self.gated[i] += 1
-                gr[i] += 1
-            else:
-                gr[i] = 0
-        if code & DIVERGED:
-            self._reset_in_step()
-            return None
-        self.x, self.x_post = xo[0], xo[1]
-        self.P, self.P_post = Po[0], Po[1]
-        self.last_prediction = (u, xo[2])
-        return None
+        (vecu.estimators.manifold.kernels.sdkf_event), see _ManifoldKF._compiled_event."""
+        if self.config.riccati != "iterate" or not self._compiled_event(u, ts, chans):
+            super()._event(y, u, ts, chans)
 
-    def _prepare_kernel(self) -> tuple | None:
-        self._kernel_args_ready = True
-        tables = numba_tables(self.params)
-        if tables is None:
-            return None
-        prepare_kernels()
-        self._kernel_args = (filter_constants(self.config, ALPHA_SDC_MIN), self.Q, *tables)
-        return self._kernel_args
+    def _call_kernel(self, args: tuple, xo: np.ndarray, Po: np.ndarray, u: EngineInput,
+                     ts: float, mask: int) -> int:
+        ly = self._last_y
+        gr = self._gated_run
+        return sdkf_event.compiled(
+            self.x, self.P, self.P_post, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts,
+            ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2], self.events > 1, args[0], args[1],
+            *args[3:])
 
     def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
         x_n = f(x_post, u, self.params, ts)

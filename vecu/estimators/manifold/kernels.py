@@ -27,7 +27,6 @@ both kernels from source when they differ.
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from typing import Any
 
 import numpy as np
@@ -35,6 +34,7 @@ import numpy as np
 from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
 from vecu.kernels import kernel
 from vecu.models import manifold_integrator as mi
+from vecu.models.manifold_kernels import eta_value, interp_value, throttle_flow_value
 
 # status word of sdkf_event: bits 0-2 channel i gated
 DIVERGED = 8
@@ -52,53 +52,9 @@ _ready = False
 # Plain functions; prepare() rebinds these names to numba-compiled versions before the kernels
 # compile, so numba inlines them (globals are resolved at compile time).
 
-def _interp_py(x, xs, ys):
-    """vecu.models.manifold._interp's value (same operations; xs, ys 1-d)."""
-    last = len(xs) - 1
-    if x <= xs[0]:
-        return ys[0]
-    if x >= xs[last]:
-        return ys[len(ys) - 1]
-    i = bisect_right(xs, x) - 1
-    s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])
-    return ys[i] + s * (x - xs[i])
-
-
-def _eta_py(n_rpm, p_im, c, eta_rpm, eta_val):
-    """volumetric_efficiency(n_rpm, p_im)[0], c the integrator's constants."""
-    eta_n = _interp(n_rpm, eta_rpm, eta_val)
-    floor = P_FLOOR_KPA
-    p = floor if floor > p_im else p_im
-    resid = (c[20] / p) ** c[21]
-    scale = eta_n / (c[19] - 1.0)
-    return scale * (c[19] - resid)
-
-
-def _mdot_py(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs):
-    """throttle_flow(alpha, p_im, p_a, t_a)[0] (flow_function, discharge_coefficient,
-    throttle_area as written in vecu.models.manifold)."""
-    pr = p_im / p_a
-    if pr <= c[4]:
-        psi = c[5]
-    elif pr < c[11]:
-        psi = pr ** c[7] * math.sqrt(c[6] * (1.0 - pr ** c[8]))
-    else:
-        s = 1.0 - pr
-        psi = c[13] if s < c[12] else c[14] * s + c[15] * s * abs(s)
-    a = 0.0 if 0.0 > alpha else alpha
-    a = c[26] if c[26] < a else a
-    a_deg = math.degrees(a)
-    n = len(prs)
-    pc = prs[0] if prs[0] > pr else pr
-    pc = prs[n - 1] if prs[n - 1] < pc else pc
-    j = bisect_right(prs, pc) - 1
-    j = n - 2 if n - 2 < j else j
-    lo = _interp(a_deg, cd_alpha, cd_table[j])
-    hi = _interp(a_deg, cd_alpha, cd_table[j + 1])
-    cd = lo + (hi - lo) / (prs[j + 1] - prs[j]) * (pc - prs[j])
-    area = math.pi * c[27] * c[27] * (1.0 - math.cos(a))
-    xi0 = area * (1000.0 * p_a) / math.sqrt(c[1] * t_a)
-    return xi0 * cd * psi
+_interp_py = interp_value.py
+_eta_py = eta_value.py
+_mdot_py = throttle_flow_value.py
 
 
 def _in_bounds_py(x, P, max_trace, max_abs):
@@ -106,13 +62,14 @@ def _in_bounds_py(x, P, max_trace, max_abs):
     |x_i| <= max_abs."""
     tr = 0.0
     tot = 0.0
-    for i in range(6):
+    nx = x.shape[0]
+    for i in range(nx):
         tr += P[i, i]
-        for j in range(6):
+        for j in range(nx):
             tot += P[i, j]
     if not 0.0 <= tr <= max_trace:
         return False
-    for i in range(6):
+    for i in range(nx):
         if not -max_abs <= x[i] <= max_abs:
             return False
     return tot - tot == 0.0
@@ -126,6 +83,73 @@ def _clamp_py(x, fc):
         v = x[i]
         v = lo if lo > v else v
         x[i] = hi if hi < v else v
+
+
+def _update_py(x, Pn, xp, Pp, yv, runs, chans, fc):
+    """_ManifoldKF._update on the prior (x, Pn) into (xp, Pp): per-channel gating, then the
+    update of the channels used (_gain_all for three, the general path otherwise). Returns the
+    channels gated (bits 0-2), or FALLBACK (S not finite or not positive definite)."""
+    rd = (fc[F_R0], fc[F_R1], fc[F_R2])
+    gated = 0
+    nc = 0
+    ch = np.zeros(3, dtype=np.int64)
+    for i in range(3):
+        if chans >> i & 1:
+            j = 2 * i + 1  # Y_INDEX
+            e = yv[i] - x[j]
+            s = Pn[j, j] + rd[i]
+            if e * e > fc[F_GATE2] * s and runs[i] < fc[F_MAX_GATED]:
+                gated |= 1 << i
+            else:
+                ch[nc] = i
+                nc += 1
+    if nc == 0:
+        xp[:] = x
+        Pp[:, :] = Pn
+    else:
+        nx = x.shape[0]
+        PCt = np.empty((nx, nc))  # P C^T over the channels used
+        for i in range(nx):
+            for m in range(nc):
+                PCt[i, m] = Pn[i, 2 * ch[m] + 1]
+        e = np.empty(nc)
+        for m in range(nc):
+            e[m] = yv[ch[m]] - x[2 * ch[m] + 1]
+        if nc == 3:  # _gain_all: unrolled 3x3 Cholesky, S^-1 = M^T M (common.small_linalg)
+            s00 = Pn[1, 1] + rd[0]
+            s10 = Pn[3, 1] + 0.0
+            s11 = Pn[3, 3] + rd[1]
+            s20 = Pn[5, 1] + 0.0
+            s21 = Pn[5, 3] + 0.0
+            s22 = Pn[5, 5] + rd[2]
+            if not math.isfinite(s00 + s10 + s11 + s20 + s21 + s22):
+                return FALLBACK
+            ok, low = chol3((s00, s10, s20, s11, s21, s22))
+            if not ok:
+                return FALLBACK
+            i00, i01, i02, i11, i12, i22 = inverse_from_chol3(low)
+            Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
+            K = PCt @ Si
+            xp[:] = x + K @ e
+            X = Pn - K @ PCt.T
+            Pp[:, :] = 0.5 * (X + X.T)
+        else:  # the general path: cholesky_lower's first try, inv, S^-1 = L^-T L^-1
+            S = np.empty((nc, nc))
+            for a_ in range(nc):
+                for b_ in range(nc):
+                    S[a_, b_] = PCt[2 * ch[a_] + 1, b_] + (rd[ch[a_]] if a_ == b_ else 0.0)
+                    if not math.isfinite(S[a_, b_]):
+                        return FALLBACK
+            try:
+                L = np.linalg.cholesky(S)
+            except Exception:  # noqa: BLE001 (numba: LinAlgError; the jitter fallbacks in Python)
+                return FALLBACK
+            Li = np.linalg.solve(L, np.eye(nc))  # as numpy's inv: gesv with the identity
+            K = PCt @ (Li.T @ Li)
+            xp[:] = x + K @ e
+            X = Pn - K @ PCt.T
+            Pp[:, :] = 0.5 * (X + X.T)
+    return gated
 
 
 def _event_coeffs_py(ts, fc):
@@ -155,21 +179,24 @@ _eta = _eta_py
 _mdot = _mdot_py
 _in_bounds = _in_bounds_py
 _clamp = _clamp_py
+_update = _update_py
 _integrate = mi._integrate_event.py
 P_FLOOR_KPA = mi.P_FLOOR_KPA
 
 
 def _jit_helpers() -> None:
     global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate, _event_coeffs, _const_tuple
+    global _update
     import numba
 
     _event_coeffs = numba.njit(_event_coeffs_py)
     _const_tuple = numba.njit(_const_tuple_py)
-    _interp = numba.njit(_interp_py)
-    _eta = numba.njit(_eta_py)
-    _mdot = numba.njit(_mdot_py)
+    _interp = interp_value.compiled
+    _eta = eta_value.compiled
+    _mdot = throttle_flow_value.compiled
     _in_bounds = numba.njit(_in_bounds_py)
     _clamp = numba.njit(_clamp_py)
+    _update = numba.njit(_update_py)
     _integrate = mi._integrate_event.compiled
 
 
@@ -206,7 +233,7 @@ def prepare() -> None:
     _jit_helpers()
     _compile_signatures()
     if not _linked_integrator_is_current():
-        for k in (sdkf_event, predict_events):
+        for k in (sdkf_event, predict_events, ekf_event):
             k.discard_compiled()  # a fresh dispatcher compiles from the current sources
         _compile_signatures()
         if not _linked_integrator_is_current():
@@ -224,6 +251,7 @@ def _compile_signatures() -> None:
         (sdkf_event, (v, m, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
          + (types.boolean, v, m) + tables),
         (predict_events, (v, m, i8, v, v) + tables),
+        (ekf_event, (v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v) + tables),
     ):
         disp = k.compiled
         disp.compile(sig)
@@ -322,69 +350,11 @@ def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2
     else:
         Pn[:, :] = P
     # --- gating (per channel) and the measurement update of the channels used
-    yv = (y0, y1, y2)
-    runs = (run0, run1, run2)
-    rd = (fc[F_R0], fc[F_R1], fc[F_R2])
-    gated = 0
-    nc = 0
-    ch = np.zeros(3, dtype=np.int64)
-    for i in range(3):
-        if chans >> i & 1:
-            j = 2 * i + 1  # Y_INDEX
-            e = yv[i] - x[j]
-            s = Pn[j, j] + rd[i]
-            if e * e > fc[F_GATE2] * s and runs[i] < fc[F_MAX_GATED]:
-                gated |= 1 << i
-            else:
-                ch[nc] = i
-                nc += 1
     xp = xo[1]
     Pp = Po[1]
-    if nc == 0:
-        xp[:] = x
-        Pp[:, :] = Pn
-    else:
-        PCt = np.empty((6, nc))  # P C^T over the channels used
-        for i in range(6):
-            for m in range(nc):
-                PCt[i, m] = Pn[i, 2 * ch[m] + 1]
-        e = np.empty(nc)
-        for m in range(nc):
-            e[m] = yv[ch[m]] - x[2 * ch[m] + 1]
-        if nc == 3:  # _gain_all: unrolled 3x3 Cholesky, S^-1 = M^T M (common.small_linalg)
-            s00 = Pn[1, 1] + rd[0]
-            s10 = Pn[3, 1] + 0.0
-            s11 = Pn[3, 3] + rd[1]
-            s20 = Pn[5, 1] + 0.0
-            s21 = Pn[5, 3] + 0.0
-            s22 = Pn[5, 5] + rd[2]
-            if not math.isfinite(s00 + s10 + s11 + s20 + s21 + s22):
-                return FALLBACK
-            ok, low = chol3((s00, s10, s20, s11, s21, s22))
-            if not ok:
-                return FALLBACK
-            i00, i01, i02, i11, i12, i22 = inverse_from_chol3(low)
-            Si = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
-            K = PCt @ Si
-            xp[:] = x + K @ e
-            X = Pn - K @ PCt.T
-            Pp[:, :] = 0.5 * (X + X.T)
-        else:  # the general path: cholesky_lower's first try, inv, S^-1 = L^-T L^-1
-            S = np.empty((nc, nc))
-            for a_ in range(nc):
-                for b_ in range(nc):
-                    S[a_, b_] = PCt[2 * ch[a_] + 1, b_] + (rd[ch[a_]] if a_ == b_ else 0.0)
-                    if not math.isfinite(S[a_, b_]):
-                        return FALLBACK
-            try:
-                L = np.linalg.cholesky(S)
-            except Exception:  # noqa: BLE001 (numba: LinAlgError; the jitter fallbacks in Python)
-                return FALLBACK
-            Li = np.linalg.solve(L, np.eye(nc))  # as numpy's inv: gesv with the identity
-            K = PCt @ (Li.T @ Li)
-            xp[:] = x + K @ e
-            X = Pn - K @ PCt.T
-            Pp[:, :] = 0.5 * (X + X.T)
+    gated = _update(x, Pn, xp, Pp, (y0, y1, y2), (run0, run1, run2), chans, fc)
+    if gated & FALLBACK:
+        return FALLBACK
     _clamp(xp, fc)
     if not _in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
@@ -399,6 +369,66 @@ def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2
     for i in range(6):
         xn[i] = xf[i]
     _clamp(xn, fc)
+    if not _in_bounds(xn, Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+        return gated | DIVERGED
+    return gated
+
+
+@kernel
+def ekf_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans, run0, run1,
+              run2, fc, Q, fd, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
+    """One ManifoldEKF event from the prior (x, P) with the checked input and the valid
+    channels (as sdkf_event): the update (_update), clamping and the divergence check, then
+    manifold_model.f_and_jacobian at x_n|n (analytic actuator/IAT rows, one-sided differences
+    of the event integrator with steps fd = (FD_ALPHA, FD_REL), flipped when the sub-step count
+    would change) and P = sym(F P F^T + Q). Writes xo, Po as sdkf_event (Po[0] the new prior
+    P_n+1|n); returns the gated channels | DIVERGED | FALLBACK."""
+    cst = _const_tuple(c)
+    xp = xo[1]
+    Pp = Po[1]
+    gated = _update(x, P, xp, Pp, (y0, y1, y2), (run0, run1, run2), chans, fc)
+    if gated & FALLBACK:
+        return FALLBACK
+    _clamp(xp, fc)
+    if not _in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+        return gated | DIVERGED
+    a1, a2, b1, b2, a_t, b_t = _event_coeffs(ts, fc)
+    u_prev, alpha, alpha_prev, p, t, tm = xp[0], xp[1], xp[2], xp[3], xp[4], xp[5]
+    p_n, t_n, m = _integrate(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha, cd_table,
+                             prs, eta_rpm, eta_val)
+    F = np.zeros((6, 6))
+    F[1, 0], F[1, 1], F[1, 2] = b2, a1, a2
+    F[2, 1] = 1.0
+    F[5, 4], F[5, 5] = b_t, a_t
+    base = (alpha, p, t)
+    steps = (fd[0], fd[1] * (abs(p) if abs(p) > 1.0 else 1.0),
+             fd[1] * (abs(t) if abs(t) > 1.0 else 1.0))
+    for j in range(3):
+        col = 1 if j == 0 else j + 2
+        d = steps[j]
+        sign = 1.0
+        pp = tt = 0.0
+        for s in range(2):
+            sign = 1.0 if s == 0 else -1.0
+            a_ = base[0] + sign * d if j == 0 else base[0]
+            p_ = base[1] + sign * d if j == 1 else base[1]
+            t_ = base[2] + sign * d if j == 2 else base[2]
+            pp, tt, mm = _integrate(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+                                    cd_table, prs, eta_rpm, eta_val)
+            if mm == m:
+                break
+        F[3, col] = (pp - p_n) / (sign * d)
+        F[4, col] = (tt - t_n) / (sign * d)
+    xf = xo[2]
+    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
+    xf[3], xf[4], xf[5] = p_n, t_n, a_t * tm + b_t * t
+    xn = xo[0]
+    for i in range(6):
+        xn[i] = xf[i]
+    _clamp(xn, fc)
+    X = F @ Pp @ F.T + Q
+    Pn = Po[0]
+    Pn[:, :] = 0.5 * (X + X.T)
     if not _in_bounds(xn, Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
     return gated

@@ -1,0 +1,161 @@
+"""The manifold filters' compiled events (numba backend): one event per kernel call
+(kernels.sdkf_event / ekf_event, bit-identical to the numpy path) and runs of events per call
+(block_kernels.filter_events). A mixin of filters._ManifoldKF; the python backend never uses it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from vecu.estimators.manifold.block_kernels import filter_events
+from vecu.estimators.manifold.kernels import (
+    DIVERGED,
+    FALLBACK,
+    filter_constants,
+    numba_tables,
+    sdkf_event,
+)
+from vecu.estimators.manifold.kernels import prepare as prepare_kernels
+from vecu.estimators.manifold.model import ALPHA_SDC_MIN, FD_ALPHA, FD_REL, N_X
+from vecu.models.manifold_params import EngineInput
+
+_SDKF_EVENT_PY = sdkf_event.py
+
+
+class CompiledEvents:
+    """Needs the filter's state (x, P, P_post, x_post, _last_y, _last_u, _gated_run, gated,
+    events, config, params, Q) and its step() / _reset_in_step()."""
+
+    x: np.ndarray
+    P: np.ndarray
+    P_post: np.ndarray
+    x_post: np.ndarray
+    Q: np.ndarray
+    config: Any
+    params: Any
+    events: int
+    gated: list[int]
+    _gated_run: list[int]
+    _last_y: list[float]
+    _last_u: EngineInput | None
+    last_prediction: tuple[EngineInput, np.ndarray] | None
+    _initialised: bool
+    name: str
+
+    _kernel_args: tuple | None = None  # filter constants, Q, FD steps and tables, on first use
+    _kernel_args_ready = False
+
+    def _call_kernel(self, args: tuple, xo: np.ndarray, Po: np.ndarray, u: EngineInput,
+                     ts: float, mask: int) -> int:
+        """The subclass's compiled event (kernels.sdkf_event / ekf_event); its status word."""
+        raise NotImplementedError
+
+    def _compiled_event(self, u: EngineInput, ts: float, chans: list[int]) -> bool:
+        """The event after the input checks as one compiled call under the numba backend
+        (bit-identical to the Python path). False: run the Python path instead (python backend,
+        a parameter set the kernels do not take, or the rare event the kernel hands back: S not
+        positive definite or not finite, where the Python path decides as it always did)."""
+        if sdkf_event.impl() is _SDKF_EVENT_PY:
+            return False
+        args = self._kernel_args
+        if args is None:
+            if self._kernel_args_ready:
+                return False
+            args = self._prepare_kernel()
+            if args is None:
+                return False
+        mask = 0
+        for i in chans:
+            mask |= 1 << i
+        xo = np.empty((3, N_X))
+        Po = np.empty((2, N_X, N_X))
+        try:
+            code = self._call_kernel(args, xo, Po, u, ts, mask)
+        except (FloatingPointError, ValueError, np.linalg.LinAlgError):
+            self._reset_in_step()
+            return True
+        if code & FALLBACK:
+            return False
+        gr = self._gated_run
+        for i in chans:
+            if code >> i & 1:
+                self.gated[i] += 1
+                gr[i] += 1
+            else:
+                gr[i] = 0
+        if code & DIVERGED:
+            self._reset_in_step()
+            return True
+        self.x, self.x_post = xo[0], xo[1]
+        self.P, self.P_post = Po[0], Po[1]
+        self.last_prediction = (u, xo[2])
+        return True
+
+    def _prepare_kernel(self) -> tuple | None:
+        self._kernel_args_ready = True
+        tables = numba_tables(self.params)
+        if tables is None:
+            return None
+        prepare_kernels()
+        fd = np.array([FD_ALPHA, FD_REL])
+        self._kernel_args = (filter_constants(self.config, ALPHA_SDC_MIN), self.Q, fd, *tables)
+        return self._kernel_args
+
+    def _block_ready(self) -> bool:
+        """Whole runs of events may go through block_kernels.filter_events."""
+        if getattr(self.config, "riccati", "iterate") != "iterate" or not self._initialised:
+            return False
+        if sdkf_event.impl() is _SDKF_EVENT_PY:
+            return False
+        if self._kernel_args is not None:
+            return True
+        return not self._kernel_args_ready and self._prepare_kernel() is not None
+
+    def run_events(self, ys: np.ndarray, us: np.ndarray) -> np.ndarray:
+        """step(ys[n], EngineInput(*us[n])) for every event n; the posteriors (events x 6).
+        ys: (events, 3) readings, us: (events, 5) inputs (TA_SP, N, P_a, T_a, T_cool). Under the
+        numba backend runs of events go through one compiled call each (the same kernels, so
+        the same numbers and counters as stepping); the events the kernels hand back (bad
+        inputs, rejected readings, fallbacks, divergence) go through step()."""
+        ys = np.ascontiguousarray(ys, dtype=np.float64)
+        us = np.ascontiguousarray(us, dtype=np.float64)
+        n_ev = len(ys)
+        xs = np.empty((n_ev, N_X))
+        n = 0
+        while n < n_ev:
+            if self._block_ready():
+                n = self._run_block(ys, us, n, xs)
+                if n >= n_ev:
+                    break
+            xs[n] = self.step(ys[n].tolist(), EngineInput(*us[n].tolist()))
+            n += 1
+        return xs
+
+    def _run_block(self, ys: np.ndarray, us: np.ndarray, start: int, xs: np.ndarray) -> int:
+        args = self._kernel_args
+        assert args is not None
+        c = self.config
+        lim = np.array([c.n_range[0], c.n_range[1], *c.y_ranges[0], *c.y_ranges[1],
+                        *c.y_ranges[2]], dtype=np.float64)
+        x, P, P_post = self.x.copy(), self.P.copy(), self.P_post.copy()
+        gr = np.array(self._gated_run, dtype=np.int64)
+        gated = np.zeros(3, dtype=np.int64)
+        last_pred = np.empty(N_X)
+        stop = filter_events.compiled(self.name == "ekf", x, P, P_post, ys, us, start,
+                                      self.events, gr, gated, xs, last_pred, lim, args[0],
+                                      args[1], args[2], *args[3:])
+        if stop == start:
+            return start
+        self.events += stop - start
+        self.x, self.P, self.P_post = x, P, P_post
+        self.x_post = xs[stop - 1].copy()
+        self._gated_run = [int(v) for v in gr]
+        for i in range(3):
+            self.gated[i] += int(gated[i])
+        self._last_y = ys[stop - 1].tolist()
+        u = EngineInput(*us[stop - 1].tolist())
+        self._last_u = u
+        self.last_prediction = (u, last_pred)
+        return stop

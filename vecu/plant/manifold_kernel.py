@@ -1,0 +1,95 @@
+"""The manifold plant's whole simulation over a drive profile as one compiled kernel.
+
+`simulate_events` is vecu.plant.manifold.simulate's event loop (profile lookup, the measurement
+with the paper's R and the sensor gains, the truth's throttle flow, port flow and air charge,
+ManifoldPlant.step: eq. 1, the event integrator of eq. 5-6, eq. 9, Section IV's Q, the physical
+clamps) in the same floating-point operations and order, over noise rows drawn beforehand from
+the same stream (Generator.standard_normal fills rows in order, so drawing them at once or in
+blocks gives the same numbers). Under the numba backend `simulate` runs it (bit-identical to the
+Python loop: tests/plant/test_manifold.py); the Python backend never does.
+"""
+
+# ruff: noqa: FURB136 (x if c else y mirrors Python's min()/max(), NaN included)
+from __future__ import annotations
+
+import math
+
+from vecu.kernels import kernel
+from vecu.models.manifold_integrator import _integrate_event
+from vecu.models.manifold_kernels import (
+    air_charge_value,
+    port_flow_value,
+    throttle_flow_value,
+)
+
+# plant constants vector (simulate_events' pc)
+(C_ZETA, C_OMEGA0, C_TAU, C_VCYL, C_NCYL, C_PA, C_TA, C_TCOOL, C_SQ0, C_SQ1, C_SQ2, C_SQ3,
+ C_SR0, C_SR1, C_SR2, C_G0, C_G1, C_G2, C_PMIN, C_PMAX, C_TMIN, C_TMAX, C_DURATION,
+ C_DT) = range(24)
+N_PLANT_CONSTS = 24
+
+
+@kernel
+def simulate_events(x0, prof_n, prof_sp, noise, pc, cst, cd_alpha, cd_table, prs, eta_rpm,
+                    eta_val, rows, xs, ys):
+    """Events of the drive into rows (t, ts, N, TA_SP, mdot_at, mdot_ac, CAC, sub-steps), xs
+    (state before the step) and ys (measurement); returns the number of events, or -1 when the
+    output arrays (or noise rows) are too short."""
+    zw = pc[C_ZETA] * pc[C_OMEGA0]
+    w_et = pc[C_OMEGA0] * math.sqrt(1.0 - pc[C_ZETA] * pc[C_ZETA])
+    ncyl = pc[C_NCYL]
+    p_a, t_a, t_cool = pc[C_PA], pc[C_TA], pc[C_TCOOL]
+    dt_p = pc[C_DT]
+    last = len(prof_n) - 1
+    u_prev, alpha, alpha_prev, p, t, tm = x0[0], x0[1], x0[2], x0[3], x0[4], x0[5]
+    time = 0.0
+    k = 0
+    cap = min(len(xs), len(noise))
+    while time < pc[C_DURATION]:
+        if k >= cap:
+            return -1
+        # DriveProfile.at(time)
+        fx = time / dt_p
+        fx = 0.0 if 0.0 > fx else fx
+        fx = float(last) if float(last) < fx else fx
+        i = int(fx)
+        i = last - 1 if last - 1 < i else i
+        frac = fx - i
+        n = prof_n[i] + frac * (prof_n[i + 1] - prof_n[i])
+        sp = prof_sp[i if frac < 1.0 else i + 1]
+        ts = 120.0 / (ncyl * n)
+        w = noise[k]
+        xs[k, 0], xs[k, 1], xs[k, 2], xs[k, 3], xs[k, 4], xs[k, 5] = (
+            u_prev, alpha, alpha_prev, p, t, tm)
+        ys[k, 0] = (alpha + pc[C_SR0] * w[4]) * pc[C_G0]
+        ys[k, 1] = (p + pc[C_SR1] * w[5]) * pc[C_G1]
+        ys[k, 2] = (tm + pc[C_SR2] * w[6]) * pc[C_G2]
+        mdot_at = throttle_flow_value(alpha, p, p_a, t_a, cst, cd_alpha, cd_table, prs)
+        mdot_ac = port_flow_value(n, p, t, cst, eta_rpm, eta_val)
+        cac = air_charge_value(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
+        # ManifoldPlant.step (actuator_coeffs, integrate_manifold, iat_coeffs)
+        a = math.exp(-zw * ts)
+        b = math.cos(w_et * ts)
+        g = math.sin(w_et * ts)
+        a1, a2 = 2.0 * a * b, -a * a
+        b1, b2 = 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
+        p_n, t_n, m = _integrate_event(p, t, alpha, p_a, t_a, t_cool, n, ts, cst, cd_alpha,
+                                       cd_table, prs, eta_rpm, eta_val)
+        a_t = math.exp(-ts / pc[C_TAU])
+        b_t = 1.0 - a_t
+        new_alpha = a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev + pc[C_SQ0] * w[0]
+        v = p_n + pc[C_SQ1] * w[1]
+        v = pc[C_PMIN] if pc[C_PMIN] > v else v
+        new_p = pc[C_PMAX] if pc[C_PMAX] < v else v
+        v = t_n + pc[C_SQ2] * w[2]
+        v = pc[C_TMIN] if pc[C_TMIN] > v else v
+        new_t = pc[C_TMAX] if pc[C_TMAX] < v else v
+        v = a_t * tm + b_t * t + pc[C_SQ3] * w[3]
+        v = pc[C_TMIN] if pc[C_TMIN] > v else v
+        new_tm = pc[C_TMAX] if pc[C_TMAX] < v else v
+        u_prev, alpha, alpha_prev, p, t, tm = sp, new_alpha, alpha, new_p, new_t, new_tm
+        rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3] = time, ts, n, sp
+        rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7] = mdot_at, mdot_ac, cac, float(m)
+        time += ts
+        k += 1
+    return k
