@@ -231,3 +231,32 @@ def test_a_run_shorter_than_one_tick_is_refused(duration_s):
 
     with pytest.raises(ConfigError, match="shorter than one 1 ms tick"):
         RunConfig(duration_s=duration_s, kill_tps_at_s=None).validate()
+
+
+FIRST_RUN = """
+import json
+from vecu.runner import RunConfig, run
+first = run(RunConfig(duration_s=0.05, kill_tps_at_s=None)).summary
+second = run(RunConfig(duration_s=0.05, kill_tps_at_s=None)).summary
+print(json.dumps([first["kernel_load_s"], first["wall_time_s"], second["kernel_load_s"]]))
+"""
+
+
+def test_the_first_numba_run_of_a_process_reports_kernel_loading_apart_from_its_speed():
+    """Loading the compiled kernels (compiling them on a fresh install) is one-time work: the
+    first run in a fresh process does it before its clock starts and reports it apart, instead
+    of a misleading x real time (issue 16: "0.72x real time" on a first run)."""
+    import os
+    import subprocess
+    import sys
+
+    from vecu import kernels
+
+    if not kernels.numba_available():
+        pytest.skip("numba not installed")
+    res = subprocess.run([sys.executable, "-c", FIRST_RUN], capture_output=True, text=True, check=False,
+                         env={**os.environ, "VECU_KERNELS": "numba"}, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    load_s, wall_s, second_load_s = json.loads(res.stdout.strip().splitlines()[-1])
+    assert load_s > 0.0 and second_load_s == 0.0
+    assert wall_s < load_s  # 50 ticks, the kernels already loaded: far below loading them

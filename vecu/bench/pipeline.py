@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -73,9 +74,8 @@ def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> l
                            ("with .blf", str(Path(tmp) / "run.blf"))):
             cfg = runner.RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2,
                                    log_path=log).with_params(estimator=estimator)
-            watch = Stopwatch()
             res = runner.run(cfg, make_estimator=make)  # the seam: a timed estimator
-            wall = watch.elapsed()
+            wall = res.summary["wall_time_s"]  # the run loop (kernel loading not counted)
             est = timed[-1]
             per_tick = wall / res.summary["ticks"] * 1e6
             est_us = est.seconds / max(est.steps, 1) * 1e6
@@ -87,3 +87,84 @@ def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> l
                          "rest_us_per_tick": round(per_tick - est_us, 1),
                          "target_x_realtime": 20.0})
     return rows
+
+
+# issue 16's targets (vecu bench --only pipeline,replay); "before": the same figures measured on
+# the 2-core machine before the work on issue 16 (docs/performance.md), for the scenarios' ratio
+TARGET_RUN_X = {"numba": 50.0, "python": 20.0}
+SCENARIOS_BEFORE_S = {"numba": 7.03, "python": 5.94}  # 17 scenarios, wall s (performance.md)
+TARGET_SCENARIOS_SPEEDUP = 3.0
+
+
+def bench_run_backends(duration_s: float = 60.0) -> list[dict[str, Any]]:
+    """`vecu run --duration S` (default configuration, TPS killed half way) under each kernel
+    backend available, in this run: x real time against the target (numba: `vecu[fast]`)."""
+    from vecu import kernels
+    from vecu.runner import RunConfig, load_kernels, run
+
+    names = ("numba", "python") if kernels.numba_available() else ("python",)
+    rows = []
+    for name in names:
+        with kernels.using(name):
+            load_kernels()  # compiling or loading the kernels is not the run's speed
+            cfg = RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2)
+            s = run(cfg).summary
+        rows.append({"name": f"vecu run --duration {duration_s:g}", "kernels": name,
+                     "wall_s": s["wall_time_s"], "x_realtime": s["x_realtime"],
+                     "target_x_realtime": TARGET_RUN_X[name],
+                     "met": bool(s["x_realtime"] and s["x_realtime"] >= TARGET_RUN_X[name])})
+    return rows
+
+
+def shipped_scenarios() -> list[Path]:
+    """The scenario files shipped in the source tree's scenarios/ (empty when not there)."""
+    import vecu
+
+    root = Path(vecu.__file__).resolve().parents[1] / "scenarios"
+    return sorted(root.glob("*.toml")) if root.is_dir() else []
+
+
+def bench_scenarios(limit: int | None = None) -> dict[str, Any]:
+    """The shipped scenarios one after another in this process (as `vecu scenario run
+    scenarios/*.toml`): total wall time and verdicts; `limit` runs only the first ones."""
+    from vecu import kernels
+    from vecu.scenario.loader import load_scenario
+    from vecu.scenario.runner import run_scenarios
+
+    files = shipped_scenarios()[:limit]
+    if not files:
+        return {"scenarios": 0, "note": "no scenarios/ directory beside the package"}
+    scenarios = [load_scenario(f) for f in files]
+    from vecu.runner import load_kernels
+    load_kernels()
+    quiet = logging.getLogger("vecu")  # the scenarios' rx warnings, as `vecu scenario run`
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        watch = Stopwatch()
+        outcomes = run_scenarios(scenarios, stream=None, progress=False)
+        wall = watch.elapsed()
+    finally:
+        quiet.setLevel(level)
+    backend = kernels.backend()
+    before = SCENARIOS_BEFORE_S.get(backend, 0.0) if limit is None else 0.0
+    return {"scenarios": len(outcomes), "kernels": backend, "wall_s": round(wall, 2),
+            "sim_s": round(sum(o.sim_s for o in outcomes), 3),
+            "verdicts": {o.name: ("PASS" if o.passed else "FAIL") for o in outcomes},
+            "before_wall_s": before or None,
+            "speedup": round(before / wall, 2) if before else None,
+            "target_speedup": TARGET_SCENARIOS_SPEEDUP}
+
+
+def format_targets(runs: list[dict[str, Any]], sc: dict[str, Any]) -> str:
+    lines = ["Issue 16 targets (same run):"]
+    for r in runs:
+        lines.append(f"  {r['name']} ({r['kernels']} kernels): {r['x_realtime']}x real time "
+                     f"(target >= {r['target_x_realtime']:.0f}x: {'met' if r['met'] else 'not met'})")
+    if sc.get("scenarios"):
+        passed = sum(v == "PASS" for v in sc["verdicts"].values())
+        ratio = (f", {sc['speedup']}x faster than before ({sc['before_wall_s']} s; target >= "
+                 f"{sc['target_speedup']:.0f}x)" if sc["speedup"] else "")
+        lines.append(f"  {sc['scenarios']} shipped scenarios ({sc['kernels']} kernels): "
+                     f"{sc['wall_s']} s wall, {passed} passed{ratio}")
+    return "\n".join(lines)

@@ -16,8 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "virtual bus (vecu vs python-can), whole pipeline x real time.")
     p.add_argument("--quick", action="store_true",
                    help="the smallest sizes (seconds per group; noisy figures, a smoke test)")
-    p.add_argument("--only", choices=("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu",
-                                        "breakdown", "kernels"), help="run one benchmark group")
+    p.add_argument("--only", type=_groups, metavar="GROUP[,GROUP…]",
+                   help=f"run these benchmark groups only ({', '.join(GROUPS)})")
     p.add_argument("--live-seconds", type=argtypes.bounded(0.5, 3600.0), default=None, metavar="S",
                    help="live group: seconds of the plant + ECU processes run (default 10, "
                         "--quick 1; 0.5..3600; target: 60)")
@@ -33,6 +33,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
+GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakdown", "kernels")
+
+
+def _groups(text: str) -> frozenset[str]:
+    """--only: one group or several, comma-separated (pipeline,replay)."""
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in GROUPS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"unknown group {', '.join(bad) or repr(text)} "
+                                         f"(choose from {', '.join(GROUPS)})")
+    return frozenset(names)
+
+
 # group sizes: (full, --quick); --quick keeps every group to a few seconds (tests/bench/test_smoke)
 SIZES: dict[str, tuple[float, float]] = {
     "ukf_steps": (20_000, 2_000), "ukf_repeats": (5, 2), "filter_steps": (5_000, 1_000),
@@ -42,11 +55,12 @@ SIZES: dict[str, tuple[float, float]] = {
     "replay_s": (60.0, 4.0), "replay_live_s": (10.0, 1.5), "live_s": (10.0, 1.0),
     "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0), "campaign_runs": (60, 4),
     "campaign_s": (80.0, 2.0), "campaign_baseline_runs": (3, 1),
+    "run_backends_s": (60.0, 1.0), "scenario_limit": (0, 1),  # 0: every shipped scenario
 }
 
 
-def collect(quick: bool, only: str | None, estimator: str, live_seconds: float | None = None,
-            memory_minutes: float | None = None,
+def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
+            live_seconds: float | None = None, memory_minutes: float | None = None,
             replay_seconds: float | None = None) -> dict[str, Any]:
     from vecu import kernels
     from vecu.bench.estimators import (
@@ -56,12 +70,17 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float |
     )
     from vecu.bench.pipeline import bench_pipeline, bench_virtual_bus
 
+    groups = frozenset([only]) if isinstance(only, str) else only
+
+    def want(group: str) -> bool:
+        return groups is None or group in groups
+
     def size(name: str, given: float | None = None) -> Any:
         return given if given is not None else SIZES[name][1 if quick else 0]
 
     out: dict[str, Any] = {"python": platform.python_version(), "machine": platform.machine(),
                            "kernel_backend": kernels.backend(), "quick": quick}
-    if only in (None, "ukf"):
+    if want("ukf"):
         out["ukf"] = bench_throttle_ukf(steps=int(size("ukf_steps")),
                                         repeats=int(size("ukf_repeats")))
         out["filters"] = bench_speed_and_steering(steps=int(size("filter_steps")))
@@ -76,29 +95,32 @@ def collect(quick: bool, only: str | None, estimator: str, live_seconds: float |
             out["filters"][0],
             bench_steering_smoother(steps=int(size("smoother_steps"))),
             bench_manifold_function(duration_s=size("manifold_fn_s"))]
-    if only in (None, "bus"):
+    if want("bus"):
         out["bus"] = bench_virtual_bus(frames=int(size("bus_frames")))
-    if only in (None, "pipeline"):
+    if want("pipeline"):
         out["pipeline"] = bench_pipeline(duration_s=size("pipeline_s"), estimator=estimator)
-    if only in (None, "ecu"):
+        from vecu.bench.pipeline import bench_run_backends, bench_scenarios
+        out["run_backends"] = bench_run_backends(duration_s=size("run_backends_s"))
+        out["scenarios"] = bench_scenarios(limit=int(size("scenario_limit")) or None)
+    if want("ecu"):
         from vecu.bench.ecu import bench_ecu
         out["ecu"] = bench_ecu(duration_s=size("ecu_s"))
-    if only in (None, "breakdown"):
+    if want("breakdown"):
         from vecu.bench.breakdown import breakdown
         out["breakdown"] = breakdown(duration_s=size("breakdown_s"))
-    if only in (None, "kernels"):
+    if want("kernels"):
         from vecu.bench.kernels import bench_kernels
         out["kernels"] = bench_kernels(duration_s=size("kernels_s"))
-    if only in (None, "replay"):
+    if want("replay"):
         from vecu.bench.replay import bench_replay
         out["replay"] = bench_replay(size("replay_s", replay_seconds), size("replay_live_s"),
                                      estimator)
-    if only == "campaign":  # minutes at full size: only when asked for
+    if groups is not None and "campaign" in groups:  # minutes at full size: only when asked for
         from vecu.bench.campaign import bench_campaign
         out["campaign"] = bench_campaign(runs=int(size("campaign_runs")),
                                          duration_s=size("campaign_s"),
                                          baseline_runs=int(size("campaign_baseline_runs")))
-    if only in (None, "live"):
+    if want("live"):
         from vecu.bench.live import bench_live
         out["live"] = bench_live(size("live_s", live_seconds), size("memory_min", memory_minutes),
                                  size("throughput_s"))
@@ -141,6 +163,9 @@ def main(args: argparse.Namespace) -> int:
         for r in res["pipeline"]:
             print(f"  {r['name']:<32} {r['x_realtime']:>7.1f}x real time  ({r['us_per_tick']} us/tick: "
                   f"estimator {r['estimator_us_per_tick']}, CAN/bus/scheduler {r['rest_us_per_tick']})")
+    if "run_backends" in res:
+        from vecu.bench.pipeline import format_targets
+        print(format_targets(res["run_backends"], res.get("scenarios", {})))
     if "ecu" in res:
         from vecu.bench.ecu import format_ecu
         print(format_ecu(res["ecu"]))

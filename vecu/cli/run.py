@@ -78,8 +78,10 @@ def main(args: argparse.Namespace) -> int:
 def format_summary(s: dict[str, Any]) -> str:
     th = s["throttle"]
     fr = s["frames"]
+    load = (f"; kernels loaded in {s['kernel_load_s']:.1f} s before, not counted"
+            if s.get("kernel_load_s") else "")
     lines = [(f"vecu run: {s['sim_time_s']:.3f} s in {s['wall_time_s']:.2f} s wall "
-             f"({s['x_realtime']}x real time, {s['kernels']} kernels), {s['ticks']} ticks, "
+             f"({s['x_realtime']}x real time, {s['kernels']} kernels{load}), {s['ticks']} ticks, "
              f"{s['overruns']} overruns")]
     if th["kill_time_s"] is None:
         lines.append("TPS: no fault injected")
