@@ -36,11 +36,18 @@ EXPECTED = {
     "live": [rf"baseline: bare 1 ms WallClock loop, tick jitter p50 {NUM}",
              r"throughput, virtual bus, one process: offered \d+ frames/s",
              rf"memory: {NUM} simulated min \({NUM}x real time\): RSS \d+ kB"],
+    "uds": [rf"RDBI 0x0100 \(single frame\)\s+p50 {NUM} / p99 {NUM} / max {NUM} ms",
+            rf"RDBI 0xF190 VIN \(multi-frame\)\s+p50 {NUM} / p99 {NUM} / max {NUM} ms",
+            rf"bare ISO-TP echo on the same clock and 1 ms tick: 5 B p50 {NUM}",
+            # on the simulated clock: every tick of the request window broadcast, 1 ms apart
+            (r"simulated clock .*\n(?:.*\n){3}.*during the requests \(.*\): (\d+) frames heard "
+            r"over \1 ECU ticks, 0 ticks lost, largest gap 1\.0 ms, 0 overruns"),
+            r"live, wall clock(?:.*\n){4}.*during the requests \(.*\): \d+ frames heard"],
 }
 CAMPAIGN = (rf"batch engine {NUM} s/run .*\n  campaign {NUM} s = {NUM} s/run: {NUM}x sequential "
             r"`vecu eval manifold`")
 LIVE_UDP = rf"ECU in its own process \(udp_multicast, {NUM} s\): tick jitter p50 {NUM}"
-FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels")  # a few seconds each
+FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels", "uds")  # a few seconds each
 
 
 def _bench(*args: str, timeout: float) -> str:

@@ -33,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
-GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakdown", "kernels")
+GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakdown", "kernels",
+          "uds")
 
 
 def _groups(text: str) -> frozenset[str]:
@@ -56,6 +57,7 @@ SIZES: dict[str, tuple[float, float]] = {
     "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0), "campaign_runs": (60, 4),
     "campaign_s": (80.0, 2.0), "campaign_baseline_runs": (3, 1),
     "run_backends_s": (60.0, 1.0), "scenario_limit": (0, 1),  # 0: every shipped scenario
+    "uds_requests": (200, 20),
 }
 
 
@@ -115,6 +117,9 @@ def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
         from vecu.bench.replay import bench_replay
         out["replay"] = bench_replay(size("replay_s", replay_seconds), size("replay_live_s"),
                                      estimator)
+    if want("uds"):
+        from vecu.bench.uds import bench_uds
+        out["uds"] = bench_uds(requests=int(size("uds_requests")))
     if groups is not None and "campaign" in groups:  # minutes at full size: only when asked for
         from vecu.bench.campaign import bench_campaign
         out["campaign"] = bench_campaign(runs=int(size("campaign_runs")),
@@ -178,6 +183,9 @@ def main(args: argparse.Namespace) -> int:
     if "replay" in res:
         from vecu.bench.replay import format_replay
         print(format_replay(res["replay"]))
+    if "uds" in res:
+        from vecu.bench.uds import format_uds
+        print(format_uds(res["uds"]))
     if "campaign" in res:
         from vecu.bench.campaign import format_campaign
         print(format_campaign(res["campaign"]))
