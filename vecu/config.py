@@ -83,7 +83,7 @@ SHORTCUTS: dict[str, tuple[str, ...]] = {
     "estimator": ("ecu.throttle.estimator",),
     "manifold_filter": ("ecu.manifold.filter",),
 }
-MANIFOLD_FILTERS = ("sdkf", "ekf")
+MANIFOLD_FILTERS = ("sdkf", "ekf", "adaptive")
 
 
 def shortcut_sets(**values: object) -> list[tuple[str, object]]:

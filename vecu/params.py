@@ -62,6 +62,11 @@ SOURCES: dict[str, str] = {
     "ecu.manifold.kf": "vecu decision, docs/models.md 'Intake manifold' (guards, gating)",
     "ecu.manifold.kf.params": "Dutka 2006 eq. 1-9; engine values shared/design/manifold.md",
     "ecu.manifold.kf.noise": "Dutka 2006 Section IV (Q, R)",
+    "ecu.manifold.kf.eta_q": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.eta_p0": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.eta_box": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.eta_pr_freeze": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.eta_alpha_gate": "vecu decision, docs/models.md 'Adaptive air charge'",
     "ecu.uds": "ISO 14229-1 (UDS), ISO 15765-2 (ISO-TP); vecu decision, docs/uds.md",
 }
 
@@ -75,6 +80,9 @@ NAME_UNITS: dict[str, str] = {
     "max_abs_r": "rad/s", "max_abs_ay": "m/s^2", "max_abs_delta": "rad", "max_v_x": "m/s",
     "plaus_margin": "signal unit (deg, km/h)", "dt_s": "s",
     "y_ranges": "(rad, kPa, K)", "p0_diag": "(rad^2, kPa^2, K^2)", "p0_std": "SI",
+    "eta_q": "1 (variance of c per event)", "eta_p0": "1 (variance of c)",
+    "eta_box": "1 (c = eta_true / eta_calibrated)", "eta_pr_freeze": "1 (P_im / P_a)",
+    "eta_alpha_gate": "sigma (normalised TA innovation)",
 }
 
 

@@ -120,7 +120,7 @@ def test_sdkf_and_cac_prediction_give_the_python_reference_bit_for_bit(backend, 
     posterior; every backend gives the same posteriors, covariances and predictions, bit for
     bit."""
     from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
-    from vecu.estimators.manifold.filters import make_filter
+    from vecu.estimators.manifold.factory import make_filter
 
     def run():
         rng = np.random.default_rng(8)

@@ -349,7 +349,7 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
     integrator, numpy gain) and the prediction from x_n|n through f_manifold_reference six
     times. Same profile, same run."""
     from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
-    from vecu.estimators.manifold.filters import make_filter
+    from vecu.estimators.manifold.factory import make_filter
     from vecu.estimators.manifold.model import event_dt
     from vecu.eval.manifold import trace_inputs
     from vecu.models.manifold import cylinder_air_charge

@@ -19,9 +19,10 @@ import numpy as np
 from vecu.campaign.draws import RunDraw, tree_for
 from vecu.campaign.spec import CampaignSpec
 
-METHODS = ("direct_ol", "direct", "ekf", "sdkf")
+METHODS = ("direct_ol", "direct", "ekf", "sdkf", "adaptive")
+FILTERS = ("ekf", "sdkf", "adaptive")
 MANIFOLD_METRICS = tuple(f"{m}_{k}" for k in ("iae", "ise") for m in METHODS) + (
-    "events", "ekf_resets", "sdkf_resets")
+    "events", "ekf_resets", "sdkf_resets", "adaptive_resets", "adaptive_eta", "true_eta")
 DRIVE_METRICS: dict[str, str] = {  # metric -> run-summary path
     "detected": "throttle.detected",
     "detection_latency_ms": "throttle.detection_latency_ms",
@@ -49,7 +50,7 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
         CacPredictionConfig,
         prediction_errors,
     )
-    from vecu.estimators.manifold.filters import make_filter
+    from vecu.estimators.manifold.factory import make_filter
     from vecu.eval.manifold import (
         direct_ol_states,
         direct_states,
@@ -76,17 +77,24 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
     states = {"direct": direct_states(trace),
               "direct_ol": direct_ol_states(trace, inputs, belief, compiled=batch)}
     out: dict[str, Any] = {"events": len(trace.t)}
-    for name in ("ekf", "sdkf"):
+    for name in FILTERS:
         if inputs is None:
             flt = make_filter(name, kf)
             states[name] = flt.run_events(trace.y, trace_input_array(trace, belief))
         else:
             states[name], _, flt = run_filter(name, trace, inputs, kf)
         out[f"{name}_resets"] = flt.resets
+    eta = states["adaptive"][:, 6]  # the adaptive filter's eta correction c per event
+    out["adaptive_eta"] = float(eta[-1])
+    # what c should converge to: eta_N(plant) / eta_N(calibration) at the drive's median speed
+    n_med = float(np.median(trace.n_rpm))
+    out["true_eta"] = float(np.interp(n_med, truth.engine.eta_n_rpm, truth.engine.eta_n_val)
+                            / np.interp(n_med, belief.eta_n_rpm, belief.eta_n_val))
     pc = CacPredictionConfig(stride=stride)
     for m in METHODS:
         _, pred, actual = prediction_errors(states[m], trace.ta_sp, trace.n_rpm, trace.cac,
-                                            belief, pc, compiled=batch)
+                                            belief, pc, compiled=batch,
+                                            eta_scale=eta if m == "adaptive" else None)
         err = 1e6 * (pred - actual)  # mg per cylinder event
         out[f"{m}_iae"] = stride * float(np.abs(err).sum())
         out[f"{m}_ise"] = stride * float((err ** 2).sum())

@@ -17,7 +17,7 @@ import numpy as np
 from scipy import stats
 
 from vecu.campaign.spec import CampaignSpec
-from vecu.campaign.studies import METHODS, metric_names
+from vecu.campaign.studies import FILTERS, METHODS, metric_names
 
 PAPER_TABLE3 = {  # Dutka 2006 Table 3: mean integrated |error| / error^2 over 2000 runs
     "direct_ol": (3646.0, 13265.0), "direct": (4850.0, 23385.0),
@@ -92,8 +92,8 @@ def table3(rows: list[dict[str, str]]) -> dict[str, Any]:
             mean = float(val[(m, k)].mean())
             res[m][k] = {"mean": mean, "ratio_to_direct_ol": mean / float(val[("direct_ol", k)].mean()),
                          "ratio_to_direct": mean / float(val[("direct", k)].mean()),
-                         "paper": PAPER_TABLE3[m][0 if k == "iae" else 1]}
-        if m in ("ekf", "sdkf"):
+                         "paper": PAPER_TABLE3.get(m, (None, None))[0 if k == "iae" else 1]}
+        if m in FILTERS:
             wins = (val[(m, "iae")] < val[("direct_ol", "iae")]) & (
                 val[(m, "iae")] < val[("direct", "iae")])
             res[m]["beats_both_direct_share"] = float(wins.mean())

@@ -21,11 +21,8 @@ from vecu.clock import NS_PER_MS, NS_PER_S, Stopwatch
 from vecu.codec import DbcCodec
 from vecu.ecu.node import Send, Subscription
 from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
-from vecu.estimators.manifold.filters import (
-    ManifoldFilterConfig,
-    input_problem,
-    make_filter,
-)
+from vecu.estimators.manifold.factory import make_filter
+from vecu.estimators.manifold.filters import ManifoldFilterConfig, input_problem
 from vecu.models.manifold import cylinder_air_charge, nominal_input
 from vecu.models.manifold_params import EngineInput
 from vecu.units import KELVIN_AT_0_DEGC, MG_PER_KG, RAD_PER_DEG
@@ -38,7 +35,7 @@ class ManifoldFunctionConfig:
     """The ECU's manifold calibration: which filter, and the engine and noise it believes in
     (`kf.params`, `kf.noise`; equal to the simulated engine unless a study sets them apart)."""
 
-    filter: str = "sdkf"  # "sdkf" (live, one Riccati iteration per event) or "ekf"
+    filter: str = "sdkf"  # "sdkf" (live, one Riccati iteration per event), "ekf" or "adaptive"
     kf: ManifoldFilterConfig = field(default_factory=ManifoldFilterConfig)
 
 
@@ -55,6 +52,8 @@ class ManifoldFunction:
         self._engine = self.filter.params  # the calibration: filter, CAC and prediction
         self._kf = config.kf
         self._out = codec["ECU_ManifoldEstimate"]
+        # the adaptive filter's corrections (ECU_ManifoldAdapt), sent only with that filter
+        self._adapt_out = codec["ECU_ManifoldAdapt"] if config.filter == "adaptive" else None
         self.timeouts = 0
         self.estimates_sent = 0
         self.events = 0          # complete events filtered
@@ -119,12 +118,13 @@ class ManifoldFunction:
         watch.lap()
         x = self.filter.step(y, u)
         filter_s = watch.lap()
-        cac = cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, self._engine)
+        scale = float(x[6]) if len(x) > 6 else 1.0  # the adaptive filter's eta correction
+        cac = scale * cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, self._engine)
         first = self.filter.last_prediction  # the filter already ran event n+1 from x
         if first is not None and first[0] is u:
-            cac6 = predict_cac(first[1], [u] * (HORIZON - 1), self._engine)
+            cac6 = predict_cac(first[1], [u] * (HORIZON - 1), self._engine, scale)
         else:
-            cac6 = predict_cac(x, [u] * HORIZON, self._engine)
+            cac6 = predict_cac(x, [u] * HORIZON, self._engine, scale)
         self.filter_seconds += filter_s
         self.predict_seconds += watch.lap()
         if not (math.isfinite(cac) and math.isfinite(cac6)):  # last line of defence
@@ -137,6 +137,11 @@ class ManifoldFunction:
             "MFD_ThrottleAngle": float(x[1]) / RAD_PER_DEG, "MFD_Pressure": float(x[3]),
             "MFD_Temperature": float(x[4]) - KELVIN_AT_0_DEGC, "MFD_CAC": cac * MG_PER_KG,
             "MFD_CACPred6": cac6 * MG_PER_KG}, t_ns / NS_PER_S))
+        if self._adapt_out is not None:
+            sigma = math.sqrt(max(float(self.filter.P_post[6, 6]), 0.0))
+            self.estimates_sent += send(self._adapt_out.frame({
+                "MFD_EtaCorr": 100.0 * (scale - 1.0), "MFD_EtaCorrStd": 100.0 * sigma,
+                "MFD_FlowCorr": 100.0 * (float(x[7]) - 1.0)}, t_ns / NS_PER_S))
 
     def status_signals(self) -> dict[str, int]:
         return {}

@@ -26,7 +26,8 @@ from vecu.estimators.manifold.cac_predict import (
     open_loop_temperatures,
     prediction_errors,
 )
-from vecu.estimators.manifold.filters import ManifoldFilterConfig, make_filter
+from vecu.estimators.manifold.factory import make_filter
+from vecu.estimators.manifold.filters import ManifoldFilterConfig
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile, us06_like
 from vecu.plant.manifold import ManifoldTrace, simulate
@@ -64,7 +65,7 @@ class ManifoldEvalReport:
     events: int
     predictions: int  # predicted events per method (all runs)
     stride: int
-    methods: tuple[MethodResult, ...]  # direct, direct_ol, ekf, sdkf (cheap) [, sdkf_dare]
+    methods: tuple[MethodResult, ...]  # direct, direct_ol, ekf, sdkf (cheap), adaptive [, sdkf_dare]
     filters: tuple[FilterStats, ...]
     scipy_dare_us_per_event: float  # NaN when not measured
     scipy_dare_events: int
@@ -107,7 +108,7 @@ def run_filter(name: str, trace: ManifoldTrace, inputs: list[EngineInput],
     flt = make_filter(name, config)
     ys = trace.y.tolist()
     n_ev = len(ys) if events is None else min(events, len(ys))
-    xs = np.empty((n_ev, 6))
+    xs = np.empty((n_ev, len(flt.x)))  # 6 states, 7 for the adaptive filter
     step = flt.step
     elapsed = 0.0
     clock = perf_s
@@ -160,7 +161,7 @@ def evaluate_manifold(seed: int = 0, runs: int = 1, stride: int = 1, full_dare: 
     """
     params = config.params
     pc = prediction if prediction is not None else CacPredictionConfig(stride=stride)
-    names = ["ekf", "sdkf"] + (["sdkf_doubling"] if full_dare else [])
+    names = ["ekf", "sdkf", "adaptive"] + (["sdkf_doubling"] if full_dare else [])
     methods = ["direct", "direct_ol"] + names
     err: dict[str, list[np.ndarray]] = {m: [] for m in methods}
     act: list[np.ndarray] = []
@@ -203,8 +204,9 @@ def evaluate_manifold(seed: int = 0, runs: int = 1, stride: int = 1, full_dare: 
             scipy_n = min(scipy_events, len(trace.t))
             scipy_us = 1e6 * sec / scipy_n
         for m in methods:
-            _, pred, actual = prediction_errors(states[m], trace.ta_sp, trace.n_rpm, trace.cac,
-                                                params, pc)
+            _, pred, actual = prediction_errors(
+                states[m], trace.ta_sp, trace.n_rpm, trace.cac, params, pc,
+                eta_scale=states[m][:, 6] if m == "adaptive" else None)
             err[m].append(1e6 * (pred - actual))
         act.append(1e6 * actual)
     actual_mg = np.concatenate(act)

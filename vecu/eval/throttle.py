@@ -10,8 +10,8 @@ P0 = I having been forgotten by then). Note: the paper's Table II compares with 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

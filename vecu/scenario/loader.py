@@ -153,8 +153,8 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         raise chk.fail("ecu.estimator", f"unknown estimator {estimator!r} "
                                         f"(known: {', '.join(THROTTLE_ESTIMATORS)})")
     filt = ecu.get("manifold_filter", "sdkf")
-    if filt not in ("sdkf", "ekf"):
-        raise chk.fail("ecu.manifold_filter", f"expected 'sdkf' or 'ekf', got {filt!r}")
+    if filt not in ("sdkf", "ekf", "adaptive"):
+        raise chk.fail("ecu.manifold_filter", f"expected 'sdkf', 'ekf' or 'adaptive', got {filt!r}")
     monitors = {}
     for sensor in ("tps", "swa", "wheel"):
         over = chk.table(ecu.get(sensor, {}), MONITOR_KEYS, f"ecu.{sensor}.")

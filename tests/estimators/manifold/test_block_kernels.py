@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from vecu.estimators.manifold import filters as mf
+from vecu.estimators.manifold import factory as mf
 from vecu.estimators.manifold.cac_predict import (
     CacPredictionConfig,
     OpenLoopTemperature,
@@ -46,7 +46,7 @@ def drive(per_backend):
 
 def _stepped(name, ys, us, diverge_at):
     flt = mf.make_filter(name)
-    xs = np.empty((len(ys), 6))
+    xs = np.empty((len(ys), len(flt.x)))
     for n in range(len(ys)):
         if n == diverge_at:
             flt.P[:] = flt.P_post[:] = math.nan
@@ -62,7 +62,7 @@ def _blocked(name, ys, us, diverge_at):
     return np.vstack([a, b]), flt
 
 
-@pytest.mark.parametrize("name", ["ekf", "sdkf"])
+@pytest.mark.parametrize("name", ["ekf", "sdkf", "adaptive"])
 def test_run_events_is_step_by_step(drive, backend, per_backend, name):
     _, ys, us = drive
     ref_xs, ref = per_backend.reference(("step", name), lambda: _stepped(name, ys, us, 900))

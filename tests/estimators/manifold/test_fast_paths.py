@@ -56,7 +56,7 @@ def test_other_parameter_sets_are_not_served_from_the_cache():
 
 def test_filter_gain_shortcut_matches_the_general_update():
     """_gain_all (unrolled 3x3 Cholesky) vs cholesky_lower + inv: same posterior to 1e-12."""
-    from vecu.estimators.manifold.filters import make_filter
+    from vecu.estimators.manifold.factory import make_filter
     from vecu.models.manifold import nominal_input
 
     rng = np.random.default_rng(5)

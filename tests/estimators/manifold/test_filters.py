@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from vecu.estimators.manifold.factory import make_filter
 from vecu.estimators.manifold.filters import (
     ManifoldFilterConfig,
     ManifoldSDKF,
     dare_doubling,
-    make_filter,
 )
 from vecu.estimators.manifold.model import (
     C_MATRIX,

@@ -16,6 +16,7 @@ import pytest
 from vecu import kernels
 from vecu.estimators.manifold import filters as mf
 from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac, predict_state
+from vecu.estimators.manifold.factory import make_filter
 from vecu.eval.manifold import trace_inputs
 from vecu.models.manifold import nominal_input, steady_state_vector
 from vecu.models.manifold_params import EngineInput
@@ -43,7 +44,7 @@ def _run_drive(ys, inputs, name="sdkf"):
     """The filter (SDKF or EKF) over the drive with bad data mixed in; per event (x_post, P, P_post, prediction,
     CAC+6 from the filter's prediction, CAC+6 from x_post), plus the counters."""
     rng = np.random.default_rng(12)
-    flt = mf.make_filter(name)
+    flt = make_filter(name)
     bad_y = [None, (math.nan, 50.0, 300.0), (0.3, math.nan, math.nan), (1e9, -5.0, math.inf),
              ("x", None, 3.0), (0.3, 1e6, 300.0)]
     bad_u = [EngineInput(math.nan, 2000.0), EngineInput(0.3, 1e9), EngineInput(0.3, 2000.0, 5.0)]
@@ -103,11 +104,11 @@ def test_filter_event_gives_the_python_reference_over_a_bad_drive(drive, backend
     assert len(py) == len(got) > 1500
     names = ("x_post", "P", "P_post", "prediction", "CAC+6 reused", "CAC+6")
     for n, (a, b) in enumerate(zip(py, got)):
-        for name, va, vb in zip(names, a, b):
+        for what, va, vb in zip(names, a, b):
             if va is None or vb is None:
-                assert va is vb, (n, name)
+                assert va is vb, (n, what)
                 continue
-            assert np.array_equal(va, vb, equal_nan=True), (n, name, _max_rel(va, vb))
+            assert np.array_equal(va, vb, equal_nan=True), (n, what, _max_rel(va, vb))
     assert got_cnt == py_cnt
     # the drive exercised what it should: resets, gating, rejected channels, bad inputs
     assert py_cnt["resets"] == 2 and sum(py_cnt["gated"]) >= 20
@@ -162,7 +163,7 @@ def test_python_backend_never_prepares_or_calls_the_kernels(monkeypatch):
     monkeypatch.setattr(kernels.Kernel, "compiled", property(boom))
 
     def run():
-        flt = mf.make_filter("sdkf")
+        flt = make_filter("sdkf")
         u = nominal_input(0.3, 2000.0)
         for k in range(30):
             x = flt.step((0.3, 40.0 + k, 310.0), u)

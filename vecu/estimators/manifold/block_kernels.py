@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from vecu.estimators.manifold.adaptive_kernel import adaptive_event
 from vecu.estimators.manifold.kernels import (
     DIVERGED,
     FALLBACK,
@@ -31,13 +32,15 @@ from vecu.models.manifold_integrator import _integrate_event
 
 
 @kernel
-def filter_events(is_ekf, x, P, P_post, ys, us, start, events_before, gated_run, gated, xs_out,
-                  last_pred, lim, fc, Q, fd, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """Events start.. of ManifoldEKF (is_ekf) or the "iterate" ManifoldSDKF from the state
+def filter_events(kind, x, P, P_post, ys, us, start, events_before, gated_run, gated, xs_out,
+                  last_pred, lim, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
+    """Events start.. of the "iterate" ManifoldSDKF (kind 0), ManifoldEKF (1) or
+    adaptive.ManifoldAdaptive (2, ac its constants, 7 states) from the state
     (x, P, P_post; gated_run, gated counters), updated in place; xs_out[n] the posterior,
     last_pred the last event map output. Returns the index of the first event not run."""
-    xo = np.empty((3, 6))
-    Po = np.empty((2, 6, 6))
+    nx = x.shape[0]
+    xo = np.empty((3, nx))
+    Po = np.empty((2, nx, nx))
     n_ev = ys.shape[0]
     for n in range(start, n_ev):
         sp, n_rpm, p_a, t_a, t_cool = us[n, 0], us[n, 1], us[n, 2], us[n, 3], us[n, 4]
@@ -49,7 +52,11 @@ def filter_events(is_ekf, x, P, P_post, ys, us, start, events_before, gated_run,
                 and lim[L_Y2_LO] <= y2 <= lim[L_Y2_HI]):
             return n
         ts = 120.0 / (fc[17] * n_rpm)  # F_NCYL
-        if is_ekf:
+        if kind == 2:
+            code = adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, 7,
+                                  gated_run[0], gated_run[1], gated_run[2], fc, Q, fd, ac, c,
+                                  cd_alpha, cd_table, prs, eta_rpm, eta_val)
+        elif kind == 1:
             code = ekf_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, 7,
                              gated_run[0], gated_run[1], gated_run[2], fc, Q, fd, c, cd_alpha,
                              cd_table, prs, eta_rpm, eta_val)
@@ -92,10 +99,11 @@ def open_loop_temperatures(ta_meas, n_rpm, p0, t0, u_amb, ncyl, cst, cd_alpha, c
 
 
 @kernel
-def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb, pred, fc, c,
-                      cd_alpha, cd_table, prs, eta_rpm, eta_val):
+def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb, eta_scale,
+                      pred, fc, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
     """cac_predict.prediction_errors' predictions: pred[j] = CAC_pred(idx[j]) (kg) from
-    states[idx[j]] over the horizon (horizon_inputs: known or held setpoints, N held)."""
+    states[idx[j]] over the horizon (horizon_inputs: known or held setpoints, N held), the
+    eta_N table scaled by eta_scale[idx[j]] (1: the calibration as it is)."""
     last = len(ta_sp) - 1
     u = np.empty((horizon, 5))
     out = np.empty(6)
@@ -106,5 +114,6 @@ def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb,
             u[k, 0] = ta_sp[m] if known_setpoint else ta_sp[n]
             u[k, 1] = n_rpm[n]
             u[k, 2], u[k, 3], u[k, 4] = u_amb[0], u_amb[1], u_amb[2]
+        ev = eta_val if eta_scale[n] == 1.0 else eta_val * eta_scale[n]
         pred[j] = predict_events(states[n], u, horizon, out, fc, c, cd_alpha, cd_table, prs,
-                                 eta_rpm, eta_val)
+                                 eta_rpm, ev)

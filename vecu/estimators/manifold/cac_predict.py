@@ -76,12 +76,14 @@ def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: Manifol
 _KERNEL_ARGS: dict[int, tuple[ManifoldParams, tuple | None]] = {}
 
 
-def _compiled_prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams
-                         ) -> tuple[np.ndarray, float] | None:
-    """(x after the inputs, CAC there) by the numba kernel manifold_kernels.predict_events, or
-    None when the Python path runs (python backend, no inputs, odd x or parameter set)."""
+def _compiled_prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams,
+                         eta_scale: float = 1.0) -> tuple[np.ndarray, float] | None:
+    """(x after the inputs, CAC there) by the kernel manifold_kernels.predict_events (numba),
+    or None when the Python path runs (python backend, no inputs, odd x or parameter set).
+    eta_scale != 1 (the adaptive filter's c: the eta_N table scaled) always runs the kernel,
+    its Python function under the python backend. x: the first six states are used."""
     run = predict_events.impl()
-    if run is _PREDICT_EVENTS_PY or not inputs:
+    if (run is _PREDICT_EVENTS_PY and eta_scale == 1.0) or not inputs:
         return None
     hit = _KERNEL_ARGS.get(id(params))
     if hit is None or hit[0] is not params:
@@ -89,10 +91,13 @@ def _compiled_prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: M
         hit = (params, None if tables is None else (model_constants(params), *tables))
         _KERNEL_ARGS[id(params)] = hit
     args = hit[1]
-    xa = np.ascontiguousarray(x, dtype=np.float64)
+    xa = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:6])
     if args is None or xa.shape != (6,):
         return None
-    prepare_kernels()
+    if eta_scale != 1.0:
+        args = (*args[:-1], args[-1] * eta_scale)
+    if run is not _PREDICT_EVENTS_PY:
+        prepare_kernels()
     u0 = inputs[0]
     held = True
     for u in inputs:
@@ -114,7 +119,7 @@ def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
     fast = _compiled_prediction(x, inputs, params)
     if fast is not None:
         return fast[0]
-    vals = [float(v) for v in np.asarray(x, dtype=float)]
+    vals = [float(v) for v in np.asarray(x, dtype=float)[:6]]
     ts_prev = math.nan
     for u in inputs:
         ts = sample_time(u.n_rpm, params.n_cyl)
@@ -131,9 +136,10 @@ def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
 
 
 def predict_cac(x: np.ndarray, inputs: Sequence[EngineInput],
-                params: ManifoldParams = V8_5L7) -> float:
-    """Predicted CAC (kg per cylinder event) after the inputs, at the last input's speed."""
-    fast = _compiled_prediction(x, inputs, params)
+                params: ManifoldParams = V8_5L7, eta_scale: float = 1.0) -> float:
+    """Predicted CAC (kg per cylinder event) after the inputs, at the last input's speed;
+    eta_scale multiplies the calibrated eta (the adaptive filter's correction)."""
+    fast = _compiled_prediction(x, inputs, params, eta_scale)
     if fast is not None:
         return fast[1]
     xe = predict_state(x, inputs, params)
@@ -169,24 +175,28 @@ class OpenLoopTemperature:
 def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       cac_actual: np.ndarray, params: ManifoldParams = V8_5L7,
                       config: CacPredictionConfig = CacPredictionConfig(),
-                      compiled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      compiled: bool = True, eta_scale: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For events n = 0, stride, 2 stride, ... with n + horizon in range:
     (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg. Under the numba backend (compiled)
-    all predictions in one call (block_kernels.predict_at_events: the same numbers)."""
+    all predictions in one call (block_kernels.predict_at_events: the same numbers). eta_scale:
+    per event, the eta correction the state came with (the adaptive filter's c; None: 1)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
     pred = np.empty(len(idx))
-    if compiled and _predict_block(states, idx, ta_sp, n_rpm, params, config, pred):
+    scale = np.ones(len(states)) if eta_scale is None else np.asarray(eta_scale, dtype=float)
+    if compiled and _predict_block(states, idx, ta_sp, n_rpm, params, config, pred, scale):
         return idx, pred, cac_actual[idx + hz]
     sp = ta_sp.tolist()
     for j, n in enumerate(idx):
         inputs = horizon_inputs(sp, int(n), float(n_rpm[n]), params, config)
-        pred[j] = predict_cac(states[n], inputs, params)
+        pred[j] = predict_cac(states[n], inputs, params, float(scale[n]))
     return idx, pred, cac_actual[idx + hz]
 
 
 def _predict_block(states: np.ndarray, idx: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
-                   params: ManifoldParams, config: CacPredictionConfig, pred: np.ndarray) -> bool:
+                   params: ManifoldParams, config: CacPredictionConfig, pred: np.ndarray,
+                   eta_scale: np.ndarray) -> bool:
     """prediction_errors' predictions into pred by one compiled call; False: not available."""
     if predict_events.impl() is _PREDICT_EVENTS_PY or config.horizon < 1 or not len(idx):
         return False
@@ -195,11 +205,11 @@ def _predict_block(states: np.ndarray, idx: np.ndarray, ta_sp: np.ndarray, n_rpm
         return False
     prepare_kernels()
     u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
-    predict_at_events.compiled(np.ascontiguousarray(states, dtype=np.float64), idx,
+    predict_at_events.compiled(np.ascontiguousarray(states[:, :6], dtype=np.float64), idx,
                                np.ascontiguousarray(ta_sp, dtype=np.float64),
                                np.ascontiguousarray(n_rpm, dtype=np.float64), config.horizon,
-                               config.known_setpoint, u_amb, pred, model_constants(params),
-                               *tables)
+                               config.known_setpoint, u_amb, np.ascontiguousarray(eta_scale),
+                               pred, model_constants(params), *tables)
     return True
 
 

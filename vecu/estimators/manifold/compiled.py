@@ -22,6 +22,8 @@ from vecu.estimators.manifold.model import ALPHA_SDC_MIN, FD_ALPHA, FD_REL, N_X
 from vecu.models.manifold_params import EngineInput
 
 _SDKF_EVENT_PY = sdkf_event.py
+KINDS = {"sdkf": 0, "ekf": 1, "adaptive": 2}  # block_kernels.filter_events' kind
+_NO_AC = np.zeros(3)
 
 
 class CompiledEvents:
@@ -122,7 +124,7 @@ class CompiledEvents:
         ys = np.ascontiguousarray(ys, dtype=np.float64)
         us = np.ascontiguousarray(us, dtype=np.float64)
         n_ev = len(ys)
-        xs = np.empty((n_ev, N_X))
+        xs = np.empty((n_ev, len(self.x)))
         n = 0
         while n < n_ev:
             if self._block_ready():
@@ -142,10 +144,12 @@ class CompiledEvents:
         x, P, P_post = self.x.copy(), self.P.copy(), self.P_post.copy()
         gr = np.array(self._gated_run, dtype=np.int64)
         gated = np.zeros(3, dtype=np.int64)
-        last_pred = np.empty(N_X)
-        stop = filter_events.compiled(self.name == "ekf", x, P, P_post, ys, us, start,
-                                      self.events, gr, gated, xs, last_pred, lim, args[0],
-                                      args[1], args[2], *args[3:])
+        last_pred = np.empty(len(x))
+        kind = KINDS[self.name]
+        ac = args[3] if kind == 2 else _NO_AC
+        stop = filter_events.compiled(kind, x, P, P_post, ys, us, start, self.events, gr, gated,
+                                      xs, last_pred, lim, args[0], args[1], args[2], ac,
+                                      *args[-6:])
         if stop == start:
             return start
         self.events += stop - start

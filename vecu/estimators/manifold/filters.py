@@ -97,6 +97,12 @@ class ManifoldFilterConfig:
     doubling_tol: float = 1e-12
     doubling_max_iter: int = 40
     bounds: DivergenceBounds = field(default_factory=lambda: MANIFOLD_BOUNDS)
+    # adaptive filter only: corrections c (eta) and c_th (throttle flow), random walks
+    eta_q: float = 4e-8  # variance of c's and c_th's step per event
+    eta_p0: float = 2.5e-3  # prior variance of c and c_th (sigma 5 %)
+    eta_box: tuple[float, float] = (0.7, 1.3)  # c and c_th are clamped here
+    eta_pr_freeze: float = 0.9  # c, c_th not learned above this P_im / P_a
+    eta_alpha_gate: float = 2.0  # nor while |TA innovation| exceeds this many sigma
 
 
 def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
@@ -441,17 +447,3 @@ class ManifoldSDKF(_ManifoldKF):
         self.last_prediction = (u, x_n.copy())
         self._clamp(x_n)
         self.x = x_n
-
-
-def make_filter(name: str, config: ManifoldFilterConfig = ManifoldFilterConfig(),
-                x0: np.ndarray | None = None) -> _ManifoldKF:
-    """'ekf', 'sdkf' (iterate), 'sdkf_doubling', 'sdkf_scipy'."""
-    from dataclasses import replace
-
-    if name == "ekf":
-        return ManifoldEKF(config, x0)
-    if name == "sdkf":
-        return ManifoldSDKF(replace(config, riccati="iterate"), x0)
-    if name.startswith("sdkf_") and name[5:] in RICCATI_MODES:
-        return ManifoldSDKF(replace(config, riccati=name[5:]), x0)
-    raise ValueError(f"unknown manifold filter {name!r}")
