@@ -8,7 +8,13 @@ from __future__ import annotations
 import numpy as np
 
 from vecu.estimators.manifold import kernels as K
-from vecu.estimators.manifold.kernels import DIVERGED, F_MAX_ABS, F_MAX_TRACE, F_R0, FALLBACK
+from vecu.estimators.manifold.kernels import (
+    DIVERGED,
+    F_MAX_ABS,
+    F_MAX_TRACE,
+    F_R0,
+    FALLBACK,
+)
 from vecu.kernels import kernel
 
 N_XA = 8  # the EKF's six states, the eta correction c and the throttle-flow correction c_th
