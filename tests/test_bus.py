@@ -82,3 +82,66 @@ def test_socketcan_vcan_roundtrip():
     finally:
         a.shutdown()
         b.shutdown()
+
+
+def _fields(m: can.Message) -> tuple:
+    return (m.timestamp, m.arbitration_id, m.is_extended_id, m.is_remote_frame, m.is_error_frame,
+            m.channel, m.dlc, bytes(m.data), m.is_fd, m.is_rx, m.bitrate_switch,
+            m.error_state_indicator, type(m.data))
+
+
+def test_sim_lane_hands_frames_to_every_other_endpoint_in_order_and_copies_only_for_edges():
+    from vecu.bus import SimLane
+
+    lane = SimLane("lane-test")
+    plant, ecu, log = lane.bus(), lane.bus(), lane.bus(edge=True)
+    ref_tx, ref_log = open_bus(channel="lane-ref"), open_bus(channel="lane-ref")
+    frames = [can.Message(timestamp=0.001 * i, arbitration_id=0x100 + i, data=bytes([i] * 4),
+                          is_extended_id=False) for i in range(3)]
+    frames.append(can.Message(timestamp=0.004, arbitration_id=0x1ABCDEF, is_extended_id=True,
+                              is_error_frame=True))
+    try:
+        for m in frames:
+            plant.send(m)
+            ref_tx.send(m)
+        ecu.send(frames[0])
+        assert plant.recv(0.0) is frames[0]  # the ECU's frame; no echo of its own
+        assert plant.recv(0.0) is None
+        got = [ecu.recv(0.0) for _ in frames]
+        assert got == frames and all(a is b for a, b in zip(got, frames))  # shared, in order
+        assert ecu.recv(1.0) is None  # never waits
+        logged = [log.recv(0.0) for _ in range(len(frames) + 1)]
+        ref = [ref_log.recv(0.0) for _ in frames]
+        # the edge's copies are what python-can's virtual bus (vecu's FastVirtualBus) delivers,
+        # channel aside, and they are copies
+        assert [_fields(m)[:5] + _fields(m)[6:] for m in logged[:-1]] == \
+               [_fields(m)[:5] + _fields(m)[6:] for m in ref]
+        assert all(m.channel == "lane-test" and m is not f for m, f in zip(logged, frames))
+        assert logged[-1].is_rx is True and bytes(logged[-1].data) == bytes(frames[0].data)
+        logged[0].data[0] = 0xFF  # an edge may change its copy: the frame itself stays
+        assert frames[0].data[0] == 0
+    finally:
+        for b in (plant, ecu, log, ref_tx, ref_log):
+            b.shutdown()
+    assert lane.endpoints == []
+
+
+def test_a_simulated_virtual_run_goes_over_the_lane_unless_a_listener_is_on_its_channel():
+    """The run's nodes talk over the in-process lane (issue 16); a python-can bus of this process
+    already on the run's channel (a user's listener) keeps python-can's channel and hears it all."""
+    from vecu.runner import RunConfig, run
+
+    cfg = RunConfig(duration_s=0.02, kill_tps_at_s=None, channel="lane-run")
+    alone = run(cfg).summary
+    assert alone["bus"] == "vecu lane"
+    spy = open_bus(channel="lane-run")
+    try:
+        heard = run(cfg).summary
+        frames = []
+        while (m := spy.recv(0.0)) is not None:
+            frames.append(m)
+    finally:
+        spy.shutdown()
+    assert heard["bus"] == "FastVirtualBus"
+    assert len(frames) == heard["frames"]["sent"] == alone["frames"]["sent"] > 0
+    assert heard["frames"]["ecu_rx"] == alone["frames"]["ecu_rx"]

@@ -5,8 +5,10 @@ interface accepts) and honours python-can configuration (CAN_INTERFACE / CAN_CHA
 variables, ~/.canrc, can.ini or an explicit config file). With nothing configured anywhere it opens
 the in-process `virtual` bus on channel "vecu"; `virtual` and `udp_multicast` buses come with a
 cheaper poll (FastVirtualBus, FastUdpMulticastBus). Also here: python-can's own VirtualBus as a
-benchmark baseline (open_baseline_virtual_bus), the replay sink (SinkBus) and BusNode, the
-counted, never-raising sender the plant and the ECU stand on.
+benchmark baseline (open_baseline_virtual_bus), the in-process lane of simulated-clock runs
+(SimLane: python-can Message objects shared between the nodes, copies only for edges such as a
+log writer), the replay sink (SinkBus) and BusNode, the counted, never-raising sender the plant
+and the ECU stand on.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import logging
 import queue
 import socket
 import struct
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -218,6 +221,82 @@ class SinkBus(can.BusABC):
 
     def recv(self, timeout: float | None = None) -> None:  # type: ignore[override]
         return None
+
+
+def virtual_channel_in_use(channel: Any) -> bool:
+    """True when a python-can `virtual` bus of this process is open on `channel` (a user's
+    listener, another run): a run on the simulated clock then keeps python-can's channel."""
+    from can.interfaces import virtual
+
+    with virtual.channels_lock:
+        return bool(virtual.channels.get(channel))
+
+
+class SimLane:
+    """The in-process lane of a run on the simulated clock (one thread, one process): the buses
+    of the plant, the ECU, a tester and a recorder, without python-can's per-receiver copies and
+    locked queues. A frame sent is handed to every other endpoint's plain deque; receivers on the
+    lane share the sender's Message and only read it (nothing in vecu changes a frame it has
+    received or sent). An `edge` endpoint (a log writer, a user's listener) gets its own copy, made
+    exactly as FastVirtualBus makes one (channel, is_rx, own data buffer), so what it sees and
+    writes is what it would get from python-can's virtual bus. Live runs never use the lane."""
+
+    def __init__(self, channel: str = DEFAULT_CHANNEL) -> None:
+        self.channel = channel
+        self.endpoints: list[LaneBus] = []
+
+    def bus(self, *, edge: bool = False, receive_own_messages: bool = False) -> LaneBus:
+        """A new endpoint on this lane (a python-can bus)."""
+        return LaneBus(self, edge=edge, receive_own_messages=receive_own_messages)
+
+
+class LaneBus(can.BusABC):
+    """One endpoint of a SimLane: send() appends to the other endpoints' deques, recv() pops its
+    own (never waits: on the simulated clock nothing arrives while a node waits)."""
+
+    def __init__(self, lane: SimLane, *, edge: bool = False,
+                 receive_own_messages: bool = False) -> None:
+        super().__init__(channel=lane.channel)
+        self.channel_info = f"vecu lane {lane.channel}"
+        self.lane = lane
+        self.edge = edge
+        self.receive_own_messages = receive_own_messages
+        self.queue: deque[can.Message] = deque()
+        lane.endpoints.append(self)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        for ep in self.lane.endpoints:
+            own = ep is self
+            if own and not self.receive_own_messages:
+                continue
+            if ep.edge:
+                ep.queue.append(can.Message(
+                    timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+                    is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
+                    is_error_frame=msg.is_error_frame, channel=self.lane.channel, dlc=msg.dlc,
+                    data=bytearray(msg.data), is_fd=msg.is_fd, is_rx=not own,
+                    bitrate_switch=msg.bitrate_switch,
+                    error_state_indicator=msg.error_state_indicator, check=False))
+            else:
+                ep.queue.append(msg)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        q = self.queue
+        while q:
+            msg = q.popleft()
+            if self._filters is None or self._matches_filters(msg):
+                return msg
+        return None
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        q = self.queue
+        return (q.popleft() if q else None), False
+
+    def shutdown(self) -> None:
+        if self in self.lane.endpoints:
+            self.lane.endpoints.remove(self)
+        self.queue.clear()
+        super().shutdown()
 
 
 MAX_LOGGED_SEND_ERRORS = 20

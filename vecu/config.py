@@ -24,6 +24,7 @@ from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
 from vecu.models.lateral import VehicleParams
 from vecu.models.sensors import TpsCalibration
+from vecu.plant.input_file import load_input_file
 from vecu.plant.lateral import LateralSensors
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
 from vecu.plant.manifold import ManifoldPlantConfig
@@ -143,6 +144,7 @@ class RunConfig:
     speed_manoeuvres: tuple[str, ...] | None = None  # longitudinal plant sequence (None: default)
     faults: tuple[ScheduledFault, ...] = ()  # fault timeline (scenarios), on top of the kills
     uds_steps: tuple[UdsStep, ...] = ()  # a tester's requests (scenarios; docs/uds.md)
+    throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
 
     def with_params(self, sets: object = (), **shortcuts: object) -> RunConfig:
         """This configuration with parameter-tree overrides: (path, value) pairs or a mapping,
@@ -177,6 +179,8 @@ class RunConfig:
         if self.kill_tps_at_s is not None and not 0 <= self.kill_tps_at_s < self.duration_s:
             raise ConfigError(f"kill time {self.kill_tps_at_s} s is outside the run (0..{self.duration_s} s)")
         validate_tree(self.params)
+        if self.throttle_input is not None:  # BadFileError naming the file and the problem
+            load_input_file(self.throttle_input)
         if self.kill_swa_at_s is not None and not 0 <= self.kill_swa_at_s < self.duration_s:
             raise ConfigError(f"SWA kill time {self.kill_swa_at_s} s is outside the run "
                               f"(0..{self.duration_s} s)")

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import gc
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import can
 import numpy as np
@@ -21,7 +22,7 @@ from vecu.assembly import (
     schedule_ecu,
     schedule_plant,
 )
-from vecu.bus import open_bus
+from vecu.bus import SimLane, open_bus, resolve_bus_config, virtual_channel_in_use
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.codec import DbcCodec
 from vecu.config import RunConfig
@@ -70,23 +71,29 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
     config.validate()
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     codec = DbcCodec()
-    bus_args = dict(interface=config.interface, channel=config.channel, bitrate=config.bitrate)
+    bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     clock = WallClock() if config.realtime else SimClock()
     sched = Scheduler(clock)
-    n_ticks = int(round(config.duration_s * 1000))
+    n_ticks = round(config.duration_s * 1000)
     end_ns = n_ticks * TICK_NS
-    kill_ns = None if config.kill_tps_at_s is None else int(round(config.kill_tps_at_s * NS_PER_S))
+    kill_ns = None if config.kill_tps_at_s is None else round(config.kill_tps_at_s * NS_PER_S)
     buses: list[can.BusABC] = []
     recorder: Recorder | None = None
+    lane = _sim_lane(config, bus_args)
+
+    def node_bus(edge: bool = False) -> can.BusABC:
+        if lane is not None:
+            bus = lane.bus(edge=edge)
+        else:  # a recorder (edge) listens only
+            bus = open_bus(**bus_args, **({"receive_own_messages": False} if edge else {}))
+        buses.append(bus)
+        return bus
+
     try:
         if config.log_path:  # open first so it sees every frame
-            rec_bus = open_bus(**bus_args, receive_own_messages=False)
-            buses.append(rec_bus)
-            recorder = Recorder(rec_bus, config.log_path)
-        plant_bus = open_bus(**bus_args)
-        buses.append(plant_bus)
-        ecu_bus = open_bus(**bus_args)
-        buses.append(ecu_bus)
+            recorder = Recorder(node_bus(edge=True), config.log_path)
+        plant_bus = node_bus()
+        ecu_bus = node_bus()
         injector = FaultInjector(rngs["faults"])
         plant = build_plant(config, codec, plant_bus, injector,
                             truth=config.truth and recorder is not None)
@@ -101,7 +108,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         steering_probe = None
         steering_fn = fns.steering
         swa_kill_ns = (None if config.kill_swa_at_s is None
-                       else int(round(config.kill_swa_at_s * NS_PER_S)))
+                       else round(config.kill_swa_at_s * NS_PER_S))
         if steering_fn is not None and plant.lateral is not None:
             steering_probe = SteeringProbe(plant.lateral, steering_fn, swa_kill_ns,
                                            n_ticks // 10 + 1, config.keep_series)
@@ -112,9 +119,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
         tester = None
         if config.uds_steps:  # a scenario's tester, before the ECU in each tick
-            tester_bus = open_bus(**bus_args)
-            buses.append(tester_bus)
-            tester = SimTester(tester_bus, config.params.ecu.uds, config.uds_steps)
+            tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
             sched.every(TICK_NS, tester.tick, name="uds-tester", priority=PRIO_PLANT + 5)
         probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
         schedule_plant(sched, plant)
@@ -162,6 +167,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         summary = _summary(config, sched, plant, ecu, throttle_fn, probe, injector, kill_ns,
                            n_ticks, wall, recorder)
         summary["kernel_load_s"] = round(kernel_load_s, 3)
+        summary["bus"] = "vecu lane" if lane is not None else type(ecu_bus).__name__
         summary["diagnostics"] = {**{name: mon.report() for name, mon in ecu.monitors.items()},
                                   "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
                                           "confirmations": ecu.bus_dtc.confirmations}}
@@ -193,15 +199,28 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
                      manifold_series=manifold_probe.series() if manifold_probe else None)
 
 
+def _sim_lane(config: RunConfig, bus_args: dict[str, Any]) -> SimLane | None:
+    """The in-process lane (vecu.bus.SimLane) for a simulated-clock run on python-can's
+    `virtual` interface, unless a bus of this process already listens on that channel (then
+    python-can's channel, so that the listener hears the run); a wall-clock run or any other
+    interface keeps python-can end to end."""
+    if config.realtime:
+        return None
+    cfg = resolve_bus_config(**bus_args)
+    if cfg["interface"] != "virtual" or virtual_channel_in_use(cfg["channel"]):
+        return None
+    return SimLane(str(cfg["channel"]))
+
+
 def _schedule_fault(sched: Scheduler, injector: FaultInjector, f: ScheduledFault) -> None:
     """Start (and end) one timeline fault; the target is checked against the DBC now."""
     kind = parse_kind(f.kind)
     injector.check(f.target, kind, f.value)
-    sched.at(int(round(f.start_s * NS_PER_S)),
+    sched.at(round(f.start_s * NS_PER_S),
              lambda t: injector.inject(t, f.target, kind, f.value, source="scenario"),
              name=f"fault-{f.kind}-{f.target}", priority=PRIO_PLANT - 1)
     if f.end_s is not None:
-        sched.at(int(round(f.end_s * NS_PER_S)),
+        sched.at(round(f.end_s * NS_PER_S),
                  lambda t: injector.clear(t, f.target, kind, source="scenario"),
                  name=f"end-{f.kind}-{f.target}", priority=PRIO_PLANT - 1)
 
