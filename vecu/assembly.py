@@ -22,6 +22,7 @@ from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.faults import FaultInjector
+from vecu.plant.input_file import FileInput, load_input_file
 from vecu.plant.node import (
     LateralPart,
     LongitudinalPart,
@@ -63,9 +64,12 @@ def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
     car = config.params.plant
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     injector = injector if injector is not None else FaultInjector(rngs["faults"])
+    inputs: InputGenerator | FileInput = (  # the §III-B excitation, or a user's u(t) file
+        InputGenerator(car.input, rngs["throttle.input"]) if config.throttle_input is None
+        else FileInput(load_input_file(config.throttle_input)))
     parts: list[PlantPart] = [ThrottlePart(
-        codec, ThrottlePlant(car.throttle, rngs["throttle.plant"]),
-        InputGenerator(car.input, rngs["throttle.input"]), injector, car.sensors.tps)]
+        codec, ThrottlePlant(car.throttle, rngs["throttle.plant"]), inputs, injector,
+        car.sensors.tps)]
     if config.speed:
         parts.append(LongitudinalPart(codec, config.seed, config.speed_manoeuvres,
                                       car.sensors.wheel, car.sensors.accel))

@@ -8,6 +8,7 @@ from vecu import argtypes
 from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
 
 DEFAULT_LOG = "throttle-excite.blf"
+DEFAULT_DURATION_S = 30.0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,10 +22,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Pseudo-random rectangular pulses of random amplitude 0-10 V through a "
                     "4th-order Butterworth low-pass with a cut-off redrawn in 0.01-60 Hz every "
                     "10 s (plant.input.*), applied to the simulated throttle body (plant.throttle."
-                    "*; perturb it with --set to play an unknown throttle). Records u, the "
-                    "wattmeter and the TPS at 1 kHz, no faults, with the truth frames for scoring.")
-    t.add_argument("--duration", type=argtypes.run_seconds, default=30.0, metavar="S",
-                   help="seconds (default 30: the paper's three blocks of 10 000 points)")
+                    "*; perturb it with --set to play an unknown throttle), or u(t) from your "
+                    "own file (--input). Records u, the wattmeter and the TPS at 1 kHz, no "
+                    "faults, with the truth frames for scoring.")
+    t.add_argument("--duration", type=argtypes.run_seconds, default=None, metavar="S",
+                   help="seconds (default 30: the paper's three blocks of 10 000 points; with "
+                        "--input, the file's last time)")
+    t.add_argument("--input", metavar="FILE",
+                   help="drive the throttle with u(t) from FILE instead of the excitation: CSV "
+                        "with a header naming t_s and u_V (s, V in 0..12), times increasing; u "
+                        "linearly interpolated at each 1 ms tick, held after the last row "
+                        "(docs/reproduction.md)")
     t.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     t.add_argument("--log", default=DEFAULT_LOG, metavar="FILE",
                    help=f"trace file, format by suffix (default {DEFAULT_LOG})")
@@ -40,14 +48,23 @@ def main(args: argparse.Namespace) -> int:
     check_outputs(log=args.log)
     from vecu.runner import RunConfig, run
 
-    config = RunConfig(duration_s=args.duration, seed=args.seed, kill_tps_at_s=None,
+    duration = args.duration
+    if args.input is not None:
+        from vecu.plant.input_file import load_input_file
+
+        series = load_input_file(args.input)  # a bad file: one line naming it, before any work
+        if duration is None:
+            duration = max(round(series.end_s, 3), 0.001)
+    duration = DEFAULT_DURATION_S if duration is None else duration
+    config = RunConfig(duration_s=duration, seed=args.seed, kill_tps_at_s=None,
                        log_path=args.log, truth=args.truth, speed=False, steering=False,
-                       manifold=False).with_params(param_sets(args))
+                       manifold=False, throttle_input=args.input).with_params(param_sets(args))
     config.validate()
     result = run(config)
     if not args.quiet:
         changed = result.summary["config"]["params"]
-        print(f"recorded {args.duration:g} s of throttle excitation to {args.log} "
+        what = "throttle excitation" if args.input is None else f"throttle input {args.input}"
+        print(f"recorded {duration:g} s of {what} to {args.log} "
               f"({result.summary['frames']['sent']} frames)"
               + (f"; plant changed: {', '.join(f'{k}={v}' for k, v in changed.items())}"
                  if changed else "; plant: Table I"))
