@@ -66,7 +66,7 @@ class _Echo:
 class _Rig:
     """Plant, ECU with its UDS server and the echo on one fresh virtual channel."""
 
-    def __init__(self, clock: SimClock | WallClock) -> None:
+    def __init__(self, clock: SimClock | WallClock, duration_s: float) -> None:
         from vecu.assembly import (
             build_functions,
             build_plant,
@@ -80,7 +80,8 @@ class _Rig:
         from vecu.scheduler import Scheduler
         from vecu.uds.server import attach_uds
 
-        self.config = RunConfig(duration_s=3600.0, kill_tps_at_s=None)
+        # the lateral plant simulates its whole run up front: no longer than the bench needs
+        self.config = RunConfig(duration_s=duration_s, kill_tps_at_s=None)
         codec = DbcCodec()
         channel = f"vecu-bench-uds-{next(_channels)}-{perf_ns()}"
         # the echo on a channel of its own: the same in-process queues, but the ECU does not
@@ -274,15 +275,22 @@ def _stats(ns: list[int]) -> dict[str, float]:
             "p99_ms": round(float(np.percentile(ms, 99)), 3), "max_ms": round(float(ms.max()), 3)}
 
 
-def bench_uds_sim(requests: int, max_sim_s: float = 600.0) -> dict[str, Any]:
+def _run_s(requests: int) -> float:
+    """An upper bound on a bench run's length (requests take a few ms each, twice: with the
+    window without requests)."""
+    return 30.0 + 0.1 * requests
+
+
+def bench_uds_sim(requests: int) -> dict[str, Any]:
     """On the simulated clock: stepped 1 ms at a time while the tester talks, waiting after each
     tick that answered it for its reaction (Rig.settle); latencies in simulated time, the same
     in every run unless the tester takes longer than SIM_REACT_S of wall time to react."""
-    rig = _Rig(SimClock())
+    max_s = _run_s(requests)
+    rig = _Rig(SimClock(), max_s)
     t = [0]
 
     def drive(thread: threading.Thread) -> None:
-        end = round(max_sim_s * NS_PER_S)
+        end = round(max_s * NS_PER_S)
         while thread.is_alive() and t[0] < end:
             t[0] += NS_PER_MS
             rig.sched.run_until(t[0])
@@ -294,7 +302,7 @@ def bench_uds_sim(requests: int, max_sim_s: float = 600.0) -> dict[str, Any]:
         rig.close()
 
 
-def bench_uds_live(requests: int, max_s: float = 120.0) -> dict[str, Any]:
+def bench_uds_live(requests: int) -> dict[str, Any]:
     """Live: the same nodes paced by a WallClock in this process (virtual bus), its final spin
     and timer slack as the live processes'; the interpreter's switch interval shortened so the
     tester's threads and the clock's pass it quickly."""
@@ -304,7 +312,8 @@ def bench_uds_live(requests: int, max_s: float = 120.0) -> dict[str, Any]:
 
     tighten_timer_slack()  # as the live processes
     clock = WallClock(spin_ns=DEFAULT_SPIN_US * 1000)
-    rig = _Rig(clock)
+    max_s = _run_s(requests)
+    rig = _Rig(clock, max_s)
 
     def drive(thread: threading.Thread) -> None:
         def check(t_ns: int) -> None:
