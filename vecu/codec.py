@@ -194,6 +194,18 @@ class FrameCodec:
             return fast(data)
         return self._decode_simple(data, False, True)
 
+    def decode_problem(self, data: bytes | bytearray) -> str | None:
+        """Why decode(data) fails (the exception's name), None when it works. A payload of the
+        message's length that the generated decoder takes is not decoded at all: shifts, masks
+        and linear or cantools conversions of in-range integers cannot fail."""
+        if self._fast_decode is not None and len(data) == self.length:
+            return None
+        try:
+            self.decode(data)
+        except Exception as exc:  # noqa: BLE001 - whatever cantools raises for this payload
+            return type(exc).__name__
+        return None
+
     def decode_cantools(self, data: bytes | bytearray) -> dict[str, float]:
         """decode() through cantools only (the reference of the fast path)."""
         return self._decode_simple(data, False, True)

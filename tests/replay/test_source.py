@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import can
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vecu.clock import NS_PER_S
 from vecu.replay.source import IDLE_GAP_NS, TraceSource
@@ -127,3 +131,62 @@ def test_a_corrupt_mf4_with_asammdf_is_one_line(tmp_path, damage):
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert lines[0].startswith("vecu: error: bad.mf4: "), lines[0]
+
+
+def _reference_order(stamps: list[float], window_ns: int, idle_ns: int) -> tuple[list, dict]:
+    """The re-order window and idle-gap rules written plainly (a heap for every frame): what
+    TraceSource's one-loop reader with its in-order FIFO must reproduce."""
+    import heapq
+
+    heap, out, released, prev, stats = [], [], None, None, {"late": 0, "out_of_order": 0}
+    t0 = stamps[0]
+    order = []
+    for seq, ts in enumerate(stamps):
+        if prev is not None and ts < prev:
+            stats["out_of_order"] += 1
+        prev = ts
+        t_ns = math.floor((ts - t0) * 1_000_000 + 0.5) * 1000
+        if t_ns < 0:
+            stats["late"] += 1
+            t_ns = 0
+        if released is not None and t_ns < released:
+            stats["late"] += 1
+            t_ns = released
+        heapq.heappush(heap, (t_ns, seq))
+        while heap and heap[0][0] <= t_ns - window_ns:
+            released, s = heapq.heappop(heap)
+            order.append((released, s))
+    order += [heapq.heappop(heap) for _ in range(len(heap))]
+    last, skipped = None, 0
+    for t_ns, s in order:
+        if last is not None and t_ns - last > idle_ns:
+            skipped += t_ns - last - idle_ns
+        last = t_ns
+        out.append((t_ns - skipped, s))
+    stats["skipped_ns"] = skipped
+    return out, stats
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(steps=st.lists(st.one_of(st.integers(0, 3000), st.integers(-80_000, -1),
+                                st.sampled_from([0, 11_000_000, -60_000])), min_size=1,
+                      max_size=60))
+def test_ordering_and_idle_gaps_match_the_plain_heap_rules(tmp_path_factory, steps):
+    """Frames in order, a little out of order (inside the 50 ms window), far out of order (late)
+    and after idle gaps: the same order, times and counts as the rules written plainly."""
+    path = tmp_path_factory.mktemp("order") / "t.log"
+    stamps, t = [], 100.0
+    for us in steps:
+        t += us * 1e-6
+        stamps.append(round(t, 6))
+    with can.Logger(str(path)) as w:
+        for i, ts in enumerate(stamps):
+            w.on_message_received(can.Message(timestamp=ts, arbitration_id=i, data=b"\x01",
+                                              is_extended_id=True))
+    stamps = [m.timestamp for m in can.LogReader(str(path))]  # as the file holds them
+    src = TraceSource(path, idle_gap_ns=1_000_000_000)
+    got = [(t_ns, msg.arbitration_id) for t_ns, msg in src]
+    want, stats = _reference_order(stamps, src.window_ns, 1_000_000_000)
+    assert got == want
+    assert (src.stats.late, src.stats.out_of_order, src.stats.skipped_ns) == \
+           (stats["late"], stats["out_of_order"], stats["skipped_ns"])

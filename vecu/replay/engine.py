@@ -264,15 +264,9 @@ class _Feeder:
                 or msg.is_remote_frame:
             self.ecu.receive(msg, t_ns)  # its rx counters say accepted / ignored / why not
             return
-        fc = self.db.by_id[key]  # known, not an input: decode it to count it honestly
-        reason = None
-        if len(msg.data) != fc.length:
-            reason = "dlc"
-        else:
-            try:
-                fc.decode(msg.data)
-            except Exception as exc:  # noqa: BLE001
-                reason = type(exc).__name__
+        fc = self.db.by_id[key]  # known, not an input: count whether it decodes
+        data = msg.data
+        reason = "dlc" if len(data) != fc.length else fc.decode_problem(data)
         if reason is None:
             tally.decoded_other += 1
         else:

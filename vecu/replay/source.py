@@ -27,6 +27,7 @@ import math
 import os
 import traceback
 from bisect import bisect_right
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -174,12 +175,28 @@ class TraceSource:
         return None
 
     # ---------------------------------------------------------------- iteration
-    def _raw(self) -> Iterator[can.Message]:
+    def __iter__(self) -> Iterator[tuple[int, can.Message]]:
+        """(t_ns, msg) in timestamp order (within the re-order window), idle gaps shortened."""
         with quiet_reader_logs():  # for as long as the file is read
-            yield from self._read()
+            yield from self._frames()
 
-    def _read(self) -> Iterator[can.Message]:
+    def _frames(self) -> Iterator[tuple[int, can.Message]]:
+        """Read, order and shorten in one loop (one generator per frame, not one per stage).
+
+        While the file's times do not go backwards, the frames held for the re-order window
+        wait in a FIFO (already in order, the heap's order too); the first frame that goes
+        backwards turns the FIFO into the heap, which then holds them as before."""
         stats = self.stats
+        window, idle_gap = self.window_ns, self.idle_gap_ns
+        scale = NS_PER_S // TIME_RESOLUTION_NS
+        fifo: deque[tuple[int, int, can.Message]] | None = deque()
+        heap: list[tuple[int, int, can.Message]] = []
+        released = None  # t_ns (trace time) of the last frame handed out by the ordering
+        prev_ts = None
+        last = None  # trace time of the last frame handed out
+        skipped = 0
+        seq = 0
+        t0 = None
         it = iter(self._reader)
         while True:
             try:
@@ -191,14 +208,75 @@ class TraceSource:
                               f"{self._where()}: {_one_line(exc)}")
                 break
             stats.frames_read += 1
-            self._last_ts = msg.timestamp
-            yield msg
+            ts = msg.timestamp
+            self._last_ts = ts
+            if t0 is None:
+                t0 = self.t0_s = ts if _finite(ts) else 0.0
+            if not _finite(ts):
+                stats.non_finite_time += 1
+                t_ns = released if released is not None else 0
+            else:
+                if prev_ts is not None and ts < prev_ts:
+                    stats.out_of_order += 1
+                prev_ts = ts
+                t_ns = math.floor((ts - t0) * scale + 0.5) * TIME_RESOLUTION_NS  # _quantise
+                if t_ns < 0:  # earlier than the first frame: deliver at the start
+                    stats.late += 1
+                    t_ns = 0
+            if released is not None and t_ns < released:
+                stats.late += 1
+                t_ns = released
+            entry = (t_ns, seq, msg)
+            seq += 1
+            if fifo is not None:
+                if fifo and t_ns < fifo[-1][0]:  # backwards: from now on the heap
+                    heap = list(fifo)
+                    fifo = None
+                    heapq.heappush(heap, entry)
+                else:
+                    fifo.append(entry)
+            else:
+                heapq.heappush(heap, entry)
+            edge = t_ns - window
+            while True:
+                if fifo is not None:
+                    if not fifo or fifo[0][0] > edge:
+                        break
+                    released, _, out = fifo.popleft()
+                else:
+                    if not heap or heap[0][0] > edge:
+                        break
+                    released, _, out = heapq.heappop(heap)
+                if last is not None and released - last > idle_gap:
+                    skipped = self._gap(last, released, skipped)
+                last = released
+                yield released - skipped, out
         if self.error is None:
             self.error = self._truncation()
         try:
             self._reader.stop()
         except Exception as exc:  # noqa: BLE001 - closing a reader that has failed may fail too
             log.debug("%s: closing the reader: %s", self.path, exc)
+        rest = list(fifo) if fifo is not None else [heapq.heappop(heap) for _ in range(len(heap))]
+        for released, _, out in rest:
+            if last is not None and released - last > idle_gap:
+                skipped = self._gap(last, released, skipped)
+            last = released
+            yield released - skipped, out
+
+    def _gap(self, last: int, t_ns: int, skipped: int) -> int:
+        """An idle gap from last to t_ns (trace time) shortened: recorded, new total skipped."""
+        stats = self.stats
+        gap = t_ns - last
+        skipped += gap - self.idle_gap_ns
+        stats.gaps += 1
+        stats.skipped_ns = skipped
+        stats.longest_gap_ns = max(stats.longest_gap_ns, gap)
+        if len(stats.gap_list) < MAX_GAPS_LISTED:
+            stats.gap_list.append((last, gap))
+        self._gap_ends.append(t_ns - skipped)
+        self._skipped_at.append(skipped)
+        return skipped
 
     def _where(self) -> str:
         ts = getattr(self, "_last_ts", None)
@@ -232,58 +310,6 @@ class TraceSource:
         """Idle time skipped before t_ns (replay time base): t_ns + this is the trace's time."""
         i = bisect_right(self._gap_ends, t_ns)
         return self._skipped_at[i - 1] if i else 0
-
-    def __iter__(self) -> Iterator[tuple[int, can.Message]]:
-        """(t_ns, msg) in timestamp order (within the re-order window), idle gaps shortened."""
-        last = None  # trace time of the last frame handed out
-        skipped = 0
-        stats = self.stats
-        for t_ns, msg in self._ordered():
-            if last is not None and t_ns - last > self.idle_gap_ns:
-                gap = t_ns - last
-                skipped += gap - self.idle_gap_ns
-                stats.gaps += 1
-                stats.skipped_ns = skipped
-                stats.longest_gap_ns = max(stats.longest_gap_ns, gap)
-                if len(stats.gap_list) < MAX_GAPS_LISTED:
-                    stats.gap_list.append((last, gap))
-                self._gap_ends.append(t_ns - skipped)
-                self._skipped_at.append(skipped)
-            last = t_ns
-            yield t_ns - skipped, msg
-
-    def _ordered(self) -> Iterator[tuple[int, can.Message]]:
-        """(t_ns, msg) in timestamp order (within the re-order window)."""
-        stats = self.stats
-        heap: list[tuple[int, int, can.Message]] = []
-        window = self.window_ns
-        released = None  # t_ns of the last frame handed out
-        prev_ts = None
-        for seq, msg in enumerate(self._raw()):
-            ts = msg.timestamp
-            if self.t0_s is None:
-                self.t0_s = ts if _finite(ts) else 0.0
-            if not _finite(ts):
-                stats.non_finite_time += 1
-                t_ns = released if released is not None else 0
-            else:
-                if prev_ts is not None and ts < prev_ts:
-                    stats.out_of_order += 1
-                prev_ts = ts
-                t_ns = _quantise(ts - self.t0_s)
-                if t_ns < 0:  # earlier than the first frame: deliver at the start
-                    stats.late += 1
-                    t_ns = 0
-            if released is not None and t_ns < released:
-                stats.late += 1
-                t_ns = released
-            heapq.heappush(heap, (t_ns, seq, msg))
-            while heap and heap[0][0] <= t_ns - window:
-                released, _, out = heapq.heappop(heap)
-                yield released, out
-        while heap:
-            released, _, out = heapq.heappop(heap)
-            yield released, out
 
 
 def _quantise(dt_s: float) -> int:
