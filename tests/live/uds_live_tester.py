@@ -22,7 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from tests.uds.sim import CLIENT_CONFIG
 
 GROUP = "239.74.163.2"
-BUS = ["--interface", "udp_multicast", "--channel", GROUP]
+INTERFACE, CHANNEL = "udp_multicast", GROUP  # argv 2, 3: e.g. socketcan vcan0
+BUS = ["--interface", INTERFACE, "--channel", CHANNEL]
 
 
 def main(out: Path) -> dict:
@@ -45,7 +46,7 @@ def main(out: Path) -> dict:
             if (out / "plant.ready").exists():
                 break
             time.sleep(0.1)
-        bus = can.Bus(interface="udp_multicast", channel=GROUP)
+        bus = can.Bus(interface=INTERFACE, channel=CHANNEL)
         stack = isotp.CanStack(bus, address=isotp.Address(
             isotp.AddressingMode.Normal_11bits, txid=0x7E0, rxid=0x7E8))
         config = {**CLIENT_CONFIG, "dtc_snapshot_did_size": 2}
@@ -96,4 +97,7 @@ def main(out: Path) -> dict:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) > 3:
+        INTERFACE, CHANNEL = sys.argv[2], sys.argv[3]
+        BUS[:] = ["--interface", INTERFACE, "--channel", CHANNEL]
     print(json.dumps(main(Path(sys.argv[1]))))
