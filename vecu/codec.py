@@ -27,8 +27,13 @@ from pathlib import Path
 import can
 import cantools
 from cantools.database.can import Message
-from cantools.database.conversion import IdentityConversion, LinearConversion
+from cantools.database.conversion import (
+    IdentityConversion,
+    LinearConversion,
+    LinearIntegerConversion,
+)
 
+from vecu.block_codec import MAX_BLOCK_BYTES, BlockChecks, BlockField, BlockLayout
 from vecu.e2e import e2e_crc
 from vecu.errors import BadFileError
 
@@ -120,6 +125,9 @@ class FrameCodec:
         self._decode_simple = message.decode_simple
         compiled = compile_fast_codec(message, self._saturate) if fast else None
         self._fast_encode, self._fast_decode = compiled if compiled is not None else (None, None)
+        # many payloads at once (numpy), from the same cantools layout (vecu.block_codec)
+        self.block: BlockLayout | None = (block_layout(message, self.e2e)
+                                          if compiled is not None else None)
 
     def signal(self, name: str) -> SignalInfo:
         """The named signal (KeyError when the message has none)."""
@@ -193,6 +201,13 @@ class FrameCodec:
         if fast is not None and len(data) == self.length:
             return fast(data)
         return self._decode_simple(data, False, True)
+
+    def check_block(self, payloads: list[bytes | bytearray]) -> BlockChecks | None:
+        """crc_ok, decode and bad_values of many payloads of this message's length at once (the
+        same as those three calls per payload); None when the message has no block layout."""
+        if self.block is None:
+            return None
+        return self.block.check(payloads, self._checked)
 
     def decode_problem(self, data: bytes | bytearray) -> str | None:
         """Why decode(data) fails (the exception's name), None when it works. A payload of the
@@ -367,6 +382,36 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
     code = compile("\n".join(enc + [""] + dec) + "\n", f"<vecu fast codec {message.name}>", "exec")
     exec(code, ns)  # noqa: S102 (generated from the DBC's signal layout, no user text)
     return ns["encode"], ns["decode"]  # type: ignore[return-value]
+
+
+def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:
+    """The message's BlockLayout from cantools' signals (what compile_fast_codec covers, classic
+    CAN payloads, integer signals up to 32 bits, linear or identity conversions), or None."""
+    n = message.length
+    if n > MAX_BLOCK_BYTES or message.is_container or message.is_multiplexed():
+        return None
+    fields = []
+    for sig in message.signals:
+        placed = _signal_bits(sig, n)
+        if placed is None or (not sig.is_float and sig.length > 32):
+            return None
+        conv = sig.conversion
+        inner = getattr(conv, "_conversion", None)
+        if conv.choices is not None and inner is not None:
+            conv = inner  # without choice strings the named conversion decodes through it
+        if type(conv) in (LinearConversion, LinearIntegerConversion):
+            scale, offset = conv.scale, conv.offset
+            integer = not sig.is_float and isinstance(scale, int) and isinstance(offset, int)
+        elif type(conv) is IdentityConversion:
+            scale = offset = None
+            integer = not sig.is_float
+        else:
+            return None
+        fields.append(BlockField(sig.name, placed[0] == "be", placed[1], sig.length,
+                                 sig.is_signed, sig.length if sig.is_float else 0, scale, offset,
+                                 integer))
+    return BlockLayout(message.frame_id, n, tuple(fields),
+                       e2e.crc_byte if e2e is not None else None)
 
 
 def _e2e_layout(message: Message) -> E2ELayout | None:

@@ -20,6 +20,11 @@ def _make_table(poly: int) -> tuple[int, ...]:
 _TABLE = _make_table(0x1D)
 
 
+def crc8_table() -> tuple[int, ...]:
+    """The CRC-8 SAE J1850 lookup table (poly 0x1D) the checks here use (block decoders too)."""
+    return _TABLE
+
+
 def crc8_sae_j1850(data: bytes | bytearray, init: int = 0xFF) -> int:
     """CRC-8 SAE J1850: poly 0x1D, init 0xFF, final XOR 0xFF, not reflected (check 0x4B)."""
     crc = init

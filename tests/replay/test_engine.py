@@ -318,3 +318,48 @@ def test_a_bug_inside_the_ecu_is_a_traceback_not_a_problem_with_the_trace(
     err = capsys.readouterr().err
     assert rc == 1 and "Traceback" in err and "ZeroDivisionError: planted bug" in err, err
     assert "vecu: error" not in err and "malformed" not in err
+
+
+def test_block_decoding_gives_the_frame_by_frame_results_also_on_bad_frames(recorded, tmp_path):
+    """Issue 16: the trace's ECU inputs and truth frames are checked and decoded per message in
+    blocks (numpy); with bad CRCs, counters, values, DLCs, error and remote frames and unknown
+    IDs among them, every count, score and output frame is what the per-frame path gives."""
+    import random
+
+    codec = DbcCodec()
+    rng = random.Random(5)
+    msgs = []
+    for i, m in enumerate(can.LogReader(recorded[0])):
+        fc = codec.by_id.get((m.arbitration_id, m.is_extended_id))
+        k = rng.random()
+        if fc is not None and i % 3 == 0 and k < 0.5:  # a flipped bit: CRC, counter or value
+            data = bytearray(m.data)
+            data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+            m = can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, data=data,
+                            is_extended_id=m.is_extended_id)
+        elif fc is not None and i % 3 == 0 and k < 0.6:  # all ones: out of range, NaN floats
+            m = can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id,
+                            data=bytes([0xFF] * len(m.data)), is_extended_id=m.is_extended_id)
+        elif i % 97 == 0:
+            m = can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id,
+                            data=bytes(m.data[:-1]), is_extended_id=m.is_extended_id)
+        elif i % 101 == 0:
+            m = can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id,
+                            is_extended_id=m.is_extended_id, is_remote_frame=True)
+        elif i % 103 == 0:
+            m = can.Message(timestamp=m.timestamp, is_error_frame=True)
+        msgs.append(m)
+    trace = tmp_path / "bad.blf"
+    _write_log(trace, msgs)
+    results = {}
+    for block in (True, False):
+        out = tmp_path / f"est-{block}.log"
+        s = replay(ReplayConfig(trace=str(trace), out=str(out), block=block,
+                                progress=False)).summary
+        for key in ("wall_time_s", "x_realtime", "frames_per_s", "kernel_load_s", "config"):
+            s.pop(key)
+        results[block] = (s, out.read_bytes())
+    assert results[True] == results[False]
+    rx = results[True][0]["frames"]["ecu_rx"]
+    assert min(rx["crc_errors"], rx["counter_errors"], rx["value_errors"], rx["dlc_errors"],
+               rx["remote_frames"], rx["error_frames"], rx["accepted"]) > 0, rx

@@ -26,6 +26,7 @@ log = logging.getLogger(__name__)
 
 MAX_LOGGED_PER_KIND = 20  # rx problems logged individually before going quiet (still counted)
 Send = Callable[[can.Message], bool]
+Checked = tuple[bool, dict[str, float], list[str]]  # a frame's CRC ok, values, bad signals
 BUS_ERROR_LIMIT = 10  # error frames per ECU_Status period (100 ms) that confirm the bus DTC
 BUS_DTC_HEAL_MS = 5000.0
 
@@ -226,11 +227,13 @@ class EcuNode(BusNode):
                         msg.dlc, bytes(msg.data).hex(), detail,
                         " (further ones counted, not logged)" if n == MAX_LOGGED_PER_KIND else "")
 
-    def receive(self, msg: can.Message, t_ns: int) -> None:
+    def receive(self, msg: can.Message, t_ns: int, checked: Checked | None = None) -> None:
         """Validate one frame and hand its values to the subscribed function. A frame the ECU
         cannot take is counted and logged, never raised; an exception out of the function it
         feeds is a bug, not the frame's fault: it propagates (like one out of the function's
-        run()), so that it is a traceback, not a count of malformed frames."""
+        run()), so that it is a traceback, not a count of malformed frames. `checked`: the
+        frame's (CRC ok, values, bad signals) from its route codec's check_block (a replay
+        decodes the trace in blocks), instead of checking it here; the same checks follow."""
         rx = self.rx
         rx.received += 1
         try:
@@ -255,7 +258,7 @@ class EcuNode(BusNode):
                     rx.unknown_id += 1
                     self._problem("unknown-id", msg)
                 return
-            values = self._validate(msg, route)
+            values = self._validate(msg, route, checked)
         except Exception as exc:  # noqa: BLE001 - a frame the decoder cannot take: counted
             rx.malformed += 1
             self._problem("malformed", msg, f"{type(exc).__name__}: {exc}")
@@ -263,7 +266,8 @@ class EcuNode(BusNode):
         if values is not None:
             self._deliver(values, t_ns, route)
 
-    def _validate(self, msg: can.Message, route: Route) -> dict[str, float] | None:
+    def _validate(self, msg: can.Message, route: Route,
+                  checked: Checked | None = None) -> dict[str, float] | None:
         """The frame's values, or None when a check refuses it (counted, logged)."""
         rx = self.rx
         fc, sub, counter = route.codec, route.subscription, route.counter
@@ -272,17 +276,17 @@ class EcuNode(BusNode):
             rx.dlc_errors += 1
             self._problem("dlc", msg, f"expected {fc.length} bytes")
             return None
-        if fc.e2e is not None and not fc.crc_ok(data):
+        if fc.e2e is not None and not (checked[0] if checked is not None else fc.crc_ok(data)):
             rx.crc_errors += 1
             self._e2e_failure("crc", msg, sub)
             return None
-        values = fc.decode(data)
+        values = checked[1] if checked is not None else fc.decode(data)
         # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
         if counter is not None and not counter.check(int(values[fc.e2e.counter_signal])):
             rx.counter_errors += 1
             self._e2e_failure("alive-counter", msg, sub)
             return None
-        bad = fc.bad_values(values)
+        bad = checked[2] if checked is not None else fc.bad_values(values)
         if bad:
             rx.value_errors += 1
             self._problem("value", msg, f"bad {', '.join(bad)}")

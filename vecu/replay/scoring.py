@@ -10,6 +10,7 @@ as unmatched, not scored.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -84,6 +85,7 @@ class TruthScorer:
                 self._truth_codecs[(t.frame_id, t.is_extended)] = t
                 self._est[(e.frame_id, e.is_extended)] = (e, ch)
         self.truth_ids = frozenset(self._truth_codecs)
+        self.truth_codecs: Mapping[tuple[int, bool], FrameCodec] = self._truth_codecs
         self._latest: dict[str, tuple[int, dict[str, float]]] = {}
         self.stats = {ch.estimate: {p.key: RunningStats() for p in ch.pairs} for ch in CHANNELS}
         self.unmatched = {ch.estimate: 0 for ch in CHANNELS}
@@ -94,13 +96,16 @@ class TruthScorer:
     def active(self) -> bool:
         return self.truth_frames > 0
 
-    def on_truth(self, msg: can.Message, t_ns: int) -> None:
+    def on_truth(self, msg: can.Message, t_ns: int,
+                 values: dict[str, float] | None = None) -> None:
+        """A truth frame; `values`: its decoded values when the caller decoded it already."""
         fc = self._truth_codecs[(msg.arbitration_id, msg.is_extended_id)]
-        try:
-            values = fc.decode(msg.data)
-        except Exception:  # noqa: BLE001 - a corrupt truth frame is counted, not fatal
-            self.bad_truth_frames += 1
-            return
+        if values is None:
+            try:
+                values = fc.decode(msg.data)
+            except Exception:  # noqa: BLE001 - a corrupt truth frame is counted, not fatal
+                self.bad_truth_frames += 1
+                return
         self.truth_frames += 1
         self._latest[fc.name] = (t_ns, values)
 

@@ -1,0 +1,138 @@
+"""Block decoding: many payloads of one CAN message at once, with numpy.
+
+The bit layout comes from cantools through vecu.codec (FrameCodec.block: start bit, length, byte
+order, sign, float or integer, scale and offset of each signal, taken from cantools' Signal and
+conversion objects once; no DBC text is parsed here). For N payloads of the message's length,
+check() extracts every signal of every payload with shifts and masks on 64-bit words, applies
+the same conversion with the same IEEE operations as the per-frame decoder (so the values are
+bit for bit FrameCodec.decode's, ints where it gives ints), and checks the E2E CRC and the DBC
+ranges of all of them vectorised. Only classic CAN payloads (at most 8 bytes) with linear or
+identity conversions get a layout; anything else stays on the per-frame path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from vecu.e2e import crc8_table
+
+MAX_BLOCK_BYTES = 8
+
+
+@dataclass(frozen=True)
+class BlockField:
+    """One signal: where its raw bits are and how they become the value."""
+
+    name: str
+    big_endian: bool       # shift counts in the payload read as a big-endian integer
+    shift: int
+    length: int
+    signed: bool
+    float_bits: int        # 32 / 64 for IEEE float signals, 0 for integers
+    scale: float | int | None  # None: identity (the raw value itself)
+    offset: float | int | None
+    integer: bool          # the per-frame decoder gives a Python int
+
+
+@dataclass(frozen=True)
+class BlockChecks:
+    """What BlockLayout.check found for each payload (block[i]: CRC ok, values, bad signals)."""
+
+    crc_ok: list[bool]
+    names: list[str]
+    columns: list[list[float]]  # per signal, the values of all payloads (Python floats / ints)
+    bad: dict[int, list[str]]
+
+    def __len__(self) -> int:
+        return len(self.crc_ok)
+
+    def __getitem__(self, i: int) -> tuple[bool, dict[str, float], list[str]]:
+        """(CRC ok, values, bad signals) of payload i; the values dict is made now, when the
+        frame is used (a block of live dicts would keep the garbage collector busy)."""
+        return (self.crc_ok[i], dict(zip(self.names, [c[i] for c in self.columns])),
+                self.bad.get(i, []))
+
+
+@dataclass(frozen=True)
+class BlockLayout:
+    """All signals of one message and its E2E CRC position (None: not E2E protected)."""
+
+    frame_id: int
+    length: int
+    fields: tuple[BlockField, ...]
+    crc_byte: int | None
+
+    def check(self, payloads: Sequence[bytes | bytearray],
+              checked: Sequence[tuple[str, float | None, float | None]]) -> BlockChecks:
+        """CRC verdicts, values and the names of signals NaN/inf or outside [lo, hi] of every
+        payload, as FrameCodec.crc_ok / decode / bad_values give them one by one (`checked`:
+        the codec's range-checked signals). Every payload must be `length` bytes long."""
+        n, size = len(payloads), self.length
+        if n == 0:
+            return BlockChecks([], [], [], {})
+        raw = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(n, size)
+        words = {}
+        if any(not f.big_endian for f in self.fields):
+            buf = np.zeros((n, 8), dtype=np.uint8)
+            buf[:, :size] = raw
+            words[False] = buf.view("<u8").ravel()
+        if any(f.big_endian for f in self.fields):
+            buf = np.zeros((n, 8), dtype=np.uint8)
+            buf[:, 8 - size:] = raw
+            words[True] = buf.view(">u8").ravel().astype(np.uint64)
+        columns: list[np.ndarray] = []
+        for f in self.fields:
+            bits = (words[f.big_endian] >> np.uint64(f.shift)) & np.uint64((1 << f.length) - 1)
+            if f.float_bits == 32:
+                with np.errstate(invalid="ignore"):  # signalling NaNs stay NaN, as in struct
+                    col = bits.astype(np.uint32).view(np.float32).astype(np.float64)
+            elif f.float_bits == 64:
+                col = bits.view(np.float64)
+            else:
+                col = bits.astype(np.int64)
+                if f.signed:
+                    col = np.where(col >= (1 << (f.length - 1)), col - (1 << f.length), col)
+            if f.scale is not None:
+                if f.integer:
+                    col = col * f.scale + f.offset
+                else:
+                    col = col.astype(np.float64) * f.scale + f.offset
+            columns.append(col)
+        if self.crc_byte is not None:
+            ok = _crc_ok(raw, self.frame_id, self.crc_byte).tolist()
+        else:
+            ok = [True] * n
+        index = {f.name: i for i, f in enumerate(self.fields)}
+        bad_masks = []
+        for name, lo, hi in checked:
+            v = columns[index[name]]
+            mask = ~np.isfinite(v) if v.dtype.kind == "f" else np.zeros(n, dtype=bool)
+            if lo is not None:
+                mask |= v < lo
+            if hi is not None:
+                mask |= v > hi
+            bad_masks.append((name, mask))
+        names = [f.name for f in self.fields]
+        bad: dict[int, list[str]] = {}
+        if bad_masks:
+            any_bad = np.logical_or.reduce([mask for _, mask in bad_masks])
+            for i in np.flatnonzero(any_bad).tolist():
+                bad[i] = [name for name, mask in bad_masks if mask[i]]
+        return BlockChecks(ok, names, [c.tolist() for c in columns], bad)
+
+
+_TABLE = np.array(crc8_table(), dtype=np.uint8)
+
+
+def _crc_ok(raw: np.ndarray, frame_id: int, crc_byte: int) -> np.ndarray:
+    """vecu.e2e.e2e_crc of every row (the data ID, then each byte but the CRC's) == its CRC."""
+    crc = np.full(raw.shape[0], 0xFF, dtype=np.uint8)
+    crc = _TABLE[crc ^ np.uint8(frame_id & 0xFF)]
+    crc = _TABLE[crc ^ np.uint8((frame_id >> 8) & 0xFF)]
+    for idx in range(raw.shape[1]):
+        if idx != crc_byte:
+            crc = _TABLE[crc ^ raw[:, idx]]
+    return (crc ^ np.uint8(0xFF)) == raw[:, crc_byte]
