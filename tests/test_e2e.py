@@ -41,3 +41,15 @@ def test_alive_counter_flags_repeat_and_jump_then_resyncs():
     assert chk.check(5)
     assert not chk.check(9)      # jumped (frames lost or replayed)
     assert chk.check(10)         # resynchronised
+
+
+def test_e2e_crc_is_the_crc_of_data_id_and_payload_without_the_crc_byte_everywhere():
+    import random
+
+    rng = random.Random(16)
+    for _ in range(500):
+        n = rng.randint(1, 8)
+        payload = bytes(rng.getrandbits(8) for _ in range(n))
+        idx, data_id = rng.randrange(n), rng.getrandbits(11)
+        covered = bytes([data_id & 0xFF, data_id >> 8]) + payload[:idx] + payload[idx + 1:]
+        assert e2e_crc(data_id, payload, idx) == crc8_sae_j1850(covered)

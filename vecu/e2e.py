@@ -36,13 +36,12 @@ def crc8_sae_j1850(data: bytes | bytearray, init: int = 0xFF) -> int:
 
 def e2e_crc(data_id: int, payload: bytes | bytearray, crc_index: int) -> int:
     """CRC over data ID (2 bytes, little endian) and payload without the CRC byte."""
-    crc = 0xFF
     table = _TABLE
-    crc = table[crc ^ (data_id & 0xFF)]
-    crc = table[crc ^ ((data_id >> 8) & 0xFF)]
-    for idx, b in enumerate(payload):
-        if idx != crc_index:
-            crc = table[crc ^ b]
+    crc = table[table[0xFF ^ (data_id & 0xFF)] ^ ((data_id >> 8) & 0xFF)]
+    for b in payload[:crc_index]:
+        crc = table[crc ^ b]
+    for b in payload[crc_index + 1:]:
+        crc = table[crc ^ b]
     return crc ^ 0xFF
 
 

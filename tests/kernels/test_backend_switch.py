@@ -158,3 +158,29 @@ def test_a_changed_callee_file_drops_its_callers_disk_cache(tmp_path, monkeypatc
     assert list(root.glob("__pycache__/caller.outer-*.nbi"))
     assert outer_of(1.0, now - 100.0) == 4.0  # loaded from the cache
     assert outer_of(5.0, now + 100.0) == 12.0  # callee changed: not the stale 4.0
+
+
+COLD_THEN_WARM = """
+from vecu import kernels
+from vecu.models.lateral import tyre_force
+cold = kernels.cache_is_cold()
+tyre_force.compiled(1.0, 1.3, 10.0, 0.01)  # compiled and written to numba's cache
+print(cold, kernels.cache_is_cold())
+"""
+
+
+def test_cold_cache_is_seen_wherever_numba_keeps_it(tmp_path):
+    """numba caches where its locators say: NUMBA_CACHE_DIR when set (also the user-wide
+    directory of a package installed read-only). A fresh cache there is cold although the
+    checkout's own __pycache__ holds kernels, and one compiled kernel warms it (issue 16)."""
+    pytest.importorskip("numba")
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "VECU_KERNELS": "numba", "NUMBA_CACHE_DIR": str(tmp_path / "nc")}
+    res = subprocess.run([sys.executable, "-c", COLD_THEN_WARM], capture_output=True, text=True,
+                         env=env, timeout=300, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.split() == ["True", "False"]
+    assert list((tmp_path / "nc").rglob("*.nbi"))

@@ -31,6 +31,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 from vecu.errors import ConfigError
@@ -114,17 +115,36 @@ def using(name: str) -> Iterator[str]:
 
 
 def cache_is_cold() -> bool:
-    """True under the numba backend when numba's disk cache next to vecu's sources holds no
-    compiled kernel yet (a fresh checkout or install: the first run compiles, ~40 s). False when
-    that directory is not writable (numba then caches elsewhere) or the backend is python."""
+    """True under the numba backend when numba's disk cache holds no compiled kernel of vecu
+    yet (a fresh checkout or install: the first run compiles, ~40 s); False under python."""
     if backend() != "numba":
         return False
-    from pathlib import Path
+    return not any(any(d.glob("*.nbi")) for d in kernel_cache_dirs() if d.is_dir())
+
+
+def kernel_cache_dirs() -> list[Path]:
+    """Where numba caches the kernels of each vecu source directory, as numba chooses it
+    (numba.core.caching's locators, in order): NUMBA_CACHE_DIR when set; else __pycache__
+    beside the sources when that is writable (a checkout, an editable install); else the
+    user-wide cache directory (a package installed where the user cannot write)."""
+    import hashlib
+
+    from numba.core import config as numba_config
+    from numba.misc.appdirs import AppDirs
 
     root = Path(__file__).resolve().parents[1]
-    if not os.access(root, os.W_OK):
-        return False
-    return not any(root.glob("*/__pycache__/*.nbi"))
+    user_wide = Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)
+    dirs = []
+    for src in sorted({p.parent for p in root.rglob("*.py")}):
+        subpath = f"{src.name}_{hashlib.sha1(str(src).encode()).hexdigest()}"
+        if numba_config.CACHE_DIR:
+            dirs.append(Path(numba_config.CACHE_DIR) / subpath)
+        elif os.access(src, os.W_OK) and (not (src / "__pycache__").exists()
+                                          or os.access(src / "__pycache__", os.W_OK)):
+            dirs.append(src / "__pycache__")
+        else:
+            dirs.append(user_wide / subpath)
+    return dirs
 
 
 class Kernel:
