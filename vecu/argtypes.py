@@ -51,6 +51,21 @@ def bounded(lo: float | None = None, hi: float | None = None, *, integer: bool =
     return parse
 
 
+def name_list(choices: tuple[str, ...], what: str = "group") -> Callable[[str], frozenset[str]]:
+    """An argparse type: one name of `choices` or several, comma-separated (pipeline,replay)."""
+
+    def parse(text: str) -> frozenset[str]:
+        names = [n.strip() for n in text.split(",") if n.strip()]
+        bad = [n for n in names if n not in choices]
+        if bad or not names:
+            raise argparse.ArgumentTypeError(f"unknown {what} {', '.join(bad) or repr(text)} "
+                                             f"(choose from {', '.join(choices)})")
+        return frozenset(names)
+
+    parse.__name__ = f"{what}[,{what}...]"
+    return parse
+
+
 seed = bounded(0, SEED_MAX, integer=True)
 finite = bounded()
 positive = bounded(0.0, lo_open=True)

@@ -22,16 +22,16 @@ def spec():
     return replace(load_campaign(TABLE3), runs=3)
 
 
-@pytest.mark.parametrize("run_id", [0, 2])
+@pytest.mark.parametrize("run_id", [2])
 def test_batch_engine_agrees_with_the_scalar_engine(spec, backend, per_backend, run_id):
     d = draw(spec, run_id)
     ref = per_backend.reference(("scalar", run_id),
-                                lambda: manifold_study(d, 4.0, 2, engine="scalar"))
-    got = manifold_study(d, 4.0, 2, engine="batch")
+                                lambda: manifold_study(d, 3.0, 2, engine="scalar"))
+    got = manifold_study(d, 3.0, 2, engine="batch")
     assert set(got) == set(ref) == set(MANIFOLD_METRICS)
     for k in MANIFOLD_METRICS:
         assert math.isclose(got[k], ref[k], rel_tol=1e-9, abs_tol=0.0), (k, got[k], ref[k])
-    assert ref["events"] > 250 and ref["sdkf_iae"] > 0.0
+    assert ref["events"] > 120 and ref["sdkf_iae"] > 0.0
     assert ref["direct_iae"] != ref["direct_ol_iae"] != ref["ekf_iae"] != ref["sdkf_iae"]
 
 

@@ -37,14 +37,7 @@ GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakd
           "uds")
 
 
-def _groups(text: str) -> frozenset[str]:
-    """--only: one group or several, comma-separated (pipeline,replay)."""
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    bad = [n for n in names if n not in GROUPS]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(f"unknown group {', '.join(bad) or repr(text)} "
-                                         f"(choose from {', '.join(GROUPS)})")
-    return frozenset(names)
+_groups = argtypes.name_list(GROUPS)  # --only: one group or several, comma-separated (pipeline,replay)
 
 
 # group sizes: (full, --quick); --quick keeps every group to a few seconds (tests/bench/test_smoke)

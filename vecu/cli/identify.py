@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from vecu.argtypes import positive_int
 from vecu.cli import add_set_option, check_outputs, param_sets
 
 
@@ -32,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--json", action="store_true", help="print the result as JSON")
     t.add_argument("--free", default="", metavar="NAMES",
                    help="also fit these of the terms kept by default (c1,c2,c3; e.g. --free c1,c3)")
-    t.add_argument("--max-samples", type=int, default=None, metavar="N",
+    t.add_argument("--max-samples", type=positive_int, default=None, metavar="N",
                    help="use the first N samples only")
     add_set_option(t, "ecu.*: the start calibration and the TPS law", params_file=True)
     t.set_defaults(func=main)
