@@ -27,6 +27,7 @@ from can.interfaces.virtual import VirtualBus
 
 from vecu.clock import wall_time
 from vecu.errors import UnavailableError
+from vecu.frames import message
 
 DEFAULT_INTERFACE = "virtual"
 DEFAULT_CHANNEL = "vecu"
@@ -270,13 +271,10 @@ class LaneBus(can.BusABC):
             if own and not self.receive_own_messages:
                 continue
             if ep.edge:
-                ep.queue.append(can.Message(
-                    timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
-                    is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
-                    is_error_frame=msg.is_error_frame, channel=self.lane.channel, dlc=msg.dlc,
-                    data=bytearray(msg.data), is_fd=msg.is_fd, is_rx=not own,
-                    bitrate_switch=msg.bitrate_switch,
-                    error_state_indicator=msg.error_state_indicator, check=False))
+                ep.queue.append(message(
+                    msg.timestamp, msg.arbitration_id, msg.is_extended_id, bytearray(msg.data),
+                    msg.is_fd, self.lane.channel, not own, msg.is_remote_frame,
+                    msg.is_error_frame, msg.dlc, msg.bitrate_switch, msg.error_state_indicator))
             else:
                 ep.queue.append(msg)
 

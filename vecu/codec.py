@@ -36,6 +36,7 @@ from cantools.database.conversion import (
 from vecu.block_codec import MAX_BLOCK_BYTES, BlockChecks, BlockField, BlockLayout
 from vecu.e2e import e2e_crc
 from vecu.errors import BadFileError
+from vecu.frames import message
 
 DEFAULT_DBC = "vecu.dbc"
 TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
@@ -191,9 +192,9 @@ class FrameCodec:
         return bytes(data)
 
     def frame(self, values: Mapping[str, float], timestamp: float) -> can.Message:
-        return can.Message(timestamp=timestamp, arbitration_id=self.frame_id,
-                           is_extended_id=self.is_extended, data=self.encode(values),
-                           is_fd=self.is_fd, check=False)
+        """encode(values) as a can.Message (vecu.frames.message: the fields can.Message gives)."""
+        return message(timestamp, self.frame_id, self.is_extended, self.encode(values),
+                       self.is_fd)
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         """Payload -> physical values (no choice strings). Raises on a short payload."""

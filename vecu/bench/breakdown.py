@@ -36,6 +36,7 @@ COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
     ("vecu.codec", "FrameCodec", "bad_values", "codec: range check"),
     ("vecu.bus", "BusNode", "send", "bus: send"),
     ("vecu.bus", "FastVirtualBus", "recv", "bus: recv (poll)"),
+    ("vecu.bus", "LaneBus", "recv", "bus: recv (poll)"),  # simulated runs: the in-process lane
     ("vecu.ecu.node", "EcuNode", "tick", "ecu: node tick (dispatch, status)"),
     ("vecu.ecu.node", "EcuNode", "receive", "ecu: receive + validate"),
     ("vecu.ecu.throttle_function", "ThrottleFunction", "run", "ecu: throttle function"),

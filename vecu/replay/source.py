@@ -197,6 +197,7 @@ class TraceSource:
         skipped = 0
         seq = 0
         t0 = None
+        isfinite = math.isfinite
         it = iter(self._reader)
         while True:
             try:
@@ -211,8 +212,8 @@ class TraceSource:
             ts = msg.timestamp
             self._last_ts = ts
             if t0 is None:
-                t0 = self.t0_s = ts if _finite(ts) else 0.0
-            if not _finite(ts):
+                t0 = self.t0_s = ts if isfinite(ts) else 0.0
+            if not isfinite(ts):
                 stats.non_finite_time += 1
                 t_ns = released if released is not None else 0
             else:
@@ -315,10 +316,6 @@ class TraceSource:
 def _quantise(dt_s: float) -> int:
     """Seconds -> ns, rounded to the nearest TIME_RESOLUTION_NS (half up)."""
     return math.floor(dt_s * (NS_PER_S // TIME_RESOLUTION_NS) + 0.5) * TIME_RESOLUTION_NS
-
-
-def _finite(x: float) -> bool:
-    return math.isfinite(x)
 
 
 def _file_size(path: str) -> int | None:
