@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import tempfile
 from pathlib import Path
@@ -168,3 +169,36 @@ def format_targets(runs: list[dict[str, Any]], sc: dict[str, Any]) -> str:
         lines.append(f"  {sc['scenarios']} shipped scenarios ({sc['kernels']} kernels): "
                      f"{sc['wall_s']} s wall, {passed} passed{ratio}")
     return "\n".join(lines)
+
+
+_LOGGED_RUN = """
+import json, resource, sys
+from vecu.runner import RunConfig, run
+d = float(sys.argv[1])
+s = run(RunConfig(duration_s=d, kill_tps_at_s=d / 2, log_path=sys.argv[2])).summary
+print(json.dumps([resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, s["frames"]["logged"]]))
+"""
+
+
+def bench_log_memory(durations_s: tuple[float, ...] = (60.0, 300.0)) -> list[dict[str, Any]]:
+    """Peak RSS of `vecu run --duration S --log x.log` (truth frames), each in a fresh process:
+    a log that streams keeps the peak flat as S grows (issue 16; 3600 for the 1 h figure)."""
+    import subprocess
+    import sys
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for d in durations_s:
+            log = str(Path(tmp) / "run.log")
+            res = subprocess.run([sys.executable, "-c", _LOGGED_RUN, str(d), log],
+                                 capture_output=True, text=True, check=True)
+            rss, frames = json.loads(res.stdout.strip().splitlines()[-1])
+            rows.append({"sim_s": d, "peak_rss_kb": rss, "frames_logged": frames,
+                         "log_bytes": Path(log).stat().st_size})
+    return rows
+
+
+def format_log_memory(rows: list[dict[str, Any]]) -> str:
+    parts = [f"{r['sim_s']:g} s: {r['peak_rss_kb']} kB ({r['frames_logged']} frames, "
+             f"{r['log_bytes'] / 1e6:.1f} MB)" for r in rows]
+    return "  peak RSS of `vecu run --log x.log`, fresh process each: " + "; ".join(parts)

@@ -41,7 +41,7 @@ _groups = argtypes.name_list(GROUPS)  # --only: one group or several, comma-sepa
 
 
 # group sizes: (full, --quick); --quick keeps every group to a few seconds (tests/bench/test_smoke)
-SIZES: dict[str, tuple[float, float]] = {
+SIZES: dict[str, tuple[Any, Any]] = {
     "ukf_steps": (20_000, 2_000), "ukf_repeats": (5, 2), "filter_steps": (5_000, 1_000),
     "manifold_s": (80.0, 3.0), "production_steps": (20_000, 2_000), "smoother_steps": (2_000, 300),
     "manifold_fn_s": (40.0, 3.0), "bus_frames": (20_000, 5_000), "pipeline_s": (10.0, 1.0),
@@ -50,6 +50,7 @@ SIZES: dict[str, tuple[float, float]] = {
     "memory_min": (10.0, 0.25), "throughput_s": (5.0, 1.0), "campaign_runs": (60, 4),
     "campaign_s": (80.0, 2.0), "campaign_baseline_runs": (3, 1),
     "run_backends_s": (60.0, 1.0), "scenario_limit": (0, 1),  # 0: every shipped scenario
+    "log_memory_s": ((60.0, 300.0), (0.5, 1.0)),
     "uds_requests": (200, 20),
 }
 
@@ -97,6 +98,8 @@ def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
         from vecu.bench.pipeline import bench_run_backends, bench_scenarios
         out["run_backends"] = bench_run_backends(duration_s=size("run_backends_s"))
         out["scenarios"] = bench_scenarios(limit=int(size("scenario_limit")) or None)
+        from vecu.bench.pipeline import bench_log_memory
+        out["log_memory"] = bench_log_memory(tuple(SIZES["log_memory_s"][1 if quick else 0]))
     if want("ecu"):
         from vecu.bench.ecu import bench_ecu
         out["ecu"] = bench_ecu(duration_s=size("ecu_s"))
@@ -164,6 +167,9 @@ def main(args: argparse.Namespace) -> int:
     if "run_backends" in res:
         from vecu.bench.pipeline import format_targets
         print(format_targets(res["run_backends"], res.get("scenarios", {})))
+    if "log_memory" in res:
+        from vecu.bench.pipeline import format_log_memory
+        print(format_log_memory(res["log_memory"]))
     if "ecu" in res:
         from vecu.bench.ecu import format_ecu
         print(format_ecu(res["ecu"]))
