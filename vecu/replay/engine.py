@@ -15,23 +15,21 @@ import logging
 import math
 import sys
 import threading
-from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
-from itertools import islice
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
 
 from vecu import kernels
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
-from vecu.block_codec import BlockChecks
 from vecu.bus import SinkBus, open_bus
 from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
-from vecu.codec import TRUTH_DBC, DbcCodec, FrameCodec, builtin_dbc_path
+from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
-from vecu.ecu.node import Checked, EcuFunction, EcuNode, Route, native_routes
+from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
 from vecu.errors import BadArgumentError
 from vecu.recorder import TraceWriteError
+from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
 from vecu.replay.scoring import TruthScorer
 from vecu.replay.signal_map import (
     SignalMap,
@@ -42,15 +40,12 @@ from vecu.replay.signal_map import (
 from vecu.replay.source import IDLE_GAP_NS, TraceReadError, TraceSource
 from vecu.runner import ensure_kernels, warm_up
 from vecu.scheduler import Scheduler
-from vecu.stats import DurationHistogram
 
 log = logging.getLogger(__name__)
 
 OUT_CHANNEL = "vecu"  # channel name of the ECU's frames in --out
 PLAYER_SPIN_NS = 100_000
-SCHEDULE_ERROR_LIMIT_US = 200_000  # 1 us bins up to 200 ms; beyond: counted, max kept
 SWITCH_INTERVAL_S = 2e-5
-CHUNK = 16384  # frames read (and, fast, checked per message in blocks) at a time
 STEP_NS = NS_PER_S // 10  # the scheduler runs this much simulated time between progress checks
 PROGRESS_EVERY_S = 1.0  # wall time between progress lines
 PRIO_TRACE_END = PRIO_ECU - 1  # the end-of-trace check: after the frames due, before the ECU
@@ -89,15 +84,6 @@ class ReplayConfig:
         if not (math.isfinite(self.idle_gap_s) and self.idle_gap_s > 0):
             raise BadArgumentError(f"idle gap must be a positive number of seconds, got "
                                    f"{self.idle_gap_s}")
-
-
-@dataclass
-class FrameTally:
-    """What happened to each frame of the trace (each lands in exactly one of the bins)."""
-
-    truth: int = 0           # debug truth frames (scoring)
-    decoded_other: int = 0   # known to the trace's database, not an ECU input, decoded fine
-    decode_errors: dict[str, int] = field(default_factory=dict)  # known, not decodable: reason
 
 
 @dataclass(frozen=True)
@@ -150,7 +136,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
                 writer.on_message_received(msg)
         ecu.tap = on_sent
         tally = FrameTally()
-        feeder = _Feeder(source, ecu, trace_db, scorer, tally, routes,
+        feeder = Feeder(source, ecu, trace_db, scorer, tally, routes,
                          writer if config.with_inputs else None,
                          block=config.block and not live)
         if live:
@@ -216,132 +202,6 @@ class _OutputWriter(can.Listener):
         self.inner.stop()
 
 
-class _Feeder:
-    """Scheduler chain task: hands every frame due by now to the ECU (fast) or the bus (live).
-
-    Frames are read CHUNK at a time; with `block` (fast mode) the ECU's input frames and the
-    truth frames of each chunk are checked and decoded per message in blocks (numpy,
-    FrameCodec.check_block) before they are handed over one by one, in trace order, as before."""
-
-    def __init__(self, source: TraceSource, ecu: EcuNode, db: DbcCodec, scorer: TruthScorer,
-                 tally: FrameTally, routes: dict[tuple[int, bool], Route],
-                 copy_to: can.Listener | None, block: bool = False) -> None:
-        self.frames: Iterator[tuple[int, can.Message]] = iter(source)
-        self.block = block
-        self._buf: list[tuple[int, can.Message]] = []
-        self._checks: list[BlockChecks | None] = []  # per frame of _buf: its block's checks
-        self._at: list[int] = []  # and its place in that block
-        self._i = -1
-        self.source, self.ecu, self.db, self.scorer, self.tally = source, ecu, db, scorer, tally
-        self.routes = routes
-        self.copy_to = copy_to
-        self.done = False
-        self.last_ns = 0
-        self.player: can.BusABC | None = None
-        self.speed = 1.0
-        self.clock: WallClock | None = None
-        self.schedule_error = DurationHistogram(limit_us=SCHEDULE_ERROR_LIMIT_US)
-        self._pending = self._next()
-        if self._pending is None:
-            self.done = True
-
-    def _next(self) -> tuple[int, can.Message] | None:
-        """The next frame of the trace (reading and block-checking the next chunk as needed)."""
-        i = self._i + 1
-        if i >= len(self._buf):
-            self._buf = list(islice(self.frames, CHUNK))
-            if self.block:
-                self._checks, self._at = self._check_block(self._buf)
-            i = 0
-            if not self._buf:
-                self._i = 0
-                return None
-        self._i = i
-        return self._buf[i]
-
-    def _check_block(self, buf: list[tuple[int, can.Message]]
-                     ) -> tuple[list[BlockChecks | None], list[int]]:
-        """Per frame of buf: the checks of its message's block and its place in it, for ECU
-        inputs and truth frames of their message's length; None for the others (checked one
-        by one when delivered)."""
-        groups: dict[tuple[int, bool], tuple[FrameCodec | None, list[int], list[bytearray]]] = {}
-        truth, routes = self.scorer.truth_codecs, self.routes
-        for i, (_, msg) in enumerate(buf):
-            key = (msg.arbitration_id, msg.is_extended_id)
-            group = groups.get(key)
-            if group is None:
-                fc = truth[key] if key in truth else (routes[key].codec if key in routes
-                                                      else None)
-                group = groups[key] = (fc if fc is not None and fc.block is not None else None,
-                                       [], [])
-            fc = group[0]
-            if fc is not None and len(msg.data) == fc.length and not (
-                    msg.is_error_frame or msg.is_remote_frame):
-                group[1].append(i)
-                group[2].append(msg.data)
-        checks: list[BlockChecks | None] = [None] * len(buf)
-        at = [0] * len(buf)
-        for fc, index, payloads in groups.values():
-            if index:
-                block = fc.check_block(payloads)  # type: ignore[union-attr]
-                for j, i in enumerate(index):
-                    checks[i] = block
-                    at[i] = j
-        return checks, at
-
-    def release(self, now_ns: int) -> int | None:
-        pending = self._pending
-        live = self.player is not None
-        while pending is not None:
-            t_ns, msg = pending
-            due = int(t_ns / self.speed) if live else t_ns
-            if due > now_ns:
-                break
-            if live:
-                self._send_live(msg, due)
-            else:
-                block = self._checks[self._i] if self.block else None
-                self._deliver(msg, t_ns, block[self._at[self._i]] if block is not None else None)
-            if self.copy_to is not None:
-                self.copy_to.on_message_received(msg)
-            self.last_ns = t_ns
-            pending = self._next()
-        self._pending = pending
-        if pending is None:
-            self.done = True
-            return None
-        return max(now_ns + 1, int(pending[0] / self.speed) if live else pending[0])
-
-    def _deliver(self, msg: can.Message, t_ns: int, checked: Checked | None = None) -> None:
-        key = (msg.arbitration_id, msg.is_extended_id)
-        tally = self.tally
-        if key in self.scorer.truth_ids and not msg.is_error_frame and not msg.is_remote_frame:
-            tally.truth += 1
-            self.scorer.on_truth(msg, t_ns, checked[1] if checked is not None else None)
-            return
-        if key in self.routes or key not in self.db.by_id or msg.is_error_frame \
-                or msg.is_remote_frame:
-            self.ecu.receive(msg, t_ns, checked)  # its rx counters: accepted / ignored / why not
-            return
-        fc = self.db.by_id[key]  # known, not an input: count whether it decodes
-        data = msg.data
-        reason = "dlc" if len(data) != fc.length else fc.decode_problem(data)
-        if reason is None:
-            tally.decoded_other += 1
-        else:
-            tally.decode_errors[reason] = tally.decode_errors.get(reason, 0) + 1
-
-    def _send_live(self, msg: can.Message, due_ns: int) -> None:
-        assert self.player is not None and self.clock is not None
-        try:
-            self.player.send(msg)
-        except can.CanError as exc:
-            self.tally.decode_errors["send_failed"] = self.tally.decode_errors.get(
-                "send_failed", 0) + 1
-            log.warning("replay: send failed: %s", exc)
-        self.schedule_error.record(self.clock.now_ns() - due_ns)
-
-
 class _TraceEnd:
     """Scheduler task at every tick, after the frames due then and before the ECU's tick: stops
     the run after the ECU's last tick for the trace. Fast: the last tick at or before the last frame, so the ECU runs over the trace's
@@ -350,7 +210,7 @@ class _TraceEnd:
     the live run). Live: the first tick after the last frame was sent, which drains it from the
     bus."""
 
-    def __init__(self, sched: Scheduler, feeder: _Feeder, live: bool) -> None:
+    def __init__(self, sched: Scheduler, feeder: Feeder, live: bool) -> None:
         self.sched, self.feeder, self.live = sched, feeder, live
         self.reached = False
 
@@ -410,7 +270,7 @@ class _Progress:
             sys.stderr.flush()
 
 
-def _run_live(sched: Scheduler, clock: WallClock, feeder: _Feeder, trace_end: _TraceEnd,
+def _run_live(sched: Scheduler, clock: WallClock, feeder: Feeder, trace_end: _TraceEnd,
               progress: _Progress) -> None:
     """The player in its own thread on its own scheduler (same clock origin) and the ECU on this
     one: a long ECU tick does not hold back the frames due meanwhile. The GIL switch interval
@@ -483,7 +343,7 @@ def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
         raise TraceWriteError(path, f"cannot write: {exc}") from exc
 
 
-def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: FrameTally,
+def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: FrameTally,
              ecu: EcuNode, smap: SignalMap, functions: list[EcuFunction], scorer: TruthScorer,
              wall_s: float, written: int) -> dict[str, Any]:
     rx = ecu.rx.as_dict()
@@ -548,4 +408,5 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: _Feeder, tally: 
     return out
 
 
-__all__ = ["FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError", "replay"]
+__all__ = ["SCHEDULE_ERROR_LIMIT_US", "FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError",
+           "replay"]
