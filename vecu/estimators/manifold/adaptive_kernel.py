@@ -1,6 +1,7 @@
 """The adaptive manifold EKF's event as one kernel (vecu.estimators.manifold.adaptive has the
-filter and the model it implements): kernels.ekf_event with a seventh state, the volumetric-
-efficiency correction c, scaling the eta_N table of the event integrator."""
+filter and the model it implements): kernels.ekf_event with two more states, the volumetric-
+efficiency correction c and the throttle-flow correction c_th, scaling the eta_N and C_d tables
+of the event integrator."""
 
 # ruff: noqa: FURB136 (x if c else y mirrors min()/max() exactly)
 from __future__ import annotations
@@ -36,10 +37,11 @@ _consider = kernel(_consider_py)
 @kernel
 def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans, run0,
                    run1, run2, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """One event of the adaptive EKF from the prior (x, P) (as kernels.ekf_event, 7 states):
-    update, clamping (c to its box), divergence check, then the event map with eta scaled by
-    c, its Jacobian (four one-sided differences) and P = sym(F P F^T + Q). Writes xo (3 x 7),
-    Po (2 x 7 x 7); returns the gated channels | DIVERGED | FALLBACK."""
+    """One event of the adaptive EKF from the prior (x, P) (as kernels.ekf_event, 8 states):
+    update (below), clamping (c, c_th to their box), divergence check, then the event map with
+    eta scaled by c and the throttle flow by c_th, its Jacobian (five one-sided differences) and
+    P = sym(F P F^T + Q). Writes xo (3 x 8), Po (2 x 8 x 8); returns the gated channels |
+    DIVERGED | FALLBACK."""
     cst = K._const_tuple(c)
     xp = xo[1]
     Pp = Po[1]
