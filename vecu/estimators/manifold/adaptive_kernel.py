@@ -73,50 +73,16 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
         xp[i] = ac[A_C_HI] if ac[A_C_HI] < xp[i] else xp[i]
     if not K._in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
-    a1, a2, b1, b2, a_t, b_t = K._event_coeffs(ts, fc)
-    u_prev, alpha, alpha_prev, p, t, tm = xp[0], xp[1], xp[2], xp[3], xp[4], xp[5]
-    ce, cth = xp[6], xp[7]
-    ev = eta_val * ce
-    cdt = cd_table * cth
-    p_n, t_n, m = K._integrate(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha, cdt,
-                               prs, eta_rpm, ev)
+    co = K._event_coeffs(ts, fc)
+    ev = eta_val * xp[6]
+    cdt = cd_table * xp[7]
+    p_n, t_n, m = K._integrate(xp[3], xp[4], xp[1], p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+                               cdt, prs, eta_rpm, ev)
     F = np.zeros((8, 8))
-    F[1, 0], F[1, 1], F[1, 2] = b2, a1, a2
-    F[2, 1] = 1.0
-    F[5, 4], F[5, 5] = b_t, a_t
-    F[6, 6] = 1.0
-    F[7, 7] = 1.0
-    steps = (fd[0], fd[1] * (abs(p) if abs(p) > 1.0 else 1.0),
-             fd[1] * (abs(t) if abs(t) > 1.0 else 1.0), ac[A_FD_C], ac[A_FD_C])
-    for j in range(5):
-        col = 1 if j == 0 else (j + 2 if j < 3 else j + 3)
-        d = steps[j]
-        sign = 1.0
-        pp = tt = 0.0
-        for s in range(2):
-            sign = 1.0 if s == 0 else -1.0
-            a_ = alpha + sign * d if j == 0 else alpha
-            p_ = p + sign * d if j == 1 else p
-            t_ = t + sign * d if j == 2 else t
-            e_ = eta_val * (ce + sign * d) if j == 3 else ev
-            c_ = cd_table * (cth + sign * d) if j == 4 else cdt
-            pp, tt, mm = K._integrate(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
-                                      c_, prs, eta_rpm, e_)
-            if mm == m:
-                break
-        F[3, col] = (pp - p_n) / (sign * d)
-        F[4, col] = (tt - t_n) / (sign * d)
-    xf = xo[2]
-    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
-    xf[3], xf[4], xf[5], xf[6], xf[7] = p_n, t_n, a_t * tm + b_t * t, ce, cth
-    xn = xo[0]
-    for i in range(8):
-        xn[i] = xf[i]
-    K._clamp(xn, fc)
-    X = F @ Pp @ F.T + Q
-    Pn = Po[0]
-    Pn[:, :] = 0.5 * (X + X.T)
-    if not K._in_bounds(xn, Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+    K._jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, cst,
+                cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val)
+    K._map_out(xo, xp, sp, p_n, t_n, co, fc)
+    if not K._propagate(F, Pp, Q, xo, Po, fc):
         return gated | DIVERGED
     return gated
 

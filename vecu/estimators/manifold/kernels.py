@@ -152,6 +152,70 @@ def _update_py(x, Pn, xp, Pp, yv, runs, chans, fc):
     return gated
 
 
+def _jacobian_py(F, xp, p_n, t_n, m, co, fd, fd_c, ncol, p_a, t_a, t_cool, n_rpm, ts, cst,
+                 cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val):
+    """F = df/dx at the posterior xp into F (zeros on entry): manifold_model.f_and_jacobian's
+    analytic actuator/IAT rows, identity rows for parameter states beyond the sixth, and
+    one-sided differences of the event integrator (p_n, t_n, m its output at xp; steps fd =
+    (FD_ALPHA, FD_REL), flipped when the sub-step count would change) for the columns alpha, P,
+    T and, with ncol = 5 (the adaptive filter), c and c_th: the eta_N and C_d tables scaled by
+    xp[6], xp[7] (ev, cdt: the scaled tables; fd_c the step in c)."""
+    a1, a2, _, b2, a_t, b_t = co
+    F[1, 0], F[1, 1], F[1, 2] = b2, a1, a2
+    F[2, 1] = 1.0
+    F[5, 4], F[5, 5] = b_t, a_t
+    for i in range(6, xp.shape[0]):
+        F[i, i] = 1.0
+    alpha, p, t = xp[1], xp[3], xp[4]
+    steps = (fd[0], fd[1] * (abs(p) if abs(p) > 1.0 else 1.0),
+             fd[1] * (abs(t) if abs(t) > 1.0 else 1.0), fd_c, fd_c)
+    for j in range(ncol):
+        col = 1 if j == 0 else (j + 2 if j < 3 else j + 3)
+        d = steps[j]
+        sign = 1.0
+        pp = tt = 0.0
+        for s in range(2):
+            sign = 1.0 if s == 0 else -1.0
+            a_ = alpha + sign * d if j == 0 else alpha
+            p_ = p + sign * d if j == 1 else p
+            t_ = t + sign * d if j == 2 else t
+            e_ = eta_val * (xp[6] + sign * d) if j == 3 else ev
+            c_ = cd_table * (xp[7] + sign * d) if j == 4 else cdt
+            pp, tt, mm = _integrate(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha, c_,
+                                    prs, eta_rpm, e_)
+            if mm == m:
+                break
+        F[3, col] = (pp - p_n) / (sign * d)
+        F[4, col] = (tt - t_n) / (sign * d)
+
+
+def _map_out_py(xo, xp, sp, p_n, t_n, co, fc):
+    """xo[2] = the event map's output from the posterior xp (eq. 1 with the coefficients co,
+    the integrator's P_n, T_n, eq. 9; parameter states beyond the sixth held), xo[0] = it
+    clamped (the next prior)."""
+    a1, a2, b1, b2, a_t, b_t = co
+    u_prev, alpha, alpha_prev, t, tm = xp[0], xp[1], xp[2], xp[4], xp[5]
+    xf = xo[2]
+    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
+    xf[3], xf[4], xf[5] = p_n, t_n, a_t * tm + b_t * t
+    n = xp.shape[0]
+    for i in range(6, n):
+        xf[i] = xp[i]
+    xn = xo[0]
+    for i in range(n):
+        xn[i] = xf[i]
+    _clamp(xn, fc)
+
+
+def _propagate_py(F, Pp, Q, xo, Po, fc):
+    """EKF covariance prediction Po[0] = sym(F Pp F^T + Q); False when the new prior (xo[0],
+    Po[0]) is out of bounds (covariance.diverged)."""
+    X = F @ Pp @ F.T + Q
+    Pn = Po[0]
+    Pn[:, :] = 0.5 * (X + X.T)
+    return _in_bounds(xo[0], Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS])
+
+
 def _event_coeffs_py(ts, fc):
     """(a1, a2, b1, b2, a_t, b_t) of one event of length ts: plant.manifold.actuator_coeffs
     and iat_coeffs, the same operations in the same order."""
@@ -180,13 +244,16 @@ _mdot = _mdot_py
 _in_bounds = _in_bounds_py
 _clamp = _clamp_py
 _update = _update_py
+_jacobian = _jacobian_py
+_map_out = _map_out_py
+_propagate = _propagate_py
 _integrate = mi._integrate_event.py
 P_FLOOR_KPA = mi.P_FLOOR_KPA
 
 
 def _jit_helpers() -> None:
     global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate, _event_coeffs, _const_tuple
-    global _update
+    global _update, _jacobian, _map_out, _propagate
     import numba
 
     _event_coeffs = numba.njit(_event_coeffs_py)
@@ -197,6 +264,9 @@ def _jit_helpers() -> None:
     _in_bounds = numba.njit(_in_bounds_py)
     _clamp = numba.njit(_clamp_py)
     _update = numba.njit(_update_py)
+    _jacobian = numba.njit(_jacobian_py)
+    _map_out = numba.njit(_map_out_py)
+    _propagate = numba.njit(_propagate_py)
     _integrate = mi._integrate_event.compiled
 
 
@@ -359,17 +429,10 @@ def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2
     if not _in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
     # --- prediction through the event map (manifold_model.f)
-    u_prev, alpha, alpha_prev, p, t, tm = xp[0], xp[1], xp[2], xp[3], xp[4], xp[5]
-    p_n, t_n, _ = _integrate(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha, cd_table,
-                             prs, eta_rpm, eta_val)
-    xf = xo[2]
-    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
-    xf[3], xf[4], xf[5] = p_n, t_n, a_t * tm + b_t * t
-    xn = xo[0]
-    for i in range(6):
-        xn[i] = xf[i]
-    _clamp(xn, fc)
-    if not _in_bounds(xn, Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+    p_n, t_n, _ = _integrate(xp[3], xp[4], xp[1], p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+                             cd_table, prs, eta_rpm, eta_val)
+    _map_out(xo, xp, sp, p_n, t_n, (a1, a2, b1, b2, a_t, b_t), fc)
+    if not _in_bounds(xo[0], Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
     return gated
 
@@ -392,43 +455,13 @@ def ekf_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans, 
     _clamp(xp, fc)
     if not _in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
-    a1, a2, b1, b2, a_t, b_t = _event_coeffs(ts, fc)
-    u_prev, alpha, alpha_prev, p, t, tm = xp[0], xp[1], xp[2], xp[3], xp[4], xp[5]
-    p_n, t_n, m = _integrate(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha, cd_table,
-                             prs, eta_rpm, eta_val)
+    co = _event_coeffs(ts, fc)
+    p_n, t_n, m = _integrate(xp[3], xp[4], xp[1], p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+                             cd_table, prs, eta_rpm, eta_val)
     F = np.zeros((6, 6))
-    F[1, 0], F[1, 1], F[1, 2] = b2, a1, a2
-    F[2, 1] = 1.0
-    F[5, 4], F[5, 5] = b_t, a_t
-    base = (alpha, p, t)
-    steps = (fd[0], fd[1] * (abs(p) if abs(p) > 1.0 else 1.0),
-             fd[1] * (abs(t) if abs(t) > 1.0 else 1.0))
-    for j in range(3):
-        col = 1 if j == 0 else j + 2
-        d = steps[j]
-        sign = 1.0
-        pp = tt = 0.0
-        for s in range(2):
-            sign = 1.0 if s == 0 else -1.0
-            a_ = base[0] + sign * d if j == 0 else base[0]
-            p_ = base[1] + sign * d if j == 1 else base[1]
-            t_ = base[2] + sign * d if j == 2 else base[2]
-            pp, tt, mm = _integrate(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
-                                    cd_table, prs, eta_rpm, eta_val)
-            if mm == m:
-                break
-        F[3, col] = (pp - p_n) / (sign * d)
-        F[4, col] = (tt - t_n) / (sign * d)
-    xf = xo[2]
-    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
-    xf[3], xf[4], xf[5] = p_n, t_n, a_t * tm + b_t * t
-    xn = xo[0]
-    for i in range(6):
-        xn[i] = xf[i]
-    _clamp(xn, fc)
-    X = F @ Pp @ F.T + Q
-    Pn = Po[0]
-    Pn[:, :] = 0.5 * (X + X.T)
-    if not _in_bounds(xn, Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+    _jacobian(F, xp, p_n, t_n, m, co, fd, 0.0, 3, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+              cd_table, prs, eta_rpm, eta_val, cd_table, eta_val)
+    _map_out(xo, xp, sp, p_n, t_n, co, fc)
+    if not _propagate(F, Pp, Q, xo, Po, fc):
         return gated | DIVERGED
     return gated
