@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from vecu import params as ptree
+from vecu.argtypes import MANIFOLD_FILTERS
 from vecu.ecu.manifold_function import ManifoldFunctionConfig
 from vecu.ecu.speed_function import SpeedFunctionConfig
 from vecu.ecu.steering_function import SteeringFunctionConfig
@@ -84,7 +85,6 @@ SHORTCUTS: dict[str, tuple[str, ...]] = {
     "estimator": ("ecu.throttle.estimator",),
     "manifold_filter": ("ecu.manifold.filter",),
 }
-MANIFOLD_FILTERS = ("sdkf", "ekf", "adaptive")
 
 
 def shortcut_sets(**values: object) -> list[tuple[str, object]]:

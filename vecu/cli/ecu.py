@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_live_arguments(p)
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.*")
-    p.add_argument("--manifold-filter", default=None, choices=("sdkf", "ekf", "adaptive"),
+    p.add_argument("--manifold-filter", default=None, choices=argtypes.MANIFOLD_FILTERS,
                    help="manifold filter (default sdkf)")
     p.add_argument("--sync-timeout", type=argtypes.bounded(0.0, 3600.0), default=10.0, metavar="S",
                    help="wait up to S s for the plant's ETB_Wattmeter frames to put the 1 ms grid "

@@ -37,6 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="process-noise scale alpha of the throttle model, plant and ECU (1 = paper; "
                         f"0..{argtypes.NOISE_SCALE_MAX:g})")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production; = --set ecu.throttle.estimator=NAME)")
+    p.add_argument("--manifold-filter", default=None, choices=argtypes.MANIFOLD_FILTERS,
+                   help="manifold filter (default sdkf; = --set ecu.manifold.filter=NAME)")
     add_set_option(p, "plant.* and ecu.*", params_file=True)
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
@@ -62,7 +64,8 @@ def main(args: argparse.Namespace) -> int:
         keep_series=bool(args.plot),
         kill_swa_at_s=None if args.kill_swa_at == "half" else args.kill_swa_at,
         swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value,
-    ).with_params(param_sets(args), noise_scale=args.noise_scale, estimator=args.estimator)
+    ).with_params(param_sets(args), noise_scale=args.noise_scale, estimator=args.estimator,
+                  manifold_filter=args.manifold_filter)
     config.validate()  # user errors before any output is touched
     result = run(config)
     if args.summary:

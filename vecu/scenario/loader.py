@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from vecu.argtypes import MANIFOLD_FILTERS
 from vecu.codec import DbcCodec
 from vecu.config import ParamTree, RunConfig, shortcut_sets, validate_tree
 from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
@@ -153,8 +154,9 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         raise chk.fail("ecu.estimator", f"unknown estimator {estimator!r} "
                                         f"(known: {', '.join(THROTTLE_ESTIMATORS)})")
     filt = ecu.get("manifold_filter", "sdkf")
-    if filt not in ("sdkf", "ekf", "adaptive"):
-        raise chk.fail("ecu.manifold_filter", f"expected 'sdkf', 'ekf' or 'adaptive', got {filt!r}")
+    if filt not in MANIFOLD_FILTERS:
+        raise chk.fail("ecu.manifold_filter", f"expected one of {', '.join(MANIFOLD_FILTERS)}, "
+                                              f"got {filt!r}")
     monitors = {}
     for sensor in ("tps", "swa", "wheel"):
         over = chk.table(ecu.get(sensor, {}), MONITOR_KEYS, f"ecu.{sensor}.")
