@@ -150,13 +150,13 @@ def write_report(spec: CampaignSpec, rows: list[dict[str, str]], summary: dict[s
     the Table 3 analogue and the worst runs with their seeds and drawn parameters."""
     figs: list[tuple[str, str]] = []
     if spec.kind == "manifold":
-        for k, fig in (("iae", "Fig. 4"), ("ise", "Fig. 5")):
+        for k, fig in (("ise", "Fig. 4"), ("iae", "Fig. 5")):  # Dutka: 4 squared, 5 absolute
             name = f"hist_{k}.png"
-            _hist_png(spec, rows, [f"{m}_{k}" for m in METHODS],
-                      f"{fig} analogue: integrated {'absolute' if k == 'iae' else 'squared'} "
-                      f"6-event CAC prediction error ({len(rows)} runs)", out / name,
-                      panels=True)
-            figs.append((name, fig))
+            what = (f"{fig} analogue: integrated {'absolute' if k == 'iae' else 'squared'} "
+                    "6-event CAC prediction error")
+            _hist_png(spec, rows, [f"{m}_{k}" for m in METHODS], f"{what} ({len(rows)} runs)",
+                      out / name, panels=True)
+            figs.append((name, what))
     else:
         for m in metric_names(spec):
             if summary["metrics"][m].get("n", 0):
