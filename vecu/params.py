@@ -67,6 +67,13 @@ SOURCES: dict[str, str] = {
     "ecu.manifold.kf.eta_box": "vecu decision, docs/models.md 'Adaptive air charge'",
     "ecu.manifold.kf.eta_pr_freeze": "vecu decision, docs/models.md 'Adaptive air charge'",
     "ecu.manifold.kf.eta_alpha_gate": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.ta_gain_p0": "Dutka 2006 Table 2 (alpha +-3 %); docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.ta_gain_box": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.act_p0": "Dutka 2006 Table 2 (zeta_T, omega_T +-5 %); docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.act_box": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.act_q": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.eta_drift_prior": "vecu decision, docs/models.md 'Adaptive air charge'",
+    "ecu.manifold.kf.eta_slab_sd": "Dutka 2006 Table 2 (eta +-4 %); docs/models.md 'Adaptive air charge'",
     "ecu.uds": "ISO 14229-1 (UDS), ISO 15765-2 (ISO-TP); vecu decision, docs/uds.md",
 }
 
@@ -83,6 +90,10 @@ NAME_UNITS: dict[str, str] = {
     "eta_q": "1 (variance of c per event)", "eta_p0": "1 (variance of c)",
     "eta_box": "1 (c = eta_true / eta_calibrated)", "eta_pr_freeze": "1 (P_im / P_a)",
     "eta_alpha_gate": "sigma (normalised TA innovation)",
+    "ta_gain_p0": "1 (variance of g, TA = g alpha)", "ta_gain_box": "1 (g)",
+    "act_p0": "1 (variance of k_zeta, k_omega)", "act_box": "1 (k = actual / calibrated)",
+    "act_q": "1 (variance per event)", "eta_drift_prior": "1 (probability)",
+    "eta_slab_sd": "1 (sd of c)",
 }
 
 

@@ -77,6 +77,7 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
     states = {"direct": direct_states(trace),
               "direct_ol": direct_ol_states(trace, inputs, belief, compiled=batch)}
     out: dict[str, Any] = {"events": len(trace.t)}
+    eta = None
     for name in FILTERS:
         if inputs is None:
             flt = make_filter(name, kf)
@@ -84,8 +85,9 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
         else:
             states[name], _, flt = run_filter(name, trace, inputs, kf)
         out[f"{name}_resets"] = flt.resets
-    eta = states["adaptive"][:, 6]  # the adaptive filter's eta correction c per event
-    out["adaptive_eta"] = float(eta[-1])
+        if name == "adaptive":  # the eta correction the CAC uses, per event
+            eta = flt.eta_used(states[name][:, 6], flt.run_variances[:, 6])
+    out["adaptive_eta"] = float(states["adaptive"][-1, 6])
     # what c should converge to: eta_N(plant) / eta_N(calibration) at the drive's median speed
     n_med = float(np.median(trace.n_rpm))
     out["true_eta"] = float(np.interp(n_med, truth.engine.eta_n_rpm, truth.engine.eta_n_val)

@@ -118,7 +118,9 @@ class ManifoldFunction:
         watch.lap()
         x = self.filter.step(y, u)
         filter_s = watch.lap()
-        scale = float(x[6]) if len(x) > 6 else 1.0  # the adaptive filter's eta correction
+        # the adaptive filter's eta correction as the CAC uses it (ManifoldAdaptive.eta_used)
+        scale = (float(self.filter.eta_used(float(x[6]), float(self.filter.P_post[6, 6])))
+                 if len(x) > 6 else 1.0)
         cac = scale * cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, self._engine)
         first = self.filter.last_prediction  # the filter already ran event n+1 from x
         if first is not None and first[0] is u:
@@ -141,7 +143,10 @@ class ManifoldFunction:
             sigma = math.sqrt(max(float(self.filter.P_post[6, 6]), 0.0))
             self.estimates_sent += send(self._adapt_out.frame({
                 "MFD_EtaCorr": 100.0 * (scale - 1.0), "MFD_EtaCorrStd": 100.0 * sigma,
-                "MFD_FlowCorr": 100.0 * (float(x[7]) - 1.0)}, t_ns / NS_PER_S))
+                "MFD_FlowCorr": 100.0 * (float(x[7]) - 1.0),
+                "MFD_TaGainCorr": 100.0 * (float(x[8]) - 1.0),
+                "MFD_ActZetaCorr": 100.0 * (float(x[9]) - 1.0),
+                "MFD_ActOmegaCorr": 100.0 * (float(x[10]) - 1.0)}, t_ns / NS_PER_S))
 
     def status_signals(self) -> dict[str, int]:
         return {}

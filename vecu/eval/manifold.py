@@ -104,11 +104,13 @@ def trace_inputs(trace: ManifoldTrace, params: ManifoldParams = V8_5L7) -> list[
 def run_filter(name: str, trace: ManifoldTrace, inputs: list[EngineInput],
                config: ManifoldFilterConfig = DEFAULT_FILTER_CONFIG,
                events: int | None = None) -> tuple[np.ndarray, float, object]:
-    """Posteriors x_n|n (events x 6), seconds spent in step(), the filter."""
+    """Posteriors x_n|n (events x states), seconds spent in step(), the filter (its
+    run_variances: the posterior variances per event)."""
     flt = make_filter(name, config)
     ys = trace.y.tolist()
     n_ev = len(ys) if events is None else min(events, len(ys))
-    xs = np.empty((n_ev, len(flt.x)))  # 6 states, 7 for the adaptive filter
+    xs = np.empty((n_ev, len(flt.x)))  # 6 states, 11 for the adaptive filter
+    vs = np.empty((n_ev, len(flt.x)))
     step = flt.step
     elapsed = 0.0
     clock = perf_s
@@ -116,6 +118,8 @@ def run_filter(name: str, trace: ManifoldTrace, inputs: list[EngineInput],
         t0 = clock()
         xs[n] = step(ys[n], inputs[n])
         elapsed += clock() - t0
+        vs[n] = np.diag(flt.P_post)
+    flt.run_variances = vs  # as CompiledEvents.run_events
     return xs, elapsed, flt
 
 
@@ -185,9 +189,12 @@ def evaluate_manifold(seed: int = 0, runs: int = 1, stride: int = 1, full_dare: 
                   max(p_true[1], float(trace.x[:, 3].max()))]
         states = {"direct": direct_states(trace),
                   "direct_ol": direct_ol_states(trace, inputs, params)}
+        eta = None
         for name in names:
             xs, sec, flt = run_filter(name, trace, inputs, config)
             states[name] = xs
+            if name == "adaptive":
+                eta = flt.eta_used(xs[:, 6], flt.run_variances[:, 6])
             t_spent[name] += sec
             st = stats[name]
             st["events"] += len(xs)
@@ -206,7 +213,7 @@ def evaluate_manifold(seed: int = 0, runs: int = 1, stride: int = 1, full_dare: 
         for m in methods:
             _, pred, actual = prediction_errors(
                 states[m], trace.ta_sp, trace.n_rpm, trace.cac, params, pc,
-                eta_scale=states[m][:, 6] if m == "adaptive" else None)
+                eta_scale=eta if m == "adaptive" else None)
             err[m].append(1e6 * (pred - actual))
         act.append(1e6 * actual)
     actual_mg = np.concatenate(act)

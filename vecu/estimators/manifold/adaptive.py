@@ -1,24 +1,29 @@
-"""Adaptive manifold EKF: the paper's augmented model (eq. 10) plus a slowly varying
-volumetric-efficiency correction c, eta_true(N, P) = c * eta_calibrated(N, P) (vecu decision,
-docs/models.md "Adaptive air charge").
+"""Adaptive manifold EKF: the paper's augmented model (eq. 10) plus slowly varying parameters
+(vecu decision, docs/models.md "Adaptive air charge").
 
-State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas, c), c a random walk with variance
-`q_eta` per event, bounded to `eta_box`. The event map is the EKF's (manifold_model.f with the
-event integrator) with the eta_N(N) table scaled by c (eta is linear in that table); F gets one
-more column, d(P, T)_{n+1}/dc by a one-sided difference of the integrator, and F[6, 6] = 1.
-What identifies c: at a steady state only the ratio of throttle flow to port flow shows in P_im
-(eta and C_d A_th errors are confounded there: c absorbs both, and a P_im gain error); the speed
-of the pressure transients (pumping time constant, proportional to 1/eta) separates them. The
-CAC and its 6-event prediction use c * eta (cac_predict's eta_scale).
+State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas, c, c_th, g, k_zeta, k_omega):
+eta_true(N, P) = c eta_calibrated(N, P), the throttle flow scaled by c_th (the C_d table), the
+angle sensor TA = g alpha, and the actuator of eq. 1 with zeta = k_zeta zeta_cal, omega0 =
+k_omega omega0_cal. c, c_th are random walks (`eta_q`), g, k_zeta, k_omega constants (`act_q`),
+all bounded to their boxes. What identifies them: TA against the known setpoint gives g and the
+actuator; at a steady state only the ratio of throttle flow to port flow shows in P_im (eta and
+C_d A_th errors are confounded there), the speed of the pressure transients (pumping time
+constant, proportional to 1/eta) separates them once the plate's own speed is known. Each
+parameter learns from its channel only (Schmidt consider updates on the others).
+
+The CAC and its 6-event prediction use c_used = eta_scale_used(c, var c): the posterior mean
+of c under a spike-and-slab prior (the engine is the calibrated one, or eta differs by ~
+`eta_slab_sd`), so an engine that is the calibrated one is not charged c's noise.
 
 The whole event is one kernel (`adaptive_event`, compiled under numba; its Python function under
 the python backend). An event the kernel cannot decide (S not positive definite) or a divergence
-resets the filter (counted), c back to 1 with its prior variance.
+resets the filter (counted), the parameters back to 1 with their prior variances.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +39,29 @@ from vecu.estimators.manifold.model import ALPHA_SDC_MIN, FD_ALPHA, FD_REL, q_ma
 from vecu.models.manifold_params import EngineInput
 
 ETA_FD = 1e-6  # finite-difference step in c
+ACT_FD = 1e-6  # ... in k_zeta, k_omega
+
+
+def eta_scale_used(c: Any, var: Any, p_drift: float, slab_sd: float) -> Any:
+    """The eta scale the CAC uses: the posterior mean of c under a spike-and-slab prior, the
+    engine is the calibrated one (c = 1) with probability 1 - p_drift, otherwise c ~ N(1,
+    slab_sd^2); the filter's c with variance var stands for the measurement of c (its prior is
+    broad). Bayes factor B = N(c; 1, var + s^2) / N(c; 1, var), w = p B / (p B + 1 - p),
+    result 1 + w s^2 / (s^2 + var) (c - 1). Arrays or floats."""
+    c = np.asarray(c, dtype=float)
+    v = np.maximum(np.asarray(var, dtype=float), 1e-12)
+    s2 = slab_sd * slab_sd
+    d2 = (c - 1.0) ** 2
+    log_b = 0.5 * np.log(v / (v + s2)) + 0.5 * d2 * (1.0 / v - 1.0 / (v + s2))
+    if p_drift <= 0.0:
+        w = np.zeros_like(c)
+    elif p_drift >= 1.0:
+        w = np.ones_like(c)
+    else:
+        log_odds = np.clip(log_b + math.log(p_drift / (1.0 - p_drift)), -700.0, 700.0)
+        w = 1.0 / (1.0 + np.exp(-log_odds))
+    out = 1.0 + w * s2 / (s2 + v) * (c - 1.0)
+    return float(out) if out.ndim == 0 else out
 
 
 class ManifoldAdaptive(_ManifoldKF):
@@ -48,25 +76,33 @@ class ManifoldAdaptive(_ManifoldKF):
         self.Q = np.zeros((N_XA, N_XA))
         self.Q[:6, :6] = q_matrix(c.noise)
         self.Q[6, 6] = self.Q[7, 7] = c.eta_q
-        self._P0 = np.diag(np.array((*c.p0_diag, c.eta_p0, c.eta_p0), dtype=float))
-        self._x_default = np.append(self._x_default[:6], (1.0, 1.0))
+        self.Q[8, 8] = self.Q[9, 9] = self.Q[10, 10] = c.act_q
+        self._P0 = np.diag(np.array((*c.p0_diag, c.eta_p0, c.eta_p0, c.ta_gain_p0, c.act_p0,
+                                     c.act_p0), dtype=float))
+        self._x_default = np.append(self._x_default[:6], (1.0, 1.0, 1.0, 1.0, 1.0))
         tables = numba_tables(self.params)
         if tables is None:
             raise ValueError("the adaptive manifold filter needs kappa > 1, pr_reg <= 1 and "
                              "p_exh >= 0 (the compiled integrator's domain)")
         self._args = (filter_constants(c, ALPHA_SDC_MIN), self.Q, np.array([FD_ALPHA, FD_REL]),
                       np.array([c.eta_box[0], c.eta_box[1], ETA_FD, c.eta_pr_freeze,
-                                c.eta_alpha_gate]), *tables)
+                                c.eta_alpha_gate, *c.ta_gain_box, *c.act_box, ACT_FD]),
+                      *tables)
         self.reset(count=False)
 
     @property
     def eta_scale(self) -> float:
-        """c of the posterior: eta_true / eta_calibrated."""
+        """c of the posterior: eta_true / eta_calibrated (the filter's; the CAC uses
+        eta_used(c, its variance))."""
         return float(self.x_post[6])
 
     @property
     def eta_sigma(self) -> float:
         return float(math.sqrt(max(float(self.P_post[6, 6]), 0.0)))
+
+    def eta_used(self, c: Any, var: Any) -> Any:
+        """eta_scale_used with this filter's eta_drift_prior and eta_slab_sd."""
+        return eta_scale_used(c, var, self.config.eta_drift_prior, self.config.eta_slab_sd)
 
     def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
         run = adaptive_event.impl()

@@ -1,86 +1,166 @@
 """The adaptive manifold EKF's event as one kernel (vecu.estimators.manifold.adaptive has the
-filter and the model it implements): kernels.ekf_event with two more states, the volumetric-
-efficiency correction c and the throttle-flow correction c_th, scaling the eta_N and C_d tables
-of the event integrator."""
+filter and the model it implements): kernels.ekf_event with five more states: the volumetric-
+efficiency correction c and the throttle-flow correction c_th (scaling the eta_N and C_d tables
+of the event integrator), the angle sensor's gain g (TA = g alpha) and the actuator's damping
+and natural-frequency corrections k_zeta, k_omega (zeta = k_zeta zeta_cal, omega0 = k_omega
+omega0_cal in eq. 1)."""
 
 # ruff: noqa: FURB136 (x if c else y mirrors min()/max() exactly)
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from vecu.estimators.manifold import kernels as K
 from vecu.estimators.manifold.kernels import (
     DIVERGED,
+    F_GATE2,
     F_MAX_ABS,
+    F_MAX_GATED,
     F_MAX_TRACE,
+    F_OMEGA0,
     F_R0,
+    F_ZETA,
     FALLBACK,
 )
 from vecu.kernels import kernel
 
-N_XA = 8  # the EKF's six states, the eta correction c and the throttle-flow correction c_th
-(A_C_LO, A_C_HI, A_FD_C, A_PR_FREEZE, A_ALPHA_GATE) = range(5)
+# states: the EKF's six, c, c_th, g, k_zeta, k_omega
+N_XA = 11
+I_C, I_CTH, I_G, I_KZ, I_KW = range(6, 11)
+(A_C_LO, A_C_HI, A_FD_C, A_PR_FREEZE, A_ALPHA_GATE, A_G_LO, A_G_HI, A_K_LO, A_K_HI,
+ A_FD_K) = range(10)
+N_ADAPT_CONSTS = 10
+ZETA_MAX = 0.99
 
 
-def _consider_py(x, P, xp, Pp):
-    """Undo the update of c, c_th (states 6, 7) in (xp, Pp) from the prior (x, P): the Schmidt
-    (consider) filter's result, for which the other states' update is unchanged."""
-    xp[6], xp[7] = x[6], x[7]
-    for i in range(6, 8):
-        for j in range(8):
-            Pp[i, j] = P[i, j] if j >= 6 else Pp[j, i]
+def _consider_py(x, P, xp, Pp, lo, hi):
+    """Undo the update of states lo..hi-1 in (xp, Pp) from the prior (x, P): the Schmidt
+    (consider) filter's result, for which the other states' update is unchanged (their gain,
+    and so their cross-covariance with the considered states, is the optimal update's)."""
+    n = x.shape[0]
+    for i in range(lo, hi):
+        xp[i] = x[i]
+        for j in range(n):
+            Pp[i, j] = P[i, j] if lo <= j < hi else Pp[j, i]
+
+
+def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
+    """The TA channel's EKF update with the measurement TA = g alpha (H: g in the alpha
+    column, alpha in g's), gated as kernels._update. Returns 1 (gated), 0 or FALLBACK."""
+    n = x.shape[0]
+    g, alpha = x[I_G], x[1]
+    e = y0 - g * alpha
+    s = g * g * P[1, 1] + 2.0 * g * alpha * P[1, I_G] + alpha * alpha * P[I_G, I_G] + fc[F_R0]
+    if not (math.isfinite(s) and s > 0.0):
+        return FALLBACK
+    if e * e > fc[F_GATE2] * s and run0 < fc[F_MAX_GATED]:
+        xp[:] = x
+        Pp[:, :] = P
+        return 1
+    ph = np.empty(n)  # P H^T
+    for i in range(n):
+        ph[i] = g * P[i, 1] + alpha * P[i, I_G]
+    for i in range(n):
+        xp[i] = x[i] + ph[i] * e / s
+    for i in range(n):
+        for j in range(i + 1):
+            v = P[i, j] - ph[i] * ph[j] / s
+            Pp[i, j] = v
+            Pp[j, i] = v
+    return 0
+
+
+def _actuator_coeffs_py(ts, fc, kz, kw):
+    """kernels._event_coeffs with zeta and omega0 scaled by k_zeta, k_omega (zeta kept below
+    ZETA_MAX: eq. 1's discretisation is the underdamped one)."""
+    f = fc.copy()
+    z = fc[F_ZETA] * kz
+    f[F_ZETA] = z if z < ZETA_MAX else ZETA_MAX
+    f[F_OMEGA0] = fc[F_OMEGA0] * kw
+    return K._event_coeffs(ts, f)
 
 
 _consider = kernel(_consider_py)
+_angle_update = kernel(_angle_update_py)
+_actuator_coeffs = kernel(_actuator_coeffs_py)
 
 
 @kernel
 def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans, run0,
                    run1, run2, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """One event of the adaptive EKF from the prior (x, P) (as kernels.ekf_event, 8 states):
-    update (below), clamping (c, c_th to their box), divergence check, then the event map with
-    eta scaled by c and the throttle flow by c_th, its Jacobian (five one-sided differences) and
-    P = sym(F P F^T + Q). Writes xo (3 x 8), Po (2 x 8 x 8); returns the gated channels |
-    DIVERGED | FALLBACK."""
+    """One event of the adaptive EKF from the prior (x, P) (as kernels.ekf_event, 11 states):
+    update (below), clamping (the corrections to their boxes), divergence check, then the event
+    map with eta scaled by c, the throttle flow by c_th and the actuator's (zeta, omega0) by
+    (k_zeta, k_omega), its Jacobian (one-sided differences) and P = sym(F P F^T + Q). Writes
+    xo (3 x 11), Po (2 x 11 x 11); returns the gated channels | DIVERGED | FALLBACK."""
     cst = K._const_tuple(c)
+    n = x.shape[0]
     xp = xo[1]
     Pp = Po[1]
-    # c, c_th learn from the pressure channel only (the angle and the slow IAT sensor would
-    # pull them to explain their own errors: actuator model, sensor gain): first TA and T_im.out
-    # with c, c_th as considered parameters (Schmidt update: they and their covariance keep the
-    # prior), then P_im, also considered when the model is not trustworthy: near wide open
-    # (the flow function is steep as P_im / P_a -> 1) or while the throttle does not follow its
-    # model (TA innovation beyond eta_alpha_gate sigma). Sequential channel updates equal the
-    # joint one for a diagonal R.
-    e_alpha = y0 - x[1]
+    # Each parameter learns from the channel that sees it: g, k_zeta, k_omega from TA (the
+    # actuator's response to the known setpoint), c, c_th from P_im. The other channels treat
+    # them as considered parameters (Schmidt update: they and their covariance keep the prior),
+    # so one channel's own errors are not explained by another's parameters. The P_im update
+    # also considers c, c_th near wide open (the flow function is steep as P_im / P_a -> 1) and
+    # while the throttle leaves its model (TA innovation beyond eta_alpha_gate sigma).
+    # Sequential channel updates equal the joint one for a diagonal R.
+    e_alpha = y0 - x[I_G] * x[1]
+    s_alpha = (x[I_G] * x[I_G] * P[1, 1] + 2.0 * x[I_G] * x[1] * P[1, I_G]
+               + x[1] * x[1] * P[I_G, I_G] + fc[F_R0])
     alpha_odd = not (chans & 1) or (
-        e_alpha * e_alpha > ac[A_ALPHA_GATE] * ac[A_ALPHA_GATE] * (P[1, 1] + fc[F_R0]))
-    xm = np.empty(8)
-    Pm = np.empty((8, 8))
-    gated = K._update(x, P, xm, Pm, (y0, y1, y2), (run0, run1, run2), chans & 5, fc)
-    if gated & FALLBACK:
+        e_alpha * e_alpha > ac[A_ALPHA_GATE] * ac[A_ALPHA_GATE] * s_alpha)
+    xa = np.empty(n)
+    Pa = np.empty((n, n))
+    gated = 0
+    if chans & 1:
+        gated = _angle_update(x, P, xa, Pa, y0, run0, fc)
+        if gated & FALLBACK:
+            return FALLBACK
+        _consider(x, P, xa, Pa, I_C, I_G)
+    else:
+        xa[:] = x
+        Pa[:, :] = P
+    xm = np.empty(n)
+    Pm = np.empty((n, n))
+    g1 = K._update(xa, Pa, xm, Pm, (y0, y1, y2), (run0, run1, run2), chans & 4, fc)
+    if g1 & FALLBACK:
         return FALLBACK
-    _consider(x, P, xm, Pm)
+    gated |= g1
+    _consider(xa, Pa, xm, Pm, I_C, n)
     g2 = K._update(xm, Pm, xp, Pp, (y0, y1, y2), (run0, run1, run2), chans & 2, fc)
     if g2 & FALLBACK:
         return FALLBACK
     gated |= g2
     if x[3] > ac[A_PR_FREEZE] * p_a or alpha_odd:
-        _consider(xm, Pm, xp, Pp)
+        _consider(xm, Pm, xp, Pp, I_C, n)
+    else:
+        _consider(xm, Pm, xp, Pp, I_G, n)
     K._clamp(xp, fc)  # the first six states
-    for i in range(6, 8):
-        xp[i] = ac[A_C_LO] if ac[A_C_LO] > xp[i] else xp[i]
-        xp[i] = ac[A_C_HI] if ac[A_C_HI] < xp[i] else xp[i]
+    for i in range(I_C, n):
+        lo = ac[A_C_LO] if i < I_G else (ac[A_G_LO] if i == I_G else ac[A_K_LO])
+        hi = ac[A_C_HI] if i < I_G else (ac[A_G_HI] if i == I_G else ac[A_K_HI])
+        xp[i] = lo if lo > xp[i] else xp[i]
+        xp[i] = hi if hi < xp[i] else xp[i]
     if not K._in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
-    co = K._event_coeffs(ts, fc)
-    ev = eta_val * xp[6]
-    cdt = cd_table * xp[7]
+    kz, kw = xp[I_KZ], xp[I_KW]
+    co = _actuator_coeffs(ts, fc, kz, kw)
+    ev = eta_val * xp[I_C]
+    cdt = cd_table * xp[I_CTH]
     p_n, t_n, m = K._integrate(xp[3], xp[4], xp[1], p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
                                cdt, prs, eta_rpm, ev)
-    F = np.zeros((8, 8))
+    F = np.zeros((n, n))
     K._jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, cst,
                 cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val)
+    # the actuator row's columns k_zeta, k_omega (eq. 1 is linear in alpha, not in them)
+    alpha_n = co[0] * xp[1] + co[1] * xp[2] + co[2] * sp + co[3] * xp[0]
+    d = ac[A_FD_K]
+    cz = _actuator_coeffs(ts, fc, kz + d, kw)
+    cw = _actuator_coeffs(ts, fc, kz, kw + d)
+    F[1, I_KZ] = (cz[0] * xp[1] + cz[1] * xp[2] + cz[2] * sp + cz[3] * xp[0] - alpha_n) / d
+    F[1, I_KW] = (cw[0] * xp[1] + cw[1] * xp[2] + cw[2] * sp + cw[3] * xp[0] - alpha_n) / d
     K._map_out(xo, xp, sp, p_n, t_n, co, fc)
     if not K._propagate(F, Pp, Q, xo, Po, fc):
         return gated | DIVERGED

@@ -33,10 +33,11 @@ from vecu.models.manifold_integrator import _integrate_event
 
 @kernel
 def filter_events(kind, x, P, P_post, ys, us, start, events_before, gated_run, gated, xs_out,
-                  last_pred, lim, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
+                  var_out, last_pred, lim, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
     """Events start.. of the "iterate" ManifoldSDKF (kind 0), ManifoldEKF (1) or
-    adaptive.ManifoldAdaptive (2, ac its constants, 7 states) from the state
+    adaptive.ManifoldAdaptive (2, ac its constants, 11 states) from the state
     (x, P, P_post; gated_run, gated counters), updated in place; xs_out[n] the posterior,
+    var_out[n] its variances (the diagonal of P_post),
     last_pred the last event map output. Returns the index of the first event not run."""
     nx = x.shape[0]
     xo = np.empty((3, nx))
@@ -77,6 +78,8 @@ def filter_events(kind, x, P, P_post, ys, us, start, events_before, gated_run, g
         P[:, :] = Po[0]
         P_post[:, :] = Po[1]
         xs_out[n] = xo[1]
+        for i in range(nx):
+            var_out[n, i] = Po[1, i, i]
         last_pred[:] = xo[2]
     return n_ev
 

@@ -116,7 +116,8 @@ class CompiledEvents:
         return not self._kernel_args_ready and self._prepare_kernel() is not None
 
     def run_events(self, ys: np.ndarray, us: np.ndarray) -> np.ndarray:
-        """step(ys[n], EngineInput(*us[n])) for every event n; the posteriors (events x 6).
+        """step(ys[n], EngineInput(*us[n])) for every event n; the posteriors (events x states;
+        their variances, the diagonal of P_post, in `self.run_variances` afterwards).
         ys: (events, 3) readings, us: (events, 5) inputs (TA_SP, N, P_a, T_a, T_cool). Under the
         numba backend runs of events go through one compiled call each (the same kernels, so
         the same numbers and counters as stepping); the events the kernels hand back (bad
@@ -125,17 +126,21 @@ class CompiledEvents:
         us = np.ascontiguousarray(us, dtype=np.float64)
         n_ev = len(ys)
         xs = np.empty((n_ev, len(self.x)))
+        vs = np.empty((n_ev, len(self.x)))
         n = 0
         while n < n_ev:
             if self._block_ready():
-                n = self._run_block(ys, us, n, xs)
+                n = self._run_block(ys, us, n, xs, vs)
                 if n >= n_ev:
                     break
             xs[n] = self.step(ys[n].tolist(), EngineInput(*us[n].tolist()))
+            vs[n] = np.diag(self.P_post)
             n += 1
+        self.run_variances = vs
         return xs
 
-    def _run_block(self, ys: np.ndarray, us: np.ndarray, start: int, xs: np.ndarray) -> int:
+    def _run_block(self, ys: np.ndarray, us: np.ndarray, start: int, xs: np.ndarray,
+                   vs: np.ndarray) -> int:
         args = self._kernel_args
         assert args is not None
         c = self.config
@@ -148,7 +153,7 @@ class CompiledEvents:
         kind = KINDS[self.name]
         ac = args[3] if kind == 2 else _NO_AC
         stop = filter_events.compiled(kind, x, P, P_post, ys, us, start, self.events, gr, gated,
-                                      xs, last_pred, lim, args[0], args[1], args[2], ac,
+                                      xs, vs, last_pred, lim, args[0], args[1], args[2], ac,
                                       *args[-6:])
         if stop == start:
             return start

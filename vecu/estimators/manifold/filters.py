@@ -98,11 +98,21 @@ class ManifoldFilterConfig:
     doubling_max_iter: int = 40
     bounds: DivergenceBounds = field(default_factory=lambda: MANIFOLD_BOUNDS)
     # adaptive filter only: corrections c (eta) and c_th (throttle flow), random walks
-    eta_q: float = 4e-8  # variance of c's and c_th's step per event
+    eta_q: float = 1e-9  # variance of c's and c_th's step per event
     eta_p0: float = 2.5e-3  # prior variance of c and c_th (sigma 5 %)
     eta_box: tuple[float, float] = (0.7, 1.3)  # c and c_th are clamped here
     eta_pr_freeze: float = 0.9  # c, c_th not learned above this P_im / P_a
     eta_alpha_gate: float = 2.0  # nor while |TA innovation| exceeds this many sigma
+    # ... and the angle sensor's gain g (TA = g alpha) and the actuator's k_zeta, k_omega
+    ta_gain_p0: float = 4e-4  # prior variance of g (sigma 2 %)
+    ta_gain_box: tuple[float, float] = (0.9, 1.1)
+    act_p0: float = 2.5e-3  # prior variance of k_zeta and k_omega (sigma 5 %)
+    act_box: tuple[float, float] = (0.85, 1.15)
+    act_q: float = 0.0  # variance of g's, k_zeta's and k_omega's step per event
+    # the eta correction the CAC uses: c averaged with "calibrated engine" (spike and slab):
+    # the prior probability that eta differs from the calibration, and by how much (sd of c)
+    eta_drift_prior: float = field(default=0.2, metadata={"bounds": (0.0, 1.0)})
+    eta_slab_sd: float = field(default=0.02, metadata={"bounds": (1e-4, 0.5)})  # sd of c then
 
 
 def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
@@ -176,6 +186,7 @@ class _ManifoldKF(CompiledEvents):
         self._last_u: EngineInput | None = None
         self._last_y = [math.nan, math.nan, math.nan]
         self.last_prediction: tuple[EngineInput, np.ndarray] | None = None
+        self.run_variances = np.empty((0, 0))  # run_events: the posterior variances per event
         self.reset(count=False)
 
     # ---------------------------------------------------------------- state handling
