@@ -19,7 +19,7 @@ from __future__ import annotations
 import copy
 import math
 import struct
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -36,6 +36,7 @@ from cantools.database.conversion import (
 from vecu.block_codec import MAX_BLOCK_BYTES, BlockChecks, BlockField, BlockLayout
 from vecu.e2e import e2e_crc
 from vecu.errors import BadFileError
+from vecu.framer import EncodeParts, Framer, compile_framer
 from vecu.frames import message
 
 DEFAULT_DBC = "vecu.dbc"
@@ -196,6 +197,24 @@ class FrameCodec:
         return message(timestamp, self.frame_id, self.is_extended, self.encode(values),
                        self.is_fd)
 
+    def framer(self, names: Sequence[str]) -> Framer:
+        """make(timestamp, *values): frame(dict(zip(names, values)), timestamp) in one generated
+        call (vecu.framer); names are all the message's signals, in the order the caller gives."""
+        names = tuple(names)
+
+        def slow(timestamp: float, values: tuple) -> can.Message:
+            return self.frame(dict(zip(names, values)), timestamp)
+
+        if sorted(names) != sorted(s.name for s in self.signals):
+            raise ValueError(f"{self.name}: framer names {list(names)} are not its signals")
+        parts = getattr(self._fast_encode, "parts", None)
+        if parts is None:  # no generated encoder: cantools through frame()
+            return lambda timestamp, *values: slow(timestamp, values)
+        return compile_framer(parts, names, frame_id=self.frame_id, is_extended=self.is_extended,
+                              is_fd=self.is_fd, length=self.length,
+                              crc_byte=self.e2e.crc_byte if self.e2e is not None else None,
+                              slow=slow, label=self.name)
+
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         """Payload -> physical values (no choice strings). Raises on a short payload."""
         fast = self._fast_decode
@@ -304,6 +323,7 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
     ns: dict[str, object] = {"_NUM": (int, float), "_F32": _F32, "_F64": _F64, "_U32": _U32,
                              "_U64": _U64}
     enc = ["def encode(values):", "    le = 0", "    be = 0"]
+    blocks: dict[str, list[str]] = {}
     dec = ["def decode(data):"]
     out = []
     used: set[tuple[int, int]] = set()
@@ -331,6 +351,7 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
         ns[f"_to_phys{i}"] = conv.raw_to_scaled
         # ---- encode
         enc.append(f"    v = values[{sig.name!r}]")
+        start = len(enc)  # this signal's lines after reading v: FrameCodec.framer reuses them
         enc.append("    if not isinstance(v, _NUM): return None")
         if sig.name in sat:
             ns[f"_lo{i}"], ns[f"_hi{i}"] = sat[sig.name]
@@ -352,6 +373,7 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
             if sig.is_signed:
                 enc.append(f"    r &= {mask}")
         enc.append(f"    {kind} |= r << {shift}" if shift else f"    {kind} |= r")
+        blocks[sig.name] = enc[start:]
         # ---- decode
         src = f"({kind} >> {shift})" if shift else kind
         dec.append(f"    r{i} = {src} & {mask}")
@@ -382,7 +404,9 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
     dec.append("    return {" + ", ".join(out) + "}")
     code = compile("\n".join(enc + [""] + dec) + "\n", f"<vecu fast codec {message.name}>", "exec")
     exec(code, ns)  # noqa: S102 (generated from the DBC's signal layout, no user text)
-    return ns["encode"], ns["decode"]  # type: ignore[return-value]
+    encode = ns["encode"]
+    encode.parts = EncodeParts(blocks, enc[-1].strip()[len("return "):], ns)  # for framer()
+    return encode, ns["decode"]  # type: ignore[return-value]
 
 
 def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:

@@ -43,6 +43,8 @@ class SpeedFunction:
                  config: SpeedFunctionConfig = SpeedFunctionConfig()) -> None:
         self.kf = kf if kf is not None else SpeedKalmanFilter(config.filter)
         self._out = codec["ECU_SpeedEstimate"]
+        self._out_frame = self._out.framer(("SPD_VehSpeed", "SPD_VehAccel", "SPD_VehSpeedStd",
+                                            "SPD_AccelOffset", "SPD_Mode"))
         cycle = codec["ESC_Motion"].cycle_time_ms or config.wheel_monitor.cycle_ms
         self.monitor = SensorMonitor(replace(config.wheel_monitor, cycle_ms=cycle), 0.0,
                                      WHEEL_MAX_KMH, float)
@@ -89,11 +91,9 @@ class SpeedFunction:
         else:
             mode = MODE_STANDSTILL if kf.standstill else (MODE_ABS if kf.abs_mode else MODE_NORMAL)
         self.mode = mode
-        self.estimates_sent += send(self._out.frame({
-            "SPD_VehSpeed": kf.speed_mps / MPS_PER_KMH, "SPD_VehAccel": kf.accel_mps2,
-            "SPD_VehSpeedStd": kf.speed_std_mps / MPS_PER_KMH, "SPD_AccelOffset": kf.offset_mps2,
-            "SPD_Mode": mode,
-        }, t_ns / NS_PER_S))
+        self.estimates_sent += send(self._out_frame(
+            t_ns / NS_PER_S, kf.speed_mps / MPS_PER_KMH, kf.accel_mps2,
+            kf.speed_std_mps / MPS_PER_KMH, kf.offset_mps2, mode))
 
     def status_signals(self) -> dict[str, int]:
         return {}

@@ -49,6 +49,11 @@ class SteeringFunction:
         self.ukf = self.smoother.filter
         self._est = codec["ECU_SteeringEstimate"]
         self._smoothed = codec["ECU_SteeringSmoothed"]
+        self._est_frame = self._est.framer((
+            "STE_CRC", "STE_AliveCounter", "STE_Source", "STE_SwAngle", "STE_SwAngleEst",
+            "STE_SideSlip", "STE_SwaStatus"))
+        self._smoothed_frame = self._smoothed.framer(
+            ("STS_SwAngle", "STS_SideSlip", "STS_LagMs", "STS_Valid"))
         cycle = codec["SWA_Sensor"].cycle_time_ms or config.monitor.cycle_ms
         self.monitor = SensorMonitor(replace(config.monitor, cycle_ms=cycle), -SWA_LIMIT_DEG,
                                      SWA_LIMIT_DEG, float)
@@ -90,18 +95,17 @@ class SteeringFunction:
         angle, source, status = self.monitor.select(t_ns, est, std)
         self.angle, self.source, self.status = angle, source, status
         ts = t_ns / NS_PER_S
-        self.estimates_sent += send(self._est.frame({
-            "STE_CRC": 0, "STE_AliveCounter": self._tx_counter, "STE_Source": source,
-            "STE_SwAngle": angle, "STE_SwAngleEst": est, "STE_SideSlip": beta,
-            "STE_SwaStatus": int(status)}, ts))
+        self.estimates_sent += send(self._est_frame(
+            ts, 0, self._tx_counter, source, angle, est, beta, int(status)))
         self._tx_counter = (self._tx_counter + 1) & 0xF
         if lagged is not None:
             lag_ms = round(lagged.lag_steps * self.period_ns / NS_PER_MS)
             self.lagged = (lag_ms, lagged.swa_rad * DEG_PER_RAD, lagged.side_slip_rad * DEG_PER_RAD)
         lag = self.lagged
-        send(self._smoothed.frame({
-            "STS_SwAngle": lag[1] if lag else 0.0, "STS_SideSlip": lag[2] if lag else 0.0,
-            "STS_LagMs": lag[0] if lag else 0, "STS_Valid": 1 if lag else 0}, ts))
+        if lag:
+            send(self._smoothed_frame(ts, lag[1], lag[2], lag[0], 1))
+        else:
+            send(self._smoothed_frame(ts, 0.0, 0.0, 0, 0))
 
     def status_signals(self) -> dict[str, int]:
         return {}

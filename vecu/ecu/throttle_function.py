@@ -54,6 +54,9 @@ class ThrottleFunction:
         self._tps = codec["TPS_Sensor"]
         self._watt = codec["ETB_Wattmeter"]
         self._est = codec["ECU_ThrottleEstimate"]
+        self._est_frame = self._est.framer((
+            "THR_CRC", "THR_AliveCounter", "THR_Source", "THR_Angle", "THR_AngleEst",
+            "THR_AngleEstStd", "THR_TpsStatus"))
         monitor_cfg = config.tps_monitor
         tps_cycle = self._tps.cycle_time_ms or monitor_cfg.cycle_ms
         if monitor_cfg.cycle_ms != tps_cycle:
@@ -111,11 +114,8 @@ class ThrottleFunction:
             theta_hat, std = self.angle, 51.0
         angle, source, status = self.monitor.select(t_ns, theta_hat, std)
         self.angle, self.source, self.status = angle, source, status
-        self.estimates_sent += send(self._est.frame({
-            "THR_CRC": 0, "THR_AliveCounter": self._tx_counter, "THR_Source": source,
-            "THR_Angle": angle, "THR_AngleEst": theta_hat,
-            "THR_AngleEstStd": std, "THR_TpsStatus": int(status),
-        }, t_ns / NS_PER_S))
+        self.estimates_sent += send(self._est_frame(
+            t_ns / NS_PER_S, 0, self._tx_counter, source, angle, theta_hat, std, int(status)))
         self._tx_counter = (self._tx_counter + 1) & 0xF
 
     def status_signals(self) -> dict[str, int]:

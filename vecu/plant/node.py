@@ -65,6 +65,8 @@ class ThrottlePart:
         self.calibration = calibration
         self._tps = codec["TPS_Sensor"]
         self._watt = codec["ETB_Wattmeter"]
+        self._tps_frame = self._tps.framer(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage"))
+        self._watt_frame = self._watt.framer(("ETB_Voltage", "ETB_Power"))
         self._counter = 0
         self.truth_msg = None  # TRUTH_Throttle codec when recording truth (PlantNode.enable_truth)
         # truth and sensor of the last tick, read by probes
@@ -80,10 +82,9 @@ class ThrottlePart:
         ts = t_ns / NS_PER_S
         if v is not None:
             v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
-            send(self._tps.frame(
-                {"TPS_CRC": 0, "TPS_AliveCounter": self._counter, "TPS_Voltage": v}, ts))
+            send(self._tps_frame(ts, 0, self._counter, v))
             self._counter = (self._counter + 1) & 0xF
-        send(self._watt.frame({"ETB_Voltage": u, "ETB_Power": y}, ts))
+        send(self._watt_frame(ts, u, y))
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_ThrottleAngle": plant.theta, "TRU_MotorVoltage": u}, ts))
         self.theta = plant.theta
@@ -107,6 +108,7 @@ class LongitudinalPart:
                  wheel: WheelSensorConfig = WheelSensorConfig(),
                  accel: AccelSensorConfig = AccelSensorConfig()) -> None:
         self._msg = codec["ESC_Motion"]
+        self._frame = self._msg.framer(("ESC_WheelSpeed", "ESC_LongAccel"))
         self._seed = seed
         self._sensors = (wheel, accel)
         if sequence:
@@ -136,7 +138,7 @@ class LongitudinalPart:
         v, a, wheel, accel = (col[k] for col in self._cols)
         self.v, self.a, self.wheel, self.accel = v, a, wheel, accel
         ts = t_ns / NS_PER_S
-        send(self._msg.frame({"ESC_WheelSpeed": wheel / MPS_PER_KMH, "ESC_LongAccel": accel}, ts))
+        send(self._frame(ts, wheel / MPS_PER_KMH, accel))
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_VehSpeed": v / MPS_PER_KMH, "TRU_VehAccel": a}, ts))
 
@@ -153,6 +155,8 @@ class LateralPart:
                  sensors: LateralSensors = LateralSensors()) -> None:
         self._lat = codec["CHS_Lateral"]
         self._swa = codec["SWA_Sensor"]
+        self._lat_frame = self._lat.framer(("LAT_YawRate", "LAT_LatAccel", "LAT_VehSpeed"))
+        self._swa_frame = self._swa.framer(("SWA_CRC", "SWA_AliveCounter", "SWA_Angle"))
         self.injector = injector
         tr = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)),
                               vehicle, sensors)
@@ -172,14 +176,13 @@ class LateralPart:
         swa, beta, r, ay, vx, swa_meas = (col[k] for col in self._cols)
         self.swa, self.beta = swa, beta
         ts = t_ns / NS_PER_S
-        send(self._lat.frame({"LAT_YawRate": r, "LAT_LatAccel": ay, "LAT_VehSpeed": vx}, ts))
+        send(self._lat_frame(ts, r, ay, vx))
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_SwAngle": swa, "TRU_SideSlip": beta}, ts))
         v = self.injector.apply(FaultTarget.SWA, swa_meas)
         self.swa_sensor = v
         if v is not None:
-            send(self._swa.frame({"SWA_CRC": 0, "SWA_AliveCounter": self._counter,
-                                  "SWA_Angle": v}, ts))
+            send(self._swa_frame(ts, 0, self._counter, v))
             self._counter = (self._counter + 1) & 0xF
 
 
@@ -195,6 +198,9 @@ class ManifoldPart:
         self._ev = codec["ENG_Event"]
         self._engine = engine = config.engine
         self._iat = codec["ENG_Intake"]
+        self._ev_frame = self._ev.framer(("ENG_EventCounter", "ENG_Speed", "ENG_ThrottleSetpoint",
+                                          "ENG_ThrottleAngle", "ENG_MAP"))
+        self._iat_frame = self._iat.framer(("ENG_IntakeCounter", "ENG_IAT"))
         self._seed = seed
         self._profile_index = 0
         self._profile = us06_like(seed, params=engine)
@@ -223,10 +229,8 @@ class ManifoldPart:
                          cylinder_air_charge(plant.p_im, plant.t_im, n, self._engine))
         self.truth.pop(k - 64, None)  # bounded: probes look back a few events only
         ts = t_ns / NS_PER_S
-        send(self._ev.frame({"ENG_EventCounter": k & 0xFF, "ENG_Speed": n,
-                             "ENG_ThrottleSetpoint": sp * DEG_PER_RAD, "ENG_ThrottleAngle": ta * DEG_PER_RAD,
-                             "ENG_MAP": p_kpa}, ts))
-        send(self._iat.frame({"ENG_IntakeCounter": k & 0xFF, "ENG_IAT": t_meas - KELVIN_AT_0_DEGC}, ts))
+        send(self._ev_frame(ts, k & 0xFF, n, sp * DEG_PER_RAD, ta * DEG_PER_RAD, p_kpa))
+        send(self._iat_frame(ts, k & 0xFF, t_meas - KELVIN_AT_0_DEGC))
         if self.truth_msg is not None:
             p_true, t_true, cac_true = self.truth[k]
             send(self.truth_msg.frame({"TRU_EventCounter": k & 0xFF, "TRU_MAP": p_true,

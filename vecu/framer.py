@@ -1,0 +1,66 @@
+"""Frame builders for a fixed signal order: FrameCodec.frame(dict(zip(names, values)), ts) as
+one generated call make(ts, *values), without the dict, the encode / CRC / Message call chain.
+
+The code is put together from the lines the codec's generated encoder uses for each signal
+(vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E CRC unrolled over the
+payload bytes and vecu.frames.message. A value the generated encoder would refuse (not a
+number, a raw value that does not fit) makes the builder return `slow(ts, values)`, which is
+FrameCodec.frame with the dict: the same frame either way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import can
+
+from vecu.e2e import crc8_table
+from vecu.frames import message
+
+Framer = Callable[..., can.Message]  # make(timestamp, *values in the names' order)
+
+
+class _Refused(Exception):
+    """A value the generated lines do not take (their `return None`): FrameCodec.frame decides."""
+
+
+@dataclass(frozen=True)
+class EncodeParts:
+    """A generated encoder's pieces: per signal its lines after `v = values[name]` (they read
+    v, OR the raw bits into `le` / `be` and `return None` on a value it cannot take), the
+    expression of the payload bytes and the namespace the lines use."""
+
+    blocks: dict[str, list[str]]
+    payload: str
+    namespace: dict[str, object]
+
+
+def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
+                   is_extended: bool, is_fd: bool, length: int, crc_byte: int | None,
+                   slow: Callable[[float, tuple], can.Message], label: str) -> Framer:
+    """make(ts, *values) for the signals `names` (every signal of the message, in any order)."""
+    if sorted(names) != sorted(parts.blocks) or len(set(names)) != len(names):
+        raise ValueError(f"{label}: framer names {list(names)} are not its signals "
+                         f"{sorted(parts.blocks)}")
+    args = [f"a{j}" for j in range(len(names))]
+    fallback = f"return _slow(ts, ({', '.join(args)},))"
+    # FrameCodec.encode also takes anything the generated lines raise on (round(inf)) to cantools
+    src = [f"def make(ts, {', '.join(args)}):", "    try:", "        le = 0", "        be = 0"]
+    for name in parts.blocks:  # the encoder's signal order
+        src.append(f"        v = {args[names.index(name)]}")
+        src.extend("    " + line.replace("return None", "raise _Refused")
+                   for line in parts.blocks[name])
+    src.append(f"        buf = bytearray({parts.payload})")
+    src.extend(["    except Exception:", f"        {fallback}"])
+    ns = dict(parts.namespace)
+    if crc_byte is not None:  # vecu.e2e.e2e_crc over the data ID and the other bytes, unrolled
+        table = crc8_table()
+        ns["_T"] = table
+        src.append(f"    c = {table[table[0xFF ^ (frame_id & 0xFF)] ^ ((frame_id >> 8) & 0xFF)]}")
+        src.extend(f"    c = _T[c ^ buf[{i}]]" for i in range(length) if i != crc_byte)
+        src.append(f"    buf[{crc_byte}] = c ^ 0xFF")
+    src.append(f"    return _msg(ts, {frame_id}, {is_extended}, buf, {is_fd})")
+    ns.update(_slow=slow, _msg=message, _Refused=_Refused)
+    exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102
+    return ns["make"]  # type: ignore[return-value]
