@@ -111,7 +111,7 @@ class ManifoldFilterConfig:
     act_q: float = 0.0  # variance of g's, k_zeta's and k_omega's step per event
     # the eta correction the CAC uses: c averaged with "calibrated engine" (spike and slab):
     # the prior probability that eta differs from the calibration, and by how much (sd of c)
-    eta_drift_prior: float = field(default=0.2, metadata={"bounds": (0.0, 1.0)})
+    eta_drift_prior: float = field(default=0.1, metadata={"bounds": (0.0, 1.0)})
     eta_slab_sd: float = field(default=0.02, metadata={"bounds": (1e-4, 0.5)})  # sd of c then
 
 
