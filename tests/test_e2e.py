@@ -1,8 +1,10 @@
 from __future__ import annotations
 
+import random
+
 import pytest
 
-from vecu.e2e import AliveCounterCheck, crc8_sae_j1850, e2e_crc
+from vecu.e2e import AliveCounterCheck, crc8_sae_j1850, e2e_checker, e2e_crc
 
 
 @pytest.mark.parametrize("data,crc", [
@@ -53,3 +55,18 @@ def test_e2e_crc_is_the_crc_of_data_id_and_payload_without_the_crc_byte_everywhe
         idx, data_id = rng.randrange(n), rng.getrandbits(11)
         covered = bytes([data_id & 0xFF, data_id >> 8]) + payload[:idx] + payload[idx + 1:]
         assert e2e_crc(data_id, payload, idx) == crc8_sae_j1850(covered)
+
+
+def test_e2e_checker_agrees_with_e2e_crc_on_any_length():
+    rng = random.Random(4)
+    for length in range(1, 9):
+        for crc_index in range(length):
+            for data_id in (0x5, 0x100, 0x7FF, 0x1ABCDEF):
+                ok = e2e_checker(data_id, length, crc_index)
+                for _ in range(40):
+                    n = length if rng.random() < 0.8 else rng.randint(crc_index + 1, 12)
+                    payload = bytearray(rng.randrange(256) for _ in range(n))
+                    if rng.random() < 0.5:
+                        payload[crc_index] = e2e_crc(data_id, payload, crc_index)
+                    assert ok(payload) == (payload[crc_index]
+                                           == e2e_crc(data_id, payload, crc_index))

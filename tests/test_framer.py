@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from vecu.codec import DbcCodec, builtin_dbc_path
+from vecu.framer import compile_range_check
 from vecu.frames import same_message
 
 RUNS = 120  # value sets per message
@@ -67,3 +68,32 @@ def test_framer_refuses_names_that_are_not_the_signals():
         fc.framer(("TPS_Voltage",))
     with pytest.raises(ValueError):
         fc.framer(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage", "TPS_Voltage"))
+
+
+def _bad_values_reference(checked, values) -> list[str]:
+    """FrameCodec.bad_values as the loop it was before it was generated."""
+    bad = []
+    for name, lo, hi in checked:
+        value = values.get(name)
+        if value is None:
+            continue
+        if not math.isfinite(value) or (lo is not None and value < lo) or (
+                hi is not None and value > hi):
+            bad.append(name)
+    return bad
+
+
+def test_generated_range_check_is_the_loop():
+    rng = random.Random(9)
+    checked = [("a", -1.5, 2.0), ("b", None, 10), ("c", 0, None), ("d", None, None),
+               ("e", -math.inf, 3.0), ("f", 1.0, 1.0)]
+    bad_values = compile_range_check(checked, "test")
+    specials = [math.nan, math.inf, -math.inf, -1.5, 2.0, 10, 0, 1.0, -0.0, 3.0]
+    for _ in range(3000):
+        values = {n: (rng.choice(specials) if rng.random() < 0.5 else rng.uniform(-20, 20))
+                  for n, _, _ in checked if rng.random() < 0.9}
+        assert bad_values(values) == _bad_values_reference(checked, values), values
+    for fc in DbcCodec().by_id.values():  # every message's own check, on in- and out-of-range
+        for _ in range(50):
+            values = {s.name: rng.choice(specials + [rng.uniform(-1e4, 1e4)]) for s in fc.signals}
+            assert fc.bad_values(values) == _bad_values_reference(fc._checked, values)

@@ -34,9 +34,9 @@ from cantools.database.conversion import (
 )
 
 from vecu.block_codec import MAX_BLOCK_BYTES, BlockChecks, BlockField, BlockLayout
-from vecu.e2e import e2e_crc
+from vecu.e2e import e2e_checker, e2e_crc
 from vecu.errors import BadFileError
-from vecu.framer import EncodeParts, Framer, compile_framer
+from vecu.framer import EncodeParts, Framer, compile_framer, compile_range_check
 from vecu.frames import message
 
 DEFAULT_DBC = "vecu.dbc"
@@ -123,10 +123,21 @@ class FrameCodec:
             if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi):
                 self._checked.append((sig.name, lo, hi))
         self.e2e = _e2e_layout(message)
+        # crc_ok(payload): its E2E CRC byte is right (True without E2E); bad_values(values): the
+        # names of signals NaN / inf or outside the DBC's [minimum, maximum]. Generated code
+        # (vecu.e2e.e2e_checker, vecu.framer.compile_range_check): called for every frame received
+        self.crc_ok: Callable[[bytes | bytearray], bool] = (
+            _no_crc if self.e2e is None
+            else e2e_checker(self.frame_id, self.length, self.e2e.crc_byte))
+        self.bad_values: Callable[[Mapping[str, float]], list[str]] = compile_range_check(
+            self._checked, self.name)
         self._encode = message.encode
         self._decode_simple = message.decode_simple
         compiled = compile_fast_codec(message, self._saturate) if fast else None
         self._fast_encode, self._fast_decode = compiled if compiled is not None else (None, None)
+        # decode() of a payload known to be `length` bytes long (the receive path checked it)
+        self.decode_exact: Callable[[bytes | bytearray], dict[str, float]] = (
+            self._fast_decode if self._fast_decode is not None else self.decode)
         # many payloads at once (numpy), from the same cantools layout (vecu.block_codec)
         self.block: BlockLayout | None = (block_layout(message, self.e2e)
                                           if compiled is not None else None)
@@ -143,6 +154,7 @@ class FrameCodec:
         keep = set(signals)
         restricted = copy.copy(self)
         restricted._checked = [c for c in self._checked if c[0] in keep]
+        restricted.bad_values = compile_range_check(restricted._checked, self.name)
         return restricted
 
     def fit(self, name: str, value: float) -> float:
@@ -245,23 +257,11 @@ class FrameCodec:
         """decode() through cantools only (the reference of the fast path)."""
         return self._decode_simple(data, False, True)
 
-    def crc_ok(self, data: bytes | bytearray) -> bool:
-        e2e = self.e2e
-        if e2e is None:
-            return True
-        return data[e2e.crc_byte] == e2e_crc(self.frame_id, data, e2e.crc_byte)
 
-    def bad_values(self, values: Mapping[str, float]) -> list[str]:
-        """Names of signals that are NaN/inf or outside the DBC's [minimum, maximum]."""
-        bad = []
-        for name, lo, hi in self._checked:
-            value = values.get(name)
-            if value is None:
-                continue
-            if not math.isfinite(value) or (lo is not None and value < lo) or (
-                    hi is not None and value > hi):
-                bad.append(name)
-        return bad
+
+def _no_crc(data: bytes | bytearray) -> bool:
+    """crc_ok of a message without E2E protection."""
+    return True
 
 
 def _raw_bounds(sig) -> tuple[float, float]:

@@ -6,6 +6,8 @@ low byte first) followed by every payload byte except the CRC byte itself.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 
 def _make_table(poly: int) -> tuple[int, ...]:
     table = []
@@ -43,6 +45,21 @@ def e2e_crc(data_id: int, payload: bytes | bytearray, crc_index: int) -> int:
     for b in payload[crc_index + 1:]:
         crc = table[crc ^ b]
     return crc ^ 0xFF
+
+
+def e2e_checker(data_id: int, length: int, crc_index: int) -> Callable[[bytes | bytearray], bool]:
+    """ok(payload): payload[crc_index] == e2e_crc(data_id, payload, crc_index), generated with
+    the byte loop unrolled for payloads of `length` bytes (any other length: e2e_crc)."""
+    table = _TABLE
+    lines = ["def ok(p):",
+             f"    if len(p) != {length}: return p[{crc_index}] == _crc(_ID, p, {crc_index})",
+             f"    c = {table[table[0xFF ^ (data_id & 0xFF)] ^ ((data_id >> 8) & 0xFF)]}"]
+    lines += [f"    c = _T[c ^ p[{i}]]" for i in range(length) if i != crc_index]
+    lines.append(f"    return p[{crc_index}] == c ^ 0xFF")
+    ns: dict[str, object] = {"_T": table, "_crc": e2e_crc, "_ID": data_id}
+    code = compile("\n".join(lines) + "\n", f"<vecu e2e check {data_id:#x}>", "exec")
+    exec(code, ns)  # noqa: S102 (generated from the message's layout)
+    return ns["ok"]  # type: ignore[return-value]
 
 
 class AliveCounterCheck:

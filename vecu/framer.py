@@ -1,5 +1,6 @@
-"""Frame builders for a fixed signal order: FrameCodec.frame(dict(zip(names, values)), ts) as
-one generated call make(ts, *values), without the dict, the encode / CRC / Message call chain.
+"""Generated per-message code beside the codec's encoder / decoder: frame builders for a fixed
+signal order (FrameCodec.frame(dict(zip(names, values)), ts) as one call make(ts, *values),
+without the dict, the encode / CRC / Message call chain) and the receive range check.
 
 The code is put together from the lines the codec's generated encoder uses for each signal
 (vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E CRC unrolled over the
@@ -10,7 +11,8 @@ FrameCodec.frame with the dict: the same frame either way.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import can
@@ -64,3 +66,24 @@ def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
     ns.update(_slow=slow, _msg=message, _Refused=_Refused)
     exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102
     return ns["make"]  # type: ignore[return-value]
+
+
+def compile_range_check(checked: Sequence[tuple[str, float | None, float | None]], label: str
+                        ) -> Callable[[Mapping[str, float]], list[str]]:
+    """bad_values(values): the names among `checked` (name, lo, hi) whose value is present and
+    NaN / inf or outside [lo, hi] (None: no bound), in that order; FrameCodec.bad_values as
+    generated code (a test compares the two)."""
+    src = ["def bad_values(values):", "    bad = []"]
+    ns: dict[str, object] = {"_isfinite": math.isfinite}
+    for i, (name, lo, hi) in enumerate(checked):
+        ns[f"_lo{i}"], ns[f"_hi{i}"] = lo, hi
+        src.append(f"    v = values.get({name!r})")
+        if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
+            test = f"not (_lo{i} <= v <= _hi{i})"  # NaN and +-inf fail a finite bound too
+        else:  # FrameCodec's own test
+            test = "(not _isfinite(v)" + (f" or v < _lo{i}" if lo is not None else "") + (
+                f" or v > _hi{i}" if hi is not None else "") + ")"
+        src.append(f"    if v is not None and {test}: bad.append({name!r})")
+    src.append("    return bad")
+    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102
+    return ns["bad_values"]  # type: ignore[return-value]

@@ -258,48 +258,41 @@ class EcuNode(BusNode):
                     rx.unknown_id += 1
                     self._problem("unknown-id", msg)
                 return
-            values = self._validate(msg, route, checked)
+            # the checks of one frame, in order (inline: this runs for every frame received)
+            fc = route.codec
+            data = msg.data
+            if len(data) != fc.length:
+                rx.dlc_errors += 1
+                self._problem("dlc", msg, f"expected {fc.length} bytes")
+                return
+            e2e = fc.e2e
+            if e2e is not None and not (checked[0] if checked is not None else fc.crc_ok(data)):
+                rx.crc_errors += 1
+                self._e2e_failure("crc", msg, route.subscription)
+                return
+            values = checked[1] if checked is not None else fc.decode_exact(data)
+            # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
+            counter = route.counter
+            if counter is not None and not counter.check(int(values[e2e.counter_signal])):
+                rx.counter_errors += 1
+                self._e2e_failure("alive-counter", msg, route.subscription)
+                return
+            bad = checked[2] if checked is not None else fc.bad_values(values)
+            if bad:
+                rx.value_errors += 1
+                self._problem("value", msg, f"bad {', '.join(bad)}")
+                return
         except Exception as exc:  # noqa: BLE001 - a frame the decoder cannot take: counted
             rx.malformed += 1
             self._problem("malformed", msg, f"{type(exc).__name__}: {exc}")
             return
-        if values is not None:
-            self._deliver(values, t_ns, route)
-
-    def _validate(self, msg: can.Message, route: Route,
-                  checked: Checked | None = None) -> dict[str, float] | None:
-        """The frame's values, or None when a check refuses it (counted, logged)."""
-        rx = self.rx
-        fc, sub, counter = route.codec, route.subscription, route.counter
-        data = msg.data
-        if len(data) != fc.length:
-            rx.dlc_errors += 1
-            self._problem("dlc", msg, f"expected {fc.length} bytes")
-            return None
-        if fc.e2e is not None and not (checked[0] if checked is not None else fc.crc_ok(data)):
-            rx.crc_errors += 1
-            self._e2e_failure("crc", msg, sub)
-            return None
-        values = checked[1] if checked is not None else fc.decode(data)
-        # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
-        if counter is not None and not counter.check(int(values[fc.e2e.counter_signal])):
-            rx.counter_errors += 1
-            self._e2e_failure("alive-counter", msg, sub)
-            return None
-        bad = checked[2] if checked is not None else fc.bad_values(values)
-        if bad:
-            rx.value_errors += 1
-            self._problem("value", msg, f"bad {', '.join(bad)}")
-            return None
-        return values
-
-    def _deliver(self, values: dict[str, float], t_ns: int, route: Route) -> None:
-        rx = self.rx
+        # deliver the values to the function
         if self._track_senders and route.cycle_ns:  # live: the sender is running (HostClock)
             self.host.saw(route.cycle_ns, t_ns)
-        if self.overrides and route.subscription.message in self.overrides:
-            values = {**values, **self.overrides[route.subscription.message]}
-        if route.subscription.on_values(values, t_ns):  # the function refused them (it logs them)
+        sub = route.subscription
+        if self.overrides and sub.message in self.overrides:
+            values = {**values, **self.overrides[sub.message]}
+        if sub.on_values(values, t_ns):  # the function refused them (it logs them)
             rx.value_errors += 1
             rx.implausible += 1
             return
