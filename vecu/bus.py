@@ -246,6 +246,15 @@ class SimLane:
         self.channel = channel
         self.endpoints: list[LaneBus] = []
 
+    def rewire(self) -> None:
+        """After an endpoint joined or left: each endpoint's receivers, as send() uses them."""
+        for sender in self.endpoints:
+            own = sender.receive_own_messages
+            sender._shared = [ep.queue.append for ep in self.endpoints
+                              if not ep.edge and (ep is not sender or own)]
+            sender._edges = [(ep.queue.append, ep is not sender) for ep in self.endpoints
+                             if ep.edge and (ep is not sender or own)]
+
     def bus(self, *, edge: bool = False, receive_own_messages: bool = False) -> LaneBus:
         """A new endpoint on this lane (a python-can bus)."""
         return LaneBus(self, edge=edge, receive_own_messages=receive_own_messages)
@@ -263,20 +272,21 @@ class LaneBus(can.BusABC):
         self.edge = edge
         self.receive_own_messages = receive_own_messages
         self.queue: deque[can.Message] = deque()
+        # receivers (SimLane.rewire): the deques that share the frame, and the edges' (deque,
+        # is_rx) that get a copy
+        self._shared: list[Callable[[can.Message], None]] = []
+        self._edges: list[tuple[Callable[[can.Message], None], bool]] = []
         lane.endpoints.append(self)
+        lane.rewire()
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        for ep in self.lane.endpoints:
-            own = ep is self
-            if own and not self.receive_own_messages:
-                continue
-            if ep.edge:
-                ep.queue.append(message(
-                    msg.timestamp, msg.arbitration_id, msg.is_extended_id, bytearray(msg.data),
-                    msg.is_fd, self.lane.channel, not own, msg.is_remote_frame,
-                    msg.is_error_frame, msg.dlc, msg.bitrate_switch, msg.error_state_indicator))
-            else:
-                ep.queue.append(msg)
+        for append in self._shared:
+            append(msg)
+        for append, is_rx in self._edges:
+            append(message(
+                msg.timestamp, msg.arbitration_id, msg.is_extended_id, bytearray(msg.data),
+                msg.is_fd, self.lane.channel, is_rx, msg.is_remote_frame,
+                msg.is_error_frame, msg.dlc, msg.bitrate_switch, msg.error_state_indicator))
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         q = self.queue
@@ -293,6 +303,7 @@ class LaneBus(can.BusABC):
     def shutdown(self) -> None:
         if self in self.lane.endpoints:
             self.lane.endpoints.remove(self)
+            self.lane.rewire()
         self.queue.clear()
         super().shutdown()
 

@@ -24,6 +24,9 @@ MODE_NORMAL, MODE_STANDSTILL, MODE_ABS, MODE_COAST = 0, 1, 2, 3
 WHEEL_MAX_KMH = 280.0  # above: a short to supply / garbage (the car cannot go faster)
 
 
+_OK, _TIMEOUT = SensorStatus.OK, SensorStatus.TIMEOUT  # bound once (per-tick code)
+
+
 @dataclass(frozen=True)
 class SpeedFunctionConfig:
     # Wheel speed reads exactly 0 below ~5 km/h (no pulses) and at rest, so the stuck check is off
@@ -74,19 +77,19 @@ class SpeedFunction:
         kf = self.kf
         # diagnose against the filter's speed before this reading is used (innovation gate)
         mon = self.monitor
-        was_ok = mon.status == SensorStatus.OK
+        was_ok = mon.status == _OK
         # until the filter has taken its first wheel reading its speed means nothing: no gate
         std = kf.speed_std_mps / MPS_PER_KMH if getattr(kf, "_initialised", True) else math.inf
         status = mon.evaluate(t_ns, kf.speed_mps / MPS_PER_KMH, std)
-        if was_ok and status == SensorStatus.TIMEOUT:
+        if was_ok and status == _TIMEOUT:
             mon.timeouts += 1
         wheel = self._wheel
-        if status != SensorStatus.OK:
+        if status != _OK:
             wheel = None
             self.coast_steps += 1
         kf.step(wheel, self._accel)
         self._wheel = self._accel = None
-        if status != SensorStatus.OK:
+        if status != _OK:
             mode = MODE_COAST
         else:
             mode = MODE_STANDSTILL if kf.standstill else (MODE_ABS if kf.abs_mode else MODE_NORMAL)

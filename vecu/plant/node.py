@@ -40,6 +40,9 @@ TPS_V_MIN, TPS_V_MAX = 0.0, 5.0  # sensor output saturates at ground and supply
 Send = Callable[[can.Message], bool]
 
 
+_TPS, _SWA = FaultTarget.TPS, FaultTarget.SWA  # bound once (per-tick code)
+
+
 class PlantPart(Protocol):
     name: str
     period_ns: int
@@ -78,7 +81,7 @@ class ThrottlePart:
         plant = self.plant
         u = self.inputs.next()
         y = plant.wattmeter()
-        v = self.injector.apply(FaultTarget.TPS, plant.tps_voltage(self.calibration))
+        v = self.injector.apply(_TPS, plant.tps_voltage(self.calibration))
         ts = t_ns / NS_PER_S
         if v is not None:
             v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
@@ -179,7 +182,7 @@ class LateralPart:
         send(self._lat_frame(ts, r, ay, vx))
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_SwAngle": swa, "TRU_SideSlip": beta}, ts))
-        v = self.injector.apply(FaultTarget.SWA, swa_meas)
+        v = self.injector.apply(_SWA, swa_meas)
         self.swa_sensor = v
         if v is not None:
             send(self._swa_frame(ts, 0, self._counter, v))
