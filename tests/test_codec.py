@@ -5,7 +5,7 @@ import math
 import cantools
 import pytest
 
-from vecu.codec import DbcCodec, DbcLoadError, builtin_dbc_path
+from vecu.codec import DbcCodec, DbcLoadError, builtin_dbc_path, shared_codec
 
 
 @pytest.fixture(scope="module")
@@ -103,3 +103,14 @@ def test_fit_wraps_full_range_integers_and_saturates_the_rest():
         0.0, 8000.0, 1234.5, 0.0, 8000.0]
     with pytest.raises(KeyError):
         ev.fit("ENG_Nope", 1.0)
+
+
+def test_shared_codec_is_built_once_and_is_the_default_codec():
+    shared = shared_codec()
+    assert shared_codec() is shared
+    fresh = DbcCodec()
+    assert sorted(shared.by_id) == sorted(fresh.by_id)
+    values = {"TPS_CRC": 0, "TPS_AliveCounter": 3, "TPS_Voltage": 1.25}
+    assert shared["TPS_Sensor"].encode(values) == fresh["TPS_Sensor"].encode(values)
+    names = ("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage")
+    assert shared["TPS_Sensor"].framer(names) is shared["TPS_Sensor"].framer(list(names))

@@ -36,7 +36,7 @@ from cantools.database.conversion import (
 from vecu.block_codec import MAX_BLOCK_BYTES, BlockChecks, BlockField, BlockLayout
 from vecu.e2e import e2e_checker, e2e_crc
 from vecu.errors import BadFileError
-from vecu.framer import EncodeParts, Framer, compile_framer, compile_range_check
+from vecu.framer import EncodeParts, Framer, compile_range_check, make_framer
 from vecu.frames import message
 
 DEFAULT_DBC = "vecu.dbc"
@@ -123,6 +123,7 @@ class FrameCodec:
             if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi):
                 self._checked.append((sig.name, lo, hi))
         self.e2e = _e2e_layout(message)
+        self._framers: dict[tuple[str, ...], Framer] = {}
         # crc_ok(payload): its E2E CRC byte is right (True without E2E); bad_values(values): the
         # names of signals NaN / inf or outside the DBC's [minimum, maximum]. Generated code
         # (vecu.e2e.e2e_checker, vecu.framer.compile_range_check): called for every frame received
@@ -211,21 +212,13 @@ class FrameCodec:
 
     def framer(self, names: Sequence[str]) -> Framer:
         """make(timestamp, *values): frame(dict(zip(names, values)), timestamp) in one generated
-        call (vecu.framer); names are all the message's signals, in the order the caller gives."""
+        call (vecu.framer); names are all the message's signals, in the order the caller gives.
+        Built once per names (runs share a codec: shared_codec)."""
         names = tuple(names)
-
-        def slow(timestamp: float, values: tuple) -> can.Message:
-            return self.frame(dict(zip(names, values)), timestamp)
-
-        if sorted(names) != sorted(s.name for s in self.signals):
-            raise ValueError(f"{self.name}: framer names {list(names)} are not its signals")
-        parts = getattr(self._fast_encode, "parts", None)
-        if parts is None:  # no generated encoder: cantools through frame()
-            return lambda timestamp, *values: slow(timestamp, values)
-        return compile_framer(parts, names, frame_id=self.frame_id, is_extended=self.is_extended,
-                              is_fd=self.is_fd, length=self.length,
-                              crc_byte=self.e2e.crc_byte if self.e2e is not None else None,
-                              slow=slow, label=self.name)
+        made = self._framers.get(names)
+        if made is None:
+            made = self._framers[names] = make_framer(self, names)
+        return made
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:
         """Payload -> physical values (no choice strings). Raises on a short payload."""
@@ -448,6 +441,24 @@ def _e2e_layout(message: Message) -> E2ELayout | None:
         raise DbcLoadError(None, f"{message.name}: E2E signal {crc.name} must be 8 bits, "
                            "byte aligned")
     return E2ELayout(crc.name, counter.name, crc.start // 8)
+
+
+_SHARED: dict[tuple, DbcCodec] = {}
+
+
+def shared_codec() -> DbcCodec:
+    """The default DbcCodec (vecu's DBC and truth DBC) built once per process while the two
+    files are unchanged (~30 ms a build): runs share it, a codec being read-only once built."""
+    paths = [builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC)]
+    try:
+        key = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
+    except OSError:  # not files on a disk: nothing to tell a change by
+        return DbcCodec(paths)
+    codec = _SHARED.get(key)
+    if codec is None:
+        _SHARED.clear()
+        codec = _SHARED[key] = DbcCodec(paths)
+    return codec
 
 
 class DbcCodec:

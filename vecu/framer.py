@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import can
 
@@ -21,6 +22,7 @@ from vecu.e2e import crc8_table
 from vecu.frames import message
 
 Framer = Callable[..., can.Message]  # make(timestamp, *values in the names' order)
+FrameCodecLike = Any  # vecu.codec.FrameCodec (which imports this module)
 
 
 class _Refused(Exception):
@@ -36,6 +38,24 @@ class EncodeParts:
     blocks: dict[str, list[str]]
     payload: str
     namespace: dict[str, object]
+
+
+def make_framer(fc: FrameCodecLike, names: tuple[str, ...]) -> Framer:
+    """FrameCodec.framer(names): compile_framer from the codec's generated encoder, or (none)
+    a call of fc.frame with the dict."""
+    if sorted(names) != sorted(s.name for s in fc.signals):
+        raise ValueError(f"{fc.name}: framer names {list(names)} are not its signals")
+
+    def slow(timestamp: float, values: tuple) -> can.Message:
+        return fc.frame(dict(zip(names, values)), timestamp)
+
+    parts = getattr(fc._fast_encode, "parts", None)
+    if parts is None:  # no generated encoder: cantools through frame()
+        return lambda timestamp, *values: slow(timestamp, values)
+    return compile_framer(parts, names, frame_id=fc.frame_id, is_extended=fc.is_extended,
+                          is_fd=fc.is_fd, length=fc.length,
+                          crc_byte=fc.e2e.crc_byte if fc.e2e is not None else None,
+                          slow=slow, label=fc.name)
 
 
 def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,

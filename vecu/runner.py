@@ -24,7 +24,7 @@ from vecu.assembly import (
 )
 from vecu.bus import SimLane, open_bus, resolve_bus_config, virtual_channel_in_use
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
-from vecu.codec import DbcCodec
+from vecu.codec import shared_codec
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuNode
 from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
@@ -70,7 +70,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
     make_estimator builds the ECU's throttle estimator (benches pass a timed one)."""
     config.validate()
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
-    codec = DbcCodec()
+    codec = shared_codec()  # built once per process
     bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     clock = WallClock() if config.realtime else SimClock()
     sched = Scheduler(clock)

@@ -24,7 +24,7 @@ from vecu import kernels
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import SinkBus, open_bus
 from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
-from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
+from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path, shared_codec
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
 from vecu.errors import BadArgumentError
@@ -96,7 +96,7 @@ class ReplayResult:
 def replay(config: ReplayConfig) -> ReplayResult:
     """Replay config.trace through the ECU; see the module docstring."""
     config.validate()
-    ecu_codec = DbcCodec()
+    ecu_codec = shared_codec()  # built once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
             else identity_map(trace_db))
