@@ -13,7 +13,7 @@ identity conversions get a layout; anything else stays on the per-frame path.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,6 +45,11 @@ class BlockChecks:
     names: list[str]
     columns: list[list[float]]  # per signal, the values of all payloads (Python floats / ints)
     bad: dict[int, list[str]]
+    rows: list[tuple] = field(init=False, repr=False)  # per payload its values (zip of columns)
+
+    def __post_init__(self) -> None:
+        rows = list(zip(*self.columns)) if self.columns else [()] * len(self.crc_ok)
+        object.__setattr__(self, "rows", rows)
 
     def __len__(self) -> int:
         return len(self.crc_ok)
@@ -52,8 +57,7 @@ class BlockChecks:
     def __getitem__(self, i: int) -> tuple[bool, dict[str, float], list[str]]:
         """(CRC ok, values, bad signals) of payload i; the values dict is made now, when the
         frame is used (a block of live dicts would keep the garbage collector busy)."""
-        return (self.crc_ok[i], dict(zip(self.names, [c[i] for c in self.columns])),
-                self.bad.get(i, []))
+        return self.crc_ok[i], dict(zip(self.names, self.rows[i])), self.bad.get(i, [])
 
 
 @dataclass(frozen=True)
