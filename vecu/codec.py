@@ -217,7 +217,8 @@ class FrameCodec:
         names = tuple(names)
         made = self._framers.get(names)
         if made is None:
-            made = self._framers[names] = make_framer(self, names)
+            made = self._framers[names] = make_framer(
+                self, names, getattr(self._fast_encode, "parts", None))
         return made
 
     def decode(self, data: bytes | bytearray) -> dict[str, float]:

@@ -40,16 +40,15 @@ class EncodeParts:
     namespace: dict[str, object]
 
 
-def make_framer(fc: FrameCodecLike, names: tuple[str, ...]) -> Framer:
-    """FrameCodec.framer(names): compile_framer from the codec's generated encoder, or (none)
-    a call of fc.frame with the dict."""
+def make_framer(fc: FrameCodecLike, names: tuple[str, ...], parts: EncodeParts | None) -> Framer:
+    """FrameCodec.framer(names): compile_framer from the parts of the codec's generated encoder,
+    or (None: it has none) a call of fc.frame with the dict."""
     if sorted(names) != sorted(s.name for s in fc.signals):
         raise ValueError(f"{fc.name}: framer names {list(names)} are not its signals")
 
     def slow(timestamp: float, values: tuple) -> can.Message:
         return fc.frame(dict(zip(names, values)), timestamp)
 
-    parts = getattr(fc._fast_encode, "parts", None)
     if parts is None:  # no generated encoder: cantools through frame()
         return lambda timestamp, *values: slow(timestamp, values)
     return compile_framer(parts, names, frame_id=fc.frame_id, is_extended=fc.is_extended,
