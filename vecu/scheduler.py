@@ -10,8 +10,8 @@ fully deterministic.
 from __future__ import annotations
 
 import heapq
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 from vecu.clock import Clock
 
@@ -152,8 +152,7 @@ class Scheduler:
             clock.wait_until(due)
             if realtime:
                 late = clock.now_ns() - due
-                if late > stats.max_lateness_ns:
-                    stats.max_lateness_ns = late
+                stats.max_lateness_ns = max(stats.max_lateness_ns, late)
                 if self._record_lateness:
                     stats.lateness_ns.append(late)
             fn(due)
