@@ -11,6 +11,7 @@ import struct
 
 import pytest
 
+from tests.dbc_sets import every_codec
 from vecu.codec import DbcCodec, builtin_dbc_path
 from vecu.e2e import e2e_crc
 
@@ -37,19 +38,12 @@ def _payloads(fc, rng: random.Random) -> list[bytes]:
     return out
 
 
-def _codecs(thirdparty_dir):
-    yield DbcCodec()
-    if thirdparty_dir is not None:
-        for path in sorted((thirdparty_dir / "dbc").glob("*.dbc")):
-            yield DbcCodec([path], strict=False)
-
-
 @pytest.mark.parametrize("with_thirdparty", [False, True])
 def test_block_check_is_the_per_frame_checks_bit_for_bit(with_thirdparty, request):
     tp = request.getfixturevalue("thirdparty") if with_thirdparty else None
     rng = random.Random(16)
     blocks = 0
-    for db in _codecs(tp):
+    for db in every_codec(tp):
         for fc in db.by_id.values():
             if fc.block is None:
                 continue

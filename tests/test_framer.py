@@ -9,7 +9,8 @@ import random
 import numpy as np
 import pytest
 
-from vecu.codec import DbcCodec, builtin_dbc_path
+from tests.dbc_sets import every_codec
+from vecu.codec import DbcCodec
 from vecu.framer import compile_range_check
 from vecu.frames import same_message
 
@@ -29,19 +30,12 @@ def _value(sig, rng: random.Random) -> object:
     return rng.choice([True, np.float64(1.5), np.int64(2), 1e300, -(2 ** 70)])
 
 
-def _codecs(tp):
-    yield DbcCodec([builtin_dbc_path(), builtin_dbc_path("vecu_truth.dbc")])
-    if tp is not None:
-        for path in sorted((tp / "dbc").glob("*.dbc")):
-            yield DbcCodec([path], strict=False)
-
-
 @pytest.mark.parametrize("with_thirdparty", [False, True])
 def test_framer_gives_frames_message(with_thirdparty, request):
     tp = request.getfixturevalue("thirdparty") if with_thirdparty else None
     rng = random.Random(5)
     checked = 0
-    for codec in _codecs(tp):
+    for codec in every_codec(tp):
         for fc in codec.by_id.values():
             names = [s.name for s in fc.signals]
             if not names:
