@@ -23,6 +23,9 @@ log = logging.getLogger(__name__)
 
 SCHEDULE_ERROR_LIMIT_US = 200_000  # 1 us bins up to 200 ms; beyond: counted, max kept
 CHUNK = 16384  # frames read (and, fast, checked per message in blocks) at a time
+# ... and without blocks (live): reading 16 k frames holds the GIL ~50-100 ms, a stall of the
+# player thread's schedule; a few frames at a time spread the reader's cost between sends
+SMALL_CHUNK = 16
 
 
 @dataclass
@@ -38,15 +41,17 @@ class FrameTally:
 class Feeder:
     """Scheduler chain task: hands every frame due by now to the ECU (fast) or the bus (live).
 
-    Frames are read CHUNK at a time; with `block` (fast mode) the ECU's input frames and the
+    Frames are read CHUNK at a time with `block` (fast mode): the ECU's input frames and the
     truth frames of each chunk are checked and decoded per message in blocks (numpy,
-    FrameCodec.check_block) before they are handed over one by one, in trace order, as before."""
+    FrameCodec.check_block) before they are handed over one by one, in trace order, as before.
+    Without (live), SMALL_CHUNK at a time."""
 
     def __init__(self, source: TraceSource, ecu: EcuNode, db: DbcCodec, scorer: TruthScorer,
                  tally: FrameTally, routes: dict[tuple[int, bool], Route],
                  copy_to: can.Listener | None, block: bool = False) -> None:
         self.frames: Iterator[tuple[int, can.Message]] = iter(source)
         self.block = block
+        self._chunk = CHUNK if block else SMALL_CHUNK
         self._buf: list[tuple[int, can.Message]] = []
         self._checks: list[BlockChecks | None] = []  # per frame of _buf: its block's checks
         self._at: list[int] = []  # and its place in that block
@@ -68,7 +73,7 @@ class Feeder:
         """The next frame of the trace (reading and block-checking the next chunk as needed)."""
         i = self._i + 1
         if i >= len(self._buf):
-            self._buf = list(islice(self.frames, CHUNK))
+            self._buf = list(islice(self.frames, self._chunk))
             if self.block:
                 self._checks, self._at = self._check_block(self._buf)
             i = 0
