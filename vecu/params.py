@@ -172,7 +172,7 @@ def _check_bounds(path: str, value: float, bounds: tuple[float, float] | None) -
     lo, hi = bounds
     if not lo <= value <= hi:
         unit = unit_of(path.rsplit(".", 1)[-1].split("[")[0])
-        what = f" {unit}" if unit != "1" and not unit.startswith("(") else ""
+        what = f" {unit}" if unit != "1" and not unit.startswith(("(", "1 (")) else ""
         raise ParamError(f"parameter '{path}' must be >= {lo:g} and <= {hi:g}{what}, got {value:g}")
 
 
