@@ -126,15 +126,8 @@ class ManifoldAdaptive(_ManifoldKF):
         if code & (FALLBACK | DIVERGED):
             self._reset_in_step()
             return
-        for i in chans:
-            if code >> i & 1:
-                self.gated[i] += 1
-                gr[i] += 1
-            else:
-                gr[i] = 0
-        self.x, self.x_post = xo[0], xo[1]
-        self.P, self.P_post = Po[0], Po[1]
-        self.last_prediction = (u, xo[2])
+        self._count_gated(code, chans)
+        self._commit_event(xo, Po, u)
 
     def _block_ready(self) -> bool:
         if not self._initialised or adaptive_event.impl() is adaptive_event.py:

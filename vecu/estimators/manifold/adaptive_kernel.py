@@ -21,6 +21,7 @@ from vecu.estimators.manifold.kernels import (
     F_MAX_TRACE,
     F_OMEGA0,
     F_R0,
+    F_TAU,
     F_ZETA,
     FALLBACK,
 )
@@ -75,11 +76,8 @@ def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
 def _actuator_coeffs_py(ts, fc, kz, kw):
     """kernels._event_coeffs with zeta and omega0 scaled by k_zeta, k_omega (zeta kept below
     ZETA_MAX: eq. 1's discretisation is the underdamped one)."""
-    f = fc.copy()
     z = fc[F_ZETA] * kz
-    f[F_ZETA] = z if z < ZETA_MAX else ZETA_MAX
-    f[F_OMEGA0] = fc[F_OMEGA0] * kw
-    return K._event_coeffs(ts, f)
+    return K._coeffs(ts, z if z < ZETA_MAX else ZETA_MAX, fc[F_OMEGA0] * kw, fc[F_TAU])
 
 
 _consider = kernel(_consider_py)

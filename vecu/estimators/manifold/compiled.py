@@ -80,6 +80,15 @@ class CompiledEvents:
             return True
         if code & FALLBACK:
             return False
+        self._count_gated(code, chans)
+        if code & DIVERGED:
+            self._reset_in_step()
+            return True
+        self._commit_event(xo, Po, u)
+        return True
+
+    def _count_gated(self, code: int, chans: list[int]) -> None:
+        """The gated / gated-in-a-row counters of the channels used, from a kernel's code."""
         gr = self._gated_run
         for i in chans:
             if code >> i & 1:
@@ -87,13 +96,13 @@ class CompiledEvents:
                 gr[i] += 1
             else:
                 gr[i] = 0
-        if code & DIVERGED:
-            self._reset_in_step()
-            return True
+
+    def _commit_event(self, xo: np.ndarray, Po: np.ndarray, u: EngineInput) -> None:
+        """Take a kernel's output: next prior (xo[0], Po[0]), posterior (xo[1], Po[1]) and the
+        event map's output xo[2]."""
         self.x, self.x_post = xo[0], xo[1]
         self.P, self.P_post = Po[0], Po[1]
         self.last_prediction = (u, xo[2])
-        return True
 
     def _prepare_kernel(self) -> tuple | None:
         self._kernel_args_ready = True

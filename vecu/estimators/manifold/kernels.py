@@ -216,17 +216,23 @@ def _propagate_py(F, Pp, Q, xo, Po, fc):
     return _in_bounds(xo[0], Pn, fc[F_MAX_TRACE], fc[F_MAX_ABS])
 
 
-def _event_coeffs_py(ts, fc):
-    """(a1, a2, b1, b2, a_t, b_t) of one event of length ts: plant.manifold.actuator_coeffs
-    and iat_coeffs, the same operations in the same order."""
-    zw = fc[F_ZETA] * fc[F_OMEGA0]
-    w_et = fc[F_OMEGA0] * math.sqrt(1.0 - fc[F_ZETA] * fc[F_ZETA])
+def _coeffs_py(ts, zeta, omega0, tau):
+    """(a1, a2, b1, b2, a_t, b_t) of one event of length ts for the actuator (zeta, omega0)
+    and the IAT sensor (tau): plant.manifold.actuator_coeffs and iat_coeffs, the same
+    operations in the same order."""
+    zw = zeta * omega0
+    w_et = omega0 * math.sqrt(1.0 - zeta * zeta)
     a = math.exp(-zw * ts)
     b = math.cos(w_et * ts)
     g = math.sin(w_et * ts)
-    a_t = math.exp(-ts / fc[F_TAU])
+    a_t = math.exp(-ts / tau)
     return (2.0 * a * b, -a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b),
             a_t, 1.0 - a_t)
+
+
+def _event_coeffs_py(ts, fc):
+    """_coeffs with the calibration's actuator and IAT sensor (fc)."""
+    return _coeffs(ts, fc[F_ZETA], fc[F_OMEGA0], fc[F_TAU])
 
 
 def _const_tuple_py(c):
@@ -236,6 +242,7 @@ def _const_tuple_py(c):
             c[25], c[26], c[27], c[28])
 
 
+_coeffs = _coeffs_py
 _event_coeffs = _event_coeffs_py
 _const_tuple = _const_tuple_py
 _interp = _interp_py
@@ -252,10 +259,12 @@ P_FLOOR_KPA = mi.P_FLOOR_KPA
 
 
 def _jit_helpers() -> None:
-    global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate, _event_coeffs, _const_tuple
+    global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate, _coeffs, _event_coeffs
+    global _const_tuple
     global _update, _jacobian, _map_out, _propagate
     import numba
 
+    _coeffs = numba.njit(_coeffs_py)
     _event_coeffs = numba.njit(_event_coeffs_py)
     _const_tuple = numba.njit(_const_tuple_py)
     _interp = interp_value.compiled
