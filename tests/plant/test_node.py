@@ -75,3 +75,37 @@ def test_parse_kind_accepts_cli_spellings_and_rejects_unknown():
     assert parse_kind("frames-stop") == FaultKind.FRAMES_STOP
     with pytest.raises(ValueError, match="unknown fault kind"):
         parse_kind("explode")
+
+
+def test_manifold_events_computed_ahead_send_what_stepping_sends():
+    """Under numba ManifoldPart computes its events ahead in blocks (EventsAhead): the same
+    frames, times and truth as stepping ManifoldPlant, across block refills, noise blocks and
+    the switch to the next 80 s profile."""
+    pytest.importorskip("numba")
+    from vecu.codec import shared_codec
+    from vecu.kernels import using
+    from vecu.plant.node import ManifoldPart
+
+    codec = shared_codec()
+    with using("numba"):
+        ahead = ManifoldPart(codec, seed=3)
+    with using("python"):
+        stepped = ManifoldPart(codec, seed=3)
+    assert ahead._ahead is not None and stepped._ahead is None
+    runs = []
+    for part in (ahead, stepped):
+        part.truth_msg = codec["TRUTH_Manifold"]
+        sent: list[tuple[float, int, bytes]] = []
+
+        def send(m, sent=sent):
+            sent.append((m.timestamp, m.arbitration_id, bytes(m.data)))
+            return True
+
+        t_ns, times = 0, []
+        with using("numba" if part is ahead else "python"):
+            while part._profile_index == 0 or len(times) % 300:  # into the second profile
+                times.append(t_ns)
+                t_ns = part.event(t_ns, send)
+        runs.append((sent, times, dict(part.truth)))
+    assert len(runs[0][1]) > 16_000
+    assert runs[0] == runs[1]

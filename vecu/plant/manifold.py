@@ -193,17 +193,14 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     backend for a DriveProfile; None: run the Python loop (python backend, another profile type,
     a parameter set the compiled integrator does not take)."""
     from vecu.kernels import backend
-    from vecu.models import manifold_integrator as mi
     from vecu.plant.drive_profile import DriveProfile
-    from vecu.plant.manifold_kernel import N_PLANT_CONSTS, simulate_events
+    from vecu.plant.manifold_kernel import simulate_events
 
     if backend() != "numba" or not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
         return None
-    tables = mi._tables(params)[2]
+    tables = compiled_tables(params)
     if tables is None:
         return None
-    if not mi._numba_sig_ready:
-        mi._prepare_numba()
     prof_n = np.ascontiguousarray(profile.n_rpm, dtype=np.float64)
     prof_sp = np.ascontiguousarray(profile.ta_sp, dtype=np.float64)
     n_min = float(prof_n.min())
@@ -212,15 +209,7 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     cap = int(profile.duration_s / sample_time(float(prof_n.max()), params.n_cyl)) + 2
     block = config.block
     noise = rng.standard_normal((-(-cap // block) * block, 7))  # as ManifoldPlant._row draws
-    s = config.noise_scale
-    q, r = config.noise.q_diag(), config.noise.r_diag()
-    g = config.sensor_gains
-    pc = np.array([params.zeta, params.omega0, params.tau_temp_s, params.v_cyl_dm3,
-                   float(params.n_cyl), params.p_a_kpa, params.t_a_k, params.t_cool_k,
-                   *(s * math.sqrt(q[i]) for i in (1, 3, 4, 5)), *(s * math.sqrt(v) for v in r),
-                   g[0], g[1], g[2], P_MIN_KPA, P_MAX_KPA, T_MIN_K, T_MAX_K, profile.duration_s,
-                   profile.dt_s], dtype=np.float64)
-    assert len(pc) == N_PLANT_CONSTS
+    pc = plant_constants(params, config, profile)
     rows = np.empty((cap, 8))
     xs = np.empty((cap, 6))
     ys = np.empty((cap, 3))
@@ -234,3 +223,86 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
         x=xs[:k].copy(), y=ys[:k].copy(), mdot_at=a[:, 4].copy(), mdot_ac=a[:, 5].copy(),
         cac=a[:, 6].copy(), substeps=a[:, 7].astype(int),
     )
+
+
+def compiled_tables(params: ManifoldParams) -> tuple | None:
+    """The event integrator's float64 tables for the compiled kernels (its one signature
+    prepared), or None when they do not take this parameter set."""
+    from vecu.models import manifold_integrator as mi
+
+    tables = mi._tables(params)[2]
+    if tables is not None and not mi._numba_sig_ready:
+        mi._prepare_numba()
+    return tables
+
+
+def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig,
+                    profile: Profile) -> np.ndarray:
+    """manifold_kernel's plant constants vector (pc) for a DriveProfile."""
+    from vecu.plant.manifold_kernel import N_PLANT_CONSTS
+
+    s = config.noise_scale
+    q, r = config.noise.q_diag(), config.noise.r_diag()
+    g = config.sensor_gains
+    pc = np.array([params.zeta, params.omega0, params.tau_temp_s, params.v_cyl_dm3,
+                   float(params.n_cyl), params.p_a_kpa, params.t_a_k, params.t_cool_k,
+                   *(s * math.sqrt(q[i]) for i in (1, 3, 4, 5)), *(s * math.sqrt(v) for v in r),
+                   g[0], g[1], g[2], P_MIN_KPA, P_MAX_KPA, T_MIN_K, T_MAX_K, profile.duration_s,
+                   profile.dt_s], dtype=np.float64)
+    assert len(pc) == N_PLANT_CONSTS
+    return pc
+
+
+class EventsAhead:
+    """ManifoldPlant's events computed ahead in blocks by one compiled call
+    (manifold_kernel.advance_events), for vecu.plant.node.ManifoldPart under the numba backend:
+    the same noise rows from the same stream (blocks of config.block rows, as ManifoldPlant
+    draws them), the same operations, so the same frames. The plant depends on nothing the ECU
+    sends, so nothing can change its course between the events computed and their frames."""
+
+    AHEAD = 256  # events per compiled call (~1.3 s of driving at 2000 rpm)
+
+    def __init__(self, params: ManifoldParams, config: ManifoldPlantConfig,
+                 rng: np.random.Generator, x0: np.ndarray, tables: tuple) -> None:
+        self.params, self.config = params, config
+        self._rng = rng
+        self.state = np.array(x0, dtype=np.float64)
+        self._tables = tables
+        self._noise = np.empty((0, 7))
+        self._pos = 0
+        self._prof: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.times = np.zeros(self.AHEAD, dtype=np.int64)
+        self.out = np.zeros((self.AHEAD, 8))
+        self.next_ns = 0
+
+    @staticmethod
+    def usable(profile: Profile) -> bool:
+        """The kernel's profile lookup takes a DriveProfile with positive engine speeds."""
+        from vecu.plant.drive_profile import DriveProfile
+
+        if not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
+            return False
+        n_min = float(np.min(profile.n_rpm))
+        return math.isfinite(n_min) and n_min > 0.0
+
+    def start_profile(self, profile: Profile) -> None:
+        self._prof = (np.ascontiguousarray(profile.n_rpm, dtype=np.float64),  # type: ignore[attr-defined]
+                      np.ascontiguousarray(profile.ta_sp, dtype=np.float64),  # type: ignore[attr-defined]
+                      plant_constants(self.params, self.config, profile))
+
+    def fill(self, t_ns: int, t0_ns: int) -> int:
+        """Compute the events from t_ns (the profile started at t0_ns) into times / out; returns
+        how many (0: the profile ends before t_ns, start the next one)."""
+        from vecu.plant.manifold_kernel import advance_events
+
+        assert self._prof is not None
+        prof_n, prof_sp, pc = self._prof
+        while True:
+            if self._pos >= len(self._noise):
+                self._noise = self._rng.standard_normal((self.config.block, 7))
+                self._pos = 0
+            k, self.next_ns, self._pos = advance_events.compiled(
+                self.state, t_ns, t0_ns, prof_n, prof_sp, self._noise, self._pos, pc,
+                *self._tables, self.times, self.out)
+            if k > 0 or self._pos < len(self._noise):
+                return k

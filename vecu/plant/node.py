@@ -11,11 +11,13 @@ from collections.abc import Callable
 from typing import Protocol
 
 import can
+import numpy as np
 
 from vecu.bus import BusNode
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
+from vecu.kernels import backend
 from vecu.models.lateral import VehicleParams
 from vecu.models.manifold import (
     cylinder_air_charge,
@@ -29,7 +31,12 @@ from vecu.plant.lateral import LateralSensors, simulate_lateral
 from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig, simulate_speed
 from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
-from vecu.plant.manifold import ManifoldPlant, ManifoldPlantConfig
+from vecu.plant.manifold import (
+    EventsAhead,
+    ManifoldPlant,
+    ManifoldPlantConfig,
+    compiled_tables,
+)
 from vecu.plant.throttle import InputGenerator, ThrottlePlant
 from vecu.rng import rng_streams
 from vecu.units import DEG_PER_RAD, KELVIN_AT_0_DEGC, MG_PER_KG, MPS_PER_KMH
@@ -210,38 +217,94 @@ class ManifoldPart:
         self._t0_ns = 0
         n0, sp0 = self._profile.at(0.0)
         rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
-        self.plant = ManifoldPlant(engine, config, rng,
-                                   steady_state_vector(nominal_input(sp0, n0, engine), engine))
+        x0 = steady_state_vector(nominal_input(sp0, n0, engine), engine)
+        self.plant = ManifoldPlant(engine, config, rng, x0)
+        # under the numba backend the events are computed ahead in blocks (same numbers)
+        self._ahead = self._events_ahead(config, rng, x0)
+        self._rows: list[list[float]] = []
+        self._times: list[int] = []
+        self._i = 0
         self.events = 0
         self.truth_msg = None  # TRUTH_Manifold codec when recording truth
         # truth of the events so far (absolute event index -> P_im kPa, T_im K, CAC kg)
         self.truth: dict[int, tuple[float, float, float]] = {}
 
-    def event(self, t_ns: int, send: Send) -> int:
-        """One engine event at t_ns; returns the time of the next one."""
+    def _events_ahead(self, config: ManifoldPlantConfig, rng: np.random.Generator,
+                      x0: np.ndarray) -> EventsAhead | None:
+        if backend() != "numba" or not EventsAhead.usable(self._profile):
+            return None
+        tables = compiled_tables(self._engine)
+        if tables is None:
+            return None
+        ahead = EventsAhead(self._engine, config, rng, x0, tables)
+        ahead.start_profile(self._profile)
+        return ahead
+
+    def _next_profile(self, t_ns: int) -> None:
+        """The next profile, continuing from the current state, starts at t_ns."""
+        self._profile_index += 1
+        self._profile = us06_like((self._seed << 8) + self._profile_index, params=self._engine)
+        self._t0_ns = t_ns
+        if self._ahead is not None:
+            if EventsAhead.usable(self._profile):
+                self._ahead.start_profile(self._profile)
+            else:  # (not for us06_like profiles) go on stepping ManifoldPlant from here
+                self.plant.x = self._ahead.state.tolist()
+                self._ahead = None
+
+    def _step(self, t_ns: int) -> tuple[float, ...]:
+        """One event stepped by ManifoldPlant: (N, TA_SP, the TA, P_im and T_im.out readings,
+        the truth's P_im, T_im and CAC, the next event's time)."""
         t_s = (t_ns - self._t0_ns) / NS_PER_S
-        if t_s >= self._profile.duration_s:  # next profile, continuing from the current state
-            self._profile_index += 1
-            self._profile = us06_like((self._seed << 8) + self._profile_index, params=self._engine)
-            self._t0_ns, t_s = t_ns, 0.0
+        if t_s >= self._profile.duration_s:
+            self._next_profile(t_ns)
+            t_s = 0.0
         n, sp = self._profile.at(t_s)
         plant = self.plant
         ta, p_kpa, t_meas = plant.measure()
+        p_true, t_true = plant.p_im, plant.t_im
+        cac_true = cylinder_air_charge(p_true, t_true, n, self._engine)
+        dt = sample_time(n, self._engine.n_cyl)
+        plant.step(nominal_input(sp, n, self._engine), dt)
+        return (n, sp, ta, p_kpa, t_meas, p_true, t_true, cac_true,
+                t_ns + max(1, round(dt * NS_PER_S)))
+
+    def _from_ahead(self, t_ns: int) -> tuple[float, ...]:
+        """The event at t_ns from the events computed ahead (EventsAhead), refilled as needed."""
+        ahead = self._ahead
+        assert ahead is not None
+        i = self._i
+        if i >= len(self._rows):
+            k = ahead.fill(t_ns, self._t0_ns)
+            if k == 0:  # the profile ends before t_ns
+                self._next_profile(t_ns)
+                if self._ahead is None:
+                    return self._step(t_ns)
+                k = ahead.fill(t_ns, self._t0_ns)
+            self._rows = ahead.out[:k].tolist()
+            self._times = [*ahead.times[:k].tolist(), ahead.next_ns]
+            i = 0
+        if self._times[i] != t_ns:
+            raise RuntimeError(f"manifold plant: event at {t_ns} ns, computed for "
+                               f"{self._times[i]} ns")
+        self._i = i + 1
+        return (*self._rows[i], self._times[i + 1])
+
+    def event(self, t_ns: int, send: Send) -> int:
+        """One engine event at t_ns; returns the time of the next one."""
+        n, sp, ta, p_kpa, t_meas, p_true, t_true, cac_true, next_ns = (
+            self._from_ahead(t_ns) if self._ahead is not None else self._step(t_ns))
         k = self.events
-        self.truth[k] = (plant.p_im, plant.t_im,
-                         cylinder_air_charge(plant.p_im, plant.t_im, n, self._engine))
+        self.truth[k] = (p_true, t_true, cac_true)
         self.truth.pop(k - 64, None)  # bounded: probes look back a few events only
         ts = t_ns / NS_PER_S
         send(self._ev_frame(ts, k & 0xFF, n, sp * DEG_PER_RAD, ta * DEG_PER_RAD, p_kpa))
         send(self._iat_frame(ts, k & 0xFF, t_meas - KELVIN_AT_0_DEGC))
         if self.truth_msg is not None:
-            p_true, t_true, cac_true = self.truth[k]
             send(self.truth_msg.frame({"TRU_EventCounter": k & 0xFF, "TRU_MAP": p_true,
                                        "TRU_IMT": t_true - KELVIN_AT_0_DEGC, "TRU_CAC": cac_true * MG_PER_KG}, ts))
-        dt = sample_time(n, self._engine.n_cyl)
-        plant.step(nominal_input(sp, n, self._engine), dt)
         self.events += 1
-        return t_ns + max(1, int(round(dt * NS_PER_S)))
+        return next_ns
 
 
 class PlantNode(BusNode):
