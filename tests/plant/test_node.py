@@ -109,3 +109,41 @@ def test_manifold_events_computed_ahead_send_what_stepping_sends():
         runs.append((sent, times, dict(part.truth)))
     assert len(runs[0][1]) > 16_000
     assert runs[0] == runs[1]
+
+
+def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
+    """Under numba ThrottlePart computes its ticks ahead in blocks (TicksAhead): the same
+    frames and probe values as stepping ThrottlePlant, across block refills and noise blocks,
+    with a TPS fault applied and cleared on the way."""
+    pytest.importorskip("numba")
+    from vecu.codec import shared_codec
+    from vecu.faults import FaultInjector
+    from vecu.kernels import using
+    from vecu.plant.node import ThrottlePart
+    from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig
+    from vecu.rng import rng_streams
+
+    codec = shared_codec()
+    runs = []
+    for backend in ("numba", "python"):
+        rngs = rng_streams(5, ("i", "p", "f"))
+        inj = FaultInjector(rngs["f"])
+        with using(backend):
+            part = ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
+                                InputGenerator(InputConfig(), rngs["i"]), inj)
+            assert (part._ahead is not None) == (backend == "numba")
+            part.truth_msg = codec["TRUTH_Throttle"]
+            sent: list[tuple[float, int, bytes]] = []
+            seen = []
+            for k in range(2600):  # 5 blocks ahead, 2 noise blocks
+                if k == 700:
+                    assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS),
+                                          int(FaultKind.NOISE), 0.2)
+                if k == 1300:
+                    assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS), 0, 0.0)
+                part.tick(k * NS_PER_MS, lambda m, sent=sent: sent.append(
+                    (m.timestamp, m.arbitration_id, bytes(m.data))) or True)
+                seen.append((part.theta, part.u, part.tps_voltage))
+        runs.append((sent, seen))
+    assert len(runs[0][0]) > 7000
+    assert runs[0] == runs[1]

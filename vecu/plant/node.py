@@ -37,7 +37,7 @@ from vecu.plant.manifold import (
     ManifoldPlantConfig,
     compiled_tables,
 )
-from vecu.plant.throttle import InputGenerator, ThrottlePlant
+from vecu.plant.throttle import InputGenerator, ThrottlePlant, TicksAhead
 from vecu.rng import rng_streams
 from vecu.units import DEG_PER_RAD, KELVIN_AT_0_DEGC, MG_PER_KG, MPS_PER_KMH
 
@@ -83,12 +83,34 @@ class ThrottlePart:
         self.theta = 0.0
         self.u = 0.0
         self.tps_voltage: float | None = None
+        # under the numba backend the ticks are computed ahead in blocks (same numbers)
+        self._ahead = TicksAhead(plant, calibration) if backend() == "numba" else None
+        self._rows: list[list[float]] = []
+        self._us: list[float] = []
+        self._k = 0
+
+    def _measure_and_step(self) -> tuple[float, float, float, float]:
+        """(u_k, theta_k, y_k, TPS voltage_k) of this tick; the plant then steps with u_k."""
+        plant = self.plant
+        if self._ahead is None:
+            u = self.inputs.next()
+            theta, y = plant.theta, plant.wattmeter()
+            v = plant.tps_voltage(self.calibration)
+            plant.step(u)
+            return u, theta, y, v
+        k = self._k
+        if k >= len(self._rows):
+            nxt = self.inputs.next
+            self._us = [nxt() for _ in range(TicksAhead.AHEAD)]
+            self._rows = self._ahead.fill(self._us)
+            k = 0
+        self._k = k + 1
+        theta, y, v = self._rows[k]
+        return self._us[k], theta, y, v
 
     def tick(self, t_ns: int, send: Send) -> None:
-        plant = self.plant
-        u = self.inputs.next()
-        y = plant.wattmeter()
-        v = self.injector.apply(_TPS, plant.tps_voltage(self.calibration))
+        u, theta, y, v = self._measure_and_step()
+        v = self.injector.apply(_TPS, v)
         ts = t_ns / NS_PER_S
         if v is not None:
             v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
@@ -96,11 +118,10 @@ class ThrottlePart:
             self._counter = (self._counter + 1) & 0xF
         send(self._watt_frame(ts, u, y))
         if self.truth_msg is not None:
-            send(self.truth_msg.frame({"TRU_ThrottleAngle": plant.theta, "TRU_MotorVoltage": u}, ts))
-        self.theta = plant.theta
+            send(self.truth_msg.frame({"TRU_ThrottleAngle": theta, "TRU_MotorVoltage": u}, ts))
+        self.theta = theta
         self.u = u
         self.tps_voltage = v
-        plant.step(u)
 
 
 class LongitudinalPart:

@@ -170,3 +170,42 @@ def simulate(steps: int, seed: int = 0, noise_scale: float = 1.0) -> ThrottleTra
         y[k] = plant.wattmeter()
         plant.step(uk)
     return ThrottleTrace(u=u, theta=th, rho=rh, i=cur, y=y)
+
+
+class TicksAhead:
+    """ThrottlePlant's ticks computed ahead in blocks by one compiled call
+    (throttle_kernel.advance_ticks), for vecu.plant.node.ThrottlePart under the numba backend:
+    the plant's state and noise stream carried on, so the same numbers as stepping it."""
+
+    AHEAD = 500  # ticks per compiled call
+
+    def __init__(self, plant: ThrottlePlant, calibration: TpsCalibration) -> None:
+        cfg = plant.config
+        model = cfg.model
+        self._plant = plant
+        self.state = np.array([plant.theta, plant.rho, plant.i], dtype=np.float64)
+        self._modes = np.array([[p.a12, p.a21, p.a22, p.a23, p.a32, p.a33, p.b, p.c1, p.c2, p.c3]
+                                for p in model.modes], dtype=np.float64)
+        self._cst = np.array([plant._sig_theta, plant._sig_i, model.h_wattmeter, cfg.tps_noise_v,
+                              calibration.v_at_0, calibration.v_at_90, *model.mode_bounds_deg],
+                             dtype=np.float64)
+        self._noise = np.array(plant._noise, dtype=np.float64).reshape(-1, 4)
+        self._pos = plant._pos
+        self._out = np.empty((self.AHEAD, 3))
+
+    def fill(self, u: list[float]) -> list[list[float]]:
+        """Rows (theta, y, TPS voltage) of the next len(u) ticks with inputs u."""
+        from vecu.plant.throttle_kernel import advance_ticks
+
+        ua = np.array(u, dtype=np.float64)
+        done = 0
+        rows: list[list[float]] = []
+        while done < len(ua):
+            if self._pos >= len(self._noise):
+                self._noise = self._plant._rng.standard_normal((self._plant.config.block, 4))
+                self._pos = 0
+            k, self._pos = advance_ticks.compiled(self.state, ua[done:], self._noise, self._pos,
+                                                  self._modes, self._cst, self._out)
+            rows.extend(self._out[:k].tolist())
+            done += k
+        return rows
