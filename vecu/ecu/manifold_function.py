@@ -51,9 +51,12 @@ class ManifoldFunction:
         self.filter_name = config.filter
         self._engine = self.filter.params  # the calibration: filter, CAC and prediction
         self._kf = config.kf
-        self._out = codec["ECU_ManifoldEstimate"]
+        self._out_frame = codec["ECU_ManifoldEstimate"].framer((
+            "MFD_ThrottleAngle", "MFD_Pressure", "MFD_Temperature", "MFD_CAC", "MFD_CACPred6"))
         # the adaptive filter's corrections (ECU_ManifoldAdapt), sent only with that filter
-        self._adapt_out = codec["ECU_ManifoldAdapt"] if config.filter == "adaptive" else None
+        self._adapt_frame = codec["ECU_ManifoldAdapt"].framer((
+            "MFD_EtaCorr", "MFD_EtaCorrStd", "MFD_FlowCorr", "MFD_TaGainCorr", "MFD_ActZetaCorr",
+            "MFD_ActOmegaCorr")) if config.filter == "adaptive" else None
         self.timeouts = 0
         self.estimates_sent = 0
         self.events = 0          # complete events filtered
@@ -110,43 +113,48 @@ class ManifoldFunction:
         else:
             self._abs_index = counter
         self._last_counter = counter
-        t_meas = iat[1] if iat is not None and iat[0] == counter else None
-        n_rpm = u.n_rpm
-        y = (ev["ENG_ThrottleAngle"] * RAD_PER_DEG, ev["ENG_MAP"],
-             t_meas if t_meas is not None else math.nan)  # NaN channel: rejected, others used
+        flt = self.filter
+        ta, map_kpa = ev["ENG_ThrottleAngle"] * RAD_PER_DEG, ev["ENG_MAP"]
+        # a missing IAT reading is a NaN channel: rejected, the others used
+        t_meas = iat[1] if iat is not None and iat[0] == counter else math.nan
         watch = self._watch
         watch.lap()
-        x = self.filter.step(y, u)
-        filter_s = watch.lap()
-        # the adaptive filter's eta correction as the CAC uses it (ManifoldAdaptive.eta_used)
-        scale = (float(self.filter.eta_used(float(x[6]), float(self.filter.P_post[6, 6])))
-                 if len(x) > 6 else 1.0)
-        cac = scale * cylinder_air_charge(float(x[3]), float(x[4]), n_rpm, self._engine)
-        first = self.filter.last_prediction  # the filter already ran event n+1 from x
-        if first is not None and first[0] is u:
-            cac6 = predict_cac(first[1], [u] * (HORIZON - 1), self._engine, scale)
+        # the usual event under the numba backend: filter, CAC and prediction in one call
+        done = flt.event_cac(ta, map_kpa, t_meas, u, HORIZON)
+        scale = 1.0
+        if done is not None:
+            cac, cac6 = done
+            self.filter_seconds += watch.lap()  # the CAC and its prediction included
+            x = flt.x_post.tolist()
         else:
-            cac6 = predict_cac(x, [u] * HORIZON, self._engine, scale)
-        self.filter_seconds += filter_s
-        self.predict_seconds += watch.lap()
+            x = flt.step((ta, map_kpa, t_meas), u).tolist()
+            filter_s = watch.lap()
+            # the adaptive filter's eta correction as the CAC uses it (ManifoldAdaptive.eta_used)
+            if len(x) > 6:
+                scale = float(flt.eta_used(x[6], float(flt.P_post[6, 6])))
+            cac = scale * cylinder_air_charge(x[3], x[4], u.n_rpm, self._engine)
+            first = flt.last_prediction  # the filter already ran event n+1 from x
+            if first is not None and first[0] is u:
+                cac6 = predict_cac(first[1], [u] * (HORIZON - 1), self._engine, scale)
+            else:
+                cac6 = predict_cac(flt.x_post, [u] * HORIZON, self._engine, scale)
+            self.filter_seconds += filter_s
+            self.predict_seconds += watch.lap()
         if not (math.isfinite(cac) and math.isfinite(cac6)):  # last line of defence
             self.estimator_faults += 1
-            self.filter.reset()
+            flt.reset()
             return
         self.events += 1
-        self.last = (self._abs_index, float(x[3]), float(x[4]), cac, cac6)
-        self.estimates_sent += send(self._out.frame({
-            "MFD_ThrottleAngle": float(x[1]) / RAD_PER_DEG, "MFD_Pressure": float(x[3]),
-            "MFD_Temperature": float(x[4]) - KELVIN_AT_0_DEGC, "MFD_CAC": cac * MG_PER_KG,
-            "MFD_CACPred6": cac6 * MG_PER_KG}, t_ns / NS_PER_S))
-        if self._adapt_out is not None:
-            sigma = math.sqrt(max(float(self.filter.P_post[6, 6]), 0.0))
-            self.estimates_sent += send(self._adapt_out.frame({
-                "MFD_EtaCorr": 100.0 * (scale - 1.0), "MFD_EtaCorrStd": 100.0 * sigma,
-                "MFD_FlowCorr": 100.0 * (float(x[7]) - 1.0),
-                "MFD_TaGainCorr": 100.0 * (float(x[8]) - 1.0),
-                "MFD_ActZetaCorr": 100.0 * (float(x[9]) - 1.0),
-                "MFD_ActOmegaCorr": 100.0 * (float(x[10]) - 1.0)}, t_ns / NS_PER_S))
+        self.last = (self._abs_index, x[3], x[4], cac, cac6)
+        ts = t_ns / NS_PER_S
+        self.estimates_sent += send(self._out_frame(
+            ts, x[1] / RAD_PER_DEG, x[3], x[4] - KELVIN_AT_0_DEGC, cac * MG_PER_KG,
+            cac6 * MG_PER_KG))
+        if self._adapt_frame is not None:
+            sigma = math.sqrt(max(float(flt.P_post[6, 6]), 0.0))
+            self.estimates_sent += send(self._adapt_frame(
+                ts, 100.0 * (scale - 1.0), 100.0 * sigma, 100.0 * (x[7] - 1.0),
+                100.0 * (x[8] - 1.0), 100.0 * (x[9] - 1.0), 100.0 * (x[10] - 1.0)))
 
     def status_signals(self) -> dict[str, int]:
         return {}

@@ -13,6 +13,7 @@ Python step() takes that event (ManifoldKF.run_events), then the next block star
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -31,6 +32,23 @@ from vecu.models.manifold_integrator import _integrate_event
 (L_N_LO, L_N_HI, L_Y0_LO, L_Y0_HI, L_Y1_LO, L_Y1_HI, L_Y2_LO, L_Y2_HI) = range(8)
 
 
+def limits(config: Any) -> np.ndarray:
+    """The plausibility limits vector (L_* layout) of a ManifoldFilterConfig."""
+    c = config
+    return np.array([c.n_range[0], c.n_range[1], *c.y_ranges[0], *c.y_ranges[1],
+                     *c.y_ranges[2]], dtype=np.float64)
+
+
+@kernel
+def plausible(sp, n_rpm, p_a, t_a, t_cool, y0, y1, y2, lim):
+    """An event the filter takes as it comes: its input is plausible (filters.input_problem
+    is None) and all three readings are inside their y_ranges (NaN fails)."""
+    return (lim[L_N_LO] <= n_rpm <= lim[L_N_HI] and -0.2 <= sp <= 1.9 and 50.0 <= p_a <= 120.0
+            and 200.0 <= t_a <= 450.0 and 200.0 <= t_cool <= 450.0
+            and lim[L_Y0_LO] <= y0 <= lim[L_Y0_HI] and lim[L_Y1_LO] <= y1 <= lim[L_Y1_HI]
+            and lim[L_Y2_LO] <= y2 <= lim[L_Y2_HI])
+
+
 @kernel
 def filter_events(kind, x, P, P_post, ys, us, start, events_before, gated_run, gated, xs_out,
                   var_out, last_pred, lim, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
@@ -45,12 +63,8 @@ def filter_events(kind, x, P, P_post, ys, us, start, events_before, gated_run, g
     n_ev = ys.shape[0]
     for n in range(start, n_ev):
         sp, n_rpm, p_a, t_a, t_cool = us[n, 0], us[n, 1], us[n, 2], us[n, 3], us[n, 4]
-        if not (lim[L_N_LO] <= n_rpm <= lim[L_N_HI] and -0.2 <= sp <= 1.9 and 50.0 <= p_a <= 120.0
-                and 200.0 <= t_a <= 450.0 and 200.0 <= t_cool <= 450.0):
-            return n
         y0, y1, y2 = ys[n, 0], ys[n, 1], ys[n, 2]
-        if not (lim[L_Y0_LO] <= y0 <= lim[L_Y0_HI] and lim[L_Y1_LO] <= y1 <= lim[L_Y1_HI]
-                and lim[L_Y2_LO] <= y2 <= lim[L_Y2_HI]):
+        if not plausible(sp, n_rpm, p_a, t_a, t_cool, y0, y1, y2, lim):
             return n
         ts = 120.0 / (fc[17] * n_rpm)  # F_NCYL
         if kind == 2:

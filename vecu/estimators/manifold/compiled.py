@@ -9,7 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from vecu.estimators.manifold.block_kernels import filter_events
+from vecu.estimators.manifold.block_kernels import filter_events, limits
+from vecu.estimators.manifold.event_kernel import (
+    NOT_TAKEN,
+    ecu_event,
+    kernel_kind,
+    pack_constants,
+)
+from vecu.estimators.manifold.event_kernel import prepare as prepare_ecu_event
 from vecu.estimators.manifold.kernels import (
     DIVERGED,
     FALLBACK,
@@ -19,11 +26,13 @@ from vecu.estimators.manifold.kernels import (
 )
 from vecu.estimators.manifold.kernels import prepare as prepare_kernels
 from vecu.estimators.manifold.model import ALPHA_SDC_MIN, FD_ALPHA, FD_REL, N_X
+from vecu.kernels import backend
 from vecu.models.manifold_params import EngineInput
 
 _SDKF_EVENT_PY = sdkf_event.py
 KINDS = {"sdkf": 0, "ekf": 1, "adaptive": 2}  # block_kernels.filter_events' kind
 _NO_AC = np.zeros(3)
+_ALL = [0, 1, 2]
 
 
 class CompiledEvents:
@@ -85,6 +94,63 @@ class CompiledEvents:
             self._reset_in_step()
             return True
         self._commit_event(xo, Po, u)
+        return True
+
+    def event_cac(self, y0: float, y1: float, y2: float, u: EngineInput, horizon: int
+                  ) -> tuple[float, float] | None:
+        """step((y0, y1, y2), u), then (CAC at the posterior, cac_predict.predict_cac of the
+        event map's output over horizon - 1 more events with u held), as one compiled call
+        (event_kernel.ecu_event) under the numba backend: the same state, counters and numbers
+        as those calls. None (nothing changed): make them instead (python backend, the adaptive
+        filter, the first event, an input or reading the filter refuses, an event its kernel
+        hands back or resets on)."""
+        if backend() != "numba" or not self._initialised:
+            return None
+        run = self._ecu_run
+        if run is None:
+            if self._ecu_checked or not self._prepare_ecu_event():
+                return None
+            run = self._ecu_run
+        gr = self._gated_run
+        xo = np.empty((3, len(self.x)))
+        Po = np.empty((2, len(self.x), len(self.x)))
+        try:
+            code, cac, cac6 = run(self._ecu_kind, self.x, self.P, self.P_post, xo, Po,
+                                  self._ecu_consts, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool,
+                                  y0, y1, y2, gr[0], gr[1], gr[2], self.events >= 1, horizon)
+        except (FloatingPointError, ValueError, ZeroDivisionError, np.linalg.LinAlgError):
+            return None  # step() runs the event again and decides (a reset)
+        if code & (FALLBACK | DIVERGED | NOT_TAKEN):
+            return None
+        # what step() does around the kernel for this event (input and readings all valid)
+        self.events += 1
+        self._last_u = u
+        ly = self._last_y
+        ly[0], ly[1], ly[2] = float(y0), float(y1), float(y2)
+        self._count_gated(code, _ALL)
+        self._commit_event(xo, Po, u)
+        return cac, cac6
+
+    _ecu_run: Any = None  # event_kernel.ecu_event's dispatcher once prepared
+    _ecu_kind: int | None = None
+    _ecu_checked = False
+    _ecu_consts: np.ndarray
+
+    def _prepare_ecu_event(self) -> bool:
+        """First use of event_cac: the kernel's kind and packed constants (False: none)."""
+        self._ecu_checked = True
+        kind = kernel_kind(self)
+        if kind is None:
+            return False
+        tables = numba_tables(self.params)
+        if tables is None:
+            return False
+        prepare_ecu_event()
+        self._ecu_consts = pack_constants(
+            filter_constants(self.config, ALPHA_SDC_MIN), self.Q, np.array([FD_ALPHA, FD_REL]),
+            tables, limits(self.config))
+        self._ecu_kind = kind
+        self._ecu_run = ecu_event.compiled
         return True
 
     def _count_gated(self, code: int, chans: list[int]) -> None:
@@ -152,9 +218,7 @@ class CompiledEvents:
                    vs: np.ndarray) -> int:
         args = self._kernel_args
         assert args is not None
-        c = self.config
-        lim = np.array([c.n_range[0], c.n_range[1], *c.y_ranges[0], *c.y_ranges[1],
-                        *c.y_ranges[2]], dtype=np.float64)
+        lim = limits(self.config)
         x, P, P_post = self.x.copy(), self.P.copy(), self.P_post.copy()
         gr = np.array(self._gated_run, dtype=np.int64)
         gated = np.zeros(3, dtype=np.int64)

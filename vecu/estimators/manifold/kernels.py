@@ -235,6 +235,12 @@ def _event_coeffs_py(ts, fc):
     return _coeffs(ts, fc[F_ZETA], fc[F_OMEGA0], fc[F_TAU])
 
 
+def _air_charge_py(n_rpm, p, t, fc, c, eta_rpm, eta_val):
+    """Cylinder air charge (kg) at (P_im, T_im) and speed n_rpm: models.manifold.
+    cylinder_air_charge, the same operations (eta P V_cyl / (R T))."""
+    return _eta(n_rpm, p, c, eta_rpm, eta_val) * p * fc[F_VCYL] / (c[1] * t)
+
+
 def _const_tuple_py(c):
     """The integrator's 29 per-parameter-set constants as the tuple it takes."""
     return (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
@@ -245,6 +251,7 @@ def _const_tuple_py(c):
 _coeffs = _coeffs_py
 _event_coeffs = _event_coeffs_py
 _const_tuple = _const_tuple_py
+_air_charge = _air_charge_py
 _interp = _interp_py
 _eta = _eta_py
 _mdot = _mdot_py
@@ -260,13 +267,14 @@ P_FLOOR_KPA = mi.P_FLOOR_KPA
 
 def _jit_helpers() -> None:
     global _interp, _eta, _mdot, _in_bounds, _clamp, _integrate, _coeffs, _event_coeffs
-    global _const_tuple
+    global _const_tuple, _air_charge
     global _update, _jacobian, _map_out, _propagate
     import numba
 
     _coeffs = numba.njit(_coeffs_py)
     _event_coeffs = numba.njit(_event_coeffs_py)
     _const_tuple = numba.njit(_const_tuple_py)
+    _air_charge = numba.njit(_air_charge_py)
     _interp = interp_value.compiled
     _eta = eta_value.compiled
     _mdot = throttle_flow_value.compiled
@@ -385,8 +393,7 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
             sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha, p_n, t_n,
             a_t * tm + b_t * t)
     out[0], out[1], out[2], out[3], out[4], out[5] = u_prev, alpha, alpha_prev, p, t, tm
-    eta = _eta(n_rpm, p, c, eta_rpm, eta_val)
-    return eta * p * fc[F_VCYL] / (c[1] * t)
+    return _air_charge(n_rpm, p, t, fc, c, eta_rpm, eta_val)
 
 
 

@@ -1,0 +1,108 @@
+"""The ECU manifold function's event in one compiled call (event_kernel.ecu_event, through
+CompiledEvents.event_cac) against the separate calls it replaces (filter.step,
+cylinder_air_charge, predict_cac, as ManifoldFunction.run makes them when event_cac declines):
+over a short drive with missing IAT readings, rejected readings, implausible inputs, a gated
+pressure step, a forced divergence and a non-positive-definite innovation covariance, the
+posteriors, covariances, predictions, CACs and counters are the same bit for bit, under numba
+and against the python backend, and the events it declines change nothing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
+from vecu.estimators.manifold.factory import make_filter
+from vecu.estimators.manifold.filters import ManifoldFilterConfig
+from vecu.eval.manifold import trace_inputs
+from vecu.models.manifold import cylinder_air_charge
+from vecu.models.manifold_params import EngineInput
+from vecu.plant.drive_profile import DriveProfile, us06_like
+from vecu.plant.manifold import simulate
+
+Y_RANGES = ManifoldFilterConfig().y_ranges
+COUNTERS = ("events", "missing", "resets", "bad_inputs", "rejected", "gated", "_gated_run")
+BAD_INPUT = 57
+DIVERGE, NOT_PD = 300, 420
+
+
+@pytest.fixture(scope="module")
+def drive(per_backend):
+    p = us06_like(4)
+    a, b = round(2.5 / p.dt_s), round(4.5 / p.dt_s) + 1
+    trace = per_backend.reference(
+        "trace", lambda: simulate(DriveProfile(p.dt_s, p.n_rpm[a:b], p.ta_sp[a:b]), seed=4))
+    rng = np.random.default_rng(5)
+    ys = [[float(v) for v in row] for row in trace.y]
+    inputs = trace_inputs(trace)
+    for n in range(0, len(ys), 7):
+        ys[n][2] = math.nan  # the IAT frame missing
+    for n in rng.choice(np.arange(20, len(ys)), size=15, replace=False):
+        ys[n][int(rng.integers(3))] = float(rng.choice([1e9, -5.0, math.inf]))
+    for n in range(200, 225):
+        ys[n][1] = 2.0  # a pressure step: gated, then believed
+    inputs[BAD_INPUT] = EngineInput(0.3, 1e9)
+    return ys, inputs
+
+
+def _separate(flt, y, u):
+    """What ManifoldFunction.run calls when event_cac declines (scale 1)."""
+    x = flt.step(y, u)
+    cac = cylinder_air_charge(float(x[3]), float(x[4]), u.n_rpm, flt.params)
+    first = flt.last_prediction
+    if first is not None and first[0] is u:
+        return cac, predict_cac(first[1], [u] * (HORIZON - 1), flt.params)
+    return cac, predict_cac(x, [u] * HORIZON, flt.params)
+
+
+def _run(drive, name, fused):
+    ys, inputs = drive
+    flt = make_filter(name)
+    rows, taken = [], 0
+    for n, (y, u) in enumerate(zip(ys, inputs)):
+        if n == DIVERGE:
+            flt.P_post[3, 3] = flt.P[3, 3] = math.nan
+        if n == NOT_PD:
+            flt.P_post[:] = flt.P[:] = -10.0 * np.eye(6)
+        before = (flt.events, flt.x, flt.P, flt.P_post, flt.gated.copy())
+        done = flt.event_cac(y[0], y[1], y[2], u, HORIZON) if fused else None
+        if done is None:  # a declined event changed nothing
+            assert before == (flt.events, flt.x, flt.P, flt.P_post, flt.gated)
+            done = _separate(flt, y, u)
+        else:
+            taken += 1
+        pred = flt.last_prediction
+        rows.append((flt.x_post.copy(), flt.P.copy(), flt.P_post.copy(),
+                     None if pred is None else pred[1].copy(), *done))
+    return rows, {k: getattr(flt, k) for k in COUNTERS}, taken
+
+
+@pytest.mark.parametrize("name", ["sdkf", "ekf"])
+def test_one_call_gives_the_separate_calls(drive, backend, per_backend, name):
+    ref, ref_cnt, _ = per_backend.reference(("sep", name), lambda: _run(drive, name, False))
+    for fused in (True,) if backend == "python" else (False, True):
+        got, cnt, taken = _run(drive, name, fused)
+        assert cnt == ref_cnt
+        for n, (a, b) in enumerate(zip(ref, got)):
+            for what, va, vb in zip(("x_post", "P", "P_post", "pred", "cac", "cac6"), a, b):
+                if va is None or vb is None:
+                    assert va is vb, (n, what)
+                else:
+                    assert np.array_equal(va, vb, equal_nan=True), (n, what, fused)
+        if backend == "python" or not fused:
+            assert taken == 0  # the python backend keeps the separate calls
+        else:  # the usual events in one call, less those the filter kernel hands back
+            usual = sum(all(lo <= v <= hi for v, (lo, hi) in zip(y, Y_RANGES))
+                        for y in drive[0]) - 1  # the implausible input
+            assert usual - 3 <= taken < usual
+    assert ref_cnt["resets"] >= 1 and ref_cnt["bad_inputs"] == 1 and sum(ref_cnt["gated"]) >= 5
+    assert min(ref_cnt["rejected"]) > 0 and len(ref) > 400
+    assert all(math.isfinite(r[4]) and math.isfinite(r[5]) for r in ref)
+
+
+def test_the_adaptive_filter_declines(backend):
+    flt = make_filter("adaptive")
+    u = EngineInput(0.3, 2000.0)
+    assert flt.event_cac(0.3, 40.0, 310.0, u, HORIZON) is None and flt.events == 0
