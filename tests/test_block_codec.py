@@ -70,3 +70,48 @@ def test_every_message_of_vecus_dbcs_has_a_block_layout_and_a_restricted_codec_c
     assert tps.check_block([data])[0][2] == tps.bad_values(tps.decode(data)) != []
     none = tps.checking_only([])
     assert none.check_block([data])[0][2] == [] == none.bad_values(none.decode(data))
+
+
+def _values_to_encode(fc, payloads, rng: random.Random) -> list[list[float]]:
+    """Per signal a column: the decoded values of the payloads, with values past the DBC
+    range, NaN, +-inf and 1e40 mixed in (saturated, refused or sent to the per-frame path)."""
+    rows = [fc.decode(p) for p in payloads]
+    cols = []
+    for sig in fc.signals:
+        col = [float(r[sig.name]) if isinstance(r[sig.name], (int, float)) else 0.0 for r in rows]
+        lo, hi = fc.ranges[sig.name]
+        for k in range(len(col)):
+            if k % 11 == 3:
+                col[k] = rng.choice([math.nan, math.inf, -math.inf, 1e40, -1e40,
+                                     (hi if hi is not None else 0.0) + 1.0,
+                                     (lo if lo is not None else 0.0) - 1.0, 2.5, 0.5])
+        cols.append(col)
+    return cols
+
+
+@pytest.mark.parametrize("with_thirdparty", [False, True])
+def test_block_encode_gives_the_framers_payloads(with_thirdparty, request):
+    """encode_rows: every row it encodes is the payload FrameCodec.framer's make() sends (the
+    E2E CRC included); the rows it leaves go to make()."""
+    tp = request.getfixturevalue("thirdparty") if with_thirdparty else None
+    rng = random.Random(17)
+    encoded = refused = 0
+    for db in every_codec(tp):
+        for fc in db.by_id.values():
+            names = tuple(s.name for s in fc.signals)
+            if fc.block is None or not names:
+                continue
+            cols = _values_to_encode(fc, _payloads(fc, rng), rng)
+            got = fc.encode_rows(names, cols)
+            if got is None:
+                continue
+            payloads, left = got
+            make = fc.framer(names)
+            for k in range(len(cols[0])):
+                if left[k]:
+                    refused += 1
+                    continue
+                want = make(0.0, *(c[k] for c in cols))
+                assert payloads[k].tobytes() == bytes(want.data), (fc.name, k)
+                encoded += 1
+    assert encoded > (5000 if tp is None else 50_000) and refused > 0

@@ -12,7 +12,7 @@ identity conversions get a layout; anything else stays on the per-frame path.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,6 +35,7 @@ class BlockField:
     scale: float | int | None  # None: identity (the raw value itself)
     offset: float | int | None
     integer: bool          # the per-frame decoder gives a Python int
+    encodable: bool = True  # the per-frame encoder inlines its conversion (encode_rows takes it)
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,52 @@ class BlockLayout:
 
 
 _TABLE = np.array(crc8_table(), dtype=np.uint8)
+
+
+def encode_rows(layout: BlockLayout, columns: Sequence[np.ndarray],
+                saturate: Mapping[str, tuple[float, float]]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Payloads of many frames at once: row i of the (n, length) uint8 array is what
+    FrameCodec.framer's make gives for the values columns[j][i] of the layout's fields (in
+    layout order): saturated like the codec's encoder (`saturate`: name -> (lo, hi)), rounded
+    half to even as Python's round(), the E2E CRC written last. The mask marks rows it did not
+    encode (a value not finite, a raw value that does not fit: the per-frame path decides
+    those). None: a field it does not take (a conversion the encoder does not inline)."""
+    if not all(f.encodable for f in layout.fields):
+        return None
+    n, size = len(columns[0]), layout.length
+    refused = np.zeros(n, dtype=bool)
+    words = {False: np.zeros(n, dtype=np.uint64), True: np.zeros(n, dtype=np.uint64)}
+    with np.errstate(invalid="ignore"):
+        for f, col in zip(layout.fields, columns):
+            v = np.asarray(col, dtype=np.float64)
+            if f.name in saturate:  # v = lo if not v >= lo else (hi if v > hi else v)
+                lo, hi = saturate[f.name]
+                v = np.where(~(v >= lo), lo, np.where(v > hi, hi, v))
+            x = v if f.scale is None else (v - f.offset) / f.scale
+            if f.float_bits:  # struct.pack: a finite value too large for float32 is refused
+                as_float = x.astype(np.float32) if f.float_bits == 32 else x
+                refused |= ~np.isfinite(as_float)
+                bits = as_float.view(np.uint32 if f.float_bits == 32 else np.uint64)
+                bits = np.where(refused, 0, bits).astype(np.uint64)
+                words[f.big_endian] |= bits << np.uint64(f.shift)
+                continue
+            r = np.rint(x)
+            lo_raw, hi_raw = ((-(1 << (f.length - 1)), (1 << (f.length - 1)) - 1) if f.signed
+                              else (0, (1 << f.length) - 1))
+            refused |= ~((r >= lo_raw) & (r <= hi_raw))  # NaN and inf included
+            raw = np.where(refused, 0.0, r).astype(np.int64) & ((1 << f.length) - 1)
+            words[f.big_endian] |= raw.astype(np.uint64) << np.uint64(f.shift)
+    out = words[False].astype("<u8").view(np.uint8).reshape(n, 8)[:, :size].copy()
+    if any(f.big_endian for f in layout.fields):
+        out |= words[True].astype(">u8").view(np.uint8).reshape(n, 8)[:, 8 - size:]
+    if layout.crc_byte is not None:
+        crc = _TABLE[_TABLE[np.full(n, 0xFF, dtype=np.uint8) ^ np.uint8(layout.frame_id & 0xFF)]
+                     ^ np.uint8((layout.frame_id >> 8) & 0xFF)]
+        for idx in range(size):
+            if idx != layout.crc_byte:
+                crc = _TABLE[crc ^ out[:, idx]]
+        out[:, layout.crc_byte] = crc ^ np.uint8(0xFF)
+    return out, refused
 
 
 def _crc_ok(raw: np.ndarray, frame_id: int, crc_byte: int) -> np.ndarray:

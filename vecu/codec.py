@@ -23,9 +23,11 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import can
 import cantools
+import numpy as np
 from cantools.database.can import Message
 from cantools.database.conversion import (
     IdentityConversion,
@@ -33,7 +35,13 @@ from cantools.database.conversion import (
     LinearIntegerConversion,
 )
 
-from vecu.block_codec import MAX_BLOCK_BYTES, BlockChecks, BlockField, BlockLayout
+from vecu.block_codec import (
+    MAX_BLOCK_BYTES,
+    BlockChecks,
+    BlockField,
+    BlockLayout,
+    encode_rows,
+)
 from vecu.e2e import e2e_checker, e2e_crc
 from vecu.errors import BadFileError
 from vecu.framer import EncodeParts, Framer, compile_range_check, make_framer
@@ -142,6 +150,17 @@ class FrameCodec:
         # many payloads at once (numpy), from the same cantools layout (vecu.block_codec)
         self.block: BlockLayout | None = (block_layout(message, self.e2e)
                                           if compiled is not None else None)
+
+    def encode_rows(self, names: Sequence[str], columns: Sequence[Any]
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Payloads of many frames at once (vecu.block_codec.encode_rows): row i is the
+        payload framer(names)'s make(ts, *(c[i] for c in columns)) sends, the mask the rows left
+        to make(); None when the message's layout is not one the block encoder takes."""
+        if self.block is None:
+            return None
+        by_name = dict(zip(names, columns))
+        return encode_rows(self.block, [by_name[f.name] for f in self.block.fields],
+                           {name: (lo, hi) for name, lo, hi in self._saturate})
 
     def signal(self, name: str) -> SignalInfo:
         """The named signal (KeyError when the message has none)."""
@@ -428,7 +447,7 @@ def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:
             return None
         fields.append(BlockField(sig.name, placed[0] == "be", placed[1], sig.length,
                                  sig.is_signed, sig.length if sig.is_float else 0, scale, offset,
-                                 integer))
+                                 integer, type(conv) in (LinearConversion, IdentityConversion)))
     return BlockLayout(message.frame_id, n, tuple(fields),
                        e2e.crc_byte if e2e is not None else None)
 

@@ -112,9 +112,10 @@ def test_manifold_events_computed_ahead_send_what_stepping_sends():
 
 
 def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
-    """Under numba ThrottlePart computes its ticks ahead in blocks (TicksAhead): the same
-    frames and probe values as stepping ThrottlePlant, across block refills and noise blocks,
-    with a TPS fault applied and cleared on the way."""
+    """Under numba ThrottlePart computes its ticks ahead in blocks (TicksAhead) and encodes
+    their frames in blocks: the same frames and probe values as stepping ThrottlePlant and
+    making each frame, across block refills and noise blocks, with TPS faults on the way (a
+    changed voltage, no frames for a while)."""
     pytest.importorskip("numba")
     from vecu.codec import shared_codec
     from vecu.faults import FaultInjector
@@ -139,8 +140,11 @@ def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
                 if k == 700:
                     assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS),
                                           int(FaultKind.NOISE), 0.2)
-                if k == 1300:
+                if k in (1300, 1620):
                     assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS), 0, 0.0)
+                if k == 1590:  # no TPS frames for 30 ticks: the counter stops meanwhile
+                    assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS),
+                                          int(FaultKind.FRAMES_STOP), 0.0)
                 part.tick(k * NS_PER_MS, lambda m, sent=sent: sent.append(
                     (m.timestamp, m.arbitration_id, bytes(m.data))) or True)
                 seen.append((part.theta, part.u, part.tps_voltage))

@@ -17,6 +17,7 @@ from vecu.bus import BusNode
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
+from vecu.frames import message
 from vecu.kernels import backend
 from vecu.models.lateral import VehicleParams
 from vecu.models.manifold import (
@@ -83,11 +84,33 @@ class ThrottlePart:
         self.theta = 0.0
         self.u = 0.0
         self.tps_voltage: float | None = None
-        # under the numba backend the ticks are computed ahead in blocks (same numbers)
+        # under the numba backend the ticks are computed ahead in blocks (same numbers), and
+        # their frames encoded in blocks (FrameCodec.encode_rows, the framers' payloads)
         self._ahead = TicksAhead(plant, calibration) if backend() == "numba" else None
         self._rows: list[list[float]] = []
         self._us: list[float] = []
         self._k = 0
+        self._tps_ahead: list[bytearray | None] = []  # payloads of the ticks ahead (None: make)
+        self._watt_ahead: list[bytearray | None] = []
+        self._counter_ahead = 0  # the TPS counter the first tick ahead was encoded with
+
+    def _fill(self) -> None:
+        """The next TicksAhead.AHEAD ticks: their rows and the payloads of their frames, the
+        TPS frames encoded as if each tick sends one with the TPS left as it is."""
+        assert self._ahead is not None
+        nxt = self.inputs.next
+        self._us = us = [nxt() for _ in range(TicksAhead.AHEAD)]
+        self._rows = rows = self._ahead.fill(us)
+        self._k = 0
+        n = len(rows)
+        cols = np.array(rows).T
+        v = np.where(cols[2] < TPS_V_MIN, TPS_V_MIN, np.minimum(cols[2], TPS_V_MAX))
+        self._counter_ahead = c0 = self._counter
+        tps = self._tps.encode_rows(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage"), (
+            np.zeros(n), (c0 + np.arange(n)) & 0xF, v))
+        watt = self._watt.encode_rows(("ETB_Voltage", "ETB_Power"), (np.array(us), cols[1]))
+        self._tps_ahead = _payload_list(tps, n)
+        self._watt_ahead = _payload_list(watt, n)
 
     def _measure_and_step(self) -> tuple[float, float, float, float]:
         """(u_k, theta_k, y_k, TPS voltage_k) of this tick; the plant then steps with u_k."""
@@ -100,28 +123,51 @@ class ThrottlePart:
             return u, theta, y, v
         k = self._k
         if k >= len(self._rows):
-            nxt = self.inputs.next
-            self._us = [nxt() for _ in range(TicksAhead.AHEAD)]
-            self._rows = self._ahead.fill(self._us)
+            self._fill()
             k = 0
         self._k = k + 1
         theta, y, v = self._rows[k]
         return self._us[k], theta, y, v
 
     def tick(self, t_ns: int, send: Send) -> None:
-        u, theta, y, v = self._measure_and_step()
-        v = self.injector.apply(_TPS, v)
+        u, theta, y, v_sensor = self._measure_and_step()
+        v = self.injector.apply(_TPS, v_sensor)
         ts = t_ns / NS_PER_S
+        k = self._k - 1  # this tick's payloads ahead (if any)
         if v is not None:
-            v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
-            send(self._tps_frame(ts, 0, self._counter, v))
+            data = (self._tps_ahead[k] if 0 <= k < len(self._tps_ahead) and v is v_sensor
+                    and self._counter == (self._counter_ahead + k) & 0xF else None)
+            if data is not None:
+                send(message(ts, self._tps.frame_id, self._tps.is_extended, data, self._tps.is_fd))
+            else:
+                v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
+                send(self._tps_frame(ts, 0, self._counter, v))
             self._counter = (self._counter + 1) & 0xF
-        send(self._watt_frame(ts, u, y))
+        data = self._watt_ahead[k] if 0 <= k < len(self._watt_ahead) else None
+        if data is not None:
+            send(message(ts, self._watt.frame_id, self._watt.is_extended, data, self._watt.is_fd))
+        else:
+            send(self._watt_frame(ts, u, y))
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_ThrottleAngle": theta, "TRU_MotorVoltage": u}, ts))
         self.theta = theta
         self.u = u
         self.tps_voltage = v
+
+
+def _payload_list(encoded: tuple[np.ndarray, np.ndarray] | None, n: int
+                  ) -> list[bytearray | None]:
+    """Per row its payload (a fresh bytearray, each sent once), None where the row is left to
+    the framer (or every row, without a block encoding)."""
+    if encoded is None:
+        return [None] * n
+    payloads, left = encoded
+    size = payloads.shape[1]
+    blob = payloads.tobytes()
+    out: list[bytearray | None] = [bytearray(blob[i:i + size]) for i in range(0, n * size, size)]
+    for i in np.flatnonzero(left).tolist():
+        out[i] = None
+    return out
 
 
 class LongitudinalPart:
