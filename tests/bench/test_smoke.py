@@ -28,6 +28,7 @@ EXPECTED = {
                  rf"vecu run pipeline \(with \.blf\)\s+{NUM}x real time",
                  rf"vecu run --duration {NUM} \(numba kernels\): {NUM}x real time \(target >= 50x",
                  rf"vecu run --duration {NUM} \(python kernels\): {NUM}x real time \(target >= 20x",
+                 rf"throttle estimator alone: {NUM} us/tick -> no pipeline running it beats {NUM}x",
                  r"1 shipped scenarios \(\w+ kernels\): [0-9.]+ s wall, 1 passed",
                  rf"peak RSS of `vecu run --log x.log`, fresh process each: {NUM} s: \d+ kB"],
     "ecu": [rf"{NUM} us/tick = {NUM}x real time",
@@ -37,6 +38,8 @@ EXPECTED = {
     "kernels": [rf"(x real time vs {NUM}x|Compiled kernels: skipped)"],
     "replay": [rf"drive\.blf\s+\d+ frames\s+{NUM}x real time",
                r"drive\.log .* targets >= 40x and >= 50%: (met|not met)",
+               rf"ceiling: reading \({NUM} us per ms of trace\) plus the throttle estimator alone "
+               rf"\({NUM} us/tick\) allow at most {NUM}x",
                rf"vecu replay\s+schedule error p50 {NUM} us"],
     "live": [rf"baseline: bare 1 ms WallClock loop, tick jitter p50 {NUM}",
              r"throughput, virtual bus, one process: offered \d+ frames/s",

@@ -34,7 +34,10 @@ def read_only_seconds(path: str) -> tuple[float, int]:
     return perf_s() - t, n
 
 
-def bench_fast(path: str, estimator: str) -> dict[str, Any]:
+def bench_fast(path: str, estimator: str, estimator_us: float | None = None) -> dict[str, Any]:
+    """Fast replay of the file against python-can reading it; estimator_us (the throttle
+    estimator alone, us per 1 ms tick) adds the ceilings: reading plus that estimator per tick
+    bound the x real time and the share of the bare reading speed any replay can reach."""
     read_s, frames = read_only_seconds(path)
     digests, results = [], []
     for k in range(2):
@@ -53,7 +56,17 @@ def bench_fast(path: str, estimator: str) -> dict[str, Any]:
             # issue 16: >= 40x real time and at least half python-can's bare reading speed
             "target_x_realtime": TARGET_X, "target_read_share": TARGET_READ_SHARE,
             "met": bool(s["x_realtime"] >= TARGET_X
-                        and read_s / s["wall_time_s"] >= TARGET_READ_SHARE)}
+                        and read_s / s["wall_time_s"] >= TARGET_READ_SHARE),
+            **_ceilings(read_s, s["trace_duration_s"], estimator_us)}
+
+
+def _ceilings(read_s: float, trace_s: float, estimator_us: float | None) -> dict[str, Any]:
+    if not estimator_us or not trace_s:
+        return {}
+    read_us = read_s / (trace_s * 1000.0) * 1e6  # python-can's reading, us per 1 ms of trace
+    return {"read_us_per_tick": round(read_us, 1), "estimator_alone_us_per_tick": estimator_us,
+            "ceiling_x_realtime": round(1000.0 / (read_us + estimator_us), 1),
+            "ceiling_read_share": round(read_us / (read_us + estimator_us), 3)}
 
 
 def bench_player_baseline(path: str, seconds: float, channel: str) -> dict[str, Any]:
@@ -105,7 +118,11 @@ def bench_replay(duration_s: float, live_seconds: float, estimator: str) -> dict
         with can.Logger(log) as w:
             for m in can.LogReader(blf):
                 w.on_message_received(m)
-        out["fast"] = [bench_fast(blf, estimator), bench_fast(log, estimator)]
+        est_us = None
+        if estimator == "production":
+            from vecu.bench.pipeline import throttle_estimator_alone_us
+            est_us = round(throttle_estimator_alone_us(min(20.0, max(5.0, duration_s))), 1)
+        out["fast"] = [bench_fast(blf, estimator, est_us), bench_fast(log, estimator, est_us)]
         out["live"] = bench_live(blf, live_seconds, estimator)
     return out
 
@@ -120,6 +137,11 @@ def format_replay(r: dict[str, Any]) -> str:
                      f"bit-identical: {f['bit_identical']}; targets >= {f['target_x_realtime']:.0f}x"
                      f" and >= {f['target_read_share'] * 100:.0f}%: "
                      f"{'met' if f['met'] else 'not met'}")
+        if "ceiling_x_realtime" in f:
+            lines.append(f"    ceiling: reading ({f['read_us_per_tick']} us per ms of trace) plus the "
+                         f"throttle estimator alone ({f['estimator_alone_us_per_tick']} us/tick) "
+                         f"allow at most {f['ceiling_x_realtime']}x and "
+                         f"{f['ceiling_read_share'] * 100:.0f}% of the bare reading speed")
     lv = r["live"]
     v, b = lv["vecu"], lv["python_can_player"]
     lines.append(f"Live replay at 1x on the virtual bus, {lv['seconds']:.0f} s, {lv['frames']} frames "
