@@ -267,6 +267,8 @@ class ManifoldProbe:
             "events": fn.events,
             "lost_events": fn.lost_events,
             "implausible_inputs": fn.implausible_inputs,  # events refused (e.g. 0 rpm)
+            # under numba the usual event's filter, CAC and prediction are one call, timed in
+            # the first (ManifoldFunction); their sum is the event's cost under both backends
             "filter_us_per_event": round(fn.filter_seconds / max(fn.events, 1) * 1e6, 1),
             "cac_prediction_us_per_event": round(fn.predict_seconds / max(fn.events, 1) * 1e6, 1),
             "p_im_error_kpa": self.p_err.as_dict(),

@@ -127,7 +127,8 @@ def format_summary(s: dict[str, Any]) -> str:
             f"P_im RMS {mf['p_im_error_kpa']['rms']:.3f} kPa, T_im {mf['t_im_error_k']['rms']:.2f} K, "
             f"CAC {mf['cac_error_mg']['rms']:.2f} mg, 6-event CAC prediction "
             f"{mf['cac_pred6_abs_error_pct']['mean']:.2f} % mean |error|; "
-            f"{mf['filter_us_per_event']:.0f} us/event")
+            f"{mf['filter_us_per_event'] + mf['cac_prediction_us_per_event']:.0f} us/event "
+            "(filter, CAC and prediction)")
     st = s.get("steering")
     if st:
         line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, fixed-lag smoother "

@@ -5,6 +5,9 @@ Each engine event brings ENG_Event and ENG_Intake (same counter). On the next 1 
 the function runs its filter (the live SDKF: one warm-started Riccati iteration per event, or
 the EKF) once per complete event, predicts the cylinder air charge 6 events ahead with the
 setpoint held (the ECU does not know future pedal positions), and sends ECU_ManifoldEstimate.
+Under the numba backend the usual SDKF / EKF event is one compiled call for all three
+(filter.event_cac); the python backend, the adaptive filter and any unusual event (a missing or
+rejected reading, a fallback, a reset) make the separate calls, with the same numbers.
 Events whose frames did not both arrive are counted as lost; the filter predicts through them.
 An event whose input the filter cannot use (engine speed outside `kf.n_range`, e.g. 0 rpm, which
 the DBC allows) is refused when it arrives: counted in `implausible_inputs` (and by the node as an
@@ -46,7 +49,10 @@ class ManifoldFunction:
     def __init__(self, codec: DbcCodec,
                  config: ManifoldFunctionConfig = ManifoldFunctionConfig(),
                  stopwatch: Stopwatch | None = None) -> None:
-        """stopwatch times the filter and the prediction (filter_seconds, predict_seconds)."""
+        """stopwatch times the filter and the prediction (filter_seconds, predict_seconds).
+        Under the numba backend the usual event (SDKF / EKF) runs the filter, the CAC and its
+        prediction in one compiled call (CompiledEvents.event_cac): that time goes into
+        filter_seconds, and predict_seconds counts only the events that made separate calls."""
         self.filter = make_filter(config.filter, config.kf)
         self.filter_name = config.filter
         self._engine = self.filter.params  # the calibration: filter, CAC and prediction
@@ -64,8 +70,8 @@ class ManifoldFunction:
         self.implausible_inputs = 0  # ENG_Event frames refused (engine speed outside n_range...)
         self.estimator_faults = 0    # non-finite CAC outputs caught here (should stay 0)
         self._refused_in_row = 0
-        self.filter_seconds = 0.0   # time in the filter step (us/event in the summary)
-        self.predict_seconds = 0.0  # time in the 6-event CAC prediction
+        self.filter_seconds = 0.0   # time in the filter step (with the CAC: see above)
+        self.predict_seconds = 0.0  # time in the CAC and its 6-event prediction apart
         self._watch = stopwatch if stopwatch is not None else Stopwatch()
         self._event: tuple[dict[str, float], EngineInput] | None = None
         self._iat: tuple[int, float] | None = None

@@ -1,6 +1,8 @@
 """The manifold filters' compiled events (numba backend): one event per kernel call
-(kernels.sdkf_event / ekf_event, bit-identical to the numpy path) and runs of events per call
-(block_kernels.filter_events). A mixin of filters._ManifoldKF; the python backend never uses it.
+(kernels.sdkf_event / ekf_event, bit-identical to the numpy path), runs of events per call
+(block_kernels.filter_events) and the ECU manifold function's usual event with its CAC and
+6-event prediction in one call (event_cac: event_kernel.ecu_event). A mixin of
+filters._ManifoldKF; the python backend never uses it.
 """
 
 from __future__ import annotations
@@ -145,10 +147,10 @@ class CompiledEvents:
         tables = numba_tables(self.params)
         if tables is None:
             return False
-        prepare_ecu_event()
         self._ecu_consts = pack_constants(
             filter_constants(self.config, ALPHA_SDC_MIN), self.Q, np.array([FD_ALPHA, FD_REL]),
             tables, limits(self.config))
+        prepare_ecu_event(self._ecu_consts)
         self._ecu_kind = kind
         self._ecu_run = ecu_event.compiled
         return True

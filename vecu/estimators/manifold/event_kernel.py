@@ -101,8 +101,9 @@ def ecu_event(kind, x, P, P_post, xo, Po, kc, sp, n_rpm, p_a, t_a, t_cool, y0, y
 _ready = False
 
 
-def prepare() -> None:
-    """kernels.prepare (the kernels this one calls), then its one signature (compile off)."""
+def prepare(kc: np.ndarray) -> None:
+    """kernels.prepare (the kernels this one calls), then its one signature (compile off),
+    checked against its parts with a filter's packed constants kc (6 states)."""
     global _ready
     if _ready:
         return
@@ -111,11 +112,49 @@ def prepare() -> None:
 
     f8, i8 = types.float64, types.int64
     v, m = f8[::1], f8[:, ::1]
-    disp = ecu_event.compiled
-    disp.compile((i8, v, m, m, m, f8[:, :, ::1], v) + (f8,) * 8 + (i8,) * 3
-                 + (types.boolean, i8))
-    disp.disable_compile()
+    sig = (i8, v, m, m, m, f8[:, :, ::1], v) + (f8,) * 8 + (i8,) * 3 + (types.boolean, i8)
+    for attempt in range(2):
+        disp = ecu_event.compiled
+        disp.compile(sig)
+        disp.disable_compile()
+        if _agrees_with_its_parts(kc):
+            break
+        if attempt:
+            raise RuntimeError("compiled ecu_event disagrees with the kernels it calls")
+        ecu_event.discard_compiled()  # a cache entry linked to older kernels: rebuild it
     _ready = True
+
+
+def unpack_constants(kc: np.ndarray) -> tuple:
+    """(fc, Q, fd, tables, lim) of pack_constants' array (views), as ecu_event reads them."""
+    o = [int(v) for v in kc[:N_PARTS + 1]]
+    nq, rows, cols = (int(v) for v in kc[N_PARTS + 1:HEADER])
+    p = [kc[o[i]:o[i + 1]] for i in range(N_PARTS)]
+    tables = (p[3], p[4], p[5].reshape((rows, cols)), p[6], p[7], p[8])
+    return p[0], p[1].reshape((nq, nq)), p[2], tables, p[9]
+
+
+def _agrees_with_its_parts(kc: np.ndarray) -> bool:
+    """ecu_event on a sample event with the constants kc gives what its kernels give called
+    one by one (numba's cache links the kernels it calls into its own entry and does not see
+    them change); the first call of each, all compiled already."""
+    fc, Q, fd, tables, _ = unpack_constants(kc)
+    kc = pack_constants(fc, Q, fd, tables, np.array([-np.inf, np.inf] * 4))  # any reading
+    x = np.array([0.31, 0.3, 0.29, 61.0, 321.0, 318.0])
+    P = np.diag([1e-4, 1e-3, 1e-3, 4.0, 100.0, 1.0])
+    sp, n, p_a, t_a, t_cool, y = 0.35, 2345.0, 99.0, 297.0, 361.0, (0.305, 60.0, 318.5)
+    xo, Po, xo2, Po2 = np.empty((3, 6)), np.empty((2, 6, 6)), np.empty((3, 6)), np.empty((2, 6, 6))
+    code, cac, cac6 = ecu_event.compiled(KIND_SDKF, x, P, P, xo, Po, kc, sp, n, p_a, t_a, t_cool,
+                                         *y, 0, 0, 0, True, 6)
+    ts = 120.0 / (fc[F_NCYL] * n)
+    code2 = sdkf_event.compiled(x, P, P, xo2, Po2, sp, n, p_a, t_a, t_cool, ts, *y, 7, 0, 0, 0,
+                                True, fc, Q, *tables)
+    out = np.empty(6)
+    cac6_2 = predict_events.compiled(xo2[2].copy(), np.array([[sp, n, p_a, t_a, t_cool]]), 5,
+                                     out, fc, *tables)
+    # (the CAC at the posterior: eta_N and the integrator's constants, checked through these)
+    return ((code, cac6) == (code2, cac6_2) and cac > 0.0 and np.array_equal(xo, xo2)
+            and np.array_equal(Po, Po2))
 
 
 def kernel_kind(flt: Any) -> int | None:
