@@ -28,6 +28,10 @@ def test_playback_matches_the_rows_over_many_chunks(tmp_path):
     gen = FileInput(load_input_file(path))
     got = np.array([gen.next() for _ in range(2999)])
     np.testing.assert_allclose(got, u[::2][:2999], atol=1e-12)
+    # take(n) (the throttle part's blocks) gives what as many next() calls give
+    a, b = FileInput(load_input_file(path)), FileInput(load_input_file(path))
+    taken = a.take(7) + a.take(1500) + [a.next()] + a.take(1491)
+    assert taken == [b.next() for _ in range(2999)] and taken == got.tolist()
 
 
 @pytest.mark.parametrize(("text", "problem"), [

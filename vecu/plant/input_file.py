@@ -92,7 +92,38 @@ def load_input_file(path: str | Path) -> InputSeries:
     return InputSeries(path, t, u)
 
 
-class FileInput:
+class BufferedInput:
+    """The plant's input one sample at a time (next) or many (take), from chunks _refill()
+    returns; InputGenerator and FileInput are made of it."""
+
+    _buf: list[float]
+    _pos: int
+
+    def _refill(self) -> list[float]:
+        raise NotImplementedError
+
+    def next(self) -> float:
+        if self._pos >= len(self._buf):
+            self._buf = self._refill()
+            self._pos = 0
+        u = self._buf[self._pos]
+        self._pos += 1
+        return u
+
+    def take(self, n: int) -> list[float]:
+        """The next n samples (as n calls of next() give them)."""
+        out: list[float] = []
+        while len(out) < n:
+            if self._pos >= len(self._buf):
+                self._buf = self._refill()
+                self._pos = 0
+            m = min(n - len(out), len(self._buf) - self._pos)
+            out.extend(self._buf[self._pos:self._pos + m])
+            self._pos += m
+        return out
+
+
+class FileInput(BufferedInput):
     """The plant's input generator (InputGenerator's next()) playing an InputSeries: the k-th
     call returns u at k ms."""
 
@@ -103,12 +134,7 @@ class FileInput:
         self._buf: list[float] = []
         self._pos = 0
 
-    def next(self) -> float:
-        if self._pos >= len(self._buf):
-            k = np.arange(self._k0, self._k0 + CHUNK)
-            self._buf = self.series.sample(k / self._fs).tolist()
-            self._k0 += CHUNK
-            self._pos = 0
-        u = self._buf[self._pos]
-        self._pos += 1
-        return u
+    def _refill(self) -> list[float]:
+        k = np.arange(self._k0, self._k0 + CHUNK)
+        self._k0 += CHUNK
+        return self.series.sample(k / self._fs).tolist()

@@ -28,6 +28,7 @@ from vecu.models.manifold import (
 )
 from vecu.models.sensors import TpsCalibration
 from vecu.plant.drive_profile import us06_like
+from vecu.plant.input_file import BufferedInput
 from vecu.plant.lateral import LateralSensors, simulate_lateral
 from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig, simulate_speed
@@ -38,7 +39,7 @@ from vecu.plant.manifold import (
     ManifoldPlantConfig,
     compiled_tables,
 )
-from vecu.plant.throttle import InputGenerator, ThrottlePlant, TicksAhead
+from vecu.plant.throttle import ThrottlePlant, TicksAhead
 from vecu.rng import rng_streams
 from vecu.units import DEG_PER_RAD, KELVIN_AT_0_DEGC, MG_PER_KG, MPS_PER_KMH
 
@@ -68,7 +69,7 @@ class ThrottlePart:
     name = "throttle"
     period_ns = NS_PER_MS
 
-    def __init__(self, codec: DbcCodec, plant: ThrottlePlant, inputs: InputGenerator,
+    def __init__(self, codec: DbcCodec, plant: ThrottlePlant, inputs: BufferedInput,
                  injector: FaultInjector, calibration: TpsCalibration = TpsCalibration()) -> None:
         self.plant = plant
         self.inputs = inputs
@@ -98,12 +99,12 @@ class ThrottlePart:
         """The next TicksAhead.AHEAD ticks: their rows and the payloads of their frames, the
         TPS frames encoded as if each tick sends one with the TPS left as it is."""
         assert self._ahead is not None
-        nxt = self.inputs.next
-        self._us = us = [nxt() for _ in range(TicksAhead.AHEAD)]
-        self._rows = rows = self._ahead.fill(us)
+        self._us = us = self.inputs.take(TicksAhead.AHEAD)
+        block = self._ahead.fill(us)
+        self._rows = block.tolist()
         self._k = 0
-        n = len(rows)
-        cols = np.array(rows).T
+        n = len(block)
+        cols = block.T
         v = np.where(cols[2] < TPS_V_MIN, TPS_V_MIN, np.minimum(cols[2], TPS_V_MAX))
         self._counter_ahead = c0 = self._counter
         tps = self._tps.encode_rows(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage"), (

@@ -14,6 +14,7 @@ from scipy import signal
 
 from vecu.models.sensors import TpsCalibration
 from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel, clip_theta, step_mean
+from vecu.plant.input_file import BufferedInput
 from vecu.rng import rng_streams
 
 INPUT_CHUNK = 1000  # input samples generated at a time
@@ -123,21 +124,16 @@ def input_blocks(config: InputConfig, rng: np.random.Generator) -> Iterator[list
             yield np.clip(filtered, 0.0, config.u_max_v).tolist()
 
 
-class InputGenerator:
-    """Sample-by-sample view of input_blocks()."""
+class InputGenerator(BufferedInput):
+    """Sample-by-sample (or many at a time) view of input_blocks()."""
 
     def __init__(self, config: InputConfig, rng: np.random.Generator) -> None:
         self._blocks = input_blocks(config, rng)
         self._buf: list[float] = []
         self._pos = 0
 
-    def next(self) -> float:
-        if self._pos >= len(self._buf):
-            self._buf = next(self._blocks)
-            self._pos = 0
-        u = self._buf[self._pos]
-        self._pos += 1
-        return u
+    def _refill(self) -> list[float]:
+        return next(self._blocks)
 
 
 @dataclass(frozen=True)
@@ -193,19 +189,18 @@ class TicksAhead:
         self._pos = plant._pos
         self._out = np.empty((self.AHEAD, 3))
 
-    def fill(self, u: list[float]) -> list[list[float]]:
-        """Rows (theta, y, TPS voltage) of the next len(u) ticks with inputs u."""
+    def fill(self, u: list[float]) -> np.ndarray:
+        """(len(u), 3) rows (theta, y, TPS voltage) of the next len(u) <= AHEAD ticks with
+        inputs u (a view, valid until the next fill)."""
         from vecu.plant.throttle_kernel import advance_ticks
 
         ua = np.array(u, dtype=np.float64)
         done = 0
-        rows: list[list[float]] = []
         while done < len(ua):
             if self._pos >= len(self._noise):
                 self._noise = self._plant._rng.standard_normal((self._plant.config.block, 4))
                 self._pos = 0
             k, self._pos = advance_ticks.compiled(self.state, ua[done:], self._noise, self._pos,
-                                                  self._modes, self._cst, self._out)
-            rows.extend(self._out[:k].tolist())
+                                                  self._modes, self._cst, self._out[done:])
             done += k
-        return rows
+        return self._out[:done]
