@@ -22,6 +22,40 @@ LOW_SPEED_KMH = 5.0  # the paper's split: the wheel-speed sensor is useless belo
 SPEED_BURN_IN_NS = 500_000_000  # the filter starts at rest: skip its start-up, as vecu.eval.speed does
 
 
+class SeriesBuffer:
+    """A probe's per-tick series rows: appended as tuples, written into the preallocated
+    (columns x capacity) float array a chunk at a time (one numpy call per CHUNK rows instead
+    of one per tick); rows past the capacity are dropped."""
+
+    CHUNK = 1024
+
+    def __init__(self, columns: int, capacity: int) -> None:
+        self._array = np.full((columns, capacity), np.nan)
+        self._rows: list[tuple[float, ...]] = []
+        self._n = 0
+        self._room = capacity
+
+    def append(self, row: tuple[float, ...]) -> None:
+        if self._room:
+            self._room -= 1
+            rows = self._rows
+            rows.append(row)
+            if len(rows) == self.CHUNK:
+                self._flush()
+
+    def _flush(self) -> None:
+        rows = self._rows
+        if rows:
+            self._array[:, self._n:self._n + len(rows)] = np.array(rows, dtype=np.float64).T
+            self._n += len(rows)
+            rows.clear()
+
+    def view(self) -> np.ndarray:
+        """(columns, rows so far)"""
+        self._flush()
+        return self._array[:, :self._n]
+
+
 @dataclass(frozen=True)
 class ThrottleSeries:
     """Per-tick throttle signals (deg) for plots."""
@@ -70,7 +104,7 @@ class ThrottleProbe:
         self.est = {"before_kill": RunningStats(), "after_kill": RunningStats()}
         self.nan_outputs = 0
         self._k = 0
-        self._series = np.full((8, n_ticks), np.nan) if keep_series else None
+        self._series = SeriesBuffer(8, n_ticks) if keep_series else None
 
     def tick(self, t_ns: int) -> None:
         fn = self.fn
@@ -83,18 +117,17 @@ class ThrottleProbe:
         self.bc[phase].add(angle - truth)
         self.est[phase].add(est.theta_deg - truth)
         s = self._series
-        if s is not None and self._k < s.shape[1]:
-            k = self._k
+        if s is not None:
             v = self.part.tps_voltage
-            s[:, k] = (t_ns / NS_PER_S, truth,
-                       self.part.calibration.angle(v) if v is not None else np.nan, angle,
-                       est.theta_deg, est.theta_std_deg, fn.source, int(fn.status))
+            s.append((t_ns / NS_PER_S, truth,
+                      self.part.calibration.angle(v) if v is not None else np.nan, angle,
+                      est.theta_deg, est.theta_std_deg, fn.source, int(fn.status)))
         self._k += 1
 
     def series(self) -> ThrottleSeries | None:
         if self._series is None:
             return None
-        s = self._series[:, :self._k]
+        s = self._series.view()
         return ThrottleSeries(s[0], s[1], s[2], s[3], s[4], s[5], s[6].astype(int),
                               s[7].astype(int))
 
@@ -122,15 +155,15 @@ class SpeedProbe:
         self.a_raw = RunningStats()
         self._last_accel_raw = 0.0
         self._k = 0
-        self._series = np.full((6, n_samples), np.nan) if keep_series else None
+        self._series = SeriesBuffer(6, n_samples) if keep_series else None
 
     def tick(self, t_ns: int) -> None:
         part, kf = self.part, self.fn.kf
         v, a = part.v, part.a
         s = self._series
-        if s is not None and self._k < s.shape[1]:
-            s[:, self._k] = (t_ns / NS_PER_S, v / MPS_PER_KMH, part.wheel / MPS_PER_KMH, kf.speed_mps / MPS_PER_KMH, a,
-                             kf.accel_mps2)
+        if s is not None:
+            s.append((t_ns / NS_PER_S, v / MPS_PER_KMH, part.wheel / MPS_PER_KMH,
+                      kf.speed_mps / MPS_PER_KMH, a, kf.accel_mps2))
         self._k += 1
         if t_ns < SPEED_BURN_IN_NS:
             return
@@ -141,7 +174,7 @@ class SpeedProbe:
         self.a_raw.add(part.accel - a)
 
     def series(self) -> SpeedSeries | None:
-        return None if self._series is None else SpeedSeries(*self._series[:, :self._k])
+        return None if self._series is None else SpeedSeries(*self._series.view())
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"burn_in_s": SPEED_BURN_IN_NS / NS_PER_S}
@@ -172,7 +205,7 @@ class SteeringProbe:
         self.beta_smoothed = RunningStats()
         self._truth: deque[tuple[float, float]] = deque(maxlen=1000)
         self._k = 0
-        self._series = np.full((6, n_samples), np.nan) if keep_series else None
+        self._series = SeriesBuffer(6, n_samples) if keep_series else None
 
     def tick(self, t_ns: int) -> None:
         part, fn = self.part, self.fn
@@ -191,16 +224,16 @@ class SteeringProbe:
                 self.smoothed.add(swa_s - swa_then)
                 self.beta_smoothed.add(beta_s - beta_then)
         s = self._series
-        if s is not None and self._k < s.shape[1]:
+        if s is not None:
             v = part.swa_sensor
-            s[:, self._k] = (t_ns / NS_PER_S, swa, np.nan if v is None else v, fn.angle,
-                             ukf.swa_rad * 180.0 / math.pi, fn.source)
+            s.append((t_ns / NS_PER_S, swa, np.nan if v is None else v, fn.angle,
+                      ukf.swa_rad * 180.0 / math.pi, fn.source))
         self._k += 1
 
     def series(self) -> SteeringSeries | None:
         if self._series is None:
             return None
-        s = self._series[:, :self._k]
+        s = self._series.view()
         return SteeringSeries(s[0], s[1], s[2], s[3], s[4], s[5].astype(int))
 
     def summary(self) -> dict[str, Any]:
