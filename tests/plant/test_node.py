@@ -121,6 +121,7 @@ def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
     from vecu.faults import FaultInjector
     from vecu.kernels import using
     from vecu.plant.node import ThrottlePart
+    from vecu.models.sensors import TpsCalibration
     from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig
     from vecu.rng import rng_streams
 
@@ -130,8 +131,10 @@ def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
         rngs = rng_streams(5, ("i", "p", "f"))
         inj = FaultInjector(rngs["f"])
         with using(backend):
+            # the paper's 0-5 V law: the noisy voltage leaves 0..5 V at the stops (clamped)
             part = ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
-                                InputGenerator(InputConfig(), rngs["i"]), inj)
+                                InputGenerator(InputConfig(), rngs["i"]), inj,
+                                TpsCalibration(v_at_0=0.0, v_at_90=5.0))
             assert (part._ahead is not None) == (backend == "numba")
             part.truth_msg = codec["TRUTH_Throttle"]
             sent: list[tuple[float, int, bytes]] = []
@@ -150,4 +153,5 @@ def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
                 seen.append((part.theta, part.u, part.tps_voltage))
         runs.append((sent, seen))
     assert len(runs[0][0]) > 7000
+    assert any(v == 0.0 for _, _, v in runs[1][1])  # a clamped voltage was among them
     assert runs[0] == runs[1]

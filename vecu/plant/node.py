@@ -138,10 +138,10 @@ class ThrottlePart:
         if v is not None:
             data = (self._tps_ahead[k] if 0 <= k < len(self._tps_ahead) and v is v_sensor
                     and self._counter == (self._counter_ahead + k) & 0xF else None)
-            if data is not None:
+            v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
+            if data is not None:  # encoded from the same clamped voltage
                 send(message(ts, self._tps.frame_id, self._tps.is_extended, data, self._tps.is_fd))
             else:
-                v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
                 send(self._tps_frame(ts, 0, self._counter, v))
             self._counter = (self._counter + 1) & 0xF
         data = self._watt_ahead[k] if 0 <= k < len(self._watt_ahead) else None
