@@ -209,7 +209,7 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     cap = int(profile.duration_s / sample_time(float(prof_n.max()), params.n_cyl)) + 2
     block = config.block
     noise = rng.standard_normal((-(-cap // block) * block, 7))  # as ManifoldPlant._row draws
-    pc = plant_constants(params, config, profile)
+    pc = plant_constants(params, config, profile.duration_s, profile.dt_s)  # type: ignore[attr-defined]
     rows = np.empty((cap, 8))
     xs = np.empty((cap, 6))
     ys = np.empty((cap, 3))
@@ -225,20 +225,53 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     )
 
 
+_kernels_checked = False
+
+
 def compiled_tables(params: ManifoldParams) -> tuple | None:
     """The event integrator's float64 tables for the compiled kernels (its one signature
-    prepared), or None when they do not take this parameter set."""
+    prepared), or None when they do not take this parameter set. The first call in a process
+    also checks that the integrator linked into the plant's cached kernels is the current one
+    (numba's cache does not notice manifold_integrator.py changing, as vecu.estimators.manifold
+    .kernels explains) and rebuilds them from source when it is not."""
+    global _kernels_checked
     from vecu.models import manifold_integrator as mi
+    from vecu.plant import manifold_kernel as mk
 
     tables = mi._tables(params)[2]
-    if tables is not None and not mi._numba_sig_ready:
+    if tables is None:
+        return None
+    if not mi._numba_sig_ready:
         mi._prepare_numba()
+    if not _kernels_checked:
+        if not _linked_integrator_is_current(params, tables):
+            for k in (mk.advance_events, mk.simulate_events, mk.plant_step, mk.profile_at):
+                k.discard_compiled()
+            if not _linked_integrator_is_current(params, tables):
+                raise RuntimeError("compiled manifold plant disagrees with the integrator kernel")
+        _kernels_checked = True
     return tables
 
 
-def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig,
-                    profile: Profile) -> np.ndarray:
-    """manifold_kernel's plant constants vector (pc) for a DriveProfile."""
+def _linked_integrator_is_current(params: ManifoldParams, tables: tuple) -> bool:
+    """One event through manifold_kernel.plant_step (what advance_events and simulate_events
+    run) against the stand-alone compiled integrator."""
+    from vecu.models import manifold_integrator as mi
+    from vecu.plant.manifold_kernel import plant_step
+
+    n, ts = 2345.0, 120.0 / (params.n_cyl * 2345.0)
+    st = np.array([0.35, 0.3, 0.29, 61.0, 321.0, 318.0])
+    plant_step.compiled(st, 0.35, n, ts, np.zeros(7),
+                        plant_constants(params, ManifoldPlantConfig(), 1.0, 1.0), *tables)
+    ref = mi._integrate_event.compiled(61.0, 321.0, 0.3, params.p_a_kpa, params.t_a_k,
+                                       params.t_cool_k, n, ts, *tables)
+    return (float(st[3]), float(st[4])) == (ref[0], ref[1])
+
+
+def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duration_s: float,
+                    dt_s: float) -> np.ndarray:
+    """manifold_kernel's plant constants vector (pc) for a DriveProfile of that duration and
+    grid."""
     from vecu.plant.manifold_kernel import N_PLANT_CONSTS
 
     s = config.noise_scale
@@ -247,8 +280,8 @@ def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig,
     pc = np.array([params.zeta, params.omega0, params.tau_temp_s, params.v_cyl_dm3,
                    float(params.n_cyl), params.p_a_kpa, params.t_a_k, params.t_cool_k,
                    *(s * math.sqrt(q[i]) for i in (1, 3, 4, 5)), *(s * math.sqrt(v) for v in r),
-                   g[0], g[1], g[2], P_MIN_KPA, P_MAX_KPA, T_MIN_K, T_MAX_K, profile.duration_s,
-                   profile.dt_s], dtype=np.float64)
+                   g[0], g[1], g[2], P_MIN_KPA, P_MAX_KPA, T_MIN_K, T_MAX_K, duration_s, dt_s],
+                  dtype=np.float64)
     assert len(pc) == N_PLANT_CONSTS
     return pc
 
@@ -288,7 +321,8 @@ class EventsAhead:
     def start_profile(self, profile: Profile) -> None:
         self._prof = (np.ascontiguousarray(profile.n_rpm, dtype=np.float64),  # type: ignore[attr-defined]
                       np.ascontiguousarray(profile.ta_sp, dtype=np.float64),  # type: ignore[attr-defined]
-                      plant_constants(self.params, self.config, profile))
+                      plant_constants(self.params, self.config, profile.duration_s,
+                                      profile.dt_s))  # type: ignore[attr-defined]
 
     def fill(self, t_ns: int, t0_ns: int) -> int:
         """Compute the events from t_ns (the profile started at t0_ns) into times / out; returns
