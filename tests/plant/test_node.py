@@ -155,3 +155,25 @@ def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
     assert len(runs[0][0]) > 7000
     assert any(v == 0.0 for _, _, v in runs[1][1])  # a clamped voltage was among them
     assert runs[0] == runs[1]
+
+
+def test_longitudinal_frames_encoded_per_manoeuvre_are_the_framers():
+    """LongitudinalPart encodes a whole manoeuvre's ESC_Motion payloads at once: each frame it
+    sends is the framer's for that tick's sensor values, into the next manoeuvre too."""
+    from vecu.codec import shared_codec
+    from vecu.plant.node import LongitudinalPart
+    from vecu.units import MPS_PER_KMH
+
+    codec = shared_codec()
+    part = LongitudinalPart(codec, 3, ("paper", "launch_brake"))
+    first = len(part._cols[0])
+    assert all(p is not None for p in part._payloads)  # all encoded in the block
+    make = codec["ESC_Motion"].framer(("ESC_WheelSpeed", "ESC_LongAccel"))
+    sent = []
+    for k in range(first + 300):
+        part.tick(2 * k * NS_PER_MS, lambda m: sent.append(m) or True)
+        want = make(sent[-1].timestamp, part.wheel / MPS_PER_KMH, part.accel)
+        assert bytes(sent[-1].data) == bytes(want.data), k
+        assert (sent[-1].arbitration_id, sent[-1].dlc, sent[-1].is_extended_id) == (
+            want.arbitration_id, want.dlc, want.is_extended_id)
+    assert part._index == 2 and len({bytes(m.data) for m in sent}) > first // 2

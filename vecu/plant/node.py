@@ -206,6 +206,11 @@ class LongitudinalPart:
         self._k = 0
         self._cols = (trace.v.tolist(), trace.a.tolist(), trace.wheel.tolist(),
                       trace.accel.tolist())
+        # the whole manoeuvre's ESC_Motion payloads at once (FrameCodec.encode_rows: the
+        # framer's payloads); rows it leaves (none for finite sensors) go to the framer
+        encoded = self._msg.encode_rows(("ESC_WheelSpeed", "ESC_LongAccel"),
+                                        (trace.wheel / MPS_PER_KMH, trace.accel))
+        self._payloads = _payload_list(encoded, len(trace.v))
         return trace
 
     def tick(self, t_ns: int, send: Send) -> None:
@@ -213,10 +218,15 @@ class LongitudinalPart:
             self._trace = self._next_trace()
         k = self._k
         self._k += 1
-        v, a, wheel, accel = (col[k] for col in self._cols)
+        cols = self._cols
+        v, a, wheel, accel = cols[0][k], cols[1][k], cols[2][k], cols[3][k]
         self.v, self.a, self.wheel, self.accel = v, a, wheel, accel
         ts = t_ns / NS_PER_S
-        send(self._frame(ts, wheel / MPS_PER_KMH, accel))
+        data = self._payloads[k]
+        if data is not None:
+            send(message(ts, self._msg.frame_id, self._msg.is_extended, data, self._msg.is_fd))
+        else:
+            send(self._frame(ts, wheel / MPS_PER_KMH, accel))
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_VehSpeed": v / MPS_PER_KMH, "TRU_VehAccel": a}, ts))
 
