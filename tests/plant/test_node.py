@@ -120,9 +120,14 @@ def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
     from vecu.codec import shared_codec
     from vecu.faults import FaultInjector
     from vecu.kernels import using
-    from vecu.plant.node import ThrottlePart
     from vecu.models.sensors import TpsCalibration
-    from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig
+    from vecu.plant.node import ThrottlePart
+    from vecu.plant.throttle import (
+        InputConfig,
+        InputGenerator,
+        ThrottlePlant,
+        ThrottlePlantConfig,
+    )
     from vecu.rng import rng_streams
 
     codec = shared_codec()
