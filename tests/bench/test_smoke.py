@@ -38,8 +38,8 @@ EXPECTED = {
     "kernels": [rf"(x real time vs {NUM}x|Compiled kernels: skipped)"],
     "replay": [rf"drive\.blf\s+\d+ frames\s+{NUM}x real time",
                r"drive\.log .* targets >= 40x and >= 50%: (met|not met)",
-               rf"ceiling: reading \({NUM} us per ms of trace\) plus the throttle estimator alone "
-               rf"\({NUM} us/tick\) allow at most {NUM}x",
+               (rf"ceiling: reading \({NUM} us per ms of trace\) plus the throttle estimator alone "
+                rf"\({NUM} us/tick\) allow at most {NUM}x"),
                rf"vecu replay\s+schedule error p50 {NUM} us"],
     "live": [rf"baseline: bare 1 ms WallClock loop, tick jitter p50 {NUM}",
              r"throughput, virtual bus, one process: offered \d+ frames/s",
