@@ -80,6 +80,44 @@ def test_discard_compiled_recompiles(fresh_backend, monkeypatch):
     assert _weighted_sum(10, 1.0) == 45.0
 
 
+@pytest.mark.parametrize("stale_after_rebuild", [False, True])
+def test_rebuild_if_stale_drops_and_rebuilds_only_what_disagrees(fresh_backend, monkeypatch,
+                                                                  stale_after_rebuild):
+    pytest.importorskip("numba")
+    monkeypatch.setenv(kernels.ENV_VAR, "numba")
+    calls: list[str] = []
+    kernels.rebuild_if_stale((_weighted_sum,), lambda: calls.append("check") or True,
+                             lambda: calls.append("rebuild"), "sums")
+    assert calls == ["check"]  # current: nothing dropped, nothing rebuilt
+    first = _weighted_sum.compiled
+    verdicts = iter([False, not stale_after_rebuild])
+
+    def current() -> bool:
+        calls.append("check")
+        return next(verdicts)
+
+    def rebuild() -> None:
+        calls.append("rebuild")
+        _weighted_sum.fix_signature((numba_types().int64, numba_types().float64))
+
+    calls.clear()
+    if stale_after_rebuild:
+        with pytest.raises(RuntimeError, match="compiled sums disagree"):
+            kernels.rebuild_if_stale((_weighted_sum,), current, rebuild, "sums")
+    else:
+        kernels.rebuild_if_stale((_weighted_sum,), current, rebuild, "sums")
+    assert calls == ["check", "rebuild", "check"]
+    assert _weighted_sum.compiled is not first  # dropped, then built again
+    assert _weighted_sum(10, 1.0) == 45.0
+    _weighted_sum.discard_compiled()  # leave a dispatcher that may compile for other tests
+
+
+def numba_types():
+    from numba import types
+
+    return types
+
+
 def test_cold_cache_is_announced_once_per_install(fresh_backend, monkeypatch, tmp_path):
     """A fresh checkout (no numba cache file next to the sources) gets a one-line notice."""
     pytest.importorskip("numba")

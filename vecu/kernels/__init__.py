@@ -29,7 +29,7 @@ only do scalar IEEE arithmetic and libm calls the outputs are bit-identical (tes
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -182,12 +182,37 @@ class Kernel:
                 cache.flush()
         self._compiled = None
 
+    def fix_signature(self, signature: tuple) -> None:
+        """Compile (or load from numba's cache) this one signature now and switch further
+        compilation off: an int or numpy-scalar argument then converts to it instead of
+        compiling a new specialisation in the middle of a run."""
+        disp = self.compiled
+        disp.compile(signature)
+        disp.disable_compile()
+
     def impl(self) -> Callable[..., Any]:
         """The function for the active backend (hot callers fetch it once per call site)."""
         return self.compiled if backend() == "numba" else self.py
 
     def __call__(self, *args: Any) -> Any:
         return self.impl()(*args)
+
+
+def rebuild_if_stale(kernels: Sequence[Kernel], current: Callable[[], bool],
+                     compile_again: Callable[[], None], what: str) -> None:
+    """numba links the kernels a kernel calls into its cache entry and does not see them
+    change; vecu's file-time check (_drop_stale_cache) misses an entry written by a process that
+    had loaded the old source before the file changed. `current()` compares a sample call of
+    the cached kernels with their parts called one by one; when it fails, the kernels are
+    dropped (their disk cache too), `compile_again()` builds them from the sources, and
+    current() must then hold (RuntimeError otherwise: a real disagreement, a bug)."""
+    if current():
+        return
+    for k in kernels:
+        k.discard_compiled()
+    compile_again()
+    if not current():
+        raise RuntimeError(f"compiled {what} disagree with the kernels they call")
 
 
 def _called_files(fn: Callable[..., Any]) -> set[str]:

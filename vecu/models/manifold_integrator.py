@@ -142,10 +142,8 @@ def _prepare_numba() -> None:
     from numba import types
 
     f8 = types.float64
-    dispatcher = _integrate_event.compiled
-    dispatcher.compile((f8,) * 8 + (types.UniTuple(f8, N_CONSTS), f8[::1], f8[:, ::1],
-                                    f8[::1], f8[::1], f8[::1]))
-    dispatcher.disable_compile()
+    _integrate_event.fix_signature((f8,) * 8 + (types.UniTuple(f8, N_CONSTS), f8[::1],
+                                    f8[:, ::1], f8[::1], f8[::1], f8[::1]))
     _numba_sig_ready = True
 
 

@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from vecu.kernels import rebuild_if_stale
 from vecu.models.manifold import (
     actuator_coeffs,
     cylinder_air_charge,
@@ -244,11 +245,9 @@ def compiled_tables(params: ManifoldParams) -> tuple | None:
     if not mi._numba_sig_ready:
         mi._prepare_numba()
     if not _kernels_checked:
-        if not _linked_integrator_is_current(params, tables):
-            for k in (mk.advance_events, mk.simulate_events, mk.plant_step, mk.profile_at):
-                k.discard_compiled()
-            if not _linked_integrator_is_current(params, tables):
-                raise RuntimeError("compiled manifold plant disagrees with the integrator kernel")
+        rebuild_if_stale((mk.advance_events, mk.simulate_events, mk.plant_step, mk.profile_at),
+                         lambda: _linked_integrator_is_current(params, tables),
+                         lambda: None, "manifold plant kernels")  # they compile on first call
         _kernels_checked = True
     return tables
 

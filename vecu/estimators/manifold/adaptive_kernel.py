@@ -174,12 +174,7 @@ def prepare() -> None:
     if _ready:
         return
     K.prepare()
-    from numba import types
-
-    f8, i8 = types.float64, types.int64
-    v, m = f8[::1], f8[:, ::1]
-    tables = (v, v, m, v, v, v)
-    disp = adaptive_event.compiled
-    disp.compile((v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v, v) + tables)
-    disp.disable_compile()
+    _, f8, i8, v, m, tables = K.signature_types()
+    adaptive_event.fix_signature((v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
+                                 + (v, m, v, v) + tables)
     _ready = True

@@ -31,7 +31,7 @@ from vecu.estimators.manifold.kernels import (
     predict_events,
     sdkf_event,
 )
-from vecu.kernels import kernel
+from vecu.kernels import kernel, rebuild_if_stale
 
 NOT_TAKEN = 32  # the event is not the usual one: make the separate calls
 KIND_SDKF, KIND_EKF = 0, 1
@@ -108,20 +108,11 @@ def prepare(kc: np.ndarray) -> None:
     if _ready:
         return
     K.prepare()
-    from numba import types
-
-    f8, i8 = types.float64, types.int64
-    v, m = f8[::1], f8[:, ::1]
+    types, f8, i8, v, m, _ = K.signature_types()
     sig = (i8, v, m, m, m, f8[:, :, ::1], v) + (f8,) * 8 + (i8,) * 3 + (types.boolean, i8)
-    for attempt in range(2):
-        disp = ecu_event.compiled
-        disp.compile(sig)
-        disp.disable_compile()
-        if _agrees_with_its_parts(kc):
-            break
-        if attempt:
-            raise RuntimeError("compiled ecu_event disagrees with the kernels it calls")
-        ecu_event.discard_compiled()  # a cache entry linked to older kernels: rebuild it
+    ecu_event.fix_signature(sig)
+    rebuild_if_stale((ecu_event,), lambda: _agrees_with_its_parts(kc),
+                     lambda: ecu_event.fix_signature(sig), "ecu_event")
     _ready = True
 
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
-from vecu.kernels import kernel
+from vecu.kernels import kernel, rebuild_if_stale
 from vecu.models import manifold_integrator as mi
 from vecu.models.manifold_kernels import eta_value, interp_value, throttle_flow_value
 
@@ -319,30 +319,30 @@ def prepare() -> None:
         mi._prepare_numba()
     _jit_helpers()
     _compile_signatures()
-    if not _linked_integrator_is_current():
-        for k in (sdkf_event, predict_events, ekf_event):
-            k.discard_compiled()  # a fresh dispatcher compiles from the current sources
-        _compile_signatures()
-        if not _linked_integrator_is_current():
-            raise RuntimeError("compiled manifold kernels disagree with the integrator kernel")
+    rebuild_if_stale((sdkf_event, predict_events, ekf_event), _linked_integrator_is_current,
+                     _compile_signatures, "manifold filter kernels")
     _ready = True
 
 
-def _compile_signatures() -> None:
+def signature_types() -> tuple[Any, Any, Any, Any, Any, tuple]:
+    """numba's (types, float64, int64, contiguous vector, contiguous matrix, the integrator's
+    tables: c, cd_alpha, cd_table, prs, eta_rpm, eta_val) for the kernels' one signatures."""
     from numba import types
 
     f8, i8 = types.float64, types.int64
     v, m = f8[::1], f8[:, ::1]
-    tables = (v, v, m, v, v, v)  # c, cd_alpha, cd_table, prs, eta_rpm, eta_val
+    return types, f8, i8, v, m, (v, v, m, v, v, v)
+
+
+def _compile_signatures() -> None:
+    types, f8, i8, v, m, tables = signature_types()
     for k, sig in (
         (sdkf_event, (v, m, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
          + (types.boolean, v, m) + tables),
         (predict_events, (v, m, i8, v, v) + tables),
         (ekf_event, (v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v) + tables),
     ):
-        disp = k.compiled
-        disp.compile(sig)
-        disp.disable_compile()
+        k.fix_signature(sig)
 
 
 def numba_tables(params: Any) -> tuple | None:
