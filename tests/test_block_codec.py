@@ -11,7 +11,7 @@ import struct
 
 import pytest
 
-from tests.dbc_sets import every_codec
+from tests.dbc_sets import every_message
 from vecu.codec import DbcCodec, builtin_dbc_path
 from vecu.e2e import e2e_crc
 
@@ -40,26 +40,24 @@ def _payloads(fc, rng: random.Random) -> list[bytes]:
 
 @pytest.mark.parametrize("with_thirdparty", [False, True])
 def test_block_check_is_the_per_frame_checks_bit_for_bit(with_thirdparty, request):
-    tp = request.getfixturevalue("thirdparty") if with_thirdparty else None
     rng = random.Random(16)
     blocks = 0
-    for db in every_codec(tp):
-        for fc in db.by_id.values():
-            if fc.block is None:
-                continue
-            blocks += 1
-            payloads = _payloads(fc, rng)
-            got = fc.check_block(payloads)
-            assert len(got) == len(payloads)
-            for k, data in enumerate(payloads):
-                ok, values, bad = got[k]
-                want = fc.decode(data)
-                assert ok == fc.crc_ok(data), (fc.name, data.hex())
-                assert list(values) == list(want), fc.name
-                assert all(_same(values[k], want[k]) for k in want), (fc.name, data.hex(),
-                                                                      values, want)
-                assert bad == fc.bad_values(want), (fc.name, data.hex())
-    assert blocks >= (20 if tp is None else 200)
+    for fc in every_message(request, with_thirdparty):
+        if fc.block is None:
+            continue
+        blocks += 1
+        payloads = _payloads(fc, rng)
+        got = fc.check_block(payloads)
+        assert len(got) == len(payloads)
+        for k, data in enumerate(payloads):
+            ok, values, bad = got[k]
+            want = fc.decode(data)
+            assert ok == fc.crc_ok(data), (fc.name, data.hex())
+            assert list(values) == list(want), fc.name
+            assert all(_same(values[k], want[k]) for k in want), (fc.name, data.hex(),
+                                                                  values, want)
+            assert bad == fc.bad_values(want), (fc.name, data.hex())
+    assert blocks >= (20 if not with_thirdparty else 200)
 
 
 def test_every_message_of_vecus_dbcs_has_a_block_layout_and_a_restricted_codec_checks_less():
@@ -93,25 +91,23 @@ def _values_to_encode(fc, payloads, rng: random.Random) -> list[list[float]]:
 def test_block_encode_gives_the_framers_payloads(with_thirdparty, request):
     """encode_rows: every row it encodes is the payload FrameCodec.framer's make() sends (the
     E2E CRC included); the rows it leaves go to make()."""
-    tp = request.getfixturevalue("thirdparty") if with_thirdparty else None
     rng = random.Random(17)
     encoded = refused = 0
-    for db in every_codec(tp):
-        for fc in db.by_id.values():
-            names = tuple(s.name for s in fc.signals)
-            if fc.block is None or not names:
+    for fc in every_message(request, with_thirdparty):
+        names = tuple(s.name for s in fc.signals)
+        if fc.block is None or not names:
+            continue
+        cols = _values_to_encode(fc, _payloads(fc, rng), rng)
+        got = fc.encode_rows(names, cols)
+        if got is None:
+            continue
+        payloads, left = got
+        make = fc.framer(names)
+        for k in range(len(cols[0])):
+            if left[k]:
+                refused += 1
                 continue
-            cols = _values_to_encode(fc, _payloads(fc, rng), rng)
-            got = fc.encode_rows(names, cols)
-            if got is None:
-                continue
-            payloads, left = got
-            make = fc.framer(names)
-            for k in range(len(cols[0])):
-                if left[k]:
-                    refused += 1
-                    continue
-                want = make(0.0, *(c[k] for c in cols))
-                assert payloads[k].tobytes() == bytes(want.data), (fc.name, k)
-                encoded += 1
-    assert encoded > (5000 if tp is None else 50_000) and refused > 0
+            want = make(0.0, *(c[k] for c in cols))
+            assert payloads[k].tobytes() == bytes(want.data), (fc.name, k)
+            encoded += 1
+    assert encoded > (5000 if not with_thirdparty else 50_000) and refused > 0
