@@ -304,3 +304,42 @@ def test_communication_control_stops_and_resumes_every_broadcast(sim):
     sim.step(10)
     assert sim.ecu.frames_sent > tx + 10
     assert TICK_NS == NS_PER_MS
+
+
+@pytest.mark.parametrize("request_hex,want", [
+    ("22" + "F190" * 16, "62" + ("F190" + "1VECU00SIM0000001".encode().hex()) * 16),  # 33 bytes
+    ("22" + "00" * 999, "7F2213"),    # odd DID bytes
+    ("22" + "F190" * 2047, "7F2213"),  # 4095 bytes: more DIDs than max_dids_per_request
+])
+def test_a_long_request_sent_as_fast_as_flow_control_allows_is_taken_whole(request_hex, want):
+    """A tester whose ISO-TP sends every consecutive frame the ECU's flow control allows in the
+    same tick (can-isotp with STmin 0): with BS 0 ("send everything") a 4095-byte request
+    overran the ECU's inbox and got no answer at all; with a block size it is taken whole."""
+    run = quick()
+    try:
+        run.run_to(0.02)
+        bus = run.bus()
+        tester = Endpoint(0x7E8, 0x7E0, lambda: run.t_ns)
+        tester.send(bytes.fromhex(request_hex))
+        answers: list[bytes] = []
+        flow_controls: list[bytes] = []
+        for _ in range(400):
+            while (msg := bus.recv(0.0)) is not None:
+                if msg.arbitration_id == 0x7E8:
+                    if msg.data[0] >> 4 == 3:
+                        flow_controls.append(bytes(msg.data[:3]))
+                    tester.put(msg)
+            tester.process()
+            while tester.out:
+                bus.send(to_can(tester.out.popleft()))
+            answers += tester.payloads()
+            if answers:
+                break
+            run.step()
+        assert answers == [bytes.fromhex(want)]
+        assert run.uds.stats.frames_dropped == 0 and run.uds.stats.transport_errors == 0
+        # FC CTS, BS 16, STmin 0: one per block of the request
+        cfs = -(-(len(request_hex) // 2 - 6) // 7)
+        assert flow_controls == [bytes([0x30, 16, 0])] * -(-cfs // 16)
+    finally:
+        run.close()

@@ -86,6 +86,11 @@ class UdsStats:
     latency_max_ms: float = 0.0  # request complete -> response queued (ticks waited)
 
 
+def flow_control_block_size(config: UdsConfig) -> int:
+    """The BS of the ECU's flow control: half the frames it takes in per tick."""
+    return max(1, config.frames_per_tick // 2)
+
+
 class UdsServer:
     """The diagnostic server of `node` (attach with node.attach(server))."""
 
@@ -94,9 +99,15 @@ class UdsServer:
         self.cfg = config
         self._now = 0
         now = self._now_ns
-        self.phys = Endpoint(config.request_id, config.response_id, now, errors=self._tp_error)
+        # flow control the ECU can absorb: a sender that obeys it sends at most block_size
+        # consecutive frames before the next FC, which the ECU gives once it has taken them in
+        # (frames_per_tick per tick from an inbox of 4x that), so no frame of a long request is
+        # ever dropped (a BS of 0, "send everything", overran the inbox above ~900 bytes)
+        fc = {"blocksize": flow_control_block_size(config)}
+        self.phys = Endpoint(config.request_id, config.response_id, now, errors=self._tp_error,
+                             params=fc)
         self.func = Endpoint(config.functional_id, config.response_id, now,
-                             errors=self._tp_error)
+                             errors=self._tp_error, params=fc)
         self.ids = frozenset({(config.request_id, False), (config.functional_id, False),
                               (config.response_id, False)})
         self._inbox: deque[can.Message] = deque()

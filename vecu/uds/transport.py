@@ -90,13 +90,14 @@ class Endpoint:
     receives). Frames it produces wait in a queue until drain() hands them to the bus."""
 
     def __init__(self, rx_id: int, tx_id: int, now_ns: NowNs, extended: bool = False,
-                 errors: Callable[[Exception], None] | None = None) -> None:
+                 errors: Callable[[Exception], None] | None = None,
+                 params: dict[str, Any] | None = None) -> None:
         mode = isotp.AddressingMode.Normal_29bits if extended else isotp.AddressingMode.Normal_11bits
         self._in: deque[isotp.CanMessage] = deque()
         self.out: deque[isotp.CanMessage] = deque()
         self.layer = ClockedTransport(self._rx, self.out.append,
                                       isotp.Address(mode, rxid=rx_id, txid=tx_id), now_ns,
-                                      error_handler=errors)
+                                      params=params, error_handler=errors)
 
     def _rx(self, timeout: float) -> isotp.CanMessage | None:
         return self._in.popleft() if self._in else None
