@@ -18,7 +18,7 @@ import queue
 import socket
 import struct
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import can
@@ -183,10 +183,32 @@ class FastUdpMulticastBus(UdpMulticastBus):
             return msg
 
 
+CANFD_MTU = 72  # struct canfd_frame: a SocketCAN interface with this MTU carries CAN FD
+
+
+def socketcan_mtu(channel: Any) -> int | None:
+    """The MTU of a SocketCAN interface (16: classic CAN, 72: CAN FD), None if unknown."""
+    try:
+        with open(f"/sys/class/net/{channel}/mtu", encoding="ascii") as f:
+            return int(f.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def receive_filters(keys: Iterable[Key]) -> list[dict[str, Any]]:
+    """python-can filters (kernel filters on SocketCAN) passing exactly these (ID, extended)."""
+    return [{"can_id": i, "can_mask": 0x1FFFFFFF if ext else 0x7FF, "extended": ext}
+            for i, ext in sorted(keys)]
+
+
 def open_bus(interface: str | None = None, channel: Any = None,
              config_file: str | None = None, **kwargs: Any) -> can.BusABC:
-    """Open a python-can bus; errors become one clear BusOpenError line."""
+    """Open a python-can bus; errors become one clear BusOpenError line. A SocketCAN interface
+    whose MTU allows CAN FD is opened with fd=True (unless the configuration says otherwise), so
+    FD frames on it reach vecu instead of being held back by the kernel."""
     cfg = resolve_bus_config(interface, channel, config_file, **kwargs)
+    if cfg["interface"] == "socketcan" and "fd" not in cfg:
+        cfg["fd"] = socketcan_mtu(cfg["channel"]) == CANFD_MTU
     try:
         args = {k: v for k, v in cfg.items() if k != "interface"}
         if cfg["interface"] == "virtual":

@@ -5,8 +5,6 @@ security, a forced sensor value. Fails on the tree before vecu/uds (no answer on
 from __future__ import annotations
 
 import json
-import socket
-import subprocess
 import sys
 from pathlib import Path
 
@@ -15,26 +13,6 @@ import pytest
 from vecu.live.netns import namespace_prefix, run_in_namespace
 
 HERE = Path(__file__).resolve().parent
-
-
-def _vcan_available() -> bool:
-    if not hasattr(socket, "AF_CAN"):
-        return False
-    try:
-        with socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW) as s:
-            s.bind(("vcan0",))
-        return True
-    except OSError:
-        return False
-
-
-@pytest.mark.skipif(not _vcan_available(), reason="no SocketCAN vcan0 on this machine")
-def test_a_udsoncan_tester_diagnoses_the_live_ecu_on_socketcan_vcan(tmp_path):
-    """The same tester and checks on SocketCAN vcan0 where the kernel has it."""
-    res = subprocess.run([sys.executable, str(HERE / "uds_live_tester.py"), str(tmp_path),
-                          "socketcan", "vcan0"], capture_output=True, text=True, timeout=240,
-                         check=False)
-    _check(res, tmp_path)
 
 
 @pytest.mark.skipif(namespace_prefix()[0] is None, reason=namespace_prefix()[1] or "n/a")

@@ -79,6 +79,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms)
         uds = attach_uds(ecu, config.params.ecu.uds, args.seed)  # a tester's UDS (docs/uds.md)
+        proc.consume_only(ecu.consumed_ids)
         thr = fns.throttle
         accuracy = RunningStats()
         meter = proc.meter("ecu")

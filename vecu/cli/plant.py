@@ -60,6 +60,7 @@ def main(args: argparse.Namespace) -> int:
     summary: dict[str, Any] | None = None
     try:
         plant = build_plant(config, codec, proc.bus, truth=args.truth)
+        proc.consume_only(plant.consumed_ids)
         extra = ExtraLoad(codec, plant, args.extra_load) if args.extra_load else None
         meter = proc.meter("plant")
         node_tick = plant.tick

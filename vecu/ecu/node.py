@@ -207,6 +207,12 @@ class EcuNode(BusNode):
             over[signal] = value
 
     @property
+    def consumed_ids(self) -> frozenset[tuple[int, bool]]:
+        """The (CAN ID, extended) keys the ECU takes: its functions' inputs and, with a
+        diagnostic server attached, the server's request IDs."""
+        return frozenset(self._consumers) | self._diag_ids
+
+    @property
     def armed(self) -> list[EcuFunction]:
         """Functions that run (all, unless arm_on_input and no input has arrived yet)."""
         return list(self._armed)

@@ -44,6 +44,14 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
                         help="show the status panel on stderr (default: when it is a terminal)")
     status.add_argument("--no-status", dest="status", action="store_false",
                         help="never show the status panel")
+    p.add_argument("--rx-filter", action="store_true",
+                   help="receive only the CAN IDs this node consumes (kernel filters on SocketCAN: "
+                        "other traffic never reaches the process, and is not counted)")
+    p.add_argument("--rx-buffer-mb", type=argtypes.bounded(0.0625, 1024.0, unit="MiB"),
+                   default=4.0, metavar="MB",
+                   help="kernel receive buffer to ask for on socketcan / udp_multicast, in MiB: "
+                        "how long the node may stall without losing frames (default 4: ~4000 "
+                        "frames; above net.core.rmem_max needs CAP_NET_ADMIN)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -53,4 +61,6 @@ def live_options(args: argparse.Namespace, role: str) -> LiveOptions:
     return LiveOptions(role=role, duration_s=args.duration, interface=args.interface,
                        channel=args.channel, bitrate=args.bitrate, log_path=args.log,
                        summary_path=args.summary, ready_file=args.ready_file,
-                       spin_us=max(0, args.spin_us), status=args.status)
+                       spin_us=max(0, args.spin_us), status=args.status,
+                       rx_filter=args.rx_filter,
+                       rx_buffer_bytes=round(args.rx_buffer_mb * (1 << 20)))

@@ -1,12 +1,20 @@
 """The bus as one live node sees it: own echoes dropped and counted, receive errors counted,
 and (for the ECU) the time from a trigger frame's arrival to the send of the frame it produced.
 
-Some interfaces deliver a node's own frames back to it: udp_multicast always (every socket in
-the group gets every datagram, and python-can marks them as received: is_rx stays True), virtual
-and socketcan when receive_own_messages is set (those mark them is_rx=False). A live node drops
-every frame that is marked is_rx=False or carries a CAN ID that the DBC gives this node as sender,
-and counts it as `own_echo`. On a bus that does not echo, a non-zero own_echo therefore means
-another node sends one of this node's IDs: a bus configuration error worth looking at.
+What counts as the node's own frame depends on the interface (ECHO_RULES):
+- udp_multicast delivers every datagram to every socket of the group, the sender's own included,
+  and python-can marks them all as received (is_rx stays True): a frame carrying a CAN ID the DBC
+  gives this node as sender is its own echo.
+- socketcan loops a socket's own frames back only with `receive_own_messages` (never set here),
+  and python-can's is_rx there means "not originated on this host" (it reads MSG_DONTROUTE, which
+  the kernel sets for a frame sent by *any* local socket): a plant in another process looks like
+  is_rx=False. So nothing received on SocketCAN is this node's own, whatever is_rx says.
+- virtual and the hardware interfaces echo only with `receive_own_messages` and mark the echo
+  is_rx=False, which is trusted there.
+Own echoes are dropped and counted as `own_echo`. A frame with one of this node's IDs that is not
+its own (another sender: a second node with the same role, or a replay such as `canplayer` of a
+recording that holds this node's frames) is dropped too - this node consumes none of its own IDs
+- and counted apart as `foreign_own_id`: a set-up to look at, never an input error.
 """
 
 from __future__ import annotations
@@ -14,6 +22,8 @@ from __future__ import annotations
 import logging
 import os
 import socket
+import sys
+from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -29,11 +39,39 @@ Key = tuple[int, bool]
 
 # interfaces whose received frames carry the arrival time (kernel receive timestamp)
 ARRIVAL_TIMESTAMP_INTERFACES = frozenset({"udp_multicast", "socketcan"})
+# interfaces read from a kernel socket whose receive buffer bounds how long a stall can last
+# without losing frames (udp_multicast: ~256 datagrams by default; SocketCAN: ~200 frames)
+SOCKET_INTERFACES = frozenset({"udp_multicast", "socketcan"})
 
 
-def enlarge_receive_buffer(bus: can.BusABC, size: int = 4 << 20) -> int | None:
+@dataclass(frozen=True)
+class EchoRule:
+    """How an interface shows a node its own frames (see the module docstring)."""
+
+    own_ids_echo: bool  # every frame with one of the node's IDs is its own echo
+    is_rx_marks_echo: bool  # is_rx=False marks the node's own echo
+
+
+ECHO_RULES: dict[str, EchoRule] = {
+    "udp_multicast": EchoRule(own_ids_echo=True, is_rx_marks_echo=False),
+    "socketcan": EchoRule(own_ids_echo=False, is_rx_marks_echo=False),
+}
+DEFAULT_ECHO_RULE = EchoRule(own_ids_echo=False, is_rx_marks_echo=True)  # virtual, hardware
+
+
+def echo_rule(interface: str) -> EchoRule:
+    return ECHO_RULES.get(interface, DEFAULT_ECHO_RULE)
+
+
+# Linux's SO_RCVBUFFORCE (asm-generic/socket.h): Python's socket module does not export it
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
+DEFAULT_RCVBUF_BYTES = 4 << 20
+
+
+def enlarge_receive_buffer(bus: can.BusABC, size: int = DEFAULT_RCVBUF_BYTES) -> int | None:
     """Ask the kernel for a larger receive buffer on the bus's socket (udp_multicast queues only
-    about 256 datagrams by default: a 60 ms stall at 4k frames/s would lose frames). Tries
+    about 256 datagrams by default, a SocketCAN raw socket about 200 frames: a 60 ms stall at 4k
+    frames/s would lose frames). Tries
     SO_RCVBUFFORCE (needs CAP_NET_ADMIN), then SO_RCVBUF (capped by net.core.rmem_max); returns
     the size the kernel reports, or None for buses without a socket."""
     try:
@@ -47,7 +85,7 @@ def enlarge_receive_buffer(bus: can.BusABC, size: int = 4 << 20) -> int | None:
     except OSError:
         return None
     with sock:
-        for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        for opt in (SO_RCVBUFFORCE, socket.SO_RCVBUF):
             if opt is None:
                 continue
             try:
@@ -93,19 +131,25 @@ class LiveBus:
     raises; send() is python-can's. Counts frames per CAN ID in both directions."""
 
     def __init__(self, bus: can.BusABC, own_ids: set[Key], interface: str,
-                 latency: FrameLatency | None = None) -> None:
+                 latency: FrameLatency | None = None,
+                 rcvbuf_bytes: int = DEFAULT_RCVBUF_BYTES) -> None:
         self.bus = bus
         self.interface = interface
         self.own_ids = frozenset(own_ids)
         self.latency = latency
+        self.rule = echo_rule(interface)
         self._echo = 0
-        if hasattr(bus, "skip_keys"):  # FastUdpMulticastBus: drops them before decoding
+        self.foreign_own_id = 0  # frames with this node's IDs from another sender (dropped)
+        if self.rule.own_ids_echo and hasattr(bus, "skip_keys"):
+            # FastUdpMulticastBus: drops them before decoding
             bus.skip_keys = self.own_ids
         self.received = 0     # frames handed to the node
         self.rx_errors = 0    # frames the interface could not deliver (e.g. undecodable datagram)
+        self.error_frames = 0  # error frames (SocketCAN: CAN_ERR_FLAG), handed to the node
         self.rx_by_id: dict[Key, int] = {}
         self.tx_by_id: dict[Key, int] = {}
-        self.rcvbuf_bytes = enlarge_receive_buffer(bus) if interface == "udp_multicast" else None
+        self.rcvbuf_bytes = (enlarge_receive_buffer(bus, rcvbuf_bytes)
+                             if interface in SOCKET_INTERFACES else None)
 
     @property
     def own_echo(self) -> int:
@@ -119,6 +163,8 @@ class LiveBus:
     def recv(self, timeout: float | None = None) -> can.Message | None:
         recv = self.bus.recv
         own = self.own_ids
+        rx_marks_echo = self.rule.is_rx_marks_echo
+        ids_echo = self.rule.own_ids_echo
         while True:
             try:
                 msg = recv(timeout)
@@ -129,9 +175,15 @@ class LiveBus:
                 return None  # end this drain; the next one tries again
             if msg is None:
                 return None
+            if msg.is_error_frame:  # a controller's report, no ID of anyone's: to the node
+                self.error_frames += 1
+                return msg
             key = (msg.arbitration_id, msg.is_extended_id)
-            if not msg.is_rx or key in own:
-                self._echo += 1
+            if key in own or (rx_marks_echo and not msg.is_rx):
+                if ids_echo or (rx_marks_echo and not msg.is_rx):
+                    self._echo += 1
+                else:
+                    self.foreign_own_id += 1
                 timeout = 0.0
                 continue
             self.received += 1
@@ -162,6 +214,8 @@ class LiveBus:
                 out[fc.name if fc else f"0x{key[0]:X}"] = n
             return out
 
-        return {"received": self.received, "own_echo": self.own_echo, "rx_errors": self.rx_errors,
+        return {"received": self.received, "own_echo": self.own_echo,
+                "foreign_own_id": self.foreign_own_id, "rx_errors": self.rx_errors,
+                "error_frames": self.error_frames,
                 "rcvbuf_bytes": self.rcvbuf_bytes,
                 "rx_by_id": named(self.rx_by_id), "tx_by_id": named(self.tx_by_id)}

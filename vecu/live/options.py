@@ -29,6 +29,8 @@ class LiveOptions:
     ready_file: str | None = None
     spin_us: int = DEFAULT_SPIN_US  # final busy-wait before each deadline
     status: bool | None = None      # None: when stderr is a terminal
+    rx_filter: bool = False         # receive only the IDs the node consumes (set_filters)
+    rx_buffer_bytes: int = 4 << 20  # the kernel receive buffer asked for (socket interfaces)
 
 
 def bus_config(opts: LiveOptions) -> dict[str, Any]:

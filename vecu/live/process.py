@@ -17,7 +17,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from vecu.bus import open_bus
+import can
+
+from vecu.bus import Key, open_bus, receive_filters
 from vecu.clock import (
     NS_PER_MS,
     NS_PER_S,
@@ -30,6 +32,7 @@ from vecu.clock import (
 from vecu.codec import DbcCodec
 from vecu.live.livebus import (
     ARRIVAL_TIMESTAMP_INTERFACES,
+    SOCKET_INTERFACES,
     FrameLatency,
     LiveBus,
     enlarge_receive_buffer,
@@ -146,13 +149,14 @@ class LiveProcess:
         self.elapsed_s = 0.0
         self.cpu_s = 0.0  # CPU seconds (user + system) of the run itself, set-up excluded
         self._closed = False
+        self.rx_filter: list[Key] | None = None
         bus_args = {k: v for k, v in cfg.items() if k != "interface"}
         try:  # a bad log file or bus: what is already open is shut again (one-line error)
             if opts.log_path:  # its own bus, like candump: sees the other nodes and this one
                 rec_bus = open_bus(cfg["interface"], **bus_args)
                 self._buses.append(rec_bus)
-                if self.interface == "udp_multicast":
-                    enlarge_receive_buffer(rec_bus)
+                if self.interface in SOCKET_INTERFACES:
+                    enlarge_receive_buffer(rec_bus, opts.rx_buffer_bytes)
                 self.recorder = Recorder(rec_bus, opts.log_path)
             raw = open_bus(cfg["interface"], **bus_args)
             self._buses.append(raw)
@@ -164,9 +168,19 @@ class LiveProcess:
             trig, resp = codec[latency[0]], codec[latency[1]]
             lat = FrameLatency((trig.frame_id, trig.is_extended), (resp.frame_id, resp.is_extended),
                                self.interface in ARRIVAL_TIMESTAMP_INTERFACES)
-        self.bus = LiveBus(raw, sent_ids(codec, dbc_node), self.interface, lat)
+        self.bus = LiveBus(raw, sent_ids(codec, dbc_node), self.interface, lat,
+                           rcvbuf_bytes=opts.rx_buffer_bytes)
 
     # ----------------------------------------------------------------- setup
+    def consume_only(self, keys: set[Key] | frozenset[Key]) -> None:
+        """With --rx-filter: the node's bus passes only these (ID, extended) keys (python-can
+        filters: in the kernel on SocketCAN, so other traffic costs this process nothing; error
+        frames still arrive). Without it: every frame arrives and the node counts what it does
+        not consume."""
+        if self.opts.rx_filter:
+            self.bus.bus.set_filters(receive_filters(keys))
+            self.rx_filter = sorted(keys)
+
     def meter(self, name: str) -> TickMeter:
         m = TickMeter(self.clock, name)
         self.meters.append(m)
@@ -235,7 +249,10 @@ class LiveProcess:
             "tasks": {t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
                                "max_lateness_us": round(t.max_lateness_ns / 1000, 1)}
                       for t in self.sched.stats},
-            "bus": self.bus.counts(self.codec),
+            "bus": {**self.bus.counts(self.codec),
+                    "fd": bool(getattr(self.bus.bus, "protocol", None) == can.CanProtocol.CAN_FD),
+                    "rx_filter": None if self.rx_filter is None
+                    else [f"0x{i:X}" for i, _ in self.rx_filter]},
             "log": None if rec is None else {"path": rec.path, "frames": rec.frames},
             "peak_rss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
             **extra,

@@ -405,6 +405,11 @@ class PlantNode(BusNode):
         self.lateral = next((p for p in parts if isinstance(p, LateralPart)), None)
         self.manifold: ManifoldPart | None = None
 
+    @property
+    def consumed_ids(self) -> frozenset[tuple[int, bool]]:
+        """The (CAN ID, extended) keys the plant acts on: FI_Command."""
+        return frozenset({self._fi_key})
+
     def enable_truth(self, codec: DbcCodec) -> None:
         """Send the debug truth frames of dbc/vecu_truth.dbc next to each part's sensor frames."""
         names = {ThrottlePart: "TRUTH_Throttle", LongitudinalPart: "TRUTH_Speed",
