@@ -198,7 +198,8 @@ def format_ecu_summary(s: dict[str, Any]) -> str:
         (f"  tick jitter p50 {j['p50_us']} p99 {j['p99_us']} max {j['max_us']} us; frame-in -> "
          f"estimate-out p50 {lat['p50_us']} p99 {lat['p99_us']} max {lat['max_us']} us"),
         (f"  rx {s['rx']['received']} frames ({s['frames']['decoded_per_s']}/s decoded), rejected "
-         f"{s['rx']['rejected']}, own echo {s['bus']['own_echo']}, rx errors "
+         f"{s['rx']['rejected']}, own echo {s['bus']['own_echo']}, foreign frames on the ECU's "
+         f"IDs {s['bus']['foreign_own_id']}, rx errors "
          f"{s['bus']['rx_errors']}; sent {s['frames']['ecu_sent']}"),
         (f"  throttle: estimate - sensor {th['estimate_vs_sensor_deg']}; TPS fault {fault}; "
          f"{th['host_gaps']} host gaps (ECU not running {th['ecu_stalled_ms']} ms); "

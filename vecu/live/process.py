@@ -308,8 +308,9 @@ class StatusPanel:
                          f"{j.percentile_us(0.5) or 0:6.0f}  p99 {j.percentile_us(0.99) or 0:6.0f}"
                          f"  max {j.max_ns / 1000:7.0f} us")
         lines.append(f"  rx {(bus.received - self._last_rx) / dt:7.0f} frames/s  own echo "
-                     f"{bus.own_echo:<8} rx errors {bus.rx_errors:<5} tx {(tx - self._last_tx) / dt:7.0f}"
-                     f" frames/s")
+                     f"{bus.own_echo:<8} foreign on own IDs {bus.foreign_own_id:<5} rx errors "
+                     f"{bus.rx_errors:<5} error frames {bus.error_frames:<5} tx "
+                     f"{(tx - self._last_tx) / dt:7.0f} frames/s")
         if bus.latency is not None:
             h = bus.latency.hist
             lines.append(f"  frame-in -> estimate-out p50 {h.percentile_us(0.5) or 0:6.0f}  p99 "
