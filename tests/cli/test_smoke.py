@@ -26,7 +26,7 @@ ENV = {**os.environ, "VECU_KERNELS": "python"}  # no numba compile in the subpro
 
 
 def _shortest_scenario() -> Path:
-    files = sorted((ROOT / "scenarios").glob("*.toml"))
+    files = sorted((ROOT / "vecu" / "data" / "scenarios").glob("*.toml"))
     return min(files, key=lambda f: tomllib.loads(f.read_text())["duration_s"])
 
 
