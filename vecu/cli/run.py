@@ -75,7 +75,21 @@ def main(args: argparse.Namespace) -> int:
         plot_run(result, args.plot)
     if not args.quiet:
         print(format_summary(result.summary))
+        print(outputs_line(plot=args.plot, log=args.log, summary=args.summary))
     return 0
+
+
+OUTPUTS = (("plot", "--plot FILE.png"), ("log", "--log FILE.blf"), ("summary", "--summary FILE.json"))
+
+
+def outputs_line(**given: str | None) -> str:
+    """Where the run's evidence went, and the options that would keep the rest."""
+    kept = [f"{what} {given[what]}" for what, _ in OUTPUTS if given.get(what)]
+    missing = [option for what, option in OUTPUTS if not given.get(what)]
+    parts = [f"kept: {', '.join(kept)}"] if kept else []
+    if missing:
+        parts.append(f"add {' '.join(missing)} to keep {'them' if len(missing) > 1 else 'it'}")
+    return "outputs: " + "; ".join(parts)
 
 
 def format_summary(s: dict[str, Any]) -> str:
@@ -143,5 +157,4 @@ def format_summary(s: dict[str, Any]) -> str:
         if st["false_alarm"]:
             line += f"; WARNING: SWA fault reported before any injection ({st['detection_time_s']} s)"
         lines.append(line)
-    lines.append("options: add --plot FILE.png --log FILE.blf --summary FILE.json to keep them")
     return "\n".join(lines)
