@@ -340,7 +340,7 @@ FAULT_SOURCES = {"api": 0, "schedule": 1, "scenario": 1, "can": 2}
 def fault_event_signals(codec: DbcCodec, site: FaultSite, kind: int, active: int, source: str,
                         value: float | None) -> dict[str, float]:
     """FI_Event signals for one fault start (active=1) or end (active=0); see dbc/vecu.dbc."""
-    fc = codec[site.message] if site.message in codec else None  # noqa: SIM401
+    fc = codec[site.message] if site.message in codec else None  # noqa: SIM401 (no .get)
     index = 0
     if fc is not None and site.signal is not None:
         names = [s.name for s in fc.signals]

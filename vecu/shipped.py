@@ -33,7 +33,7 @@ def resolve(kind: str, arg: str) -> Path:
     if path.exists():
         return path  # a path wins; a directory or bad file is its reader's one-line error
     files = shipped_files(kind)
-    stem = arg[:-len(SUFFIX)] if arg.endswith(SUFFIX) else arg
+    stem = arg.removesuffix(SUFFIX)
     if path.name == arg and stem in files:  # a bare name, no directory part
         return files[stem]
     raise BadFileError(arg, f"no such file, nor a shipped {kind} of that name (shipped: "

@@ -396,7 +396,7 @@ class PlantNode(BusNode):
         self._fi = codec["FI_Command"]
         self._fi_key = (self._fi.frame_id, self._fi.is_extended)
         injector.bind(codec)
-        self._fi_event = codec["FI_Event"] if "FI_Event" in codec else None
+        self._fi_event = codec["FI_Event"] if "FI_Event" in codec else None  # noqa: SIM401 (no .get)
         self._codec = codec
         self._announced = 0  # injector events already sent as FI_Event frames
         self.frames_received = 0
