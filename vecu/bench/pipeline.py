@@ -180,7 +180,7 @@ def bench_scenarios(limit: int | None = None) -> dict[str, Any]:
 
 
 def format_targets(runs: list[dict[str, Any]], sc: dict[str, Any]) -> str:
-    lines = ["Issue 16 targets (same run):"]
+    lines = ["Offline speed targets (same run):"]
     for r in runs:
         lines.append(f"  {r['name']} ({r['kernels']} kernels): {r['x_realtime']}x real time "
                      f"(target >= {r['target_x_realtime']:.0f}x: {'met' if r['met'] else 'not met'})")
