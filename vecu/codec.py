@@ -56,7 +56,7 @@ class DbcLoadError(BadFileError):
 
 
 def builtin_dbc_path(name: str = DEFAULT_DBC) -> Path:
-    """Path of a DBC shipped with vecu (dbc/ in the source tree, vecu.dbc package data)."""
+    """Path of a DBC shipped with vecu (package data in vecu/dbc/)."""
     return Path(str(resources.files("vecu.dbc").joinpath(name)))
 
 

@@ -406,7 +406,7 @@ class PlantNode(BusNode):
         self.manifold: ManifoldPart | None = None
 
     def enable_truth(self, codec: DbcCodec) -> None:
-        """Send the debug truth frames of dbc/vecu_truth.dbc next to each part's sensor frames."""
+        """Send the debug truth frames of vecu/dbc/vecu_truth.dbc next to each part's sensor frames."""
         names = {ThrottlePart: "TRUTH_Throttle", LongitudinalPart: "TRUTH_Speed",
                  LateralPart: "TRUTH_Steering", ManifoldPart: "TRUTH_Manifold"}
         for part in [*self.parts, self.manifold]:
@@ -442,7 +442,7 @@ class PlantNode(BusNode):
         return True
 
     def _announce_faults(self) -> None:
-        """One FI_Event frame (dbc/vecu.dbc) per fault start / end, so a trace carries them."""
+        """One FI_Event frame (vecu/dbc/vecu.dbc) per fault start / end, so a trace carries them."""
         events = self.injector.events
         new, self._announced = events[self._announced:], len(events)
         if self._fi_event is None:
