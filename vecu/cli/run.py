@@ -145,8 +145,11 @@ def format_summary(s: dict[str, Any]) -> str:
             "(filter, CAC and prediction)")
     st = s.get("steering")
     if st:
-        line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, fixed-lag smoother "
-                f"({st['smoother_lag_ms']} ms behind) {st['swa_smoothed_error_deg']['rms']:.2f} deg, "
+        smoothed = ("fixed-lag smoother: no output yet (the run is shorter than its lag)"
+                    if st["smoother_lag_ms"] is None else
+                    f"fixed-lag smoother ({st['smoother_lag_ms']} ms behind) "
+                    f"{st['swa_smoothed_error_deg']['rms']:.2f} deg")
+        line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, {smoothed}, "
                 f"side-slip {st['side_slip_ukf_error_deg']['rms']:.3f} deg")
         if st["kill_time_s"] is not None:
             after = st["swa_broadcast_error_deg"]["after_kill"]
