@@ -143,9 +143,8 @@ def test_bad_targets_and_values_are_clear_errors():
 
 
 def plant_messages(codec):
-    return [fc for fc in (codec[n] for n in ("TPS_Sensor", "ETB_Wattmeter", "ENG_Event",
-                                             "ENG_Intake", "ESC_Motion", "CHS_Lateral",
-                                             "SWA_Sensor"))]
+    return [codec[n] for n in ("TPS_Sensor", "ETB_Wattmeter", "ENG_Event", "ENG_Intake",
+                               "ESC_Motion", "CHS_Lateral", "SWA_Sensor")]
 
 
 def middle_frame(fc, counter=0):

@@ -25,6 +25,6 @@ def test_vecu_run_3s_seed7_candump_log_is_byte_identical(backend, tmp_path):
     log = tmp_path / "x.log"
     res = subprocess.run([sys.executable, "-m", "vecu", "run", "--duration", "3", "--seed", "7",
                           "--log", str(log), "--quiet"], capture_output=True, text=True,
-                         timeout=300, env={**os.environ, "VECU_KERNELS": backend})
+                         timeout=300, env={**os.environ, "VECU_KERNELS": backend}, check=False)
     assert res.returncode == 0, res.stderr
     assert hashlib.sha256(log.read_bytes()).hexdigest() == GOLDEN_SHA256

@@ -60,7 +60,7 @@ class EcuFunctions:
 def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
                 injector: FaultInjector | None = None, truth: bool = False) -> PlantNode:
     """The simulated vehicle with the parts config asks for; truth=True adds the debug truth
-    frames (dbc/vecu_truth.dbc) so that a recorded trace can be scored on its own."""
+    frames (vecu/dbc/vecu_truth.dbc) so that a recorded trace can be scored on its own."""
     car = config.params.plant
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     injector = injector if injector is not None else FaultInjector(rngs["faults"])

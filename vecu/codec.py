@@ -56,7 +56,7 @@ class DbcLoadError(BadFileError):
 
 
 def builtin_dbc_path(name: str = DEFAULT_DBC) -> Path:
-    """Path of a DBC shipped with vecu (dbc/ in the source tree, vecu.dbc package data)."""
+    """Path of a DBC shipped with vecu (package data in vecu/dbc/)."""
     return Path(str(resources.files("vecu.dbc").joinpath(name)))
 
 
@@ -419,7 +419,7 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
     exec(code, ns)  # noqa: S102 (generated from the DBC's signal layout, no user text)
     encode = ns["encode"]
     encode.parts = EncodeParts(blocks, enc[-1].strip()[len("return "):], ns)  # for framer()
-    return encode, ns["decode"]  # type: ignore[return-value]
+    return encode, ns["decode"]  # type: ignore[return-value]  # exec'd: typed by the generator
 
 
 def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:

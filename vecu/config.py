@@ -11,6 +11,7 @@ may name the plant's and the ECU's configuration classes (docs/architecture.md).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from vecu import params as ptree
@@ -74,7 +75,7 @@ class ParamTree:
 
     def set(self, sets: object) -> ParamTree:
         """A new tree with (path, value) pairs or a {path: value} mapping applied, checked."""
-        tree = ptree.apply_sets(self, sets)  # type: ignore[arg-type]
+        tree = ptree.apply_sets(self, sets)  # type: ignore[arg-type]  # pairs or a mapping; apply_sets checks each
         validate_tree(tree)
         return tree
 
@@ -132,7 +133,7 @@ class RunConfig:
     channel: str | None = None
     bitrate: int | None = None
     log_path: str | None = None
-    truth: bool = True  # with log_path: debug truth frames (dbc/vecu_truth.dbc) in the trace
+    truth: bool = True  # with log_path: debug truth frames (vecu/dbc/vecu_truth.dbc) in the trace
     keep_series: bool = False
     speed: bool = True  # longitudinal plant part + ECU speed function (Hernandez 2005)
     steering: bool = True  # lateral plant part + ECU steering function (Khalid)
@@ -146,10 +147,11 @@ class RunConfig:
     uds_steps: tuple[UdsStep, ...] = ()  # a tester's requests (scenarios; docs/uds.md)
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
 
-    def with_params(self, sets: object = (), **shortcuts: object) -> RunConfig:
+    def with_params(self, sets: Mapping[str, object] | Iterable[tuple[str, object]] = (),
+                    **shortcuts: object) -> RunConfig:
         """This configuration with parameter-tree overrides: (path, value) pairs or a mapping,
         then the shortcuts (noise_scale=, estimator=, manifold_filter=; None: unchanged)."""
-        pairs = list(sets.items()) if isinstance(sets, dict) else list(sets)  # type: ignore[attr-defined]
+        pairs = list(sets.items()) if isinstance(sets, Mapping) else list(sets)
         pairs += shortcut_sets(**shortcuts)
         return replace(self, params=self.params.set(pairs)) if pairs else self
 

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from vecu.codec import FrameCodec
 
 class FaultKind(enum.IntEnum):
-    """Values match FI_Kind / FI_EvKind in dbc/vecu.dbc."""
+    """Values match FI_Kind / FI_EvKind in vecu/dbc/vecu.dbc."""
 
     CLEAR = 0
     DEAD = 1

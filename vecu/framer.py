@@ -83,8 +83,8 @@ def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
         src.append(f"    buf[{crc_byte}] = c ^ 0xFF")
     src.append(f"    return _msg(ts, {frame_id}, {is_extended}, buf, {is_fd})")
     ns.update(_slow=slow, _msg=message, _Refused=_Refused)
-    exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102
-    return ns["make"]  # type: ignore[return-value]
+    exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC layout)
+    return ns["make"]  # type: ignore[return-value]  # exec'd: typed by the generator
 
 
 def compile_range_check(checked: Sequence[tuple[str, float | None, float | None]], label: str
@@ -104,5 +104,5 @@ def compile_range_check(checked: Sequence[tuple[str, float | None, float | None]
                 f" or v > _hi{i}" if hi is not None else "") + ")"
         src.append(f"    if v is not None and {test}: bad.append({name!r})")
     src.append("    return bad")
-    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102
-    return ns["bad_values"]  # type: ignore[return-value]
+    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
+    return ns["bad_values"]  # type: ignore[return-value]  # exec'd: typed by the generator

@@ -7,11 +7,11 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from vecu.probes import SpeedSeries, SteeringSeries, ThrottleSeries  # noqa: E402
-from vecu.runner import RunResult  # noqa: E402
+from vecu.probes import SpeedSeries, SteeringSeries, ThrottleSeries
+from vecu.runner import RunResult
 
 
 def plot_run(result: RunResult, path: str) -> None:

@@ -33,7 +33,7 @@ class RunningStats:
         self._m2 += d * (x - self.mean)
         self._sumsq += x * x
         ax = -x if x < 0 else x
-        if ax > self.max_abs:
+        if ax > self.max_abs:  # noqa: PLR1730 - every sample: a compare, not a call
             self.max_abs = ax
 
     @property

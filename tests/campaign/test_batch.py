@@ -14,7 +14,7 @@ import pytest
 from vecu.campaign.draws import draw, load_campaign
 from vecu.campaign.studies import MANIFOLD_METRICS, manifold_study
 
-TABLE3 = Path(__file__).resolve().parents[2] / "campaigns" / "manifold-table3.toml"
+TABLE3 = Path(__file__).resolve().parents[2] / "vecu/data/campaigns/manifold-table3.toml"
 
 
 @pytest.fixture(scope="module")

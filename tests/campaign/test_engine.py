@@ -168,7 +168,7 @@ def test_table3_ordering_filters_below_both_direct_columns(tmp_path):
     error^2, under the Table 2 spread (6 runs of 20 s, fixed seed)."""
     from vecu.campaign.studies import run_one
 
-    spec = load_campaign(Path(__file__).resolve().parents[2] / "campaigns"
+    spec = load_campaign(Path(__file__).resolve().parents[2] / "vecu" / "data" / "campaigns"
                          / "manifold-table3.toml")
     from dataclasses import replace
 

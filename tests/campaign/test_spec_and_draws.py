@@ -102,9 +102,9 @@ def test_unreadable_campaign_file(tmp_path):
 
 def test_shipped_campaigns_load(repo_root):
     for name in ("manifold-table3", "tps-kill-latency", "false-alarms"):
-        spec = load_campaign(repo_root / "campaigns" / f"{name}.toml")
+        spec = load_campaign(repo_root / "vecu" / "data" / "campaigns" / f"{name}.toml")
         assert spec.name == name and spec.runs >= 100
-    t3 = load_campaign(repo_root / "campaigns" / "manifold-table3.toml")
+    t3 = load_campaign(repo_root / "vecu" / "data" / "campaigns" / "manifold-table3.toml")
     assert t3.runs == 2000 and len(t3.vary) == 9
     limits = {v.path: (v.lo, v.hi) for v in t3.vary}
     assert limits["plant.manifold.engine.eta_n_val"] == (-4.0, 4.0)

@@ -1,6 +1,7 @@
 """The Table 3 study (vecu.campaign.studies: run_one, manifold_study) at a reduced run count: issue 19's
-targets for the adaptive filter hold on the first 8 draws of campaigns/manifold-table3.toml
-(the full 2000 runs: docs/campaigns.md), where the paper's filters carry the eta bias."""
+targets for the adaptive filter hold on the first 8 draws of the shipped campaign manifold-table3
+(vecu/data/campaigns/; the full 2000 runs: docs/campaigns.md), where the paper's filters carry
+the eta bias."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pytest
 from vecu.campaign.draws import load_campaign
 from vecu.campaign.studies import run_one
 
-TABLE3 = Path(__file__).resolve().parents[2] / "campaigns" / "manifold-table3.toml"
+TABLE3 = Path(__file__).resolve().parents[2] / "vecu/data/campaigns/manifold-table3.toml"
 RUNS = 8
 
 

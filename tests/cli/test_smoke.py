@@ -26,7 +26,7 @@ ENV = {**os.environ, "VECU_KERNELS": "python"}  # no numba compile in the subpro
 
 
 def _shortest_scenario() -> Path:
-    files = sorted((ROOT / "scenarios").glob("*.toml"))
+    files = sorted((ROOT / "vecu" / "data" / "scenarios").glob("*.toml"))
     return min(files, key=lambda f: tomllib.loads(f.read_text())["duration_s"])
 
 
@@ -48,7 +48,8 @@ def recorded(workdir: Path) -> tuple[Path, subprocess.CompletedProcess[str]]:
     return log, vecu("run", "--duration", "0.5", "--seed", "3", "--log", str(log), cwd=workdir)
 
 
-# (argv, what stdout must contain); {log}: the recorded trace, {scenario}: the shortest shipped one
+# (argv, what stdout must contain); {log}: the recorded trace, {scenario}: the name of the shortest
+# shipped scenario (found by name from the work directory, outside the checkout)
 SMOKE: list[tuple[list[str], str]] = [
     (["--help"], r"\{run,eval,.*\}"),
     (["run", "--duration", "0.5"], r"500 ticks.*\n.*TPS fault 'dead' at 0\.250 s: detected as \w+"),
@@ -68,6 +69,7 @@ SMOKE: list[tuple[list[str], str]] = [
     (["ecu", "--help"], r"usage: vecu ecu"),
     (["params", "ecu.manifold.kf.params.omega0"], r"ecu\.manifold\.kf\.params\.omega0 +50\.0 +rad/s"),
     (["run", "--duration", "0.3", "--set", "plant.manifold.engine.zeta=0.7"], r"300 ticks"),
+    (["run", "--duration", "0.2"], r"fixed-lag smoother: no output yet.*\noutputs: add --plot"),
     (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
 ]
 
@@ -75,7 +77,7 @@ SMOKE: list[tuple[list[str], str]] = [
 @pytest.mark.parametrize("argv,expected", SMOKE, ids=[" ".join(a[:2]) for a, _ in SMOKE])
 def test_subcommand_quick_path(argv: list[str], expected: str, recorded, workdir: Path) -> None:
     log, _ = recorded
-    args = [a.format(log=log, scenario=_shortest_scenario()) for a in argv]
+    args = [a.format(log=log, scenario=_shortest_scenario().stem) for a in argv]
     res = vecu(*args, cwd=workdir)
     assert res.returncode == 0, res.stderr
     assert re.search(expected, res.stdout, re.DOTALL), res.stdout

@@ -73,7 +73,7 @@ CONSUMED = sorted({sub.message for fn in FUNCTIONS for sub in fn.subscriptions()
 def make_ecu() -> tuple[EcuNode, QueueBus]:
     CODEC.sent.clear()
     bus = QueueBus()
-    return EcuNode(bus, CODEC, build_functions(RunConfig(), CODEC).enabled()), bus  # type: ignore[arg-type]
+    return EcuNode(bus, CODEC, build_functions(RunConfig(), CODEC).enabled()), bus  # type: ignore[arg-type]  # a queue standing in for the bus
 
 
 def feed(payloads: list[bytes], message: str) -> EcuNode:

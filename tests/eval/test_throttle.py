@@ -78,7 +78,7 @@ def test_result_fields_consistent(alpha1) -> None:
         assert x.rms_deg == pytest.approx(np.hypot(x.mean_deg, x.std_deg), rel=1e-9)
         assert x.us_per_step > 0.0
     with pytest.raises(dataclasses.FrozenInstanceError):
-        alpha1["arm"].std_deg = 0.0  # type: ignore[misc]
+        alpha1["arm"].std_deg = 0.0  # type: ignore[misc]  # the write the test expects to fail
 
 
 class _Recorder:
@@ -144,7 +144,7 @@ def test_production_is_lazy(monkeypatch) -> None:
     with pytest.raises(EstimatorUnavailableError, match="production"):
         make_throttle_estimator("production")
     fake = types.ModuleType("vecu.estimators.throttle.production")
-    fake.make_production_estimator = lambda a: ("fake", a)  # type: ignore[attr-defined]
+    fake.make_production_estimator = lambda a: ("fake", a)  # type: ignore[attr-defined]  # a stand-in module for the test
     monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.production", fake)
     assert make_throttle_estimator("production", 0.3) == ("fake", 0.3)
 

@@ -34,14 +34,14 @@ def main(out: Path) -> dict:
         procs.append(subprocess.Popen(
             [*vecu, "ecu", *BUS, "--ready-file", str(out / "ecu.ready"), "--sync-timeout", "20",
              "--duration", "120", "--summary", str(out / "ecu.json"), "--quiet",
-             "--tps-timeout-cycles=100"], stderr=open(out / "ecu.err", "w")))  # noqa: SIM115
+             "--tps-timeout-cycles=100"], stderr=open(out / "ecu.err", "w")))  # noqa: SIM115 - the child holds it
         for _ in range(600):
             if (out / "ecu.ready").exists():
                 break
             time.sleep(0.1)
         procs.append(subprocess.Popen(
             [*vecu, "plant", *BUS, "--duration", "90", "--quiet", "--ready-file",
-             str(out / "plant.ready")], stderr=open(out / "plant.err", "w")))  # noqa: SIM115
+             str(out / "plant.ready")], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 - the child holds it
         for _ in range(600):
             if (out / "plant.ready").exists():
                 break

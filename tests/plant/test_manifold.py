@@ -373,7 +373,7 @@ def test_compiled_simulation_is_the_python_loop(backend, per_backend):
 
     ref = per_backend.reference("sim", lambda: run(False))
     got = run(True)
-    for f in dataclasses.fields(ref):
-        a, b = getattr(ref, f.name), getattr(got, f.name)
-        assert a.shape == b.shape and np.array_equal(a, b), f.name
+    for fld in dataclasses.fields(ref):
+        a, b = getattr(ref, fld.name), getattr(got, fld.name)
+        assert a.shape == b.shape and np.array_equal(a, b), fld.name
     assert len(ref.t) > 2000 and np.ptp(ref.x[:, 3]) > 30.0

@@ -126,7 +126,7 @@ def test_replay_stops_at_the_last_tick_at_or_before_the_last_frame(tmp_path):
     _write_log(tmp_path / "t.log", [esc.frame(values, t) for t in times])
     out = str(tmp_path / "est.log")
     res = replay(ReplayConfig(trace=str(tmp_path / "t.log"), out=out, progress=False))
-    frames = [m for m in can.LogReader(out)]
+    frames = list(can.LogReader(out))
     assert max(m.timestamp for m in frames) == pytest.approx(0.52)  # nothing due at 521 ms
     assert res.summary["functions"]["speed"]["estimates_sent"] == 261  # ticks 0, 2, ... 520 ms
     assert res.summary["frames"]["ecu_rx"]["accepted"] == 252  # the last frame too

@@ -29,7 +29,7 @@ class CountingSource:
 
 def test_live_feeding_reads_a_few_frames_ahead_not_a_whole_chunk():
     src = CountingSource(TRACE)
-    feeder = Feeder(src, None, None, None, FrameTally(), {}, None, block=False)  # type: ignore[arg-type]
+    feeder = Feeder(src, None, None, None, FrameTally(), {}, None, block=False)  # type: ignore[arg-type]  # only the source is used by this path
     assert not feeder.done
     total = sum(1 for _ in TraceSource(TRACE))
     assert total > 2 * SMALL_CHUNK

@@ -10,7 +10,7 @@ import pytest
 from vecu.cli import main
 from vecu.scenario.report import plot_file_name
 
-SHIPPED = sorted((Path(__file__).resolve().parents[2] / "scenarios").glob("*.toml"))
+SHIPPED = sorted((Path(__file__).resolve().parents[2] / "vecu/data/scenarios").glob("*.toml"))
 
 
 @pytest.mark.parametrize("name", ["tps_dead", "wheel-frames.dropout", "A1"])

@@ -15,7 +15,7 @@ from vecu.scenario.report import write_html, write_junit
 from vecu.scenario.runner import run_scenario, run_scenarios
 
 REPO = Path(__file__).resolve().parents[2]
-SHIPPED = sorted((REPO / "scenarios").glob("*.toml"))
+SHIPPED = sorted((REPO / "vecu" / "data" / "scenarios").glob("*.toml"))
 
 BASE = """duration_s = 2.0
 [[faults]]
@@ -100,7 +100,7 @@ def _disable(scenario, sensor):
 def test_broken_ecu_detection_disabled_fails_the_right_scenarios(tmp_path):
     """TPS detection off: the TPS scenarios fail on detection, the SWA one still passes."""
     names = ("tps_dead", "tps_frames_stop", "wheel_dead", "swa_frames_stop")
-    scen = {n: load_scenario(REPO / "scenarios" / f"{n}.toml") for n in names}
+    scen = {n: load_scenario(REPO / "vecu" / "data" / "scenarios" / f"{n}.toml") for n in names}
     broken = [_disable(scen["tps_dead"], "tps"), _disable(scen["tps_frames_stop"], "tps"),
               _disable(scen["wheel_dead"], "wheel"), _disable(scen["swa_frames_stop"], "tps")]
     outcomes = run_scenarios(broken, stream=None)
@@ -120,7 +120,7 @@ def test_broken_ecu_detection_disabled_fails_the_right_scenarios(tmp_path):
 
 def test_cli_exits_1_on_a_failing_criterion_and_writes_junit(tmp_path, capsys):
     path = tmp_path / "strict.toml"
-    path.write_text((REPO / "scenarios" / "tps_stuck.toml").read_text()
+    path.write_text((REPO / "vecu" / "data" / "scenarios" / "tps_stuck.toml").read_text()
                     .replace("detect_within_ms = 10", "detect_within_ms = 1"))
     junit = tmp_path / "out.xml"
     assert cli_main(["scenario", "run", str(path), "--junit", str(junit), "--quiet"]) == 1
@@ -131,7 +131,7 @@ def test_cli_exits_1_on_a_failing_criterion_and_writes_junit(tmp_path, capsys):
 
 def test_wheel_dropout_coasts_on_the_accelerometer_and_heals():
     """ESC_Motion frames lost 1.0-2.0 s: timeout DTC, coast mode, wheel trusted again later."""
-    sc = load_scenario(REPO / "scenarios" / "wheel_frames_dropout.toml")
+    sc = load_scenario(REPO / "vecu" / "data" / "scenarios" / "wheel_frames_dropout.toml")
     res = run(replace(sc.config, duration_s=3.0))
     wheel = res.summary["diagnostics"]["wheel"]
     assert wheel["first_fault_status"] == "timeout" and 1.0 <= wheel["first_fault_s"] < 1.1

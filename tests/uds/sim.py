@@ -41,10 +41,10 @@ class Codec(udsoncan.DidCodec):
     def __init__(self, fmt: str, scale: float = 1.0) -> None:
         self.fmt, self.scale = ">" + fmt, scale
 
-    def encode(self, value: float) -> bytes:  # type: ignore[override]
+    def encode(self, value: float) -> bytes:  # type: ignore[override]  # narrower than udsoncan's DidCodec method
         return struct.pack(self.fmt, round(value / self.scale))
 
-    def decode(self, data: bytes) -> Any:  # type: ignore[override]
+    def decode(self, data: bytes) -> Any:  # type: ignore[override]  # narrower than udsoncan's DidCodec method
         if self.fmt.endswith("s"):
             return data.decode("ascii")
         return struct.unpack(self.fmt, data)[0] * self.scale

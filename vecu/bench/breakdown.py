@@ -135,7 +135,7 @@ def breakdown(duration_s: float = 5.0, seed: int = 0) -> dict[str, Any]:
     finally:
         profiler.disable()
     wall_inst = watch.elapsed()
-    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
+    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]  # pstats' stats dict is not in typeshed
     keys = _component_keys()
     keys.update({func: label for func in stats for prefix, label in GENERATED
                  if func[0].startswith(prefix)})

@@ -20,18 +20,19 @@ from pathlib import Path
 from typing import Any
 
 from vecu.clock import perf_s
+from vecu.shipped import shipped_files
 
-TABLE3 = Path(__file__).resolve().parents[2] / "campaigns" / "manifold-table3.toml"
+TABLE3 = "manifold-table3"  # shipped campaign (vecu/data/campaigns/)
 
 
 def bench_campaign(runs: int = 40, duration_s: float = 80.0, workers: int | None = None,
-                   baseline_runs: int = 3, spec_path: Path = TABLE3) -> dict[str, Any]:
+                   baseline_runs: int = 3, spec_path: Path | None = None) -> dict[str, Any]:
     from vecu.campaign.draws import draw, load_campaign
     from vecu.campaign.engine import run_campaign
     from vecu.campaign.studies import MANIFOLD_METRICS, manifold_study
     from vecu.eval.manifold import evaluate_manifold
 
-    spec = load_campaign(str(spec_path))
+    spec = load_campaign(str(spec_path or shipped_files("campaign")[TABLE3]))
     stride = int(spec.run.get("stride", 1))
     spec = replace(spec, runs=runs, run={**spec.run, "duration_s": duration_s, "engine": "batch"})
     nb = max(1, min(baseline_runs, runs))

@@ -141,23 +141,22 @@ def throttle_estimator_alone_us(duration_s: float, seed: int = 7) -> float:
 
 
 def shipped_scenarios() -> list[Path]:
-    """The scenario files shipped in the source tree's scenarios/ (empty when not there)."""
-    import vecu
+    """The scenario files shipped with vecu (`vecu scenario list`), by name."""
+    from vecu.shipped import shipped_files
 
-    root = Path(vecu.__file__).resolve().parents[1] / "scenarios"
-    return sorted(root.glob("*.toml")) if root.is_dir() else []
+    return list(shipped_files("scenario").values())
 
 
 def bench_scenarios(limit: int | None = None) -> dict[str, Any]:
     """The shipped scenarios one after another in this process (as `vecu scenario run
-    scenarios/*.toml`): total wall time and verdicts; `limit` runs only the first ones."""
+    $(vecu scenario list --names)`): total wall time and verdicts; `limit` runs only the first ones."""
     from vecu import kernels
     from vecu.scenario.loader import load_scenario
     from vecu.scenario.runner import run_scenarios
 
     files = shipped_scenarios()[:limit]
     if not files:
-        return {"scenarios": 0, "note": "no scenarios/ directory beside the package"}
+        return {"scenarios": 0, "note": "no shipped scenarios (vecu/data/scenarios/ missing)"}
     scenarios = [load_scenario(f) for f in files]
     from vecu.runner import load_kernels
     load_kernels()
@@ -181,7 +180,7 @@ def bench_scenarios(limit: int | None = None) -> dict[str, Any]:
 
 
 def format_targets(runs: list[dict[str, Any]], sc: dict[str, Any]) -> str:
-    lines = ["Issue 16 targets (same run):"]
+    lines = ["Offline speed targets (same run):"]
     for r in runs:
         lines.append(f"  {r['name']} ({r['kernels']} kernels): {r['x_realtime']}x real time "
                      f"(target >= {r['target_x_realtime']:.0f}x: {'met' if r['met'] else 'not met'})")

@@ -40,7 +40,7 @@ def bench_fast(path: str, estimator: str, estimator_us: float | None = None) -> 
     bound the x real time and the share of the bare reading speed any replay can reach."""
     read_s, frames = read_only_seconds(path)
     digests, results = [], []
-    for k in range(2):
+    for _ in range(2):
         with tempfile.TemporaryDirectory() as d:
             out = str(Path(d) / "est.log")
             res = replay(ReplayConfig(trace=path, out=out, estimator=estimator, progress=False))

@@ -139,9 +139,9 @@ def open_client(workers: int | None, scheduler: str | None) -> tuple[Any, Any]:
     """(client, cluster or None): a LocalCluster of `workers` processes, or the scheduler's."""
     try:
         from distributed import Client, LocalCluster
-    except ImportError:
-        raise UnavailableError("campaigns run on Dask: pip install 'vecu[campaign]' "
-                               "(dask and distributed)") from None
+    except ImportError as exc:  # a dependency of vecu: a broken or partial environment
+        raise UnavailableError(f"campaigns run on Dask, which does not import here ({exc}): "
+                               "pip install 'dask[distributed]>=2024.1'") from None
     if scheduler:
         logging.getLogger("distributed").setLevel(logging.ERROR)
         try:

@@ -14,6 +14,7 @@ import sys
 import traceback
 from typing import NoReturn
 
+import vecu
 from vecu.cli.outputs import check_outputs as check_outputs
 from vecu.errors import UserError
 
@@ -34,9 +35,24 @@ class VecuArgumentParser(argparse.ArgumentParser):
         self.exit(2, f"vecu: error: {message} (see `{self.prog} --help`)\n")
 
 
+class VersionAction(argparse.Action):
+    """--version: the installed version, looked up only when asked (importlib.metadata costs
+    ~45 ms, which every other command would pay if the text were built with the parser)."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS) -> None:
+        super().__init__(option_strings, dest=dest, default=argparse.SUPPRESS, nargs=0,
+                         help="print vecu's version and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        print(f"vecu {vecu.__version__}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = VecuArgumentParser(prog="vecu", description="Virtual ECU gateway for CAN")
     parser.add_argument("--debug", action="store_true", help=DEBUG_HELP)
+    parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True)
     for name in SUBCOMMANDS:
         importlib.import_module(f"vecu.cli.{name}").register(sub)
@@ -77,7 +93,8 @@ def run_command(args: argparse.Namespace) -> int:
         from vecu import kernels
 
         cold = kernels.cache_is_cold()  # VECU_KERNELS checked before any work starts
-        if cold and getattr(args, "command", None) in KERNEL_COMMANDS:
+        uses_kernels = getattr(args, "uses_kernels", True)  # False: e.g. `scenario list`
+        if cold and uses_kernels and getattr(args, "command", None) in KERNEL_COMMANDS:
             print("vecu: compiling the numba kernels on first use (about 40 s, once per install; "
                   "VECU_KERNELS=python skips them)", file=sys.stderr, flush=True)
         return int(args.func(args) or 0)

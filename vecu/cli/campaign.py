@@ -1,4 +1,4 @@
-"""`vecu campaign run FILE` / `vecu campaign rerun DIR RUN_ID`: Monte-Carlo campaigns on Dask."""
+"""`vecu campaign run FILE|NAME`, `vecu campaign list|show` / `vecu campaign rerun DIR RUN_ID`: Monte-Carlo campaigns on Dask."""
 
 from __future__ import annotations
 
@@ -10,18 +10,21 @@ from pathlib import Path
 
 from vecu import argtypes
 from vecu.cli import configure_logging
+from vecu.cli.shipped import register_list_show
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("campaign", help="Monte-Carlo campaigns over parameter spreads, on Dask",
                        description="Many runs with parameters drawn per run (docs/campaigns.md).")
     csub = p.add_subparsers(dest="campaign_command", required=True)
-    r = csub.add_parser("run", help="run a campaign file",
+    r = csub.add_parser("run", help="run a campaign (a file or a shipped name)",
                         description="Run every run of a campaign file on a Dask cluster: a local "
                                     "one (--workers) or an existing one (--scheduler). Rows go to "
                                     "DIR/runs.csv as they finish; DIR/summary.json and "
                                     "DIR/report.html at the end.")
-    r.add_argument("file", metavar="FILE.toml", help="campaign file (campaigns/*.toml)")
+    r.add_argument("file", metavar="FILE|NAME",
+                   help="campaign .toml file or the name of a shipped one (`vecu campaign list`); "
+                        "an existing file wins over a name")
     r.add_argument("--runs", type=argtypes.bounded(1, 10_000_000, integer=True), metavar="N",
                    help="number of runs (default: the file's)")
     r.add_argument("--seed", type=argtypes.seed, help="campaign seed (default: the file's)")
@@ -44,6 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     rr.add_argument("dir", metavar="DIR")
     rr.add_argument("run_id", type=argtypes.bounded(0, None, integer=True), metavar="RUN_ID")
     rr.set_defaults(func=main_rerun)
+    register_list_show(csub, "campaign")
 
 
 def _spec(path: str, runs: int | None = None, seed: int | None = None):
@@ -62,7 +66,9 @@ def main_run(args: argparse.Namespace) -> int:
     from vecu.campaign.summary import format_summary
 
     configure_logging(quiet=True)
-    spec = _spec(args.file, args.runs, args.seed)
+    from vecu.shipped import resolve
+
+    spec = _spec(str(resolve("campaign", args.file)), args.runs, args.seed)
     out = Path(args.out) if args.out else Path("out") / spec.name
     stream = (sys.stderr if args.progress else None) if args.progress is not None \
         else default_progress_stream()

@@ -98,7 +98,7 @@ def main(args: argparse.Namespace) -> int:
             if thr.source == SOURCE_SENSOR and status == ok:
                 accuracy.add(thr.estimator.theta_deg - thr.angle)
 
-        ecu.tick = meter.wrap(tick)  # type: ignore[method-assign]
+        ecu.tick = meter.wrap(tick)  # type: ignore[method-assign]  # the live meter times each tick (a wrapper, not a patch of the class)
         task = meter.stats = schedule_ecu(proc.sched, ecu)
         proc.sched.every(10_000_000, lambda t: setattr(ecu, "overruns", task.overruns),
                          name="overrun-count", priority=45)  # ECU_Status reports them

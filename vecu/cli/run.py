@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
     p.add_argument("--no-truth", dest="truth", action="store_false",
-                   help="leave the debug truth frames (dbc/vecu_truth.dbc) out of --log")
+                   help="leave the debug truth frames (vecu/dbc/vecu_truth.dbc) out of --log")
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", metavar="FILE.png", help="write a truth-vs-estimate plot")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
@@ -75,7 +75,21 @@ def main(args: argparse.Namespace) -> int:
         plot_run(result, args.plot)
     if not args.quiet:
         print(format_summary(result.summary))
+        print(outputs_line(plot=args.plot, log=args.log, summary=args.summary))
     return 0
+
+
+OUTPUTS = (("plot", "--plot FILE.png"), ("log", "--log FILE.blf"), ("summary", "--summary FILE.json"))
+
+
+def outputs_line(**given: str | None) -> str:
+    """Where the run's evidence went, and the options that would keep the rest."""
+    kept = [f"{what} {given[what]}" for what, _ in OUTPUTS if given.get(what)]
+    missing = [option for what, option in OUTPUTS if not given.get(what)]
+    parts = [f"kept: {', '.join(kept)}"] if kept else []
+    if missing:
+        parts.append(f"add {' '.join(missing)} to keep {'them' if len(missing) > 1 else 'it'}")
+    return "outputs: " + "; ".join(parts)
 
 
 def format_summary(s: dict[str, Any]) -> str:
@@ -131,8 +145,11 @@ def format_summary(s: dict[str, Any]) -> str:
             "(filter, CAC and prediction)")
     st = s.get("steering")
     if st:
-        line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, fixed-lag smoother "
-                f"({st['smoother_lag_ms']} ms behind) {st['swa_smoothed_error_deg']['rms']:.2f} deg, "
+        smoothed = ("fixed-lag smoother: no output yet (the run is shorter than its lag)"
+                    if st["smoother_lag_ms"] is None else
+                    f"fixed-lag smoother ({st['smoother_lag_ms']} ms behind) "
+                    f"{st['swa_smoothed_error_deg']['rms']:.2f} deg")
+        line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, {smoothed}, "
                 f"side-slip {st['side_slip_ukf_error_deg']['rms']:.3f} deg")
         if st["kill_time_s"] is not None:
             after = st["swa_broadcast_error_deg"]["after_kill"]
@@ -143,5 +160,4 @@ def format_summary(s: dict[str, Any]) -> str:
         if st["false_alarm"]:
             line += f"; WARNING: SWA fault reported before any injection ({st['detection_time_s']} s)"
         lines.append(line)
-    lines.append("options: add --plot FILE.png --log FILE.blf --summary FILE.json to keep them")
     return "\n".join(lines)

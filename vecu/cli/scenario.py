@@ -1,4 +1,4 @@
-"""`vecu scenario run FILE...`: declarative fault-injection scenarios with pass/fail for CI."""
+"""`vecu scenario run FILE|NAME...`, `vecu scenario list|show`: declarative fault-injection scenarios with pass/fail for CI."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 
 from vecu import argtypes
 from vecu.cli import check_outputs, configure_logging
+from vecu.cli.shipped import register_list_show
 from vecu.errors import BadArgumentError, BadFileError
 
 
@@ -15,10 +16,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scenario", help="run fault-injection scenarios (TOML) and judge them",
                        description="Declarative fault-injection scenarios (docs/scenarios.md).")
     ssub = p.add_subparsers(dest="scenario_command", required=True)
-    r = ssub.add_parser("run", help="run scenario files on the simulated clock",
+    r = ssub.add_parser("run", help="run scenarios (files or shipped names) on the simulated clock",
                         description="Run each scenario, evaluate its criteria, write reports; "
                                     "exit 1 when any criterion fails.")
-    r.add_argument("files", nargs="+", metavar="FILE", help="scenario .toml files")
+    r.add_argument("files", nargs="+", metavar="FILE|NAME",
+                   help="scenario .toml files or names of shipped ones (`vecu scenario list`); "
+                        "an existing file wins over a name")
     r.add_argument("--junit", metavar="OUT.xml", help="write JUnit XML")
     r.add_argument("--report", metavar="DIR", help="write DIR/index.html with PNG plots")
     r.add_argument("--jobs", type=argtypes.bounded(1, 256, integer=True), default=1, metavar="N",
@@ -27,16 +30,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="print nothing but errors and the verdict (and, on a terminal, the "
                         "progress of a long scenario every 2 s)")
     r.set_defaults(func=main)
+    register_list_show(ssub, "scenario")
 
 
 def main(args: argparse.Namespace) -> int:
     from vecu.scenario.loader import load_scenario
     from vecu.scenario.report import write_html, write_junit
     from vecu.scenario.runner import run_scenarios
+    from vecu.shipped import resolve
 
     configure_logging(quiet=True)  # errors only: the scenario lines are the output
     check_outputs(junit=args.junit, report=args.report)
-    scenarios = [load_scenario(f) for f in args.files]
+    scenarios = [load_scenario(resolve("scenario", f)) for f in args.files]
     names = [s.name for s in scenarios]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:

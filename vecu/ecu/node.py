@@ -256,7 +256,7 @@ class EcuNode(BusNode):
             if route is None:
                 if key in self._diag_ids:
                     rx.diagnostic += 1
-                    self.diagnostics.on_frame(msg, t_ns)  # type: ignore[union-attr]
+                    self.diagnostics.on_frame(msg, t_ns)  # type: ignore[union-attr]  # _diag_ids is empty without diagnostics
                     return
                 if key in self.rx_codec.by_id:
                     rx.ignored += 1

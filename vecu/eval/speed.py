@@ -109,9 +109,12 @@ def evaluate_speed(
         mv = lo & (v > 0.0)
         ef = vh[burn:] - v
         er = tr.wheel[burn:] - v
-        ef_hi.append(ef[hi]); er_hi.append(er[hi])
-        ef_lo.append(ef[lo]); er_lo.append(er[lo])
-        ef_mv.append(ef[mv]); er_mv.append(er[mv])
+        ef_hi.append(ef[hi])
+        er_hi.append(er[hi])
+        ef_lo.append(ef[lo])
+        er_lo.append(er[lo])
+        ef_mv.append(ef[mv])
+        er_mv.append(er[mv])
         ea_f.append(ah[burn:] - tr.a[burn:])
         ea_r.append(tr.accel[burn:] - tr.a[burn:])
         ea_d.append(np.diff(tr.wheel)[burn - 1:] / DT_S - tr.a[burn:])

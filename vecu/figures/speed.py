@@ -51,7 +51,7 @@ def make(out: Path, quick: bool = False) -> list[tuple[Path, str]]:
         fig.suptitle(f"Hernandez 2005 Fig. {fig_no}: power spectrum magnitude of the {label} "
                      "(simulated 84 km/h braking, 500 Hz)", fontsize=10)
         path = save(fig, out / f"speed_fig{fig_no}_spectrum_{'raw' if fig_no == 8 else 'est'}.png")
-        spectra.append(path)  # type: ignore[arg-type]
+        spectra.append(path)  # type: ignore[arg-type]  # the PNG paths share the list with the dB values
     raw_v, raw_a, p8, est_v, est_a, p11 = spectra
     note = (f"mean power above 20 Hz: speed {raw_v:.1f} -> {est_v:.1f} dB, acceleration "
             f"{raw_a:.1f} -> {est_a:.1f} dB")

@@ -312,7 +312,7 @@ def identify_throttle(data: ThrottleData, start: ThrottleModel = PAPER_THROTTLE,
                                       float(P0[s, j]), "fitted" if free[s, j] else str(why[s, j])))
     fit = ThrottleFit(
         model=model, start=start, estimates=estimates, bounds_status=bounds_status,
-        n_samples=data.n, mode_samples=tuple(int(c) for c in counts),  # type: ignore[arg-type]
+        n_samples=data.n, mode_samples=tuple(int(c) for c in counts),  # type: ignore[arg-type]  # one count per mode (3), not a fixed-size literal
         cost_start=cost_start, cost_fit=prob.cost(P),
         free_run_mse_start=_mse(*_free_run_errors(data, start)),
         free_run_mse_fit=_mse(*_free_run_errors(data, model)))

@@ -26,4 +26,4 @@ class TpsCalibration:
     def angle(self, voltage: float) -> float:
         """Voltage -> angle in deg, clipped to the mechanical range [0, 90]."""
         theta = (voltage - self.v_at_0) * 90.0 / (self.v_at_90 - self.v_at_0)
-        return 0.0 if theta < 0.0 else (90.0 if theta > 90.0 else theta)
+        return 0.0 if theta < 0.0 else (90.0 if theta > 90.0 else theta)  # noqa: FURB136 (NaN passes, as in the kernels)

@@ -210,7 +210,7 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     cap = int(profile.duration_s / sample_time(float(prof_n.max()), params.n_cyl)) + 2
     block = config.block
     noise = rng.standard_normal((-(-cap // block) * block, 7))  # as ManifoldPlant._row draws
-    pc = plant_constants(params, config, profile.duration_s, profile.dt_s)  # type: ignore[attr-defined]
+    pc = plant_constants(params, config, profile.duration_s, profile.dt_s)
     rows = np.empty((cap, 8))
     xs = np.empty((cap, 6))
     ys = np.empty((cap, 3))
@@ -318,10 +318,10 @@ class EventsAhead:
         return math.isfinite(n_min) and n_min > 0.0
 
     def start_profile(self, profile: Profile) -> None:
-        self._prof = (np.ascontiguousarray(profile.n_rpm, dtype=np.float64),  # type: ignore[attr-defined]
-                      np.ascontiguousarray(profile.ta_sp, dtype=np.float64),  # type: ignore[attr-defined]
+        self._prof = (np.ascontiguousarray(profile.n_rpm, dtype=np.float64),  # type: ignore[attr-defined]  # a manifold drive profile (usable() checked it)
+                      np.ascontiguousarray(profile.ta_sp, dtype=np.float64),  # type: ignore[attr-defined]  # as above
                       plant_constants(self.params, self.config, profile.duration_s,
-                                      profile.dt_s))  # type: ignore[attr-defined]
+                                      profile.dt_s))  # type: ignore[attr-defined]  # as above
 
     def fill(self, t_ns: int, t0_ns: int) -> int:
         """Compute the events from t_ns (the profile started at t0_ns) into times / out; returns

@@ -396,7 +396,7 @@ class PlantNode(BusNode):
         self._fi = codec["FI_Command"]
         self._fi_key = (self._fi.frame_id, self._fi.is_extended)
         injector.bind(codec)
-        self._fi_event = codec["FI_Event"] if "FI_Event" in codec else None
+        self._fi_event = codec["FI_Event"] if "FI_Event" in codec else None  # noqa: SIM401 (no .get)
         self._codec = codec
         self._announced = 0  # injector events already sent as FI_Event frames
         self.frames_received = 0
@@ -411,7 +411,7 @@ class PlantNode(BusNode):
         return frozenset({self._fi_key})
 
     def enable_truth(self, codec: DbcCodec) -> None:
-        """Send the debug truth frames of dbc/vecu_truth.dbc next to each part's sensor frames."""
+        """Send the debug truth frames of vecu/dbc/vecu_truth.dbc next to each part's sensor frames."""
         names = {ThrottlePart: "TRUTH_Throttle", LongitudinalPart: "TRUTH_Speed",
                  LateralPart: "TRUTH_Steering", ManifoldPart: "TRUTH_Manifold"}
         for part in [*self.parts, self.manifold]:
@@ -447,7 +447,7 @@ class PlantNode(BusNode):
         return True
 
     def _announce_faults(self) -> None:
-        """One FI_Event frame (dbc/vecu.dbc) per fault start / end, so a trace carries them."""
+        """One FI_Event frame (vecu/dbc/vecu.dbc) per fault start / end, so a trace carries them."""
         events = self.injector.events
         new, self._announced = events[self._announced:], len(events)
         if self._fi_event is None:

@@ -6,8 +6,8 @@ the TPS sensor and the input generator.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Iterator
 
 import numpy as np
 from scipy import signal

@@ -167,7 +167,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
         if writer is not None:
             try:
                 writer.stop()
-            except Exception as exc:  # noqa: BLE001
+            except Exception as exc:  # noqa: BLE001 - logged; the replay's result stands
                 log.error("%s: closing the output failed: %s", config.out, exc)
         for bus in buses:
             bus.shutdown()

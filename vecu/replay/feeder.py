@@ -107,7 +107,7 @@ class Feeder:
         at = [0] * len(buf)
         for fc, index, payloads in groups.values():
             if index:
-                block = fc.check_block(payloads)  # type: ignore[union-attr]
+                block = fc.check_block(payloads)  # type: ignore[union-attr]  # index set: a block-capable codec
                 for j, i in enumerate(index):
                     checks[i] = block
                     at[i] = j

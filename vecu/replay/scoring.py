@@ -1,5 +1,5 @@
 """Score a trace from frames alone: the ECU's estimate frames against the plant's debug truth
-frames (dbc/vecu_truth.dbc) recorded in the same trace.
+frames (vecu/dbc/vecu_truth.dbc) recorded in the same trace.
 
 Pairing: an estimate at time t is compared with the newest truth frame at or before t, if that
 truth is at most one period of its message old (throttle 1 ms, speed 2 ms, steering 10 ms, manifold:

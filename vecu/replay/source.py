@@ -169,7 +169,7 @@ class TraceSource:
         f = getattr(self._reader, "file", None)
         for obj in (getattr(f, "buffer", None), f):
             try:
-                return int(obj.tell())  # type: ignore[union-attr]
+                return int(obj.tell())  # type: ignore[union-attr]  # None raises AttributeError, caught below
             except (AttributeError, OSError, ValueError, TypeError):
                 continue
         return None

@@ -180,7 +180,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     sets += [("set", leaf, value) for leaf, value in flatten_toml(data.get("set", {}))]
     params = ParamTree()
     try:
-        for key, leaf, value in sets:
+        for key, leaf, value in sets:  # noqa: B007 - `key` names the culprit in the except below
             params = apply_sets(params, [(leaf, value)])
         key = "set"
         validate_tree(params)

@@ -47,12 +47,12 @@ class Did:
 
     def encode(self, value: float | None | bytes) -> bytes:
         if self.fmt.endswith("s"):
-            return bytes(value or b"").ljust(self.size, b" ")[:self.size]  # type: ignore[arg-type]
+            return bytes(value or b"").ljust(self.size, b" ")[:self.size]  # type: ignore[arg-type]  # a string DID: bytes or None
         lo, hi, na = self.limits
-        if value is None or not math.isfinite(value):  # type: ignore[arg-type]
+        if value is None or not math.isfinite(value):  # type: ignore[arg-type]  # a numeric DID: float or None
             raw = na
         else:
-            raw = min(max(round(value / self.scale), lo), hi)  # type: ignore[operator]
+            raw = min(max(round(value / self.scale), lo), hi)  # type: ignore[operator]  # a numeric DID: float
         return struct.pack(">" + self.fmt, raw)
 
     def decode(self, data: bytes) -> float | None:
@@ -86,8 +86,8 @@ def build_dids(node: EcuNode, config: UdsConfig, now_ns: Callable[[], int],
     ]
     thr = node.function("throttle")
     if thr is not None:
-        mon: SensorMonitor = thr.monitor  # type: ignore[attr-defined]
-        est = thr.estimator  # type: ignore[attr-defined]
+        mon: SensorMonitor = thr.monitor  # type: ignore[attr-defined]  # the throttle function (EcuFunction is the common base)
+        est = thr.estimator  # type: ignore[attr-defined]  # as above
 
         def set_margin(v: float, m: SensorMonitor = mon) -> None:
             m.cfg = replace(m.cfg, plaus_margin=v)
@@ -107,8 +107,8 @@ def build_dids(node: EcuNode, config: UdsConfig, now_ns: Callable[[], int],
     mfd = node.function("manifold")
     if mfd is not None:
         def last(i: int, scale: float = 1.0, offset: float = 0.0) -> Reader:
-            return lambda: (None if mfd.last is None  # type: ignore[attr-defined]
-                            else mfd.last[i] * scale + offset)  # type: ignore[attr-defined]
+            return lambda: (None if mfd.last is None  # type: ignore[attr-defined]  # the manifold function
+                            else mfd.last[i] * scale + offset)  # type: ignore[attr-defined]  # as above
 
         dids += [
             Did(0x0200, "manifold pressure", "H", 0.01, "kPa", last(1)),
@@ -120,7 +120,7 @@ def build_dids(node: EcuNode, config: UdsConfig, now_ns: Callable[[], int],
         ]
     spd = node.function("speed")
     if spd is not None:
-        kf, wmon = spd.kf, spd.monitor  # type: ignore[attr-defined]
+        kf, wmon = spd.kf, spd.monitor  # type: ignore[attr-defined]  # the speed function
         dids += [
             Did(0x0300, "vehicle speed", "H", 0.01, "km/h", lambda: kf.speed_mps / MPS_PER_KMH),
             Did(0x0301, "vehicle acceleration", "h", 0.001, "m/s^2", lambda: kf.accel_mps2),
@@ -128,14 +128,14 @@ def build_dids(node: EcuNode, config: UdsConfig, now_ns: Callable[[], int],
                 io=("ESC_Motion", "ESC_WheelSpeed")),
             Did(0x0303, "wheel-speed sensor status", "B", 1, "", _status(wmon)),
             Did(0x0304, "speed filter mode (0 normal, 1 standstill, 2 ABS, 3 coast)", "B", 1,
-                "", lambda: float(spd.mode)),  # type: ignore[attr-defined]
+                "", lambda: float(spd.mode)),  # type: ignore[attr-defined]  # as above
         ]
     ste = node.function("steering")
     if ste is not None:
-        ukf, smon = ste.ukf, ste.monitor  # type: ignore[attr-defined]
+        ukf, smon = ste.ukf, ste.monitor  # type: ignore[attr-defined]  # the steering function
         dids += [
             Did(0x0400, "steering-wheel angle (broadcast)", "h", 0.05, "deg",
-                lambda: ste.angle),  # type: ignore[attr-defined]
+                lambda: ste.angle),  # type: ignore[attr-defined]  # as above
             Did(0x0401, "steering-wheel angle estimate", "h", 0.05, "deg",
                 lambda: ukf.swa_rad * DEG_PER_RAD),
             Did(0x0402, "side-slip angle estimate", "h", 0.01, "deg",

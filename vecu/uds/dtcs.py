@@ -37,8 +37,8 @@ class DtcSpec:
         """The J2012 display form, e.g. P0122-00."""
         hi = self.number >> 16
         letter = "PCBU"[hi >> 6]
-        return f"{letter}{(hi >> 4) & 3}{hi & 0xF:X}{(self.number >> 8) & 0xFF:02X}-" \
-               f"{self.number & 0xFF:02X}"
+        mid, low = (self.number >> 8) & 0xFF, self.number & 0xFF
+        return f"{letter}{(hi >> 4) & 3}{hi & 0xF:X}{mid:02X}-{low:02X}"
 
 
 # failure type bytes (SAE J2012-DA): 0x21/0x22 signal amplitude < min / > max, 0x64 signal

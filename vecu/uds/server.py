@@ -226,7 +226,7 @@ class UdsServer:
             stats.suppressed += 1
             return None
         stats.responses += 1
-        return bytes([sid + 0x40]) + result  # type: ignore[operator]
+        return bytes([sid + 0x40]) + result  # type: ignore[operator]  # an int (negative response) returned above: bytes here
 
     def _enter(self, session: int) -> None:
         self.security.lock()
@@ -242,7 +242,7 @@ class UdsServer:
 
     def _release(self, did: int) -> None:
         self.io.pop(did, None)
-        message, signal = self.dids[did].io  # type: ignore[misc]
+        message, signal = self.dids[did].io  # type: ignore[misc]  # only IO-controllable DIDs (io set) are released
         self.node.set_override(message, signal, None)
 
     # 0x10
@@ -431,8 +431,8 @@ class UdsServer:
         value = d.read() if option == 2 else d.decode(p[4:])  # freeze / shortTermAdjustment
         if value is None:
             return C.ConditionsNotCorrect if option == 2 else C.RequestOutOfRange
-        self.io[did] = float(value)  # type: ignore[arg-type]
-        self.node.set_override(d.io[0], d.io[1], float(value))  # type: ignore[arg-type]
+        self.io[did] = float(value)
+        self.node.set_override(d.io[0], d.io[1], float(value))
         return p[1:4] + d.encode(value)
 
     # 0x31

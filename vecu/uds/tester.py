@@ -60,7 +60,7 @@ class SimTester:
         for payload in phys.payloads():
             self._answer(payload, t_ns)
         for res in list(self._waiting):
-            if t_ns - res.sent_ns > NO_RESPONSE_MS * NS_PER_MS:  # type: ignore[operator]
+            if t_ns - res.sent_ns > NO_RESPONSE_MS * NS_PER_MS:  # type: ignore[operator]  # waiting: sent, so sent_ns is set
                 res.done = True
                 self._waiting.remove(res)
         results = self.results
@@ -90,7 +90,7 @@ class SimTester:
             return  # unsolicited, or for a request given up on
         self._waiting.remove(res)
         res.response = payload
-        res.latency_ms = (t_ns - res.sent_ns) / NS_PER_MS  # type: ignore[operator]
+        res.latency_ms = (t_ns - res.sent_ns) / NS_PER_MS  # type: ignore[operator]  # waiting: sent, so sent_ns is set
         res.done = True
 
     def summary(self) -> list[dict]:

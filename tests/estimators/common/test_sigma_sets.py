@@ -96,4 +96,4 @@ def test_sets_are_immutable() -> None:
     with pytest.raises(ValueError):
         s.w[0] = 1.0
     with pytest.raises(AttributeError):
-        s.name = "x"  # type: ignore[misc]
+        s.name = "x"  # type: ignore[misc]  # the write the test expects to fail

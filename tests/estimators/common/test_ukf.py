@@ -145,7 +145,7 @@ def _finite(est) -> bool:
 @pytest.mark.parametrize("name", PAPER_SETS)
 def test_nan_and_inf_measurements_are_missing(make, name: str) -> None:
     a, b = make(name), make(name)
-    for k in range(50):
+    for _ in range(50):
         a.step(5.0, 20.0)
         b.step(5.0, 20.0)
     for bad in (float("nan"), float("inf"), -float("inf")):

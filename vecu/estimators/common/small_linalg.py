@@ -79,14 +79,14 @@ def chol3_floored(p: Any, floor: float) -> L3:
     jitter where P is not positive definite). floor if floor > d else d is max(d, floor) as
     Python computes it, NaN included."""
     p00, p01, p02, p11, p12, p22 = p
-    l00 = math.sqrt(floor if floor > p00 else p00)
+    l00 = math.sqrt(floor if floor > p00 else p00)  # noqa: FURB136 (max(), NaN included; docstring)
     l10 = p01 / l00
     l20 = p02 / l00
     d = p11 - l10 * l10
-    l11 = math.sqrt(floor if floor > d else d)
+    l11 = math.sqrt(floor if floor > d else d)  # noqa: FURB136 (as above)
     l21 = (p12 - l20 * l10) / l11
     d = p22 - l20 * l20 - l21 * l21
-    return l00, l10, l11, l20, l21, math.sqrt(floor if floor > d else d)
+    return l00, l10, l11, l20, l21, math.sqrt(floor if floor > d else d)  # noqa: FURB136 (as above)
 
 
 @kernel

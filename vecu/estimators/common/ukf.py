@@ -15,7 +15,7 @@ the state or covariance diverges (counted in `resets`). A non-finite y is treate
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

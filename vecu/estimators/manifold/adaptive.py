@@ -69,7 +69,7 @@ class ManifoldAdaptive(_ManifoldKF):
 
     name = "adaptive"
 
-    def __init__(self, config: ManifoldFilterConfig = ManifoldFilterConfig(),  # noqa: B008
+    def __init__(self, config: ManifoldFilterConfig = ManifoldFilterConfig(),
                  x0: np.ndarray | None = None) -> None:
         super().__init__(config, None if x0 is None else np.asarray(x0, dtype=float)[:6])
         c = config

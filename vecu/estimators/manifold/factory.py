@@ -16,7 +16,7 @@ from vecu.estimators.manifold.filters import (
 )
 
 
-def make_filter(name: str, config: ManifoldFilterConfig = ManifoldFilterConfig(),  # noqa: B008
+def make_filter(name: str, config: ManifoldFilterConfig = ManifoldFilterConfig(),
                 x0: np.ndarray | None = None) -> _ManifoldKF:
     """'ekf', 'sdkf' (iterate), 'sdkf_doubling', 'sdkf_scipy', 'adaptive'."""
     if name == "adaptive":

@@ -45,9 +45,9 @@ import numpy as np
 from vecu.estimators.common.covariance import diverged_floats, symmetrise
 from vecu.estimators.common.sigma_sets import SigmaSet, ahsm
 from vecu.estimators.common.small_linalg import chol4_or_fallback
-from vecu.estimators.steering.base import FilterRun
 from vecu.estimators.steering import kernels as sk
 from vecu.estimators.steering import model as sm
+from vecu.estimators.steering.base import FilterRun
 from vecu.estimators.steering.model import SteeringModel
 from vecu.kernels import backend
 
@@ -63,7 +63,7 @@ def default_sigma_set() -> SigmaSet:
 
 
 def p10_from_matrix(P: np.ndarray) -> P10:
-    return tuple(float(P[i, j]) for i in range(4) for j in range(i, 4))  # type: ignore[return-value]
+    return tuple(float(P[i, j]) for i in range(4) for j in range(i, 4))  # type: ignore[return-value]  # 10 entries (upper triangle of 4x4)
 
 
 def matrix_from_p10(p: P10 | list[float]) -> np.ndarray:
@@ -167,9 +167,9 @@ class _SteeringFilter:
         if not self.record:
             raise RuntimeError("filter was built with record=False")
         if self._nb:
-            if not self._ring.count:  # type: ignore[union-attr]
+            if not self._ring.count:  # type: ignore[union-attr]  # nb: a ring
                 raise RuntimeError("no steps recorded")
-            return FilterRun(*self._ring.arrays())  # type: ignore[union-attr]
+            return FilterRun(*self._ring.arrays())  # type: ignore[union-attr]  # nb: a ring
         xs, ps, xp, pp, cs, vs = self._hist
         if not xs:
             raise RuntimeError("no steps recorded")
@@ -264,7 +264,7 @@ class _SteeringFilter:
         vx = self._speed(v_x)
         if nb:
             vx = float(vx)
-            slot = self._ring.slot() if self.record else 0  # type: ignore[union-attr]
+            slot = self._ring.slot() if self.record else 0  # type: ignore[union-attr]  # nb: a ring
             x, p, cross = self._predict_compiled(vx, slot)
         else:
             x, p, cross = self._predict(vx)
@@ -290,7 +290,7 @@ class _SteeringFilter:
             x, p = self._x0, self._p0
             xp, pp, cross = x, p, [0.0] * 16
             if nb and self.record:
-                self._ring.hist[slot, sk.COL_XP:sk.COL_VX] = self._reset_row  # type: ignore
+                self._ring.hist[slot, sk.COL_XP:sk.COL_VX] = self._reset_row  # type: ignore[attr-defined, union-attr]  # nb: a ring
         else:
             x = self._project(x, vx)
         self._set(x, p)
@@ -321,18 +321,18 @@ class _SteeringFilter:
         self._nb = nb
 
     def _push(self, slot: int, x: tuple[float, ...], p: P10, vx: float) -> None:
-        self._lagged = self._ring.record(slot, x, p, vx, self._smooth_lag,  # type: ignore
+        self._lagged = self._ring.record(slot, x, p, vx, self._smooth_lag,  # type: ignore[union-attr]  # nb: a ring
                                          self.steps - 1)
 
     def _hist_len(self) -> int:
-        return self._ring.count if self._nb else len(self._hist[0])  # type: ignore[union-attr]
+        return self._ring.count if self._nb else len(self._hist[0])  # type: ignore[union-attr]  # nb: a ring
 
     def _window_vx(self) -> list[float]:
         """v_x of the recorded steps, oldest first."""
-        return self._ring.vx() if self._nb else list(self._hist[5])  # type: ignore[union-attr]
+        return self._ring.vx() if self._nb else list(self._hist[5])  # type: ignore[union-attr]  # nb: a ring
 
     def _oldest_vx(self) -> float:
-        return self._ring.oldest_vx() if self._nb else float(self._hist[5][0])  # type: ignore
+        return self._ring.oldest_vx() if self._nb else float(self._hist[5][0])  # type: ignore[union-attr]  # nb: a ring
 
 
 
@@ -446,7 +446,7 @@ class SteeringUKF(_SteeringFilter):
 
     def _predict_compiled(self, vx: float, slot: int) -> tuple[tuple[float, ...], P10, None]:
         rec = self.record
-        hist = self._ring.hist if rec else self._scratch  # type: ignore[union-attr]
+        hist = self._ring.hist if rec else self._scratch  # type: ignore[union-attr]  # rec: a ring
         ok, x, p = sk.predict.compiled(self._x, self._p, vx, self._cst, self._ptab, hist, slot,
                                        rec)
         if not ok:  # not PD for the unrolled Cholesky: the fallback factor from Python
@@ -473,20 +473,20 @@ class SteeringEKF(_SteeringFilter):
 
     def _predict(self, vx: float) -> tuple[tuple[float, ...], P10, list[float] | None]:
         x = self._x
-        F = sm.jacobian_f(x, vx, self.k)  # type: ignore[arg-type]
+        F = sm.jacobian_f(x, vx, self.k)  # type: ignore[arg-type]  # the state is a 4-tuple
         P = matrix_from_p10(self._p)
         PFt = P @ F.T
         Pp = symmetrise(F @ PFt + self._Q)
-        xp = sm.f(x, vx, self.k)  # type: ignore[arg-type]
+        xp = sm.f(x, vx, self.k)  # type: ignore[arg-type]  # the state is a 4-tuple
         return xp, p10_from_matrix(Pp), (PFt.ravel().tolist() if self.record else None)
 
     def _update_ay(self, x: tuple[float, ...], p: P10, y: float, vx: float
                    ) -> tuple[tuple[float, ...], P10]:
-        Hr = sm.jacobian_h(x, vx, self.k)[1]  # type: ignore[arg-type]
+        Hr = sm.jacobian_h(x, vx, self.k)[1]  # type: ignore[arg-type]  # the state is a 4-tuple
         P = matrix_from_p10(p)
         c = P @ Hr  # P H^T
         s = float(Hr @ c) + self._r_ay
-        e = y - sm.h_ay(x, vx, self.k)  # type: ignore[arg-type]
+        e = y - sm.h_ay(x, vx, self.k)  # type: ignore[arg-type]  # the state is a 4-tuple
         if not self._gate_ay(e, s):
             return x, p
         K = c / s

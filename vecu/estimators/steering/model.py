@@ -146,8 +146,8 @@ def f_reference(x: State, vx: float, k: Consts) -> State:
     dt = k.dt
     g1 = deriv(x, vx, k)
     x1 = tuple(x[i] + dt * g1[i] for i in range(4))
-    g2 = deriv(x1, vx, k)  # type: ignore[arg-type]
-    return tuple(x[i] + 0.5 * dt * (g1[i] + g2[i]) for i in range(4))  # type: ignore[return-value]
+    g2 = deriv(x1, vx, k)  # type: ignore[arg-type]  # a 4-tuple built by a generator
+    return tuple(x[i] + 0.5 * dt * (g1[i] + g2[i]) for i in range(4))  # type: ignore[return-value]  # a 4-tuple built by a generator
 
 
 def h(x: State, vx: float, k: Consts) -> tuple[float, float]:
@@ -206,7 +206,7 @@ def jacobian_f(x: State, vx: float, k: Consts) -> np.ndarray:
     A0 = jacobian_g(x, vx, k)
     g0 = deriv(x, vx, k)
     x1 = tuple(x[i] + dt * g0[i] for i in range(4))
-    A1 = jacobian_g(x1, vx, k)  # type: ignore[arg-type]
+    A1 = jacobian_g(x1, vx, k)  # type: ignore[arg-type]  # a 4-tuple built by a generator
     eye = np.eye(4)
     return eye + 0.5 * dt * (A0 + A1 @ (eye + dt * A0))
 

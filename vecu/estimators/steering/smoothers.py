@@ -105,7 +105,7 @@ class FixedLagSmoother:
         if len(h[0]) >= 2:  # gain of the previous step from this step's prediction
             Pp = matrix_from_p10(h[3][-1])
             C = np.asarray(h[4][-1], dtype=float).reshape(4, 4)
-            f._gains.append(tuple(np.linalg.solve(Pp, C.T).T.ravel().tolist()))  # type: ignore
+            f._gains.append(tuple(np.linalg.solve(Pp, C.T).T.ravel().tolist()))  # type: ignore[union-attr]  # no nb: deques
         if k < self.lag:
             return None
         return self._estimate(k - self.lag, self._backward()[0])
@@ -178,7 +178,7 @@ class FixedLagSmoother:
         if n_buf == 0:
             return []
         first = f.steps - n_buf
-        ms = f._ring.means() if f._nb else self._backward()  # type: ignore[union-attr]
+        ms = f._ring.means() if f._nb else self._backward()  # type: ignore[union-attr]  # nb: a ring
         vxs = f._window_vx()
         i_s = f.k.i_s
         skip = 1 if f.steps - 1 >= self.lag else 0  # the oldest one was already returned

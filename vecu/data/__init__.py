@@ -1,0 +1,1 @@
+"""Files shipped with vecu for users to run by name: scenarios/ and campaigns/ (vecu.shipped)."""
