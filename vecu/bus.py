@@ -24,6 +24,7 @@ from typing import Any
 import can
 from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.virtual import VirtualBus
+from can.typechecking import CanFilter
 
 from vecu.clock import wall_time
 from vecu.errors import UnavailableError
@@ -195,7 +196,7 @@ def socketcan_mtu(channel: Any) -> int | None:
         return None
 
 
-def receive_filters(keys: Iterable[Key]) -> list[dict[str, Any]]:
+def receive_filters(keys: Iterable[Key]) -> list[CanFilter]:
     """python-can filters (kernel filters on SocketCAN) passing exactly these (ID, extended)."""
     return [{"can_id": i, "can_mask": 0x1FFFFFFF if ext else 0x7FF, "extended": ext}
             for i, ext in sorted(keys)]

@@ -307,7 +307,7 @@ def test_communication_control_stops_and_resumes_every_broadcast(sim):
 
 
 @pytest.mark.parametrize("request_hex,want", [
-    ("22" + "F190" * 16, "62" + ("F190" + "1VECU00SIM0000001".encode().hex()) * 16),  # 33 bytes
+    ("22" + "F190" * 16, "62" + ("F190" + b"1VECU00SIM0000001".hex()) * 16),  # 33 bytes
     ("22" + "00" * 999, "7F2213"),    # odd DID bytes
     ("22" + "F190" * 2047, "7F2213"),  # 4095 bytes: more DIDs than max_dids_per_request
 ])
