@@ -42,7 +42,7 @@ from vecu.block_codec import (
     BlockLayout,
     encode_rows,
 )
-from vecu.e2e import e2e_checker, e2e_crc
+from vecu.e2e import E2EProtection, own_protection
 from vecu.errors import BadFileError
 from vecu.framer import EncodeParts, Framer, compile_range_check, make_framer
 from vecu.frames import message
@@ -89,9 +89,13 @@ class SignalInfo:
 
 @dataclass(frozen=True)
 class E2ELayout:
+    """A message's `<prefix>_CRC` / `<prefix>_AliveCounter` signals and the AUTOSAR profile
+    they carry (vecu.e2e.own_protection: P11, data ID = the CAN ID)."""
+
     crc_signal: str
     counter_signal: str
     crc_byte: int
+    protection: E2EProtection
 
 
 class FrameCodec:
@@ -134,10 +138,10 @@ class FrameCodec:
         self._framers: dict[tuple[str, ...], Framer] = {}
         # crc_ok(payload): its E2E CRC byte is right (True without E2E); bad_values(values): the
         # names of signals NaN / inf or outside the DBC's [minimum, maximum]. Generated code
-        # (vecu.e2e.e2e_checker, vecu.framer.compile_range_check): called for every frame received
+        # (autosar-e2e's check, vecu.framer.compile_range_check): called for every frame received
         self.crc_ok: Callable[[bytes | bytearray], bool] = (
-            _no_crc if self.e2e is None
-            else e2e_checker(self.frame_id, self.length, self.e2e.crc_byte))
+            _no_crc if self.e2e is None else self.e2e.protection.checker())
+        self._protect = None if self.e2e is None else self.e2e.protection.protector()
         self.bad_values: Callable[[Mapping[str, float]], list[str]] = compile_range_check(
             self._checked, self.name)
         self._encode = message.encode
@@ -209,7 +213,7 @@ class FrameCodec:
                 if e2e is None:
                     return data
                 buf = bytearray(data)
-                buf[e2e.crc_byte] = e2e_crc(self.frame_id, buf, e2e.crc_byte)
+                self._protect(buf)
                 return bytes(buf)
         return self.encode_cantools(values)
 
@@ -220,8 +224,8 @@ class FrameCodec:
             v = sat[name]
             sat[name] = lo if not v >= lo else min(v, hi)
         data = bytearray(self._encode(sat, scaling=True, padding=False, strict=False))
-        if self.e2e is not None:
-            data[self.e2e.crc_byte] = e2e_crc(self.frame_id, data, self.e2e.crc_byte)
+        if self._protect is not None:
+            self._protect(data)
         return bytes(data)
 
     def frame(self, values: Mapping[str, float], timestamp: float) -> can.Message:
@@ -449,7 +453,7 @@ def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:
                                  sig.is_signed, sig.length if sig.is_float else 0, scale, offset,
                                  integer, type(conv) in (LinearConversion, IdentityConversion)))
     return BlockLayout(message.frame_id, n, tuple(fields),
-                       e2e.crc_byte if e2e is not None else None)
+                       e2e.protection if e2e is not None else None)
 
 
 def _e2e_layout(message: Message) -> E2ELayout | None:
@@ -457,10 +461,16 @@ def _e2e_layout(message: Message) -> E2ELayout | None:
     counter = next((s for s in message.signals if s.name.endswith("_AliveCounter")), None)
     if crc is None or counter is None:
         return None
-    if crc.length != 8 or crc.start % 8 != 0:
-        raise DbcLoadError(None, f"{message.name}: E2E signal {crc.name} must be 8 bits, "
-                           "byte aligned")
-    return E2ELayout(crc.name, counter.name, crc.start // 8)
+    at = crc.start // 8
+    if (crc.length != 8 or crc.start % 8 != 0 or counter.byte_order != "little_endian"
+            or counter.start != 8 * (at + 1) or counter.length != 4 or at + 2 > message.length):
+        raise DbcLoadError(None, f"{message.name}: E2E signals {crc.name} / {counter.name} must "
+                           "be AUTOSAR P11's header: an 8-bit CRC byte, the 4-bit counter in the "
+                           "low nibble of the next byte")
+    protection = own_protection(message.frame_id & 0xFFFF)
+    if at:
+        protection = E2EProtection("P11", data_id=message.frame_id & 0xFFFF, offset=at)
+    return E2ELayout(crc.name, counter.name, at, protection)
 
 
 _SHARED: dict[tuple, DbcCodec] = {}
