@@ -60,11 +60,15 @@ def builtin_dbc_path(name: str = DEFAULT_DBC) -> Path:
     return Path(str(resources.files("vecu.dbc").joinpath(name)))
 
 
+_ADD_BY_SUFFIX = {".arxml": "add_arxml_file", ".kcd": "add_kcd_file", ".sym": "add_sym_file"}
+
+
 def load_database(paths: Iterable[str | Path], strict: bool = True) -> cantools.database.Database:
+    """DBC files, or ARXML / KCD / SYM by their suffix, into one cantools database."""
     db = cantools.database.Database(strict=strict)
     for path in paths:
         try:
-            db.add_dbc_file(str(path))
+            getattr(db, _ADD_BY_SUFFIX.get(Path(path).suffix.lower(), "add_dbc_file"))(str(path))
         except FileNotFoundError as exc:
             raise DbcLoadError(path, "no such file") from exc
         except Exception as exc:  # cantools raises many kinds; report them as one line
@@ -135,6 +139,13 @@ class FrameCodec:
             if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi):
                 self._checked.append((sig.name, lo, hi))
         self.e2e = _e2e_layout(message)
+        # what a restbus needs of the database (vecu.restbus): send type, start values,
+        # multiplexer selections, an ARXML's E2E properties
+        self.send_type: str | None = message.send_type
+        self.start_values: dict[str, float] = {s.name: _start_value(s) for s in message.signals}
+        self.mux_selections: tuple[dict[str, int], ...] = (
+            tuple(_mux_selections(message.signal_tree)) if message.is_multiplexed() else ())
+        self.arxml_e2e: ArxmlE2E | None = _arxml_e2e(message)
         self._framers: dict[tuple[str, ...], Framer] = {}
         # crc_ok(payload): its E2E CRC byte is right (True without E2E); bad_values(values): the
         # names of signals NaN / inf or outside the DBC's [minimum, maximum]. Generated code
@@ -274,6 +285,55 @@ class FrameCodec:
         """decode() through cantools only (the reference of the fast path)."""
         return self._decode_simple(data, False, True)
 
+
+
+@dataclass(frozen=True)
+class ArxmlE2E:
+    """An ARXML message's E2E properties as cantools reads them (plain data)."""
+
+    category: str | None
+    data_ids: tuple[int, ...]
+    payload_length: int | None
+
+
+def _arxml_e2e(message: Message) -> ArxmlE2E | None:
+    e2e = message.autosar.e2e if message.autosar is not None else None
+    if e2e is None or not e2e.data_ids:
+        return None
+    return ArxmlE2E(e2e.category, tuple(e2e.data_ids), e2e.payload_length)
+
+
+def _start_value(sig) -> float:
+    """The signal's database start value (GenSigStartValue, ARXML init value) as a physical
+    number, else 0 clipped into its [minimum, maximum]."""
+    raw = sig.raw_initial
+    if raw is not None:
+        try:
+            return float(sig.conversion.raw_to_scaled(raw, decode_choices=False))
+        except (TypeError, ValueError):
+            pass
+    lo, hi = sig.minimum, sig.maximum
+    v = 0.0
+    if lo is not None and v < lo:
+        v = float(lo)
+    if hi is not None and v > hi:
+        v = float(hi)
+    return v
+
+
+def _mux_selections(tree: list) -> list[dict[str, int]]:
+    """Every combination of multiplexer values the signal tree allows (cascades included), each
+    a {multiplexer signal: value} dict, in the database's order."""
+    out: list[dict[str, int]] = [{}]
+    for node in tree:
+        if not isinstance(node, dict):
+            continue
+        for mux, branches in node.items():
+            options = []
+            for value, sub in branches.items():
+                options.extend({mux: value, **rest} for rest in _mux_selections(sub))
+            out = [{**a, **b} for a in out for b in options] if options else out
+    return out
 
 
 def _no_crc(data: bytes | bytearray) -> bool:
