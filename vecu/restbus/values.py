@@ -47,7 +47,8 @@ def _ramp(k: dict[str, Any], rng: np.random.Generator, base: Path) -> Source:
     start, end, period = float(k["start"]), float(k["end"]), float(k["period_s"])
     if not period > 0:
         raise ValueError("period_s must be > 0")
-    return lambda t: start + (end - start) * ((t % period) / period)
+    period_ns = round(period * 1e9)
+    return lambda t: start + (end - start) * ((round(t * 1e9) % period_ns) / period_ns)
 
 
 def _sine(k: dict[str, Any], rng: np.random.Generator, base: Path) -> Source:
@@ -63,7 +64,8 @@ def _square(k: dict[str, Any], rng: np.random.Generator, base: Path) -> Source:
     low, high, period, duty = (float(k[n]) for n in ("low", "high", "period_s", "duty"))
     if not period > 0 or not 0 <= duty <= 1:
         raise ValueError("period_s must be > 0 and duty in [0, 1]")
-    return lambda t: high if (t % period) < duty * period else low
+    period_ns, high_ns = round(period * 1e9), round(duty * period * 1e9)  # exact on ns times
+    return lambda t: high if round(t * 1e9) % period_ns < high_ns else low
 
 
 def _random_walk(k: dict[str, Any], rng: np.random.Generator, base: Path) -> Source:
