@@ -69,6 +69,8 @@ SMOKE: list[tuple[list[str], str]] = [
     (["params", "ecu.manifold.kf.params.omega0"], r"ecu\.manifold\.kf\.params\.omega0 +50\.0 +rad/s"),
     (["run", "--duration", "0.3", "--set", "plant.manifold.engine.zeta=0.7"], r"300 ticks"),
     (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
+    (["restbus", str(ROOT / "dbc" / "vecu.dbc"), "--node", "PLANT", "--duration", "1"],
+     r"vecu restbus: \d+ messages, \d+ frames in 1 s \(simulated clock"),
 ]
 
 
