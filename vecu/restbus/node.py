@@ -251,3 +251,29 @@ class RestbusNode:
                                   "signal": e.signal, "kind": e.kind, "value": e.value,
                                   "active": e.active, "source": e.source}
                                  for e in self.events]}
+
+
+@dataclass(frozen=True)
+class ScheduledDisturbance:
+    """One timeline entry: `kind` on target (MESSAGE or MESSAGE.SIGNAL) from start_s to end_s."""
+
+    target: str
+    kind: str
+    start_s: float
+    end_s: float | None = None
+    value: float | None = None
+
+
+def schedule_disturbances(sched: TaskScheduler, node: RestbusNode,
+                          timeline: tuple[ScheduledDisturbance, ...], priority: int = -1,
+                          source: str = "scenario") -> None:
+    """Start (and end) each timeline entry; each is checked against the restbus now."""
+    for d in timeline:
+        node.check(d.target, d.kind, d.value)
+        sched.at(round(d.start_s * NS_PER_S),
+                 lambda t, d=d: node.disturb(t, d.target, d.kind, d.value, source),
+                 name=f"disturb-{d.kind}-{d.target}", priority=priority)
+        if d.end_s is not None:
+            sched.at(round(d.end_s * NS_PER_S),
+                     lambda t, d=d: node.clear(t, d.target, d.kind, source),
+                     name=f"undisturb-{d.kind}-{d.target}", priority=priority)

@@ -15,21 +15,14 @@ from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import shared_codec
 from vecu.recorder import Recorder
 from vecu.restbus.commands import CommandListener
-from vecu.restbus.node import RestbusNode
+from vecu.restbus.node import (
+    RestbusNode,
+    ScheduledDisturbance,
+    schedule_disturbances,
+)
 from vecu.restbus.spec import RestbusConfig, build_plans
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
-
-
-@dataclass(frozen=True)
-class ScheduledDisturbance:
-    """One timeline entry: `kind` on target (MESSAGE or MESSAGE.SIGNAL) from start_s to end_s."""
-
-    target: str
-    kind: str
-    start_s: float
-    end_s: float | None = None
-    value: float | None = None
 
 
 @dataclass(frozen=True)
@@ -52,21 +45,6 @@ class RestbusRun:
 class RestbusResult:
     summary: dict[str, Any]
     node: RestbusNode
-
-
-def schedule_disturbances(sched: Scheduler, node: RestbusNode,
-                          timeline: tuple[ScheduledDisturbance, ...], priority: int = -1,
-                          source: str = "scenario") -> None:
-    """Start (and end) each timeline entry; each is checked against the restbus now."""
-    for d in timeline:
-        node.check(d.target, d.kind, d.value)
-        sched.at(round(d.start_s * NS_PER_S),
-                 lambda t, d=d: node.disturb(t, d.target, d.kind, d.value, source),
-                 name=f"disturb-{d.kind}-{d.target}", priority=priority)
-        if d.end_s is not None:
-            sched.at(round(d.end_s * NS_PER_S),
-                     lambda t, d=d: node.clear(t, d.target, d.kind, source),
-                     name=f"undisturb-{d.kind}-{d.target}", priority=priority)
 
 
 def run_restbus(run: RestbusRun, on_second: Callable[[float], None] | None = None
