@@ -13,6 +13,7 @@ import logging
 import struct
 
 import can
+import numpy as np
 
 from vecu.codec import FrameCodec, shared_codec
 from vecu.errors import BadArgumentError
@@ -40,15 +41,38 @@ def command_frame(frame_id: int, extended: bool, signal_index: int, kind: str, a
                   value: float | None) -> can.Message:
     """The RB_Command frame for one disturbance start (active) or end."""
     k = disturb.KINDS.get(kind)
-    if k is None:
+    if k is None and kind != "clear":
         raise BadArgumentError(f"unknown restbus disturbance {kind!r} (known: "
-                               f"{', '.join(disturb.KINDS)})")
+                               f"{', '.join(disturb.KINDS)}, clear)")
     if not 0 <= signal_index <= 63:
         raise BadArgumentError(f"RB_Command addresses signals 1..63, not {signal_index}")
-    v = k.default if value is None else value
+    v = (0.0 if k is None else k.default) if value is None else value
     return shared_codec()["RB_Command"].frame({
         "RB_MessageId": frame_id, "RB_Extended": int(extended), "RB_Active": int(active),
-        "RB_Kind": k.code, "RB_Signal": signal_index, "RB_ValueBits": value_bits(v)}, 0.0)
+        "RB_Kind": 0 if k is None else k.code, "RB_Signal": signal_index,
+        "RB_ValueBits": value_bits(v)}, 0.0)
+
+
+def command_for(databases: tuple[str, ...], target: str, kind: str,
+                value: float | None) -> can.Message:
+    """The RB_Command for `vecu inject --restbus DB… --target MESSAGE[.SIGNAL] --kind K`
+    (K 'clear': every disturbance of the message ends); names checked against the databases."""
+    from vecu.codec import DbcCodec
+
+    db = DbcCodec(databases, strict=False)
+    msg, _, sig = target.strip().partition(".")
+    if msg not in db:
+        raise BadArgumentError(f"--target {target!r}: no message {msg!r} in "
+                               f"{', '.join(databases)}")
+    fc = db[msg]
+    names = [s.name for s in fc.signals]
+    if sig and sig not in names:
+        raise BadArgumentError(f"--target {target!r}: message {msg} has no signal {sig!r}")
+    index = names.index(sig) + 1 if sig else 0
+    if kind == "clear":  # RB_Kind 0, RB_Active 0: every disturbance of the message ends
+        return command_frame(fc.frame_id, fc.is_extended, index, "clear", False, None)
+    disturb.make(kind, value, np.random.default_rng(0), sig or None)  # the restbus's own check
+    return command_frame(fc.frame_id, fc.is_extended, index, kind, True, value)
 
 
 class CommandListener:
@@ -69,7 +93,7 @@ class CommandListener:
     def apply(self, t_ns: int, msg: can.Message) -> bool:
         try:
             v = self.codec.decode(msg.data)
-            kind = _CODES[int(v["RB_Kind"])]
+            code = int(v["RB_Kind"])
             can_id, ext = int(v["RB_MessageId"]), bool(v["RB_Extended"])
             i = next(j for j, p in enumerate(self.node.plans)
                      if p.codec.frame_id == can_id and p.codec.is_extended == ext)
@@ -79,10 +103,10 @@ class CommandListener:
             if index:
                 target += "." + plan.codec.signals[index - 1].name
             if v["RB_Active"]:
-                self.node.disturb(t_ns, target, kind, bits_value(int(v["RB_ValueBits"])),
+                self.node.disturb(t_ns, target, _CODES[code], bits_value(int(v["RB_ValueBits"])),
                                   source="can")
-            else:
-                self.node.clear(t_ns, target, kind, source="can")
+            else:  # RB_Kind 0: every disturbance of the message
+                self.node.clear(t_ns, target, _CODES[code] if code else None, source="can")
         except (KeyError, StopIteration, IndexError, ValueError) as exc:
             self.rejected += 1
             _log.warning("restbus: RB_Command %s refused: %s", bytes(msg.data).hex(), exc)
