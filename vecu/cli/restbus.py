@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--values", metavar="VALUES.toml", help="signal values over time")
     p.add_argument("--default-cycle", type=argtypes.bounded(0.1, 3_600_000.0), metavar="MS",
                    help="cycle time of messages the database gives none (default: skip them)")
+    p.add_argument("--stagger", type=argtypes.bounded(0.0, 1000.0), default=0.0, metavar="MS",
+                   help="first frame of the k-th message at k x MS (modulo its cycle) to spread "
+                        "the bus load (default 0: all at once, as the database says)")
     p.add_argument("--disturb", action="append", default=[], metavar="SPEC",
                    help="TARGET:KIND[=VALUE][@START[-END]] e.g. ABS_Wheel:counter_freeze@1-2 "
                         "(repeatable; times in s)")
@@ -74,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
     duration = args.duration if args.duration is not None else (None if args.realtime else 10.0)
     run = RestbusRun(
         RestbusConfig(tuple(args.databases), tuple(args.node), args.e2e, args.values,
-                      args.default_cycle, args.seed),
+                      args.default_cycle, args.seed, stagger_ms=args.stagger),
         duration_s=duration, realtime=args.realtime, interface=args.interface,
         channel=args.channel, bitrate=args.bitrate, log_path=args.log,
         disturbances=tuple(parse_disturb(d) for d in args.disturb))

@@ -43,6 +43,7 @@ class MessagePlan:
     e2e: E2EProtection | None
     sources: dict[str, Source]           # every signal's value(t_s)
     start: dict[str, float]              # start values (if-active compares against them)
+    offset_ns: int = 0                   # first release (a stagger spreads the bus load)
 
     @property
     def name(self) -> str:
@@ -102,7 +103,7 @@ class RestbusNode:
     def schedule(self, sched: TaskScheduler, priority: int = 0, start_ns: int = 0) -> None:
         self._sched = sched
         for i, plan in enumerate(self.plans):
-            sched.chain(start_ns, self._release_fn(i), name=f"restbus-{plan.name}",
+            sched.chain(start_ns + plan.offset_ns, self._release_fn(i), name=f"restbus-{plan.name}",
                         priority=priority)
 
     def _release_fn(self, i: int) -> Callable[[int], int | None]:

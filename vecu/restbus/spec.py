@@ -46,6 +46,7 @@ class RestbusConfig:
     default_cycle_ms: float | None = None  # for messages without a cycle time (else skipped)
     seed: int = 0
     exclude: frozenset[tuple[int, bool]] = frozenset()  # (CAN ID, extended) others send
+    stagger_ms: float = 0.0  # message k's first frame at k x stagger_ms (mod its cycle)
 
 
 def send_type_of(fc: FrameCodec) -> str:
@@ -186,7 +187,9 @@ def build_plans(cfg: RestbusConfig) -> tuple[list[MessagePlan], list[str], DbcCo
         cycle = fc.cycle_time_ms or cfg.default_cycle_ms or ON_CHANGE_POLL_MS
         prot = e2e.get(fc.name) or arxml_protection(fc) or (
             fc.e2e.protection if fc.e2e is not None else None)
-        plans.append(MessagePlan(fc, round(cycle * NS_PER_MS), send, prot, sources, start))
+        period = round(cycle * NS_PER_MS)
+        offset = round(len(plans) * cfg.stagger_ms * NS_PER_MS) % period
+        plans.append(MessagePlan(fc, period, send, prot, sources, start, offset))
     assert all(p.send_type in SEND_TYPES for p in plans)
     return plans, skipped, db
 
