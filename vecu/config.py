@@ -30,7 +30,6 @@ from vecu.plant.lateral import LateralSensors
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
 from vecu.plant.manifold import ManifoldPlantConfig
 from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
-from vecu.restbus.node import ScheduledDisturbance
 from vecu.restbus.spec import RestbusConfig
 from vecu.uds.config import UdsConfig, UdsStep
 
@@ -148,7 +147,7 @@ class RunConfig:
     uds_steps: tuple[UdsStep, ...] = ()  # a tester's requests (scenarios; docs/uds.md)
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
     restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
-    restbus_disturbances: tuple[ScheduledDisturbance, ...] = ()  # its disturbance timeline
+    restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline
 
     def with_params(self, sets: object = (), **shortcuts: object) -> RunConfig:
         """This configuration with parameter-tree overrides: (path, value) pairs or a mapping,

@@ -35,7 +35,7 @@ class Profile:
     check: Callable[..., bool]
 
 
-def _nibble_modes(module) -> dict[str, int]:  # noqa: ANN001 (an autosar-e2e module)
+def _nibble_modes(module) -> dict[str, int]:
     prefix = module.__name__.rsplit(".", 1)[-1].upper()
     return {name.lower(): getattr(module, f"E2E_{prefix}_DATAID_{name}")
             for name in ("BOTH", "ALT", "LOW", "NIBBLE")

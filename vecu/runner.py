@@ -22,7 +22,13 @@ from vecu.assembly import (
     schedule_ecu,
     schedule_plant,
 )
-from vecu.bus import BusNode, SimLane, open_bus, resolve_bus_config, virtual_channel_in_use
+from vecu.bus import (
+    BusNode,
+    SimLane,
+    open_bus,
+    resolve_bus_config,
+    virtual_channel_in_use,
+)
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.codec import DbcCodec, shared_codec
 from vecu.config import RunConfig

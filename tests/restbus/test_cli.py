@@ -37,13 +37,13 @@ CASES = [
     (["{abs}", "--node", "BRAKE"], r"--node BRAKE: no such sending node in .*abs\.dbc"),
     (["{abs}", "--e2e", "{short}"],
      r"short\.toml: BREMSE_33 \(0x343\): message too short for its E2E header: P04 needs 12"),
-    (["{abs}", "--e2e", "{profile}"], r"profile\.toml: BREMSE_33 \(0x343\): unknown E2E profile "
-                                      r"'P09'"),
+    (["{abs}", "--e2e", "{profile}"],
+     r"profile\.toml: BREMSE_33 \(0x343\): unknown E2E profile 'P09'"),
     (["{abs}", "--e2e", "{message}"], r"message\.toml: \[\[e2e\]\] #1: no message 'NoSuch'"),
-    (["{abs}", "--values", "{range}"], r"range\.toml: BREMSE_33\.whlspeed_FL: value 250 is "
-                                       r"outside the signal's range \[0, 100\]"),
-    (["{abs}", "--values", "{values_kind}"], r"kind\.toml: \[\[value\]\] #1 "
-                                             r"\(BREMSE_33\.whlspeed_FL\): unknown kind 'saw'"),
+    (["{abs}", "--values", "{range}"],
+     r"range\.toml: BREMSE_33\.whlspeed_FL: value 250 is outside the signal's range \[0, 100\]"),
+    (["{abs}", "--values", "{values_kind}"],
+     r"kind\.toml: \[\[value\]\] #1 \(BREMSE_33\.whlspeed_FL\): unknown kind 'saw'"),
     (["{abs}", "--disturb", "BREMSE_33:crc_wrong@1-2"],
      r"crc_wrong on 'BREMSE_33': message BREMSE_33 has no E2E protection"),
     (["/nope.dbc"], r"/nope\.dbc: no such database file"),

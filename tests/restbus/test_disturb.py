@@ -4,6 +4,8 @@ on vecu's own frames (P11); each start and end recorded as an FI_Event frame."""
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import e2e as autosar_e2e
 import numpy as np
 import pytest
@@ -60,7 +62,7 @@ EXPECT = {
     "drop": (5, lambda v: len(v) == 95),
     "stop": (None, lambda v: v == []),
     "delay": (3, lambda v: all(t % 10 == 3 for t, *_ in v)),
-    "cycle": (2.5, lambda v: len(v) == 40 and {b[0] - a[0] for a, b in zip(v, v[1:])} == {25}),
+    "cycle": (2.5, lambda v: len(v) == 40 and {b[0] - a[0] for a, b in pairwise(v)} == {25}),
     "dlc": (4, lambda v: all(n == 4 and not ok for _, n, ok, _ in v)),
 }
 
@@ -91,7 +93,7 @@ def test_each_disturbance_is_the_intended_check_failure(kind, abs_cfg):
 
 
 def test_signal_override_is_seen_in_the_decoded_signal(abs_cfg):
-    plans, node, frames = collect(abs_cfg, 2.0, [(0.5, f"{MSG}.whlspeed_RR", "override", 42.0,
+    plans, _, frames = collect(abs_cfg, 2.0, [(0.5, f"{MSG}.whlspeed_RR", "override", 42.0,
                                                   1.5)])
     plan = next(p for p in plans if p.name == MSG)
     got = [(round(m.timestamp * 1000), plan.codec.decode(m.data)["whlspeed_RR"])

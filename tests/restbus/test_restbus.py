@@ -80,7 +80,7 @@ def test_every_thirdparty_dbc_is_a_restbus_with_exact_periods(thirdparty):
 
 def test_multiplexed_messages_cycle_through_every_multiplexer_selection(thirdparty):
     path = thirdparty / "dbc" / "multiplex_2.dbc"
-    plans, node, frames = collect(RestbusConfig((str(path),), default_cycle_ms=10.0), 1.0)
+    plans, _, frames = collect(RestbusConfig((str(path),), default_cycle_ms=10.0), 1.0)
     for plan in plans:
         fc = plan.codec
         sels = fc.mux_selections
@@ -131,7 +131,7 @@ def test_send_types_cyclic_on_change_and_if_active(tmp_path, thirdparty):
                       'period_s = 0.2\n'
                       '[[value]]\nsignal = "Act.A"\nkind = "square"\nlow = 0\nhigh = 3\n'
                       'period_s = 0.5\nduty = 0.4\n')
-    plans, node, frames = collect(RestbusConfig((str(dbc),), values_path=str(values)), 1.0)
+    plans, node, _ = collect(RestbusConfig((str(dbc),), values_path=str(values)), 1.0)
     sent = {p.name: st.times_ns for p, st in zip(plans, node.states)}
     types = {p.name: p.send_type for p in plans}
     assert types == {"Cyc": "cyclic", "Chg": "on_change", "Act": "if_active"}
@@ -189,7 +189,7 @@ def test_e2e_profiles_from_e2e_toml_pass_the_librarys_checks(tmp_path, thirdpart
     path = thirdparty / "dbc" / "abs.dbc"
     e2e_file = tmp_path / "E2E.toml"
     e2e_file.write_text(E2E_TOML)
-    plans, node, frames = collect(RestbusConfig((str(path),), e2e_path=str(e2e_file)), 5.0)
+    plans, _, frames = collect(RestbusConfig((str(path),), e2e_path=str(e2e_file)), 5.0)
     protected = {p.codec.frame_id: p for p in plans if p.e2e is not None}
     assert {p.e2e.profile for p in protected.values()} == {"P01", "P02", "P05", "P11"}
     counters = {i: AliveCounterCheck(p.e2e.counter_modulo) for i, p in protected.items()}

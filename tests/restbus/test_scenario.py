@@ -43,7 +43,7 @@ def test_plant_ecu_and_restbus_share_the_bus_and_the_ecu_loses_no_tick(result):
 
 
 def test_restbus_disturbances_are_recorded_and_seen_by_an_independent_checker(result):
-    s, frames = result
+    _, frames = result
     fi = [m for m in frames if m.arbitration_id == 0x6F1]
     ids = [int.from_bytes(m.data[0:2], "little") for m in fi]
     assert ids.count(0x1B0) == 2 and ids.count(0x1B1) == 2 and ids.count(0x3A0) == 1

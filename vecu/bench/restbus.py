@@ -140,15 +140,15 @@ def bench_restbus(seconds: float) -> dict[str, Any]:
 def format_restbus(r: dict[str, Any]) -> str:
     v, g, b, s = r["vecu"], r["vecu_staggered"], r["python_can"], r["simulated"]
     return "\n".join([
-        f"Restbus, {r['messages']} messages at 10/20/50/100 ms ({r['offered_fps']} frames/s "
-        f"offered), live {r['seconds']:g} s on python-can's virtual bus:",
-        f"  vecu restbus (all at once) period error p50 {v['p50_us']} / p99 {v['p99_us']} / max "
-        f"{v['max_us']} us, {v['fps']} frames/s sustained, {v['overruns']} overruns",
-        f"  vecu restbus --stagger {STAGGER_MS:g} period error p50 {g['p50_us']} / p99 "
-        f"{g['p99_us']} / max {g['max_us']} us, {g['fps']} frames/s sustained",
-        f"  python-can send_periodic period error p50 {b['p50_us']} / p99 {b['p99_us']} / max "
-        f"{b['max_us']} us, {b['fps']} frames/s sustained",
-        f"  p99 ratio python-can / vecu: {r['p99_ratio']}x (staggered: "
-        f"{r['p99_ratio_staggered']}x)",
-        f"  simulated clock: {s['x_realtime']}x real time, {s['fps']} frames/s generated, "
-        f"periods exact: {s['exact_periods']}"])
+        (f"Restbus, {r['messages']} messages at 10/20/50/100 ms ({r['offered_fps']} frames/s "
+         f"offered), live {r['seconds']:g} s on python-can's virtual bus:"),
+        (f"  vecu restbus (all at once) period error p50 {v['p50_us']} / p99 {v['p99_us']} / "
+         f"max {v['max_us']} us, {v['fps']} frames/s sustained, {v['overruns']} overruns"),
+        (f"  vecu restbus --stagger {STAGGER_MS:g} period error p50 {g['p50_us']} / p99 "
+         f"{g['p99_us']} / max {g['max_us']} us, {g['fps']} frames/s sustained"),
+        (f"  python-can send_periodic period error p50 {b['p50_us']} / p99 {b['p99_us']} / max "
+         f"{b['max_us']} us, {b['fps']} frames/s sustained"),
+        (f"  p99 ratio python-can / vecu: {r['p99_ratio']}x (staggered: "
+         f"{r['p99_ratio_staggered']}x)"),
+        (f"  simulated clock: {s['x_realtime']}x real time, {s['fps']} frames/s generated, "
+         f"periods exact: {s['exact_periods']}")])

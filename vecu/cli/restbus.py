@@ -46,10 +46,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
-def parse_disturb(text: str):  # noqa: ANN201 (a ScheduledDisturbance; imported lazily)
-    """TARGET:KIND[=VALUE][@START[-END]] -> ScheduledDisturbance."""
+def parse_disturb(text: str):
+    """TARGET:KIND[=VALUE][@START[-END]] -> ScheduledFault."""
     from vecu.errors import BadArgumentError
-    from vecu.restbus.session import ScheduledDisturbance
+    from vecu.faults import ScheduledFault
 
     target, sep, rest = text.rpartition(":")
     if not sep or not target:
@@ -65,7 +65,7 @@ def parse_disturb(text: str):  # noqa: ANN201 (a ScheduledDisturbance; imported 
         raise BadArgumentError(f"--disturb {text!r}: value and times must be numbers") from None
     if t0 < 0 or (t1 is not None and t1 <= t0):
         raise BadArgumentError(f"--disturb {text!r}: need 0 <= START < END")
-    return ScheduledDisturbance(target, kind.strip(), t0, t1, v)
+    return ScheduledFault(target, kind.strip(), t0, t1, v)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -23,7 +23,7 @@ import numpy as np
 from vecu.codec import FrameCodec
 from vecu.e2e import E2EProtection
 from vecu.errors import BadArgumentError
-from vecu.faults import FAULT_SOURCES
+from vecu.faults import FAULT_SOURCES, ScheduledFault
 from vecu.frames import message
 from vecu.restbus import disturb
 from vecu.restbus.values import Source
@@ -254,19 +254,8 @@ class RestbusNode:
                                  for e in self.events]}
 
 
-@dataclass(frozen=True)
-class ScheduledDisturbance:
-    """One timeline entry: `kind` on target (MESSAGE or MESSAGE.SIGNAL) from start_s to end_s."""
-
-    target: str
-    kind: str
-    start_s: float
-    end_s: float | None = None
-    value: float | None = None
-
-
 def schedule_disturbances(sched: TaskScheduler, node: RestbusNode,
-                          timeline: tuple[ScheduledDisturbance, ...], priority: int = -1,
+                          timeline: tuple[ScheduledFault, ...], priority: int = -1,
                           source: str = "scenario") -> None:
     """Start (and end) each timeline entry; each is checked against the restbus now."""
     for d in timeline:

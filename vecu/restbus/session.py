@@ -13,13 +13,10 @@ import can
 from vecu.bus import SimLane, open_bus, resolve_bus_config, virtual_channel_in_use
 from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import shared_codec
+from vecu.faults import ScheduledFault
 from vecu.recorder import Recorder
 from vecu.restbus.commands import CommandListener
-from vecu.restbus.node import (
-    RestbusNode,
-    ScheduledDisturbance,
-    schedule_disturbances,
-)
+from vecu.restbus.node import RestbusNode, schedule_disturbances
 from vecu.restbus.spec import RestbusConfig, build_plans
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
@@ -34,7 +31,7 @@ class RestbusRun:
     channel: str | None = None
     bitrate: int | None = None
     log_path: str | None = None
-    disturbances: tuple[ScheduledDisturbance, ...] = ()
+    disturbances: tuple[ScheduledFault, ...] = ()
     commands: bool = False    # obey RB_Command frames (`vecu inject --restbus`; live: always)
     keep_times: bool = False  # the send time of every frame, per message (timing figures)
     spin_us: int = 200

@@ -23,7 +23,7 @@ from vecu.estimators.registry import THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
 from vecu.params import ParamError, apply_sets, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
-from vecu.restbus.node import RestbusNode, ScheduledDisturbance
+from vecu.restbus.node import RestbusNode
 from vecu.restbus.spec import RestbusConfig, build_plans
 from vecu.tomlfile import read_toml
 from vecu.uds.config import UdsStep
@@ -236,7 +236,7 @@ def restbus_checker(cfg: RestbusConfig, chk: _Checker) -> RestbusNode:
 
 def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
             codec: DbcCodec | None, restbus: RestbusNode | None = None
-            ) -> tuple[tuple[ScheduledFault, ...], tuple[ScheduledDisturbance, ...]]:
+            ) -> tuple[tuple[ScheduledFault, ...], tuple[ScheduledFault, ...]]:
     """[[faults]]: on vecu's own sensors and frames (the injector), or on a message of the
     restbus (a restbus disturbance, vecu.restbus.disturb)."""
     injector = FaultInjector(np.random.default_rng(0), codec)
@@ -258,7 +258,7 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
                 restbus.check(item["target"], item["kind"], item.get("value"))
             except ValueError as exc:
                 raise chk.fail(pre + "kind", str(exc)) from None
-            disturbances.append(ScheduledDisturbance(
+            disturbances.append(ScheduledFault(
                 item["target"], item["kind"], start, None if end is None else float(end),
                 item.get("value")))
             continue
