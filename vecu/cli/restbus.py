@@ -87,7 +87,7 @@ def main(args: argparse.Namespace) -> int:
         Path(args.summary).write_text(json.dumps(s, indent=2) + "\n")
     if not args.quiet:
         print(f"vecu restbus: {s['messages']} messages, {s['frames_sent']} frames in "
-              f"{s['duration_s']:g} s ({s['clock']} clock, {s['wall_s']:.2f} s wall); "
+              f"{s['duration_s']:.3g} s ({s['clock']} clock, {s['wall_s']:.2f} s wall); "
               f"{len(s['disturbances'])} disturbance events; send errors {s['send_errors']}"
               + (f"; skipped (no cycle time): {', '.join(s['skipped_no_cycle_time'])}"
                  if s["skipped_no_cycle_time"] else ""))

@@ -103,6 +103,7 @@ def run_restbus(run: RestbusRun, on_second: Callable[[float], None] | None = Non
                     on_second(t / NS_PER_S)
         except KeyboardInterrupt:
             interrupted = True
+            t = min(clock.now_ns(), t + NS_PER_S)
         wall = watch.elapsed()
         if recorder is not None:
             recorder.drain(t, before_ns=t)
