@@ -75,3 +75,15 @@ def test_disturb_option_reaches_the_log_as_fi_events_and_broken_crcs(files, tmp_
     bad = [round(m.timestamp, 3) for m in frames if m.arbitration_id == 0x343
            and not autosar_e2e.p11.e2e_p11_check(bytearray(m.data), 0x343)]
     assert bad == [round(0.2 + 0.01 * k, 3) for k in range(20)]
+
+
+def test_inject_restbus_sends_an_rb_command_and_names_a_bad_target(files):
+    res = vecu("inject", "--restbus", files["abs"], "--target", "BREMSE_33.whlspeed_FL",
+               "--kind", "override", "--value", "12.5", "--interface", "virtual", "--channel",
+               "rb-inject-smoke")
+    assert res.returncode == 0, res.stderr
+    assert "sent RB_Command BREMSE_33.whlspeed_FL override 12.5 on virtual" in res.stdout
+    res = vecu("inject", "--restbus", files["abs"], "--target", "BREMSE_99", "--kind", "stop")
+    err = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(err) == 1
+    assert "--target 'BREMSE_99': no message 'BREMSE_99' in" in err[0]
