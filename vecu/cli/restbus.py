@@ -74,12 +74,18 @@ def main(args: argparse.Namespace) -> int:
     from vecu.restbus.session import RestbusRun, run_restbus
     from vecu.restbus.spec import RestbusConfig
 
+    from vecu.live.options import LiveOptions, bus_config
+
     duration = args.duration if args.duration is not None else (None if args.realtime else 10.0)
+    channel = args.channel
+    if args.realtime:  # as the live processes resolve it (udp_multicast: vecu's IPv4 group)
+        channel = bus_config(LiveOptions(role="restbus", interface=args.interface,
+                                         channel=args.channel, bitrate=args.bitrate))["channel"]
     run = RestbusRun(
         RestbusConfig(tuple(args.databases), tuple(args.node), args.e2e, args.values,
                       args.default_cycle, args.seed, stagger_ms=args.stagger),
         duration_s=duration, realtime=args.realtime, interface=args.interface,
-        channel=args.channel, bitrate=args.bitrate, log_path=args.log,
+        channel=channel, bitrate=args.bitrate, log_path=args.log,
         disturbances=tuple(parse_disturb(d) for d in args.disturb))
     result = run_restbus(run)
     s = result.summary

@@ -34,7 +34,7 @@ class RestbusRun:
     disturbances: tuple[ScheduledFault, ...] = ()
     commands: bool = False    # obey RB_Command frames (`vecu inject --restbus`; live: always)
     keep_times: bool = False  # the send time of every frame, per message (timing figures)
-    spin_us: int = 200
+    spin_us: int = 50  # final busy-wait before each deadline, as the live processes (docs/live.md)
     extra: dict[str, Any] = field(default_factory=dict)
 
 
