@@ -5,8 +5,8 @@ without the dict, the encode / CRC / Message call chain) and the receive range c
 The code is put together from the lines the codec's generated encoder uses for each signal
 (vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E protection
 (autosar-e2e's protect, in place) and vecu.frames.message. A value the generated encoder would
-refuse (not a number, a raw value that does not fit) makes the builder return `slow(ts, values)`, which is
-FrameCodec.frame with the dict: the same frame either way.
+refuse (not a number, a raw value that does not fit) makes the builder return
+`slow(ts, values)`, which is FrameCodec.frame with the dict: the same frame either way.
 """
 
 from __future__ import annotations

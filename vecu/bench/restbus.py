@@ -5,9 +5,9 @@ The load is a generated database of 40 messages (ten each at 10, 20, 50 and 100 
 frames/s offered). vecu's restbus runs it live (one scheduler thread, absolute deadlines) with
 every send time kept; then python-can sends the same 40 frames with `bus.send_periodic` (one
 thread per task, python-can's own timing) for as long, and the send times come from the virtual
-bus's stamps (the wall time as each frame is sent; vecu's: its clock as each frame is sent). Per message and frame: period error = the gap to the previous frame minus the
-cycle time, p50 / p99 / max of |error| over every message; frames per second sustained against
-offered. On the simulated clock: wall time per simulated second and that every period is exact.
+bus's stamps (the wall time as each frame is sent; vecu's: its clock as each frame is sent).
+Per message and frame: period error = the gap to the previous frame minus the cycle time,
+p50 / p99 / max of |error| over every message; frames per second sustained against offered. On the simulated clock: wall time per simulated second and that every period is exact.
 """
 
 from __future__ import annotations

@@ -103,8 +103,8 @@ class RestbusNode:
     def schedule(self, sched: TaskScheduler, priority: int = 0, start_ns: int = 0) -> None:
         self._sched = sched
         for i, plan in enumerate(self.plans):
-            sched.chain(start_ns + plan.offset_ns, self._release_fn(i), name=f"restbus-{plan.name}",
-                        priority=priority)
+            sched.chain(start_ns + plan.offset_ns, self._release_fn(i),
+                        name=f"restbus-{plan.name}", priority=priority)
 
     def _release_fn(self, i: int) -> Callable[[int], int | None]:
         plan, st = self.plans[i], self.states[i]
