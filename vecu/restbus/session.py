@@ -4,6 +4,7 @@ timeline of disturbances; an optional log; a summary. `vecu restbus` and the ben
 
 from __future__ import annotations
 
+import gc
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -90,6 +91,9 @@ def run_restbus(run: RestbusRun, on_second: Callable[[float], None] | None = Non
             sched.every(10_000_000, listener.poll, name="restbus-commands", priority=-2)
         if recorder is not None:
             sched.every(10_000_000, recorder.drain, name="recorder", priority=100)
+        if run.realtime:  # set-up objects out of the garbage collector's way (as vecu run)
+            gc.collect()
+            gc.freeze()
         watch = Stopwatch()
         clock.start()
         end_ns = None if run.duration_s is None else round(run.duration_s * NS_PER_S)
