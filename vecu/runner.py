@@ -224,7 +224,7 @@ def attach_restbus(sched: Scheduler, config: RunConfig, codec: DbcCodec,
     plans, _, _ = build_plans(cfg)
     sender = BusNode(bus, "restbus")
     node = RestbusNode(plans, sender.send, rng_streams(config.seed, ("restbus.faults",))[
-        "restbus.faults"], codec["FI_Event"])
+        "restbus.faults"], codec["FI_Event"], clock=sched.clock)
     node.schedule(sched, priority=PRIO_PLANT)
     schedule_disturbances(sched, node, config.restbus_disturbances, priority=PRIO_PLANT - 1)
     return node

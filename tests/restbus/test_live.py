@@ -38,11 +38,13 @@ def test_live_restbus_keeps_its_cycles_and_obeys_rb_commands(tmp_path, thirdpart
     times = {p.name: np.array(s.times_ns) for p, s in zip(res.node.plans, res.node.states)}
     gap = np.diff(times["BREMSE_33"]).max() / 1e6
     assert 300 <= gap <= 500, gap  # stopped between the two commands
-    for plan in res.node.plans:  # paced on absolute deadlines: no drift, no lost releases
+    for plan, st in zip(res.node.plans, res.node.states):
+        # absolute deadlines: no drift; a release late by a whole cycle (a loaded machine) is
+        # skipped and counted, never sent in a burst
         t = times[plan.name]
         want_ms = plan.period_ns / 1e6
         if plan.name != "BREMSE_33":
             assert abs(np.median(np.diff(t)) / 1e6 - want_ms) < 0.5, plan.name
-            assert abs(len(t) - 1600 / want_ms) <= 1, (plan.name, len(t))
+            assert abs(len(t) + st.skipped - 1600 / want_ms) <= 1, (plan.name, len(t))
     fi = [m for m in can.LogReader(str(log)) if m.arbitration_id == 0x6F1]
     assert len(fi) == 2

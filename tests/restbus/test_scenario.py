@@ -78,3 +78,22 @@ def test_a_missing_restbus_database_is_named(tmp_path):
     bad.write_text('duration_s = 1.0\n[restbus]\ndatabases = ["nope.dbc"]\n')
     with pytest.raises(ScenarioError, match=r"key 'restbus': .*nope\.dbc: no such database"):
         load_scenario(bad)
+
+
+def test_live_run_with_a_restbus_counts_every_foreign_frame_and_keeps_its_cycles(tmp_path):
+    """The same scenario on the wall clock (vecu run --realtime's path), 1 s: the restbus's
+    frames arrive at the ECU on python-can's virtual bus, each counted, none lost, none late
+    by a whole cycle (frame count = duration / cycle for every message)."""
+    sc = load_scenario(SCENARIO)
+    res = run(replace(sc.config, duration_s=1.0, realtime=True, interface="virtual",
+                      channel="rb-live-scenario", faults=(), restbus_disturbances=(),
+                      keep_series=False))
+    s = res.summary
+    rb = s["restbus"]
+    assert s["frames"]["ecu_rx"]["unknown_id"] == rb["frames_sent"]
+    want = {"ABS_WheelSpeeds": 100, "ABS_BrakePressure": 50, "BCM_Lights": 10,
+            "BCM_Info": 5, "GW_VehicleSpeed": 10}
+    # every release sent or skipped (late by a whole cycle), + BCM_Doors' two changes in 1 s
+    assert rb["frames_sent"] + rb["skipped_releases"] == sum(want.values()) + 2
+    for name, n in want.items():
+        assert rb["per_message"][name] <= n + 1, (name, rb["per_message"])

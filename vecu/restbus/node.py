@@ -55,6 +55,7 @@ class MessageState:
     counter: int = 0
     mux: int = 0
     sent: int = 0
+    skipped: int = 0  # releases skipped on the wall clock (late by a whole cycle)
     last: bytes | None = None
     active: dict[str, disturb.Disturbance] = field(default_factory=dict)
     times_ns: list[int] | None = None  # send times (kept when the node records them)
@@ -89,7 +90,9 @@ class RestbusNode:
         self.plans = plans
         self.states = [MessageState(times_ns=[] if keep_times else None) for _ in plans]
         self._send = send
-        self._clock = clock  # now_ns() stamps the kept send times (else the release time)
+        # now_ns() stamps the kept send times (else the release time); on a wall clock a
+        # message late by a whole cycle skips the releases it missed (as Scheduler.every)
+        self._clock = clock
         self._rng = rng
         self._fi_event = fi_event
         self._sched: TaskScheduler | None = None
@@ -98,6 +101,7 @@ class RestbusNode:
         self.events: list[DisturbanceEvent] = []
         self.frames_sent = 0
         self.encode_errors = 0
+        self.skipped = 0  # releases skipped on the wall clock (a stall longer than a cycle)
 
     # ------------------------------------------------------------------ schedule
     def schedule(self, sched: TaskScheduler, priority: int = 0, start_ns: int = 0) -> None:
@@ -125,7 +129,16 @@ class RestbusNode:
                     self._out(st, msg, t_ns)
             for kind in [k for k, d in st.active.items() if d.done]:
                 self._end(t_ns, i, kind, "api")
-            return t_ns + period
+            nxt = t_ns + period
+            clock = self._clock
+            if clock is not None and clock.realtime:  # late by a whole cycle: skip, no burst
+                now = clock.now_ns()
+                if now > nxt:
+                    missed = (now - nxt) // period + 1
+                    nxt += missed * period
+                    self.skipped += missed
+                    st.skipped += missed
+            return nxt
         return release
 
     def _out(self, st: MessageState, msg: can.Message, t_ns: int) -> None:
@@ -246,7 +259,7 @@ class RestbusNode:
 
     def summary(self) -> dict[str, Any]:
         return {"messages": len(self.plans), "frames_sent": self.frames_sent,
-                "encode_errors": self.encode_errors,
+                "encode_errors": self.encode_errors, "skipped_releases": self.skipped,
                 "per_message": {p.name: s.sent for p, s in zip(self.plans, self.states)},
                 "disturbances": [{"t_s": e.t_ns / NS_PER_S, "message": e.message,
                                   "signal": e.signal, "kind": e.kind, "value": e.value,
