@@ -387,6 +387,9 @@ def test_layering():
     # the UDS server stands on the ECU (floor 5); the ECU knows it only as a Protocol
     bad += _layer_violations("vecu.uds", None, ("vecu.plant", "vecu.estimators.registry"))
     bad += _layer_violations("vecu.ecu", None, ("vecu.uds",))
+    # the restbus stands beside the plant (floor 5): never the ECU, estimators or plant
+    bad += _layer_violations("vecu.restbus", None, (
+        "vecu.ecu", "vecu.estimators", "vecu.plant", "vecu.uds", "vecu.runner"))
     for name in FOUNDATION:
         bad += _layer_violations(name, ())
     _report(bad, "layering (docs/architecture.md)")

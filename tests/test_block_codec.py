@@ -13,7 +13,6 @@ import pytest
 
 from tests.dbc_sets import every_message
 from vecu.codec import DbcCodec, builtin_dbc_path
-from vecu.e2e import e2e_crc
 
 FRAMES = 300  # random payloads per message, decoded as one block
 
@@ -31,7 +30,7 @@ def _payloads(fc, rng: random.Random) -> list[bytes]:
     for k in range(FRAMES):
         data = bytearray(rng.getrandbits(8) for _ in range(fc.length))
         if fc.e2e is not None and k % 2:  # half of them with a valid CRC
-            data[fc.e2e.crc_byte] = e2e_crc(fc.frame_id, data, fc.e2e.crc_byte)
+            fc.e2e.protection.protector()(data)  # autosar-e2e writes the CRC
         if k % 7 == 0:  # all ones / all zeros: the raw ends of every signal
             data = bytearray([0xFF if k % 14 else 0x00] * fc.length)
         out.append(bytes(data))

@@ -15,7 +15,7 @@ import pytest
 
 from vecu import kernels
 
-GOLDEN_SHA256 = "ef45d7e713a1cc9f5017f3bb594c98703dfbd6480199631e8ac0d312d097e329"
+GOLDEN_SHA256 = "982b88c4a10e7b89452424e231cef05c7a92c082af2b24b88d59d65647eff362"
 
 
 @pytest.mark.parametrize("backend", ["python", "numba"])

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vecu.e2e import crc8_table
+from vecu.e2e import E2EProtection
 
 MAX_BLOCK_BYTES = 8
 
@@ -68,7 +68,7 @@ class BlockLayout:
     frame_id: int
     length: int
     fields: tuple[BlockField, ...]
-    crc_byte: int | None
+    e2e: E2EProtection | None
 
     def check(self, payloads: Sequence[bytes | bytearray],
               checked: Sequence[tuple[str, float | None, float | None]]) -> BlockChecks:
@@ -106,8 +106,9 @@ class BlockLayout:
                 else:
                     col = col.astype(np.float64) * f.scale + f.offset
             columns.append(col)
-        if self.crc_byte is not None:
-            ok = _crc_ok(raw, self.frame_id, self.crc_byte).tolist()
+        if self.e2e is not None:  # the library's check, row by row
+            check = self.e2e.checker()
+            ok = [check(bytearray(row)) for row in raw]
         else:
             ok = [True] * n
         index = {f.name: i for i, f in enumerate(self.fields)}
@@ -127,9 +128,6 @@ class BlockLayout:
             for i in np.flatnonzero(any_bad).tolist():
                 bad[i] = [name for name, mask in bad_masks if mask[i]]
         return BlockChecks(ok, names, [c.tolist() for c in columns], bad)
-
-
-_TABLE = np.array(crc8_table(), dtype=np.uint8)
 
 
 def encode_rows(layout: BlockLayout, columns: Sequence[np.ndarray],
@@ -168,22 +166,8 @@ def encode_rows(layout: BlockLayout, columns: Sequence[np.ndarray],
     out = words[False].astype("<u8").view(np.uint8).reshape(n, 8)[:, :size].copy()
     if any(f.big_endian for f in layout.fields):
         out |= words[True].astype(">u8").view(np.uint8).reshape(n, 8)[:, 8 - size:]
-    if layout.crc_byte is not None:
-        crc = _TABLE[_TABLE[np.full(n, 0xFF, dtype=np.uint8) ^ np.uint8(layout.frame_id & 0xFF)]
-                     ^ np.uint8((layout.frame_id >> 8) & 0xFF)]
-        for idx in range(size):
-            if idx != layout.crc_byte:
-                crc = _TABLE[crc ^ out[:, idx]]
-        out[:, layout.crc_byte] = crc ^ np.uint8(0xFF)
+    if layout.e2e is not None:  # the library's protect, row by row, in place
+        protect = layout.e2e.protector()
+        for row in out:
+            protect(row)
     return out, refused
-
-
-def _crc_ok(raw: np.ndarray, frame_id: int, crc_byte: int) -> np.ndarray:
-    """vecu.e2e.e2e_crc of every row (the data ID, then each byte but the CRC's) == its CRC."""
-    crc = np.full(raw.shape[0], 0xFF, dtype=np.uint8)
-    crc = _TABLE[crc ^ np.uint8(frame_id & 0xFF)]
-    crc = _TABLE[crc ^ np.uint8((frame_id >> 8) & 0xFF)]
-    for idx in range(raw.shape[1]):
-        if idx != crc_byte:
-            crc = _TABLE[crc ^ raw[:, idx]]
-    return (crc ^ np.uint8(0xFF)) == raw[:, crc_byte]

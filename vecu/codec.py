@@ -42,7 +42,7 @@ from vecu.block_codec import (
     BlockLayout,
     encode_rows,
 )
-from vecu.e2e import e2e_checker, e2e_crc
+from vecu.e2e import E2EProtection, own_protection
 from vecu.errors import BadFileError
 from vecu.framer import EncodeParts, Framer, compile_range_check, make_framer
 from vecu.frames import message
@@ -60,11 +60,15 @@ def builtin_dbc_path(name: str = DEFAULT_DBC) -> Path:
     return Path(str(resources.files("vecu.dbc").joinpath(name)))
 
 
+_ADD_BY_SUFFIX = {".arxml": "add_arxml_file", ".kcd": "add_kcd_file", ".sym": "add_sym_file"}
+
+
 def load_database(paths: Iterable[str | Path], strict: bool = True) -> cantools.database.Database:
+    """DBC files, or ARXML / KCD / SYM by their suffix, into one cantools database."""
     db = cantools.database.Database(strict=strict)
     for path in paths:
         try:
-            db.add_dbc_file(str(path))
+            getattr(db, _ADD_BY_SUFFIX.get(Path(path).suffix.lower(), "add_dbc_file"))(str(path))
         except FileNotFoundError as exc:
             raise DbcLoadError(path, "no such file") from exc
         except Exception as exc:  # cantools raises many kinds; report them as one line
@@ -89,9 +93,13 @@ class SignalInfo:
 
 @dataclass(frozen=True)
 class E2ELayout:
+    """A message's `<prefix>_CRC` / `<prefix>_AliveCounter` signals and the AUTOSAR profile
+    they carry (vecu.e2e.own_protection: P11, data ID = the CAN ID)."""
+
     crc_signal: str
     counter_signal: str
     crc_byte: int
+    protection: E2EProtection
 
 
 class FrameCodec:
@@ -131,13 +139,20 @@ class FrameCodec:
             if sig.is_float or (lo is not None and lo > raw_lo) or (hi is not None and hi < raw_hi):
                 self._checked.append((sig.name, lo, hi))
         self.e2e = _e2e_layout(message)
+        # what a restbus needs of the database (vecu.restbus): send type, start values,
+        # multiplexer selections, an ARXML's E2E properties
+        self.send_type: str | None = message.send_type
+        self.start_values: dict[str, float] = {s.name: _start_value(s) for s in message.signals}
+        self.mux_selections: tuple[dict[str, int], ...] = (
+            tuple(_mux_selections(message.signal_tree)) if message.is_multiplexed() else ())
+        self.arxml_e2e: ArxmlE2E | None = _arxml_e2e(message)
         self._framers: dict[tuple[str, ...], Framer] = {}
         # crc_ok(payload): its E2E CRC byte is right (True without E2E); bad_values(values): the
         # names of signals NaN / inf or outside the DBC's [minimum, maximum]. Generated code
-        # (vecu.e2e.e2e_checker, vecu.framer.compile_range_check): called for every frame received
+        # (autosar-e2e's check, vecu.framer.compile_range_check): called for every frame received
         self.crc_ok: Callable[[bytes | bytearray], bool] = (
-            _no_crc if self.e2e is None
-            else e2e_checker(self.frame_id, self.length, self.e2e.crc_byte))
+            _no_crc if self.e2e is None else self.e2e.protection.checker())
+        self._protect = None if self.e2e is None else self.e2e.protection.protector()
         self.bad_values: Callable[[Mapping[str, float]], list[str]] = compile_range_check(
             self._checked, self.name)
         self._encode = message.encode
@@ -205,11 +220,10 @@ class FrameCodec:
             except Exception:  # noqa: BLE001 (anything unusual: cantools decides, raises its own)
                 data = None
             if data is not None:
-                e2e = self.e2e
-                if e2e is None:
+                if self._protect is None:
                     return data
                 buf = bytearray(data)
-                buf[e2e.crc_byte] = e2e_crc(self.frame_id, buf, e2e.crc_byte)
+                self._protect(buf)
                 return bytes(buf)
         return self.encode_cantools(values)
 
@@ -220,8 +234,8 @@ class FrameCodec:
             v = sat[name]
             sat[name] = lo if not v >= lo else min(v, hi)
         data = bytearray(self._encode(sat, scaling=True, padding=False, strict=False))
-        if self.e2e is not None:
-            data[self.e2e.crc_byte] = e2e_crc(self.frame_id, data, self.e2e.crc_byte)
+        if self._protect is not None:
+            self._protect(data)
         return bytes(data)
 
     def frame(self, values: Mapping[str, float], timestamp: float) -> can.Message:
@@ -270,6 +284,55 @@ class FrameCodec:
         """decode() through cantools only (the reference of the fast path)."""
         return self._decode_simple(data, False, True)
 
+
+
+@dataclass(frozen=True)
+class ArxmlE2E:
+    """An ARXML message's E2E properties as cantools reads them (plain data)."""
+
+    category: str | None
+    data_ids: tuple[int, ...]
+    payload_length: int | None
+
+
+def _arxml_e2e(message: Message) -> ArxmlE2E | None:
+    e2e = message.autosar.e2e if message.autosar is not None else None
+    if e2e is None or not e2e.data_ids:
+        return None
+    return ArxmlE2E(e2e.category, tuple(e2e.data_ids), e2e.payload_length)
+
+
+def _start_value(sig) -> float:
+    """The signal's database start value (GenSigStartValue, ARXML init value) as a physical
+    number, else 0 clipped into its [minimum, maximum]."""
+    raw = sig.raw_initial
+    if raw is not None:
+        try:
+            return float(sig.conversion.raw_to_scaled(raw, decode_choices=False))
+        except (TypeError, ValueError):
+            pass
+    lo, hi = sig.minimum, sig.maximum
+    v = 0.0
+    if lo is not None and v < lo:
+        v = float(lo)
+    if hi is not None and v > hi:
+        v = float(hi)
+    return v
+
+
+def _mux_selections(tree: list) -> list[dict[str, int]]:
+    """Every combination of multiplexer values the signal tree allows (cascades included), each
+    a {multiplexer signal: value} dict, in the database's order."""
+    out: list[dict[str, int]] = [{}]
+    for node in tree:
+        if not isinstance(node, dict):
+            continue
+        for mux, branches in node.items():
+            options = []
+            for value, sub in branches.items():
+                options.extend({mux: value, **rest} for rest in _mux_selections(sub))
+            out = [{**a, **b} for a in out for b in options] if options else out
+    return out
 
 
 def _no_crc(data: bytes | bytearray) -> bool:
@@ -449,7 +512,7 @@ def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:
                                  sig.is_signed, sig.length if sig.is_float else 0, scale, offset,
                                  integer, type(conv) in (LinearConversion, IdentityConversion)))
     return BlockLayout(message.frame_id, n, tuple(fields),
-                       e2e.crc_byte if e2e is not None else None)
+                       e2e.protection if e2e is not None else None)
 
 
 def _e2e_layout(message: Message) -> E2ELayout | None:
@@ -457,10 +520,16 @@ def _e2e_layout(message: Message) -> E2ELayout | None:
     counter = next((s for s in message.signals if s.name.endswith("_AliveCounter")), None)
     if crc is None or counter is None:
         return None
-    if crc.length != 8 or crc.start % 8 != 0:
-        raise DbcLoadError(None, f"{message.name}: E2E signal {crc.name} must be 8 bits, "
-                           "byte aligned")
-    return E2ELayout(crc.name, counter.name, crc.start // 8)
+    at = crc.start // 8
+    if (crc.length != 8 or crc.start % 8 != 0 or counter.byte_order != "little_endian"
+            or counter.start != 8 * (at + 1) or counter.length != 4 or at + 2 > message.length):
+        raise DbcLoadError(None, f"{message.name}: E2E signals {crc.name} / {counter.name} must "
+                           "be AUTOSAR P11's header: an 8-bit CRC byte, the 4-bit counter in the "
+                           "low nibble of the next byte")
+    protection = own_protection(message.frame_id & 0xFFFF)
+    if at:
+        protection = E2EProtection("P11", data_id=message.frame_id & 0xFFFF, offset=at)
+    return E2ELayout(crc.name, counter.name, at, protection)
 
 
 _SHARED: dict[tuple, DbcCodec] = {}

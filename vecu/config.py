@@ -31,6 +31,7 @@ from vecu.plant.lateral import LateralSensors
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
 from vecu.plant.manifold import ManifoldPlantConfig
 from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
+from vecu.restbus.spec import RestbusConfig
 from vecu.uds.config import UdsConfig, UdsStep
 
 
@@ -146,6 +147,8 @@ class RunConfig:
     faults: tuple[ScheduledFault, ...] = ()  # fault timeline (scenarios), on top of the kills
     uds_steps: tuple[UdsStep, ...] = ()  # a tester's requests (scenarios; docs/uds.md)
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
+    restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
+    restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline
 
     def with_params(self, sets: Mapping[str, object] | Iterable[tuple[str, object]] = (),
                     **shortcuts: object) -> RunConfig:
@@ -164,6 +167,10 @@ class RunConfig:
         manifold filter, and every parameter that differs from the defaults (path: value)."""
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "params"}
         out["faults"] = [asdict(f) for f in self.faults]
+        out["restbus"] = None if self.restbus is None else {
+            "databases": list(self.restbus.databases), "nodes": list(self.restbus.nodes),
+            "e2e": self.restbus.e2e_path, "values": self.restbus.values_path}
+        out["restbus_disturbances"] = [asdict(d) for d in self.restbus_disturbances]
         out["uds_steps"] = [{k: v.hex(" ") if isinstance(v, bytes) else v
                              for k, v in asdict(u).items()} for u in self.uds_steps]
         out["noise_scale"] = self.params.plant.throttle.noise_scale

@@ -1,69 +1,179 @@
-"""End-to-end protection: 4-bit alive counter and CRC-8 SAE J1850 (AUTOSAR CRC8, poly 0x1D).
+"""End-to-end protection: the AUTOSAR E2E profiles P01, P02, P04, P05, P07 and P11 through the
+`autosar-e2e` package (its C implementation computes and checks every CRC; vecu has no CRC table).
 
-Layout follows AUTOSAR E2E profile 1 in spirit: the CRC covers the 16-bit data ID (the CAN ID,
-low byte first) followed by every payload byte except the CRC byte itself.
+A profile is one entry of `PROFILES` (where its header lies, its counter's range, its data ID
+modes and the library's protect / check functions). An `E2EProtection` binds a profile to one
+message: data ID (P02: a list of 16), data ID mode, header offset and protected length.
+vecu's own safety frames use P11 with the data ID = the CAN ID, mode "both"
+(docs/restbus.md, "vecu's own frames").
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+
+import e2e as autosar_e2e
 
 
-def _make_table(poly: int) -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ poly) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-        table.append(crc)
-    return tuple(table)
+@dataclass(frozen=True)
+class Profile:
+    """One AUTOSAR E2E profile as autosar-e2e implements it (offsets from the header's start)."""
+
+    name: str
+    header_bytes: int        # the E2E header's size (CRC, counter and whatever else it holds)
+    crc_at: int              # the CRC's first byte
+    crc_bytes: int
+    counter_at: int          # the counter's first byte
+    counter_bytes: int       # 0: the low nibble of byte counter_at
+    counter_modulo: int      # counter values 0 .. modulo - 1, then 0 again
+    modes: dict[str, int]    # data_id_mode names -> the library's constants ({}: no modes)
+    data_id_bits: int        # 0: a list of 16 data IDs (P02)
+    takes_offset: bool
+    protect: Callable[..., None]
+    check: Callable[..., bool]
 
 
-_TABLE = _make_table(0x1D)
+def _nibble_modes(module) -> dict[str, int]:
+    prefix = module.__name__.rsplit(".", 1)[-1].upper()
+    return {name.lower(): getattr(module, f"E2E_{prefix}_DATAID_{name}")
+            for name in ("BOTH", "ALT", "LOW", "NIBBLE")
+            if hasattr(module, f"E2E_{prefix}_DATAID_{name}")}
 
 
-def crc8_table() -> tuple[int, ...]:
-    """The CRC-8 SAE J1850 lookup table (poly 0x1D) the checks here use (block decoders too)."""
-    return _TABLE
+_L = autosar_e2e
+PROFILES: dict[str, Profile] = {p.name: p for p in (
+    Profile("P01", 2, 0, 1, 1, 0, 15, _nibble_modes(_L.p01), 16, True,
+            _L.p01.e2e_p01_protect, _L.p01.e2e_p01_check),
+    Profile("P02", 2, 0, 1, 1, 0, 16, {}, 0, False,
+            _L.p02.e2e_p02_protect, _L.p02.e2e_p02_check),
+    Profile("P04", 12, 8, 4, 2, 2, 1 << 16, {}, 32, True,
+            _L.p04.e2e_p04_protect, _L.p04.e2e_p04_check),
+    Profile("P05", 3, 0, 2, 2, 1, 1 << 8, {}, 16, True,
+            _L.p05.e2e_p05_protect, _L.p05.e2e_p05_check),
+    Profile("P07", 20, 0, 8, 12, 4, 1 << 32, {}, 32, True,
+            _L.p07.e2e_p07_protect, _L.p07.e2e_p07_check),
+    Profile("P11", 2, 0, 1, 1, 0, 15, _nibble_modes(_L.p11), 16, True,
+            _L.p11.e2e_p11_protect, _L.p11.e2e_p11_check),
+)}
 
 
-def crc8_sae_j1850(data: bytes | bytearray, init: int = 0xFF) -> int:
-    """CRC-8 SAE J1850: poly 0x1D, init 0xFF, final XOR 0xFF, not reflected (check 0x4B)."""
-    crc = init
-    table = _TABLE
-    for b in data:
-        crc = table[crc ^ b]
-    return crc ^ 0xFF
+class E2EConfigError(ValueError):
+    """An E2E configuration a message cannot carry (the message is for the caller to name)."""
 
 
-def e2e_crc(data_id: int, payload: bytes | bytearray, crc_index: int) -> int:
-    """CRC over data ID (2 bytes, little endian) and payload without the CRC byte."""
-    table = _TABLE
-    crc = table[table[0xFF ^ (data_id & 0xFF)] ^ ((data_id >> 8) & 0xFF)]
-    for b in payload[:crc_index]:
-        crc = table[crc ^ b]
-    for b in payload[crc_index + 1:]:
-        crc = table[crc ^ b]
-    return crc ^ 0xFF
+@dataclass(frozen=True)
+class E2EProtection:
+    """One message's E2E protection. length: bytes protected (0: the whole payload)."""
+
+    profile: str
+    data_id: int = 0
+    data_id_list: tuple[int, ...] = ()
+    data_id_mode: str = "both"
+    offset: int = 0
+    length: int = 0
+    _kw: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        kind = PROFILES.get(self.profile.upper())
+        if kind is None:
+            raise E2EConfigError(f"unknown E2E profile {self.profile!r} "
+                                 f"(known: {', '.join(PROFILES)})")
+        object.__setattr__(self, "profile", kind.name)
+        kw: dict[str, object] = {"length": self.length}
+        if kind.data_id_bits:
+            if not 0 <= self.data_id < (1 << kind.data_id_bits):
+                raise E2EConfigError(f"{kind.name}: data_id {self.data_id:#x} does not fit in "
+                                     f"{kind.data_id_bits} bits")
+            kw["data_id"] = self.data_id
+        else:
+            ids = self.data_id_list
+            if len(ids) != 16 or not all(0 <= i <= 0xFF for i in ids):
+                raise E2EConfigError(f"{kind.name}: data_id_list needs 16 values 0..255, got "
+                                     f"{list(ids)}")
+            kw["data_id_list"] = bytes(ids)
+        if kind.modes:
+            mode = self.data_id_mode.lower()
+            if mode not in kind.modes:
+                raise E2EConfigError(f"{kind.name}: unknown data_id_mode {self.data_id_mode!r} "
+                                     f"(known: {', '.join(kind.modes)})")
+            kw["data_id_mode"] = kind.modes[mode]
+        if kind.takes_offset:
+            kw["offset"] = self.offset
+        elif self.offset:
+            raise E2EConfigError(f"{kind.name}: the header sits at byte 0 (no offset)")
+        if self.offset < 0 or self.length < 0:
+            raise E2EConfigError("offset and length must be >= 0")
+        self._kw.update(kw)
+
+    @property
+    def kind(self) -> Profile:
+        return PROFILES[self.profile]
+
+    @property
+    def counter_modulo(self) -> int:
+        return self.kind.counter_modulo
+
+    @property
+    def crc_span(self) -> tuple[int, int]:
+        """(first, last + 1) byte of the CRC in the payload."""
+        start = self.offset + self.kind.crc_at
+        return start, start + self.kind.crc_bytes
+
+    def fits(self, payload_length: int) -> str | None:
+        """Why a payload of this many bytes cannot carry the protection (None: it can)."""
+        need = self.offset + self.kind.header_bytes
+        covered = self.length or payload_length
+        if covered > payload_length:
+            return f"length {covered} exceeds the message's {payload_length} bytes"
+        if need > covered:
+            return (f"{self.profile} needs {need} bytes (header of {self.kind.header_bytes} at "
+                    f"offset {self.offset}), the message protects {covered}")
+        return None
+
+    def protector(self) -> Callable[[bytearray], None]:
+        """protect(buf): the CRC (and P04/P07's length and data ID fields) written in place,
+        the counter left as it is in buf."""
+        return partial(self.kind.protect, increment_counter=False, **self._kw)
+
+    def checker(self) -> Callable[[bytes | bytearray], bool]:
+        """ok(payload): the library's check (CRC, and what else the profile's header holds)."""
+        check = partial(self.kind.check, **self._kw)
+
+        def ok(data: bytes | bytearray) -> bool:
+            try:
+                return check(data if type(data) is bytearray else bytearray(data))
+            except ValueError:  # a payload too short for the header
+                return False
+        return ok
+
+    def counter(self, data: bytes | bytearray) -> int:
+        kind = self.kind
+        at = self.offset + kind.counter_at
+        if kind.counter_bytes == 0:
+            return data[at] & 0x0F
+        return int.from_bytes(data[at:at + kind.counter_bytes], "big")
+
+    def set_counter(self, buf: bytearray, value: int) -> None:
+        """Write the counter (any int: taken modulo the field's size, not the profile's range,
+        so that a disturbance can send a value the profile forbids)."""
+        kind = self.kind
+        at = self.offset + kind.counter_at
+        if kind.counter_bytes == 0:
+            buf[at] = (buf[at] & 0xF0) | (value & 0x0F)
+            return
+        n = kind.counter_bytes
+        buf[at:at + n] = (value % (1 << (8 * n))).to_bytes(n, "big")
 
 
-def e2e_checker(data_id: int, length: int, crc_index: int) -> Callable[[bytes | bytearray], bool]:
-    """ok(payload): payload[crc_index] == e2e_crc(data_id, payload, crc_index), generated with
-    the byte loop unrolled for payloads of `length` bytes (any other length: e2e_crc)."""
-    table = _TABLE
-    lines = ["def ok(p):",
-             f"    if len(p) != {length}: return p[{crc_index}] == _crc(_ID, p, {crc_index})",
-             f"    c = {table[table[0xFF ^ (data_id & 0xFF)] ^ ((data_id >> 8) & 0xFF)]}"]
-    lines += [f"    c = _T[c ^ p[{i}]]" for i in range(length) if i != crc_index]
-    lines.append(f"    return p[{crc_index}] == c ^ 0xFF")
-    ns: dict[str, object] = {"_T": table, "_crc": e2e_crc, "_ID": data_id}
-    code = compile("\n".join(lines) + "\n", f"<vecu e2e check {data_id:#x}>", "exec")
-    exec(code, ns)  # noqa: S102 (generated from the message's layout)
-    return ns["ok"]  # type: ignore[return-value]
+def own_protection(can_id: int) -> E2EProtection:
+    """vecu's own safety frames: P11, data ID = the CAN ID, both bytes of it (docs/restbus.md)."""
+    return E2EProtection("P11", data_id=can_id, data_id_mode="both")
 
 
 class AliveCounterCheck:
-    """Receiver side of a 4-bit alive counter: accepts +1 (mod 16); flags repeats and jumps.
+    """Receiver side of an alive counter: accepts +1 (mod `modulo`); flags repeats and jumps.
 
     After an error the next counter is accepted as the new reference (resynchronisation).
     """
@@ -75,6 +185,9 @@ class AliveCounterCheck:
 
     def check(self, counter: int) -> bool:
         last = self._last
+        if counter >= self.modulo:  # a value the profile never sends
+            self._last = None
+            return False
         self._last = counter
         if last is None:
             return True

@@ -3,10 +3,10 @@ signal order (FrameCodec.frame(dict(zip(names, values)), ts) as one call make(ts
 without the dict, the encode / CRC / Message call chain) and the receive range check.
 
 The code is put together from the lines the codec's generated encoder uses for each signal
-(vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E CRC unrolled over the
-payload bytes and vecu.frames.message. A value the generated encoder would refuse (not a
-number, a raw value that does not fit) makes the builder return `slow(ts, values)`, which is
-FrameCodec.frame with the dict: the same frame either way.
+(vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E protection
+(autosar-e2e's protect, in place) and vecu.frames.message. A value the generated encoder would
+refuse (not a number, a raw value that does not fit) makes the builder return
+`slow(ts, values)`, which is FrameCodec.frame with the dict: the same frame either way.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from typing import Any
 
 import can
 
-from vecu.e2e import crc8_table
 from vecu.frames import message
 
 Framer = Callable[..., can.Message]  # make(timestamp, *values in the names' order)
@@ -53,12 +52,13 @@ def make_framer(fc: FrameCodecLike, names: tuple[str, ...], parts: EncodeParts |
         return lambda timestamp, *values: slow(timestamp, values)
     return compile_framer(parts, names, frame_id=fc.frame_id, is_extended=fc.is_extended,
                           is_fd=fc.is_fd, length=fc.length,
-                          crc_byte=fc.e2e.crc_byte if fc.e2e is not None else None,
+                          protect=fc.e2e.protection.protector() if fc.e2e is not None else None,
                           slow=slow, label=fc.name)
 
 
 def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
-                   is_extended: bool, is_fd: bool, length: int, crc_byte: int | None,
+                   is_extended: bool, is_fd: bool, length: int,
+                   protect: Callable[[bytearray], None] | None,
                    slow: Callable[[float, tuple], can.Message], label: str) -> Framer:
     """make(ts, *values) for the signals `names` (every signal of the message, in any order)."""
     if sorted(names) != sorted(parts.blocks) or len(set(names)) != len(names):
@@ -75,12 +75,9 @@ def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
     src.append(f"        buf = bytearray({parts.payload})")
     src.extend(["    except Exception:", f"        {fallback}"])
     ns = dict(parts.namespace)
-    if crc_byte is not None:  # vecu.e2e.e2e_crc over the data ID and the other bytes, unrolled
-        table = crc8_table()
-        ns["_T"] = table
-        src.append(f"    c = {table[table[0xFF ^ (frame_id & 0xFF)] ^ ((frame_id >> 8) & 0xFF)]}")
-        src.extend(f"    c = _T[c ^ buf[{i}]]" for i in range(length) if i != crc_byte)
-        src.append(f"    buf[{crc_byte}] = c ^ 0xFF")
+    if protect is not None:  # the message's AUTOSAR profile (autosar-e2e), in place
+        ns["_protect"] = protect
+        src.append("    _protect(buf)")
     src.append(f"    return _msg(ts, {frame_id}, {is_extended}, buf, {is_fd})")
     ns.update(_slow=slow, _msg=message, _Refused=_Refused)
     exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC layout)

@@ -22,9 +22,15 @@ from vecu.assembly import (
     schedule_ecu,
     schedule_plant,
 )
-from vecu.bus import SimLane, open_bus, resolve_bus_config, virtual_channel_in_use
+from vecu.bus import (
+    BusNode,
+    SimLane,
+    open_bus,
+    resolve_bus_config,
+    virtual_channel_in_use,
+)
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
-from vecu.codec import shared_codec
+from vecu.codec import DbcCodec, shared_codec
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuNode
 from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
@@ -46,6 +52,8 @@ from vecu.probes import (
     ThrottleSeries,
 )
 from vecu.recorder import Recorder
+from vecu.restbus.node import RestbusNode, schedule_disturbances
+from vecu.restbus.spec import build_plans
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 from vecu.uds.server import attach_uds
@@ -148,6 +156,9 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
                      name="kill-swa", priority=PRIO_PLANT - 1)
         for f in config.faults:  # the scenario timeline
             _schedule_fault(sched, injector, f)
+        restbus = None
+        if config.restbus is not None:  # the user's bus on the same lane and clock
+            restbus = attach_restbus(sched, config, codec, node_bus())
         if config.realtime:
             warm_up(config)
         # one-time: loading (on a fresh install compiling) the kernels is not the run's speed
@@ -171,6 +182,9 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         summary["diagnostics"] = {**{name: mon.report() for name, mon in ecu.monitors.items()},
                                   "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
                                           "confirmations": ecu.bus_dtc.confirmations}}
+        if restbus is not None:
+            summary["restbus"] = restbus.summary()
+            summary["frames"]["sent"] += restbus.frames_sent
         if uds is not None:
             summary["uds"] = uds.summary()
         if tester is not None:
@@ -197,6 +211,24 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
                      speed_series=speed_probe.series() if speed_probe else None,
                      steering_series=steering_probe.series() if steering_probe else None,
                      manifold_series=manifold_probe.series() if manifold_probe else None)
+
+
+def attach_restbus(sched: Scheduler, config: RunConfig, codec: DbcCodec,
+                   bus: can.BusABC) -> RestbusNode:
+    """The restbus of config.restbus on its own bus node: every message the databases give the
+    chosen nodes except those vecu's plant and ECU send themselves, released with the plant, its
+    disturbance timeline (FI_Event frames, as vecu's faults)."""
+    from dataclasses import replace
+
+    assert config.restbus is not None
+    cfg = replace(config.restbus, exclude=frozenset(codec.by_id), seed=config.seed)
+    plans, _, _ = build_plans(cfg)
+    sender = BusNode(bus, "restbus")
+    node = RestbusNode(plans, sender.send, rng_streams(config.seed, ("restbus.faults",))[
+        "restbus.faults"], codec["FI_Event"], clock=sched.clock)
+    node.schedule(sched, priority=PRIO_PLANT)
+    schedule_disturbances(sched, node, config.restbus_disturbances, priority=PRIO_PLANT - 1)
+    return node
 
 
 def _sim_lane(config: RunConfig, bus_args: dict[str, Any]) -> SimLane | None:

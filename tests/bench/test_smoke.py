@@ -51,11 +51,14 @@ EXPECTED = {
             (r"simulated clock .*\n(?:.*\n){3}.*during the requests \(.*\): (\d+) frames heard "
             r"over \1 ECU ticks, 0 ticks lost, largest gap 1\.0 ms, 0 overruns"),
             r"live, wall clock(?:.*\n){4}.*during the requests \(.*\): \d+ frames heard"],
+    "restbus": [rf"vecu restbus \(all at once\) period error p50 {NUM} / p99 {NUM} / max {NUM} us",
+                rf"python-can send_periodic period error p50 {NUM} / p99 {NUM}",
+                r"simulated clock: .* periods exact: True"],
 }
 CAMPAIGN = (rf"batch engine {NUM} s/run .*\n  campaign {NUM} s = {NUM} s/run: {NUM}x sequential "
             r"`vecu eval manifold`")
 LIVE_UDP = rf"ECU in its own process \(udp_multicast, {NUM} s\): tick jitter p50 {NUM}"
-FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels", "uds")  # a few seconds each
+FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels", "uds", "restbus")  # a few seconds each
 
 
 def _bench(*args: str, timeout: float) -> str:

@@ -44,7 +44,7 @@ class Rig:
         k = self._sent = self._sent + 1
         volts = 2.0 + 0.003 * ((k * 7919) % 13 - 6)  # sensor noise: never 'stuck'
         data = self.codec["TPS_Sensor"].encode(
-            {"TPS_CRC": 0, "TPS_AliveCounter": k & 0xF, "TPS_Voltage": volts})
+            {"TPS_CRC": 0, "TPS_AliveCounter": k % 15, "TPS_Voltage": volts})
         self.sender.send(can.Message(arbitration_id=0x100, data=data, is_extended_id=False))
 
     def watt(self) -> None:

@@ -15,7 +15,6 @@ from vecu.assembly import build_functions
 from vecu.clock import NS_PER_MS
 from vecu.codec import DbcCodec, FrameCodec
 from vecu.config import RunConfig
-from vecu.e2e import e2e_crc
 from vecu.ecu.node import EcuNode
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True,
@@ -112,7 +111,7 @@ def frames_of(message: str) -> st.SearchStrategy[list[bytes]]:
         for i, drawn in enumerate(frames):
             values = dict(drawn)
             if fc.e2e is not None:
-                values[fc.e2e.counter_signal] = i % 16
+                values[fc.e2e.counter_signal] = i % fc.e2e.protection.counter_modulo
             out.append(fc.encode(values))
         return out
 
@@ -138,7 +137,7 @@ def raw_extremes(fc: FrameCodec) -> list[bytes]:
     if fc.e2e is not None:
         for data in out[:2]:
             buf = bytearray(data)
-            buf[fc.e2e.crc_byte] = e2e_crc(fc.frame_id, buf, fc.e2e.crc_byte)
+            fc.e2e.protection.protector()(buf)  # autosar-e2e writes the CRC
             out.append(bytes(buf))
     return out
 

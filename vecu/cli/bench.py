@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakdown", "kernels",
-          "uds")
+          "uds", "restbus")
 
 
 _groups = argtypes.name_list(GROUPS)  # --only: one group or several, comma-separated (pipeline,replay)
@@ -51,7 +51,7 @@ SIZES: dict[str, tuple[Any, Any]] = {
     "campaign_s": (80.0, 2.0), "campaign_baseline_runs": (3, 1),
     "run_backends_s": (60.0, 1.0), "scenario_limit": (0, 1),  # 0: every shipped scenario
     "log_memory_s": ((60.0, 300.0), (0.5, 1.0)),
-    "uds_requests": (200, 20),
+    "uds_requests": (200, 20), "restbus_s": (10.0, 1.0),
 }
 
 
@@ -116,6 +116,9 @@ def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
     if want("uds"):
         from vecu.bench.uds import bench_uds
         out["uds"] = bench_uds(requests=int(size("uds_requests")))
+    if want("restbus"):
+        from vecu.bench.restbus import bench_restbus
+        out["restbus"] = bench_restbus(size("restbus_s"))
     if groups is not None and "campaign" in groups:  # minutes at full size: only when asked for
         from vecu.bench.campaign import bench_campaign
         out["campaign"] = bench_campaign(runs=int(size("campaign_runs")),
@@ -185,6 +188,9 @@ def main(args: argparse.Namespace) -> int:
     if "uds" in res:
         from vecu.bench.uds import format_uds
         print(format_uds(res["uds"]))
+    if "restbus" in res:
+        from vecu.bench.restbus import format_restbus
+        print(format_restbus(res["restbus"]))
     if "campaign" in res:
         from vecu.bench.campaign import format_campaign
         print(format_campaign(res["campaign"]))

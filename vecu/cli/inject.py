@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "noise sigma (0.3)")
     p.add_argument("--at", type=argtypes.bounded(0.0, 86_400.0), default=0.0, metavar="S",
                    help="send S seconds after this command starts (default: at once)")
+    p.add_argument("--restbus", nargs="+", metavar="DB",
+                   help="disturb a running `vecu restbus` instead: --target MESSAGE[.SIGNAL] of "
+                        "these databases, --kind a restbus disturbance or clear (docs/restbus.md)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=main)
 
@@ -64,7 +67,13 @@ def main(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.at) and 0.0 <= args.at <= 86_400.0):
         raise BadArgumentError(f"--at: expected 0..86400 s, got {args.at}")
-    values = command_values(args.target, args.kind, args.value)
+    if args.restbus:  # a running `vecu restbus` (RB_Command, docs/restbus.md)
+        from vecu.restbus.commands import command_for
+        frame = command_for(tuple(args.restbus), args.target, args.kind.strip().lower(),
+                            args.value)
+    else:
+        frame = DbcCodec()["FI_Command"].frame(
+            command_values(args.target, args.kind, args.value), 0.0)
     cfg = bus_config(LiveOptions(role="inject", interface=args.interface,
                                  channel=args.channel, bitrate=args.bitrate))
     bus = open_bus(**cfg)
@@ -72,16 +81,16 @@ def main(args: argparse.Namespace) -> int:
         clock = WallClock()
         clock.start()
         clock.wait_until(round(args.at * NS_PER_S))
-        frame = DbcCodec()["FI_Command"].frame(values, 0.0)
         try:
             bus.send(frame, timeout=1.0)
         except (can.CanError, OSError) as exc:  # python-can's errors; some interfaces: OSError
-            raise UnavailableError(f"cannot send FI_Command on {cfg['interface']} "
-                                   f"{cfg['channel']}: {exc}") from exc
+            raise UnavailableError(f"cannot send {'RB' if args.restbus else 'FI'}_Command on "
+                                   f"{cfg['interface']} {cfg['channel']}: {exc}") from exc
     finally:
         bus.shutdown()
     if not args.quiet:
-        print(f"vecu inject: sent FI_Command {args.target} {args.kind}"
+        print(f"vecu inject: sent {'RB' if args.restbus else 'FI'}_Command {args.target} "
+              f"{args.kind}"
               f"{'' if args.value is None else f' {args.value:g}'} on {cfg['interface']} "
               f"{cfg['channel']}")
     return 0

@@ -113,7 +113,8 @@ def native_routes(codec: DbcCodec, functions: list[EcuFunction]) -> dict[tuple[i
     for fn in functions:
         for sub in fn.subscriptions():
             fc = codec[sub.message]
-            counter = AliveCounterCheck() if fc.e2e is not None else None
+            counter = (AliveCounterCheck(fc.e2e.protection.counter_modulo)
+                       if fc.e2e is not None else None)
             routes[(fc.frame_id, fc.is_extended)] = Route(
                 fc, sub, counter, (fn,), round((fc.cycle_time_ms or 0) * NS_PER_MS))
     return routes

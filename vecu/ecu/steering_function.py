@@ -48,6 +48,9 @@ class SteeringFunction:
         self.smoother = FixedLagSmoother(lag_s=config.lag_s, filt=SteeringUKF(config.model))
         self.ukf = self.smoother.filter
         self._est = codec["ECU_SteeringEstimate"]
+        e2e = self._est.e2e
+        assert e2e is not None, "the DBC's safety frame has no E2E layout"
+        self._modulo = e2e.protection.counter_modulo  # P11: 0..14
         self._smoothed = codec["ECU_SteeringSmoothed"]
         self._est_frame = self._est.framer((
             "STE_CRC", "STE_AliveCounter", "STE_Source", "STE_SwAngle", "STE_SwAngleEst",
@@ -97,7 +100,7 @@ class SteeringFunction:
         ts = t_ns / NS_PER_S
         self.estimates_sent += send(self._est_frame(
             ts, 0, self._tx_counter, source, angle, est, beta, int(status)))
-        self._tx_counter = (self._tx_counter + 1) & 0xF
+        self._tx_counter = (self._tx_counter + 1) % self._modulo
         if lagged is not None:
             lag_ms = round(lagged.lag_steps * self.period_ns / NS_PER_MS)
             self.lagged = (lag_ms, lagged.swa_rad * DEG_PER_RAD, lagged.side_slip_rad * DEG_PER_RAD)

@@ -54,6 +54,9 @@ class ThrottleFunction:
         self._tps = codec["TPS_Sensor"]
         self._watt = codec["ETB_Wattmeter"]
         self._est = codec["ECU_ThrottleEstimate"]
+        e2e = self._est.e2e
+        assert e2e is not None, "the DBC's safety frame has no E2E layout"
+        self._modulo = e2e.protection.counter_modulo  # P11: 0..14
         self._est_frame = self._est.framer((
             "THR_CRC", "THR_AliveCounter", "THR_Source", "THR_Angle", "THR_AngleEst",
             "THR_AngleEstStd", "THR_TpsStatus"))
@@ -116,7 +119,7 @@ class ThrottleFunction:
         self.angle, self.source, self.status = angle, source, status
         self.estimates_sent += send(self._est_frame(
             t_ns / NS_PER_S, 0, self._tx_counter, source, angle, theta_hat, std, int(status)))
-        self._tx_counter = (self._tx_counter + 1) & 0xF
+        self._tx_counter = (self._tx_counter + 1) % self._modulo
 
     def status_signals(self) -> dict[str, int]:
         return {"ECU_TpsDtc": int(self.monitor.dtc)}

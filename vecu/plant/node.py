@@ -78,6 +78,7 @@ class ThrottlePart:
         self._tps = codec["TPS_Sensor"]
         self._watt = codec["ETB_Wattmeter"]
         self._tps_frame = self._tps.framer(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage"))
+        self._modulo = self._tps.e2e.protection.counter_modulo  # P11: 0..14
         self._watt_frame = self._watt.framer(("ETB_Voltage", "ETB_Power"))
         self._counter = 0
         self.truth_msg = None  # TRUTH_Throttle codec when recording truth (PlantNode.enable_truth)
@@ -108,7 +109,7 @@ class ThrottlePart:
         v = np.where(cols[2] < TPS_V_MIN, TPS_V_MIN, np.minimum(cols[2], TPS_V_MAX))
         self._counter_ahead = c0 = self._counter
         tps = self._tps.encode_rows(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage"), (
-            np.zeros(n), (c0 + np.arange(n)) & 0xF, v))
+            np.zeros(n), (c0 + np.arange(n)) % self._modulo, v))
         watt = self._watt.encode_rows(("ETB_Voltage", "ETB_Power"), (np.array(us), cols[1]))
         self._tps_ahead = _payload_list(tps, n)
         self._watt_ahead = _payload_list(watt, n)
@@ -137,13 +138,13 @@ class ThrottlePart:
         k = self._k - 1  # this tick's payloads ahead (if any)
         if v is not None:
             data = (self._tps_ahead[k] if 0 <= k < len(self._tps_ahead) and v is v_sensor
-                    and self._counter == (self._counter_ahead + k) & 0xF else None)
+                    and self._counter == (self._counter_ahead + k) % self._modulo else None)
             v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
             if data is not None:  # encoded from the same clamped voltage
                 send(message(ts, self._tps.frame_id, self._tps.is_extended, data, self._tps.is_fd))
             else:
                 send(self._tps_frame(ts, 0, self._counter, v))
-            self._counter = (self._counter + 1) & 0xF
+            self._counter = (self._counter + 1) % self._modulo
         data = self._watt_ahead[k] if 0 <= k < len(self._watt_ahead) else None
         if data is not None:
             send(message(ts, self._watt.frame_id, self._watt.is_extended, data, self._watt.is_fd))
@@ -245,6 +246,7 @@ class LateralPart:
         self._swa = codec["SWA_Sensor"]
         self._lat_frame = self._lat.framer(("LAT_YawRate", "LAT_LatAccel", "LAT_VehSpeed"))
         self._swa_frame = self._swa.framer(("SWA_CRC", "SWA_AliveCounter", "SWA_Angle"))
+        self._modulo = self._swa.e2e.protection.counter_modulo  # P11: 0..14
         self.injector = injector
         tr = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)),
                               vehicle, sensors)
@@ -271,7 +273,7 @@ class LateralPart:
         self.swa_sensor = v
         if v is not None:
             send(self._swa_frame(ts, 0, self._counter, v))
-            self._counter = (self._counter + 1) & 0xF
+            self._counter = (self._counter + 1) % self._modulo
 
 
 class ManifoldPart:

@@ -8,21 +8,23 @@ The format is documented in docs/scenarios.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from vecu.argtypes import MANIFOLD_FILTERS
-from vecu.codec import DbcCodec
+from vecu.codec import DbcCodec, shared_codec
 from vecu.config import ParamTree, RunConfig, shortcut_sets, validate_tree
 from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
-from vecu.errors import BadFileError
+from vecu.errors import BadFileError, UserError
 from vecu.estimators.registry import THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
 from vecu.params import ParamError, apply_sets, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
+from vecu.restbus.node import RestbusNode
+from vecu.restbus.spec import RestbusConfig, build_plans
 from vecu.tomlfile import read_toml
 from vecu.uds.config import UdsStep
 
@@ -38,7 +40,7 @@ NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
-            "uds": list}
+            "uds": list, "restbus": dict}
 PLANT_KEYS = {"noise_scale": NUMBER, "speed": BOOL, "steering": BOOL, "manifold": BOOL,
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, "tps": dict, "swa": dict, "wheel": dict}
@@ -50,6 +52,8 @@ SENSOR_CRITERIA = {"detect_within_ms": NUMBER, "detected_as": list, "fallback_wi
                    "max_error_after_fallback": NUMBER, "rms_error_after_fallback": NUMBER,
                    "dtc": STR, "fault_at_s": NUMBER, "not_detected": BOOL}
 BUS_CRITERIA = {"dtc": STR}
+RESTBUS_KEYS = {"databases": list, "nodes": list, "e2e": STR, "values": STR,
+                "default_cycle_ms": NUMBER}
 UDS_KEYS = {"at_s": NUMBER, "request": STR, "functional": BOOL, "key": BOOL, "expect": STR,
             "expect_nrc": INT, "expect_contains": STR, "expect_absent": STR, "expect_none": BOOL}
 
@@ -164,7 +168,10 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
             if key != "enabled" and value < 0:
                 raise chk.fail(f"ecu.{sensor}.{key}", f"must be >= 0, got {value}")
         monitors[sensor] = over
-    faults = _faults(chk, data.get("faults", []), duration, parts, codec)
+    restbus = _restbus(chk, data.get("restbus"), seed)
+    restbus_node = restbus_checker(restbus, chk) if restbus is not None else None
+    faults, disturbances = _faults(chk, data.get("faults", []), duration, parts, codec,
+                                   restbus_node)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     # (scenario key, tree path, value): a value the tree refuses names the key it came from
@@ -189,32 +196,78 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     config = RunConfig(
         duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
-        params=params, uds_steps=uds_steps, **parts)
+        params=params, uds_steps=uds_steps, restbus=restbus, restbus_disturbances=disturbances,
+        **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
                     config, criteria)
 
 
+def _restbus(chk: _Checker, data: Any, seed: int) -> RestbusConfig | None:
+    """[restbus]: the user's databases (paths relative to the scenario file) and options."""
+    if data is None:
+        return None
+    chk.table(data, RESTBUS_KEYS, "restbus.")
+    dbs = data.get("databases")
+    if not dbs or not all(isinstance(d, str) for d in dbs):
+        raise chk.fail("restbus.databases", "expected an array of DBC / ARXML paths")
+    base = Path(chk.path).parent
+
+    def here(p: str | None) -> str | None:
+        return None if p is None else str(p if Path(p).is_absolute() else base / p)
+    nodes = data.get("nodes", [])
+    if not all(isinstance(n, str) for n in nodes):
+        raise chk.fail("restbus.nodes", "expected an array of node names")
+    cycle = data.get("default_cycle_ms")
+    if cycle is not None and not 0.1 <= cycle <= 3_600_000:
+        raise chk.fail("restbus.default_cycle_ms", f"must be in [0.1, 3600000], got {cycle}")
+    return RestbusConfig(tuple(str(here(d)) for d in dbs), tuple(nodes), here(data.get("e2e")),
+                         here(data.get("values")), cycle, seed)
+
+
+def restbus_checker(cfg: RestbusConfig, chk: _Checker) -> RestbusNode:
+    """The restbus of cfg, built (every database and file check) but not scheduled: it checks
+    the [[faults]] aimed at it."""
+    try:
+        plans, _, _ = build_plans(replace(cfg, exclude=frozenset(shared_codec().by_id)))
+    except UserError as exc:
+        raise chk.fail("restbus", str(exc)) from None
+    return RestbusNode(plans, lambda msg: True, np.random.default_rng(0))
+
+
 def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
-            codec: DbcCodec | None) -> tuple[ScheduledFault, ...]:
+            codec: DbcCodec | None, restbus: RestbusNode | None = None
+            ) -> tuple[tuple[ScheduledFault, ...], tuple[ScheduledFault, ...]]:
+    """[[faults]]: on vecu's own sensors and frames (the injector), or on a message of the
+    restbus (a restbus disturbance, vecu.restbus.disturb)."""
     injector = FaultInjector(np.random.default_rng(0), codec)
     out = []
+    disturbances = []
     for i, item in enumerate(items):
         pre = f"faults[{i}]."
         chk.table(item, FAULT_KEYS, pre)
         for req in ("target", "kind", "start_s"):
             if req not in item:
                 raise chk.fail(pre + req, "required key missing")
+        start, end = float(item["start_s"]), item.get("end_s")
+        if not 0 <= start < duration:
+            raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
+        if end is not None and not start < end:
+            raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
+        if restbus is not None and _on_restbus(restbus, item["target"]):
+            try:
+                restbus.check(item["target"], item["kind"], item.get("value"))
+            except ValueError as exc:
+                raise chk.fail(pre + "kind", str(exc)) from None
+            disturbances.append(ScheduledFault(
+                item["target"], item["kind"], start, None if end is None else float(end),
+                item.get("value")))
+            continue
         try:
             kind = parse_kind(item["kind"])
         except ValueError as exc:
             raise chk.fail(pre + "kind", str(exc)) from None
         if kind == 0:
             raise chk.fail(pre + "kind", "'clear' is not a fault (use end_s)")
-        start, end = float(item["start_s"]), item.get("end_s")
-        if not 0 <= start < duration:
-            raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
-        if end is not None and not start < end:
-            raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
         try:
             site = injector.check(item["target"], kind, item.get("value"))
         except ValueError as exc:
@@ -226,7 +279,15 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
                                            f"plant.{part} = true")
         out.append(ScheduledFault(item["target"], item["kind"], start,
                                   None if end is None else float(end), item.get("value")))
-    return tuple(out)
+    return tuple(out), tuple(disturbances)
+
+
+def _on_restbus(node: RestbusNode, target: str) -> bool:
+    try:
+        node.resolve(target)
+    except ValueError:
+        return False
+    return True
 
 
 def _criteria(chk: _Checker, data: dict, duration: float, parts: dict[str, bool]) -> Criteria:
