@@ -8,7 +8,6 @@ frames received, answers given, files written."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import shutil
@@ -22,6 +21,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
+from vecu.live.scenario import stop_process
 
 CHANNEL = "vcan0"
 CAN_UTILS = ("candump", "cansend", "canplayer", "cangen", "isotpsend", "isotprecv")
@@ -94,15 +95,7 @@ class Processes:
         assert proc.poll() is None and ready_file.exists(), self.stderr(name)
 
     def stop(self, name: str, sig: int = signal.SIGTERM, grace_s: float = 120.0) -> int:
-        proc = self.procs[name]
-        if proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                proc.send_signal(sig)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                proc.wait(timeout=grace_s)
-        if proc.poll() is None:
-            proc.kill()
-        return proc.wait()
+        return stop_process(self.procs[name], sig, grace_s)
 
     def stderr(self, name: str) -> str:
         path = self.out / f"{name}.err"

@@ -52,9 +52,9 @@ def _spawn(argv: list[str], err_path: Path) -> subprocess.Popen:
         return spawn(argv, new_group=False, stdout=subprocess.DEVNULL, stderr=err)
 
 
-def _stop(proc: subprocess.Popen, sig: int, grace_s: float = GRACE_S) -> None:
+def stop_process(proc: subprocess.Popen, sig: int, grace_s: float = GRACE_S) -> int:
     """Send sig (a node flushes its log and summary on SIGTERM, the logger on SIGINT), wait up to
-    grace_s, then SIGKILL; always reaped."""
+    grace_s, then SIGKILL; always reaped. Its exit code."""
     if proc.poll() is None:
         with contextlib.suppress(ProcessLookupError):
             proc.send_signal(sig)
@@ -62,7 +62,7 @@ def _stop(proc: subprocess.Popen, sig: int, grace_s: float = GRACE_S) -> None:
             proc.wait(timeout=grace_s)
     if proc.poll() is None:
         proc.kill()
-    proc.wait()
+    return proc.wait()
 
 
 def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, inject_kind: str,
@@ -116,16 +116,16 @@ def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, injec
             inject.wait(timeout=start_timeout_s + inject_at)
             end_ns = max(end_ns, clock.now_ns() + int(after_s * NS_PER_S))
         clock.wait_until(end_ns)
-        _stop(plant, signal.SIGTERM, 60.0)
+        stop_process(plant, signal.SIGTERM, 60.0)
         _wait_for(lambda: False, 0.5)  # let the ECU drain what is still queued
-        _stop(ecu, signal.SIGTERM, 60.0)
+        stop_process(ecu, signal.SIGTERM, 60.0)
     except Terminated:
         res["stopped_by"] = "SIGTERM"
         raise
     finally:  # plant before the ECU (it drains), the logger last (it sees everything)
         for name in ("inject", "plant", "ecu", "logger"):
             if name in procs:
-                _stop(procs[name], signal.SIGINT if name == "logger" else signal.SIGTERM)
+                stop_process(procs[name], signal.SIGINT if name == "logger" else signal.SIGTERM)
         res["returncodes"] = {name: p.returncode for name, p in procs.items()}
         res["stderr"] = {name: (out / f"{name}.err").read_text()[-2000:] for name in procs}
         if logger and (out / "logger.log").exists():
