@@ -243,7 +243,7 @@ class SinkBus(can.BusABC):
     def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
         return None, False
 
-    def recv(self, timeout: float | None = None) -> None:  # type: ignore[override]
+    def recv(self, timeout: float | None = None) -> None:  # type: ignore[override]  # never a frame
         return None
 
 

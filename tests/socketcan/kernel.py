@@ -81,7 +81,7 @@ class Processes:
 
     def start(self, name: str, argv: list[str], stdout: Path | None = None) -> subprocess.Popen:
         err = open(self.out / f"{name}.err", "w")  # noqa: SIM115 (closed with the process)
-        out = open(stdout, "w") if stdout else subprocess.DEVNULL  # noqa: SIM115
+        out = open(stdout, "w") if stdout else subprocess.DEVNULL  # noqa: SIM115 (as err)
         proc = subprocess.Popen(argv, stdout=out, stderr=err, cwd=self.out)
         self.procs[name] = proc
         return proc

@@ -84,7 +84,7 @@ def spawn(argv: list[str], new_group: bool = True, **kwargs: Any) -> subprocess.
     """Popen that dies with this process; by default in its own process group (stop_group /
     kill_group stop it whole), else in this one (a SIGTERM to the group reaches it too)."""
     return subprocess.Popen(argv, start_new_session=new_group,
-                            preexec_fn=dies_with(os.getpid()), **kwargs)  # noqa: PLW1509
+                            preexec_fn=dies_with(os.getpid()), **kwargs)  # noqa: PLW1509 (prctl only: fork-safe)
 
 
 def kill_group(proc: subprocess.Popen) -> None:

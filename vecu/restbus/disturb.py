@@ -185,7 +185,7 @@ class Override(Disturbance):
     kind: ClassVar[str] = "override"
 
     def values(self, values: dict[str, float]) -> None:
-        values[self.signal] = self.value  # type: ignore[index]
+        values[self.signal] = self.value  # type: ignore[index]  # signal: set for this kind
 
 
 @dataclass(frozen=True)

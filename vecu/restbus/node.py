@@ -189,7 +189,7 @@ class RestbusNode:
             for d in active:
                 c = d.counter(c, modulo)
             prot.set_counter(buf, c)
-            self._protect[i](buf)  # type: ignore[misc]
+            self._protect[i](buf)  # type: ignore[misc]  # set wherever plan.e2e is
             step = 1
             for d in active:
                 a = d.advance()
