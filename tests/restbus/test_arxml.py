@@ -33,7 +33,9 @@ P02_IDS = (17, 34, 51, 68, 85, 102, 119, 136, 153, 170, 187, 204, 221, 238, 1, 2
 WRITTEN = {"BrakeStatus": (0x1A0, False, 10, ("PROFILE_05", [0x0B2C])),
            "WheelSpeeds": (0x1B0, False, 20, ("PROFILE_02", list(P02_IDS))),
            "BodyStatus": (0x3C0, False, 100, None),
-           "EngineInfo": (0x18FF1234, True, 50, None)}
+           "EngineInfo": (0x18FF1234, True, 50, None),
+           "SteerAngle": (0x0C8, False, 5, ("PROFILE_05", [0x03A5]))}  # an E2E transformer
+P05 = {0x1A0: ("BrakeStatus", 0x0B2C), 0x0C8: ("SteerAngle", 0x03A5)}
 
 
 @pytest.fixture(scope="module")
@@ -83,6 +85,7 @@ def test_every_message_at_exactly_its_arxml_cycle_time_from_its_init_values(db):
     assert decoded["EngineInfo"] == {"EngineSpeed": 800.0, "EngineTorque": -10.0}
     assert decoded["BrakeStatus"]["BrakePressure"] == 15.0
     assert decoded["WheelSpeeds"]["WheelSpeedFR"] == 50.1
+    assert decoded["SteerAngle"]["SteeringWheelAngle"] == -15.0
     assert first[0x18FF1234].is_extended_id and not first[0x1A0].is_extended_id
 
 
@@ -93,17 +96,20 @@ def test_p05_and_p02_frames_pass_autosar_e2e_and_cantools_profile_functions(db, 
     assert by_name["BrakeStatus"].e2e.profile == "P05"
     assert by_name["BrakeStatus"].e2e_source == "ARXML (PROFILE_05)"
     assert by_name["WheelSpeeds"].e2e.profile == "P02"
+    assert by_name["SteerAngle"].e2e.profile == "P05"  # from the E2E transformer's PROFILE-NAME
     assert by_name["BodyStatus"].e2e is None and by_name["EngineInfo"].e2e is None
     brake, wheels = db.get_message_by_name("BrakeStatus"), db.get_message_by_name("WheelSpeeds")
-    counters = {0x1A0: AliveCounterCheck(256), 0x1B0: AliveCounterCheck(16)}
-    seen = {0x1A0: 0, 0x1B0: 0}
-    crcs = {0x1A0: set(), 0x1B0: set()}
+    counters = {0x1A0: AliveCounterCheck(256), 0x1B0: AliveCounterCheck(16),
+                0x0C8: AliveCounterCheck(256)}
+    seen = dict.fromkeys(counters, 0)
+    crcs: dict[int, set[bytes]] = {k: set() for k in counters}
     for msg in frames:
         data = bytes(msg.data)
-        if msg.arbitration_id == 0x1A0:
-            assert autosar_e2e.p05.e2e_p05_check(bytearray(data), 0x0B2C)
-            assert cantools_e2e.check_profile5_crc(data, brake) is True
-            assert counters[0x1A0].check(data[2])
+        if msg.arbitration_id in P05:
+            name, data_id = P05[msg.arbitration_id]
+            assert autosar_e2e.p05.e2e_p05_check(bytearray(data), data_id)
+            assert cantools_e2e.check_profile5_crc(data, db.get_message_by_name(name)) is True
+            assert counters[msg.arbitration_id].check(data[2])
         elif msg.arbitration_id == 0x1B0:
             assert autosar_e2e.p02.e2e_p02_check(bytearray(data), bytes(P02_IDS))
             assert cantools_e2e.check_profile2_crc(data, wheels) is True
@@ -112,8 +118,9 @@ def test_p05_and_p02_frames_pass_autosar_e2e_and_cantools_profile_functions(db, 
             continue
         seen[msg.arbitration_id] += 1
         crcs[msg.arbitration_id].add(data[:2])
-    assert seen == {0x1A0: 4000, 0x1B0: 2000}
-    assert min(len(c) for c in crcs.values()) > 200  # the data (and so the CRC) did change
+    assert seen == {0x1A0: 4000, 0x1B0: 2000, 0x0C8: 8000}
+    assert min(len(crcs[k]) for k in (0x1A0, 0x1B0)) > 200  # the data (so the CRC) changed
+    assert len(crcs[0x0C8]) == 256  # constant data: the counter alone moves the CRC
     # the oracle can fail: one flipped payload bit and cantools' check says so
     bad = bytearray(frames[0].data if frames[0].arbitration_id == 0x1A0 else frames[1].data)
     bad[4] ^= 0x01
@@ -126,7 +133,8 @@ def test_an_e2e_toml_overrides_the_arxml_properties(db, tmp_path):
                         '[[e2e]]\nid = 0x1B0\nprofile = "P11"\ndata_id = 0x1B0\n')
     plans, _, frames = collect(RestbusConfig((str(ARXML),), e2e_path=str(e2e_file)), 1.0)
     assert {p.name: p.e2e_source for p in plans if p.e2e is not None} == {
-        "BrakeStatus": "E2E.toml", "WheelSpeeds": "E2E.toml"}
+        "BrakeStatus": "E2E.toml", "WheelSpeeds": "E2E.toml",
+        "SteerAngle": "ARXML (PROFILE_05)"}  # no entry: keeps the ARXML's
     brake, wheels = db.get_message_by_name("BrakeStatus"), db.get_message_by_name("WheelSpeeds")
     n = 0
     for msg in frames:
@@ -149,23 +157,26 @@ def test_cli_arxml_restbus_with_a_crc_disturbance_fails_cantools_check_in_its_wi
     log, summary = tmp_path / "x.log", tmp_path / "s.json"
     res = vecu("restbus", str(ARXML), "--duration", "2", "--log", str(log), "--summary",
                str(summary), "--disturb", "BrakeStatus:crc_wrong@0.5-1.0",
-               "--disturb", "WheelSpeeds:crc_wrong@0.5-1.0", "--quiet")
+               "--disturb", "WheelSpeeds:crc_wrong@0.5-1.0",
+               "--disturb", "SteerAngle:crc_wrong@0.5-1.0", "--quiet")
     assert res.returncode == 0, res.stderr
     s = json.loads(summary.read_text())
     assert s["per_message"] == {"BrakeStatus": 200, "WheelSpeeds": 100, "BodyStatus": 20,
-                                "EngineInfo": 40}
+                                "EngineInfo": 40, "SteerAngle": 400}
     assert s["e2e"] == {"BrakeStatus": "P05 from ARXML (PROFILE_05)",
                         "WheelSpeeds": "P02 from ARXML (PROFILE_02)",
+                        "SteerAngle": "P05 from ARXML (PROFILE_05)",
                         "BodyStatus": "none", "EngineInfo": "none"}
     check = {0x1A0: (db.get_message_by_name("BrakeStatus"), cantools_e2e.check_profile5_crc),
-             0x1B0: (db.get_message_by_name("WheelSpeeds"), cantools_e2e.check_profile2_crc)}
-    verdicts: dict[int, list[tuple[int, bool]]] = {0x1A0: [], 0x1B0: []}
+             0x1B0: (db.get_message_by_name("WheelSpeeds"), cantools_e2e.check_profile2_crc),
+             0x0C8: (db.get_message_by_name("SteerAngle"), cantools_e2e.check_profile5_crc)}
+    verdicts: dict[int, list[tuple[int, bool]]] = {k: [] for k in check}
     for msg in can.LogReader(str(log)):
         if msg.arbitration_id in check and not msg.is_extended_id:
             m, fn = check[msg.arbitration_id]
             verdicts[msg.arbitration_id].append((round(msg.timestamp * 1000),
                                                  fn(bytes(msg.data), m)))
-    for can_id, cycle in ((0x1A0, 10), (0x1B0, 20)):
+    for can_id, cycle in ((0x1A0, 10), (0x1B0, 20), (0x0C8, 5)):
         got = verdicts[can_id]
         assert [t for t, _ in got] == list(range(0, 2000, cycle))
         assert [t for t, ok in got if not ok] == list(range(500, 1000, cycle)), hex(can_id)
