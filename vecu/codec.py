@@ -297,9 +297,9 @@ class ArxmlE2E:
 
 def _arxml_e2e(message: Message) -> ArxmlE2E | None:
     e2e = message.autosar.e2e if message.autosar is not None else None
-    if e2e is None or not e2e.data_ids:
+    if e2e is None:
         return None
-    return ArxmlE2E(e2e.category, tuple(e2e.data_ids), e2e.payload_length)
+    return ArxmlE2E(e2e.category, tuple(e2e.data_ids or ()), e2e.payload_length)
 
 
 def _start_value(sig) -> float:

@@ -220,23 +220,3 @@ def test_a_rerun_is_byte_identical_and_the_log_holds_every_frame(tmp_path, third
         assert res.summary["logged"] == res.summary["frames_sent"] > 0
         logs.append(log.read_bytes().replace(f"rb-rerun-{k}".encode(), b"CH"))
     assert logs[0] == logs[1]
-
-
-def test_arxml_e2e_properties_map_to_a_profile():
-    """An ARXML's E2E properties as cantools reads them (codec.ArxmlE2E) -> the profile; no
-    ARXML with E2E properties ships here, so the plain data stands in for a message."""
-    from types import SimpleNamespace
-
-    from vecu.codec import ArxmlE2E
-    from vecu.restbus.spec import arxml_protection
-
-    def msg(props, length=8):
-        return SimpleNamespace(arxml_e2e=props, length=length)
-
-    p05 = arxml_protection(msg(ArxmlE2E("PROFILE_05", (0x1B0,), 8)))
-    assert (p05.profile, p05.data_id, p05.length) == ("P05", 0x1B0, 8)
-    p02 = arxml_protection(msg(ArxmlE2E(None, tuple(range(16)), 8)))
-    assert p02.profile == "P02" and p02.data_id_list == tuple(range(16))
-    assert arxml_protection(msg(ArxmlE2E("Profile4", (1,), 8))) is None  # 12-byte header
-    assert arxml_protection(msg(ArxmlE2E("PROFILE_99", (1,), 8))) is None
-    assert arxml_protection(msg(None)) is None

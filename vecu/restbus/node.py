@@ -45,6 +45,7 @@ class MessagePlan:
     sources: dict[str, Source]           # every signal's value(t_s)
     start: dict[str, float]              # start values (if-active compares against them)
     offset_ns: int = 0                   # first release (a stagger spreads the bus load)
+    e2e_source: str = "none"             # E2E.toml | ARXML (category) | vecu layout | none[: why]
 
     @property
     def name(self) -> str:
@@ -225,9 +226,12 @@ class RestbusNode:
         """Raise BadArgumentError unless `kind` (with `value`) can act on `target`."""
         i, sig = self.resolve(target)
         k = disturb.KINDS.get(kind)
-        if k is not None and k.needs == "e2e" and self.plans[i].e2e is None:
+        plan = self.plans[i]
+        if k is not None and k.needs == "e2e" and plan.e2e is None:
+            why = plan.e2e_source.removeprefix("none").removeprefix(": ")
             raise BadArgumentError(f"restbus disturbance {kind} on {target!r}: message "
-                                   f"{self.plans[i].name} has no E2E protection (E2E.toml)")
+                                   f"{plan.name} has no E2E protection ({why + '; ' if why else ''}"
+                                   "give it an [[e2e]] entry in E2E.toml)")
         disturb.make(kind, value, self._rng, sig)
 
     def disturb(self, t_ns: int, target: str, kind: str, value: float | None = None,
@@ -266,6 +270,8 @@ class RestbusNode:
         return {"messages": len(self.plans), "frames_sent": self.frames_sent,
                 "encode_errors": self.encode_errors, "skipped_releases": self.skipped,
                 "per_message": {p.name: s.sent for p, s in zip(self.plans, self.states)},
+                "e2e": {p.name: (f"{p.e2e.profile} from {p.e2e_source}" if p.e2e is not None
+                                 else p.e2e_source) for p in self.plans},
                 "disturbances": [{"t_s": e.t_ns / NS_PER_S, "message": e.message,
                                   "signal": e.signal, "kind": e.kind, "value": e.value,
                                   "active": e.active, "source": e.source}

@@ -12,19 +12,23 @@ E2E.toml:
     offset = 0                # byte offset of the E2E header (default 0)
     length = 8                # bytes protected (default: the message's length)
 
-A message without an entry keeps an ARXML's E2E properties (where cantools reads them) or
-vecu's own `<prefix>_CRC` / `<prefix>_AliveCounter` layout (P11); else it is unprotected.
+A message without an entry keeps an ARXML's E2E properties as cantools reads them (profile from
+the category, data IDs, protected length: arxml_protection) or vecu's own `<prefix>_CRC` /
+`<prefix>_AliveCounter` layout (P11); else it is unprotected. ARXML properties vecu cannot apply
+(a profile it does not send, a header the message cannot hold) are logged and leave the message
+unprotected; the summary's `e2e` says where each message's protection came from.
 """
 
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from vecu.codec import DbcCodec, FrameCodec
-from vecu.e2e import E2EConfigError, E2EProtection
+from vecu.e2e import PROFILES, E2EConfigError, E2EProtection
 from vecu.errors import BadArgumentError, BadFileError
 from vecu.restbus.node import SEND_TYPES, MessagePlan
 from vecu.restbus.values import ValueSpec, build_source, parse_values
@@ -32,6 +36,7 @@ from vecu.rng import rng_streams
 from vecu.tomlfile import read_toml
 
 NS_PER_MS = 1_000_000
+_log = logging.getLogger("vecu.restbus")
 ON_CHANGE_POLL_MS = 10.0  # an on-change message without a cycle time is looked at this often
 
 
@@ -139,26 +144,75 @@ def parse_e2e(path: str, db: DbcCodec) -> dict[str, E2EProtection]:
     return out
 
 
+# cantools hands over an END-TO-END-PROFILE's CATEGORY (or an E2E transformer's PROFILE-NAME)
+# as written: AUTOSAR's names are PROFILE_01 .. PROFILE_22, tools also write Profile5, P05,
+# E2E_P05. A letter after the number is another profile (PROFILE_04m: P04 plus source ID and
+# message type), not the one of that number.
+_CATEGORY = re.compile(r"(?:PROFILE|P)0*(\d+)(M?)$")
+
+
+def arxml_profile(category: str | None, n_data_ids: int) -> str:
+    """The profile an ARXML's E2E category names (P01 .. P22); without a number in it, the one
+    cantools' own profile functions assume from the data IDs (16: P02, 1: P05). Raises
+    E2EConfigError naming what it cannot map."""
+    text = re.sub(r"[^A-Z0-9]", "", (category or "").upper())
+    m = _CATEGORY.search(text)
+    if m is None:
+        by_count = {16: "P02", 1: "P05"}.get(n_data_ids)
+        if by_count is None:
+            raise E2EConfigError(f"E2E category {category!r} names no profile and "
+                                 f"{n_data_ids} data IDs fit none (16: P02, 1: P05)")
+        return by_count
+    name = f"P{int(m.group(1)):02d}{m.group(2).lower()}"
+    if name not in PROFILES:
+        raise E2EConfigError(f"E2E category {category!r} is profile {name}, which vecu does "
+                             f"not send (known: {', '.join(PROFILES)})")
+    return name
+
+
 def arxml_protection(fc: FrameCodec) -> E2EProtection | None:
-    """The message's ARXML E2E properties (profile from the category's number), if usable."""
+    """The message's ARXML E2E properties as cantools reads them (category, data IDs, protected
+    length; header at byte 0, data ID mode "both": cantools reads neither), None without any.
+    Raises E2EConfigError when the message has properties vecu cannot apply."""
     props = fc.arxml_e2e
     if props is None:
         return None
-    digits = re.findall(r"\d+", props.category or "")
-    if not digits and len(props.data_ids) == 16:
-        digits = ["2"]
-    if not digits:
-        return None
-    name = f"P{int(digits[0]):02d}"
+    ids = props.data_ids
+    if not ids:
+        raise E2EConfigError(f"E2E category {props.category!r} without data IDs")
+    name = arxml_profile(props.category, len(ids))
+    if PROFILES[name].data_id_bits == 0:
+        prot = E2EProtection(name, data_id_list=ids, length=props.payload_length or 0)
+    elif len(ids) != 1:
+        raise E2EConfigError(f"{name} takes one data ID, the ARXML gives {len(ids)}")
+    else:
+        prot = E2EProtection(name, data_id=ids[0], length=props.payload_length or 0)
+    problem = prot.fits(fc.length)
+    if problem:
+        raise E2EConfigError(problem)
+    return prot
+
+
+def _protection(fc: FrameCodec, e2e: dict[str, E2EProtection], origin: str
+                ) -> tuple[E2EProtection | None, str]:
+    """(the message's protection, where it comes from): E2E.toml, else the ARXML's properties,
+    else vecu's <prefix>_CRC / _AliveCounter layout. ARXML properties vecu cannot apply are
+    logged; without vecu's layout the message goes out unprotected (source "none: why")."""
+    if fc.name in e2e:
+        return e2e[fc.name], "E2E.toml"
+    unused = "none"
     try:
-        if name == "P02":
-            prot = E2EProtection(name, data_id_list=props.data_ids,
-                                 length=props.payload_length or 0)
-        else:
-            prot = E2EProtection(name, data_id=props.data_ids[0], length=props.payload_length or 0)
-    except E2EConfigError:
-        return None
-    return None if prot.fits(fc.length) else prot
+        prot = arxml_protection(fc)
+    except E2EConfigError as exc:
+        _log.warning("restbus: %s: %s (0x%X): ARXML E2E properties not applied: %s (an "
+                     "[[e2e]] entry in E2E.toml overrides them)", origin, fc.name, fc.frame_id,
+                     exc)
+        prot, unused = None, f"none: ARXML E2E not applied: {exc}"
+    if prot is not None:
+        return prot, f"ARXML ({fc.arxml_e2e.category if fc.arxml_e2e else None})"
+    if fc.e2e is not None:
+        return fc.e2e.protection, "vecu layout"
+    return None, unused
 
 
 def build_plans(cfg: RestbusConfig) -> tuple[list[MessagePlan], list[str], DbcCodec]:
@@ -185,11 +239,10 @@ def build_plans(cfg: RestbusConfig) -> tuple[list[MessagePlan], list[str], DbcCo
                                                 str(cfg.values_path))
         send = send_type_of(fc)
         cycle = fc.cycle_time_ms or cfg.default_cycle_ms or ON_CHANGE_POLL_MS
-        prot = e2e.get(fc.name) or arxml_protection(fc) or (
-            fc.e2e.protection if fc.e2e is not None else None)
+        prot, source = _protection(fc, e2e, _db_label(cfg))
         period = round(cycle * NS_PER_MS)
         offset = round(len(plans) * cfg.stagger_ms * NS_PER_MS) % period
-        plans.append(MessagePlan(fc, period, send, prot, sources, start, offset))
+        plans.append(MessagePlan(fc, period, send, prot, sources, start, offset, source))
     assert all(p.send_type in SEND_TYPES for p in plans)
     return plans, skipped, db
 
