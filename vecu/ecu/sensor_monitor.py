@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS
 from vecu.models.sensors import TpsCalibration
@@ -90,6 +90,9 @@ class Dtc:
         self._heal_ns = int(heal_ms * NS_PER_MS)
         self._healthy_since: int | None = None
         self._was_confirmed = False
+
+    def set_heal_ms(self, heal_ms: float) -> None:
+        self._heal_ns = int(heal_ms * NS_PER_MS)
 
     def report(self, t_ns: int, failed: bool, suspicious: bool, healthy: bool) -> DtcState:
         state = self.state
@@ -186,6 +189,15 @@ class SensorMonitor:
         self._activity_at_rx = 0
         self.host_gap = False     # the current sample is stale, but not for the sensor's fault
         self.host_gaps = 0        # host gaps seen (each counted once)
+
+    def recalibrate(self, config: SensorMonitorConfig) -> None:
+        """A new calibration (XCP, a timed set): acts from the next evaluation; the state
+        (counters, status, DTC) stays. Equal to a monitor built with it (cycle_ms is the
+        frame's, kept)."""
+        config = replace(config, cycle_ms=self.cfg.cycle_ms)
+        self.cfg = config
+        self._timeout_ns = int(config.timeout_cycles * config.cycle_ms * NS_PER_MS)
+        self.dtc_item.set_heal_ms(config.dtc_heal_ms)
 
     @classmethod
     def for_tps(cls, config: SensorMonitorConfig, cal: TpsCalibration) -> SensorMonitor:
