@@ -41,17 +41,26 @@ def _num(x: float) -> str:
     return repr(float(x)) if not float(x).is_integer() else str(int(x))
 
 
-def compu_method_name(unit: str) -> str:
-    """One COMPU_METHOD per unit: CM_ and the unit with other characters as '_'."""
-    return "CM_" + (re.sub(r"[^A-Za-z0-9]+", "_", unit).strip("_") or "none")
-
-
-def _compu_methods(units: Iterable[str]) -> list[str]:
-    out = []
+def compu_method_names(units: Iterable[str]) -> dict[str, str]:
+    """One COMPU_METHOD per unit: CM_ and the unit with other characters as '_' (a number
+    appended where two units would give the same name, e.g. m/s^2 and (m/s)^2)."""
+    names: dict[str, str] = {}
+    taken: set[str] = set()
     for unit in sorted(set(units)):
-        out.append(f'    /begin COMPU_METHOD {compu_method_name(unit)} {_text(unit)}\n'
-                   f'      IDENTICAL "%.9" {_text(unit)}\n    /end COMPU_METHOD')
-    return out
+        base = "CM_" + (re.sub(r"[^A-Za-z0-9]+", "_", unit).strip("_") or "none")
+        name, n = base, 1
+        while name in taken:
+            n += 1
+            name = f"{base}_{n}"
+        taken.add(name)
+        names[unit] = name
+    return names
+
+
+def _compu_methods(names: dict[str, str]) -> list[str]:
+    return [f'    /begin COMPU_METHOD {name} {_text(unit)}\n'
+            f'      IDENTICAL "%.9" {_text(unit)}\n    /end COMPU_METHOD'
+            for unit, name in names.items()]
 
 
 def _record_layouts() -> list[str]:
@@ -59,7 +68,7 @@ def _record_layouts() -> list[str]:
             f"    /end RECORD_LAYOUT" for _, dtype, rl in TYPES.values()]
 
 
-def _characteristics(segment: CalSegment, tree: Any) -> list[str]:
+def _characteristics(segment: CalSegment, tree: Any, cm: dict[str, str]) -> list[str]:
     out = []
     sources = {leaf.path[len("ecu."):]: leaf.source for leaf in ptree.leaves(tree, "ecu.")}
     for leaf in segment.leaves:
@@ -67,7 +76,7 @@ def _characteristics(segment: CalSegment, tree: Any) -> list[str]:
         lo, hi = leaf.bounds
         kind = "VALUE" if leaf.count == 1 else "VAL_BLK"
         lines = [f"    /begin CHARACTERISTIC {leaf.name} {_text(sources.get(leaf.path, ''))}",
-                 f"      {kind} 0x{leaf.address:X} {rl} 0 {compu_method_name(leaf.unit)} "
+                 f"      {kind} 0x{leaf.address:X} {rl} 0 {cm[leaf.unit]} "
                  f"{_num(lo)} {_num(hi)}"]
         if leaf.count > 1:
             lines.append(f"      MATRIX_DIM {leaf.count} 1 1")
@@ -78,12 +87,12 @@ def _characteristics(segment: CalSegment, tree: Any) -> list[str]:
     return out
 
 
-def _measurements(measurements: list[Measurement]) -> list[str]:
+def _measurements(measurements: list[Measurement], cm: dict[str, str]) -> list[str]:
     out = []
     for m in measurements:
         dtype = TYPES[m.code][1]
         out.append(f"    /begin MEASUREMENT {m.name} {_text(m.doc)}\n"
-                   f"      {dtype} {compu_method_name(m.unit)} 0 0 {_num(m.lo)} {_num(m.hi)}\n"
+                   f"      {dtype} {cm[m.unit]} 0 0 {_num(m.lo)} {_num(m.hi)}\n"
                    f"      ECU_ADDRESS 0x{m.address:X}\n    /end MEASUREMENT")
     return out
 
@@ -170,10 +179,11 @@ def _segment_if_data(segment: CalSegment) -> str:
 def render_a2l(cfg: XcpConfig, segment: CalSegment, measurements: list[Measurement],
                tree: Any) -> str:
     """The A2L text for this slave (tree: the ecu subtree the segment was laid out from)."""
-    units = [leaf.unit for leaf in segment.leaves] + [m.unit for m in measurements]
+    cm = compu_method_names([leaf.unit for leaf in segment.leaves]
+                            + [m.unit for m in measurements])
     body = "\n".join([
-        *_compu_methods(units), *_record_layouts(), *_characteristics(segment, tree),
-        *_measurements(measurements), *_groups(segment, measurements)])
+        *_compu_methods(cm), *_record_layouts(), *_characteristics(segment, tree, cm),
+        *_measurements(measurements, cm), *_groups(segment, measurements)])
     name = cfg.a2l_name
     return f"""ASAP2_VERSION {ASAP2_VERSION}
 /begin PROJECT {name} "vecu virtual ECU: XCP on CAN (docs/xcp.md)"
