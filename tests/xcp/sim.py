@@ -43,26 +43,28 @@ class XcpSim(SimRun):
         assert server is not None
         self.xcp: XcpServer = server
 
-    def master(self, **general: Any) -> Master:
+    def master(self, policy: Any = None, timeout: float = 5.0, **general: Any) -> Master:
         cfg = self.config.params.ecu.xcp
-        app = master_config(cfg.master_id, cfg.slave_id, self.channel, **general)
-        return Master("can", config=app, transport_layer_interface=self.bus())
+        app = master_config(cfg.master_id, cfg.slave_id, self.channel, timeout, **general)
+        return Master("can", config=app, policy=policy, transport_layer_interface=self.bus())
 
     def serve(self, work: Callable[[Master], Any], max_sim_s: float = 120.0,  # type: ignore[override]
-              pace_s: float = 0.0002, **general: Any) -> Any:
+              pace_s: float = 0.0002, policy: Any = None, timeout: float = 5.0,
+              **general: Any) -> Any:
         """Run `work(master)` on a thread while the simulated clock steps 1 ms at a time;
         its result (or its exception)."""
         out: dict[str, Any] = {}
 
         def body() -> None:
             try:
-                with self.master(**general) as m:
+                with self.master(policy, timeout, **general) as m:
                     out["result"] = work(m)
             except BaseException as exc:  # noqa: BLE001 - handed to the test
                 out["error"] = exc
 
         thread = threading.Thread(target=body, daemon=True)
         thread.start()
+        time.sleep(0.05)  # the master's listener thread up before the first response can come
         end = self.t_ns + round(max_sim_s * 1e9)
         while thread.is_alive() and self.t_ns < end:
             self.step()

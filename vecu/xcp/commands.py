@@ -140,6 +140,9 @@ class CommandProcessor:
         if self._block_left and pid != 0xEF:  # a block broken off: its bytes are dropped
             self._block_left = 0
             self._staged.clear()
+            if pid in (0xF0, 0xEE):  # a write instead of the block's DOWNLOAD_NEXT
+                stats.negative += 1
+                return [bytes([ERR, ERR_SEQUENCE])]
         fn = self._cmds.get(pid)
         try:
             if fn is None:
@@ -283,8 +286,9 @@ class CommandProcessor:
         return struct.pack("<BBBI", XCP_CRC_32, 0, 0, crc)
 
     # --------------------------------------------------------------- write
-    def _write(self, address: int, data: bytes, ext: int = 0) -> None:
-        """Stage bytes into the working page; take every leaf whose bytes are complete."""
+    def _write(self, address: int, data: bytes, ext: int = 0, commit: bool = True) -> None:
+        """Stage bytes into the working page; with commit (a DOWNLOAD, or the last packet of
+        a block) take every leaf whose bytes are all staged, all or none."""
         if ext != 0:
             raise XcpError(ERR_OUT_OF_RANGE)
         seg = self.segment
@@ -296,32 +300,32 @@ class CommandProcessor:
         if self.xcp_page != WORKING:
             raise XcpError(ERR_WRITE_PROTECTED)
         start = address - CAL_BASE
-        leaves = seg.overlapping(start, start + len(data))
-        if any(not leaf.writable for leaf in leaves):
+        if any(not leaf.writable for leaf in seg.overlapping(start, start + len(data))):
             raise XcpError(ERR_WRITE_PROTECTED)
-        staged = dict(self._staged)
+        staged = self._staged
         for i, b in enumerate(data):
             staged[start + i] = b
+        if not commit:
+            return
         sets, done = [], []
-        for leaf in leaves:
+        for leaf in seg.overlapping(min(staged), max(staged) + 1):
             lo = leaf.address - CAL_BASE
             offsets = range(lo, lo + leaf.size)
             if all(o in staged for o in offsets):
-                raw = bytes(staged[o] for o in offsets)
-                sets.append((leaf.path, leaf.unpack(raw)))
+                sets.append((leaf.path, leaf.unpack(bytes(staged[o] for o in offsets))))
                 done.append(offsets)
-        if sets:
-            try:
-                tree = self.cal.check(sets, self.working_tree)
-            except ParamError:
-                self.stats.refused_writes += 1
-                raise XcpError(ERR_OUT_OF_RANGE) from None
-            for offsets in done:
-                for o in offsets:
-                    staged.pop(o)
-            self.take(tree, self.t_ns)
-            self.stats.calibrations += len(sets)
-        self._staged = staged
+        if not sets:
+            return
+        try:
+            tree = self.cal.check(sets, self.working_tree)
+        except ParamError:
+            self.stats.refused_writes += 1
+            raise XcpError(ERR_OUT_OF_RANGE) from None  # handle() drops the staged bytes
+        for offsets in done:
+            for o in offsets:
+                del staged[o]
+        self.take(tree, self.t_ns)
+        self.stats.calibrations += len(sets)
 
     def take(self, tree: Any, t_ns: int) -> None:
         """A checked tree becomes the working page (and the ECU's, when it runs on it)."""
@@ -339,7 +343,7 @@ class CommandProcessor:
             if n > MAX_BS * (MAX_CTO - 2):
                 raise XcpError(ERR_OUT_OF_RANGE)
             self._need(cto, MAX_CTO)
-            self._write(self.mta, cto[2:MAX_CTO], self.mta_ext)
+            self._write(self.mta, cto[2:MAX_CTO], self.mta_ext, commit=False)
             self.mta += MAX_CTO - 2
             self._block_left = n - (MAX_CTO - 2)
             return []
@@ -356,7 +360,7 @@ class CommandProcessor:
             raise XcpError(ERR_SEQUENCE)
         chunk = min(n, MAX_CTO - 2)
         self._need(cto, 2 + chunk)
-        self._write(self.mta, cto[2:2 + chunk], self.mta_ext)
+        self._write(self.mta, cto[2:2 + chunk], self.mta_ext, commit=n == chunk)
         self.mta += chunk
         self._block_left -= chunk
         return [] if self._block_left else b""
