@@ -61,7 +61,7 @@ def test_every_numeric_ecu_leaf_is_a_characteristic_with_unit_bounds_and_address
                  "speed.speed_mps", "manifold.p_im_kpa", "monitor.tps.status",
                  "monitor.tps.dtc", "rx.crc_errors"):
         assert meas[name].ECU_ADDRESS.Address.Value > 0
-    assert meas["throttle.estimate_deg"].DataType.Value == "FLOAT64_IEEE"
+    assert meas["throttle.estimate_deg"].DataType.Value == "FLOAT32_IEEE"  # fits a CAN DTO
 
 
 def test_if_data_follows_the_tree_ids_and_lists_the_events(tmp_path):

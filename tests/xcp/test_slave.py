@@ -77,7 +77,7 @@ def test_uploads_read_the_calibration_and_the_ecu_live(sim):
             sim.xcp.segment.by_path else next(l for l in sim.xcp.segment.leaves if l.count > 3)
         m.setMta(leaf.address)
         blk = m.upload(leaf.size)  # slave block mode: several responses
-        est = read(m, meas(sim, "throttle.estimate_deg").address)
+        est = read(m, meas(sim, "throttle.estimate_deg").address, 4)
         status = m.shortUpload(1, meas(sim, "monitor.tps.status").address)
         return deb, sigma, leaf, blk, est, status
 
@@ -86,7 +86,7 @@ def test_uploads_read_the_calibration_and_the_ecu_live(sim):
     assert struct.unpack("<d", sigma)[0] == tree.throttle.tps_monitor.plaus_sigma
     from vecu import params as ptree
     assert struct.unpack(f"<{leaf.count}d", blk) == ptree.get(tree, leaf.path)
-    angle = struct.unpack("<d", est)[0]
+    angle = struct.unpack("<f", est)[0]
     assert math.isfinite(angle) and -5.0 < angle < 95.0
     assert status == b"\x00"  # TPS ok
 

@@ -179,7 +179,7 @@ class Daq:
         odt = cto[4]
         if odt >= len(dl.odts):
             raise DaqError(ERR_OUT_OF_RANGE)
-        count = cto[5]
+        count = cto[5]  # 0: an ODT with no entry (the first, holding only the timestamp)
         if count > MAX_DTO - 1:
             raise DaqError(ERR_OUT_OF_RANGE)
         if self._entries + count > self.cfg.max_odt_entries:
@@ -257,7 +257,7 @@ class Daq:
     def _compile(self, dl: DaqList) -> None:
         """Check the list can run and bind each entry to its reader."""
         assert self.reader is not None
-        if dl.event is None or not dl.odts or any(not odt for odt in dl.odts):
+        if dl.event is None or not dl.odts:  # an ODT may be empty: its DTO is the timestamp
             raise DaqError(ERR_DAQ_CONFIG)
         compiled = []
         for i, odt in enumerate(dl.odts):

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from vecu.ecu.node import EcuNode
-from vecu.xcp.memory import FLOAT, MEAS_BASE, TYPES
+from vecu.xcp.memory import MEAS_BASE, TYPES
 
-UBYTE, ULONG = "B", "I"
+FLOAT, UBYTE, ULONG = "f", "B", "I"  # FLOAT32_IEEE: fits a DAQ entry on CAN
 
 
 @dataclass(frozen=True)

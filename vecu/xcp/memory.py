@@ -7,7 +7,8 @@ Layout (address extension 0, byte granularity; the A2L says the same):
   0x0001_0000  calibration segment 0: leaves in tree order, each aligned to its size
                float: FLOAT64_IEEE (8 bytes: a written value is the Python float --set parses)
                int: SLONG (4), bool: UBYTE (0/1), tuple of floats: VAL_BLK of FLOAT64_IEEE
-  0x0010_0000  measurements (measurements.py), read-only
+  0x0010_0000  measurements (measurements.py), read-only: FLOAT32_IEEE (a DAQ entry fits a
+               CAN DTO, 7 bytes after the PID), UBYTE, ULONG
   0x00F0_0000  GET_ID: the identification GET_ID last put there (text, the A2L), read-only
 """
 
@@ -32,6 +33,7 @@ FLOAT, INT, BOOL = "d", "i", "B"
 TYPES: dict[str, tuple[int, str, str]] = {
     FLOAT: (8, "FLOAT64_IEEE", "RL_FLOAT64"), INT: (4, "SLONG", "RL_SLONG"),
     BOOL: (1, "UBYTE", "RL_UBYTE"), "H": (2, "UWORD", "RL_UWORD"),
+    "f": (4, "FLOAT32_IEEE", "RL_FLOAT32"),
     "I": (4, "ULONG", "RL_ULONG"),
 }
 
