@@ -31,7 +31,7 @@ from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
 from vecu.plant.manifold import ManifoldPlantConfig
 from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
 from vecu.uds.config import UdsConfig, UdsStep
-from vecu.xcp.config import XcpConfig, check_xcp
+from vecu.xcp.config import XcpConfig, XcpStep, check_xcp
 
 
 @dataclass(frozen=True)
@@ -150,6 +150,7 @@ class RunConfig:
     # timed sets of live ecu.* leaves: (at_s, path, value), acting from the ECU's next tick, as
     # an XCP write handled at at_s does (docs/xcp.md)
     calibrations: tuple[tuple[float, str, object], ...] = ()
+    xcp_steps: tuple[XcpStep, ...] = ()  # a master's writes and reads (scenarios; docs/xcp.md)
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
 
     def with_params(self, sets: object = (), **shortcuts: object) -> RunConfig:

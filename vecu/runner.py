@@ -52,6 +52,7 @@ from vecu.scheduler import Scheduler
 from vecu.uds.server import attach_uds
 from vecu.uds.tester import SimTester
 from vecu.xcp.server import XcpServer, attach_xcp
+from vecu.xcp.tester import SimXcpMaster, layout_of
 
 __all__ = ["RunConfig", "RunResult", "detection", "run"]
 PRIO_CALIBRATE = PRIO_ECU + 1  # a timed set acts from the ECU's next tick, as an XCP write
@@ -123,6 +124,10 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         xcp = attach_xcp_server(ecu, config)
         for at_s, path, value in config.calibrations:  # timed sets, as an XCP write would act
             _schedule_calibration(sched, xcp, at_s, path, value)
+        xcp_master = None
+        if config.xcp_steps:  # a scenario's XCP master, before the ECU in each tick
+            xcp_master = _xcp_master(node_bus(), xcp, config)
+            sched.every(TICK_NS, xcp_master.tick, name="xcp-master", priority=PRIO_PLANT + 6)
         tester = None
         if config.uds_steps:  # a scenario's tester, before the ECU in each tick
             tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
@@ -183,6 +188,8 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
             summary["uds_steps"] = tester.summary()
         if xcp is not None:
             summary["xcp"] = xcp.summary()
+        if xcp_master is not None:
+            summary["xcp_steps"] = xcp_master.summary()
         if speed_probe is not None:
             summary["speed"] = speed_probe.summary()
             summary["speed"]["coast_steps"] = fns.speed.coast_steps
@@ -228,6 +235,21 @@ def attach_xcp_server(ecu: EcuNode, config: RunConfig) -> XcpServer | None:
     return attach_xcp(ecu, config.params.ecu.xcp, config.params.ecu, ParamTree().ecu,
                       config.seed, lambda ecu_tree: validate_tree(replace(config.params,
                                                                           ecu=ecu_tree)))
+
+
+def _xcp_master(bus: can.BusABC, xcp: XcpServer | None, config: RunConfig) -> SimXcpMaster:
+    """The scenario's XCP master on the slave's A2L names (an unknown name: a user error)."""
+    from vecu.errors import ConfigError
+
+    if xcp is None:
+        raise ConfigError("[[xcp]] steps need the XCP slave (ecu.xcp.enabled = true)")
+    layout = layout_of(xcp)
+    for i, step in enumerate(config.xcp_steps):
+        for name in (step.write, step.read):
+            if name is not None and name not in layout:
+                raise ConfigError(f"xcp[{i}]: no characteristic or measurement {name!r} in the "
+                                  f"A2L (`vecu a2l` lists them)")
+    return SimXcpMaster(bus, config.params.ecu.xcp, layout, config.xcp_steps)
 
 
 def _schedule_calibration(sched: Scheduler, xcp: XcpServer | None, at_s: float, path: str,

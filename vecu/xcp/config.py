@@ -45,3 +45,21 @@ def check_xcp(cfg: XcpConfig, uds_ids: set[int]) -> None:
                          f"'_'), got {cfg.a2l_name!r}")
     if not cfg.secret.isascii() or not cfg.secret:
         raise ParamError("parameter 'ecu.xcp.secret': expected a non-empty ASCII string")
+
+
+@dataclass(frozen=True)
+class XcpStep:
+    """A scenario's XCP step at `at_s` (docs/xcp.md): write a characteristic (`write` = its A2L
+    name, `value`) and/or read a characteristic or measurement (`read`), and what must come:
+    `expect` (the value read, within `tolerance`), `expect_min` / `expect_max`, or
+    `expect_error` (the XCP error name, e.g. ERR_OUT_OF_RANGE, of the write)."""
+
+    at_s: float
+    write: str | None = None
+    value: float | None = None
+    read: str | None = None
+    expect: float | None = None
+    tolerance: float = 0.0
+    expect_min: float | None = None
+    expect_max: float | None = None
+    expect_error: str | None = None
