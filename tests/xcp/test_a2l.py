@@ -53,7 +53,7 @@ def test_every_numeric_ecu_leaf_is_a_characteristic_with_unit_bounds_and_address
         addresses.add(c.Address.Value)
     assert len(addresses) == len(numeric)  # one address each
     deb = chars["ecu.throttle.tps_monitor.plaus_debounce"]
-    assert (deb.LowerLimit.Value, deb.UpperLimit.Value) == (1, 1_000_000)
+    assert (deb.LowerLimit.Value, deb.UpperLimit.Value) == (1, 1_000_000_000)
     assert not deb.HasField("READ_ONLY")  # the running ECU takes it
     assert chars["ecu.throttle.noise_scale"].HasField("READ_ONLY")  # built at start
     meas = {m.Name.Value: m for m in module.MEASUREMENT}

@@ -134,7 +134,7 @@ class Dtc:
                 self.on_change()
 
 
-COUNT = {"bounds": (1, 1_000_000)}
+COUNT = {"bounds": (1, 1_000_000_000)}
 
 
 @dataclass(frozen=True)
