@@ -69,8 +69,8 @@ SMOKE: list[tuple[list[str], str]] = [
     (["params", "ecu.manifold.kf.params.omega0"], r"ecu\.manifold\.kf\.params\.omega0 +50\.0 +rad/s"),
     (["run", "--duration", "0.3", "--set", "plant.manifold.engine.zeta=0.7"], r"300 ticks"),
     (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
-    (["a2l", "--out", "smoke.a2l"], r"smoke\.a2l: \d+ characteristics \(\d+ calibratable live\), "
-                                    r"\d+ measurements; XCP on CAN 0x7F0 -> 0x7F1"),
+    (["a2l", "--out", "smoke.a2l"], (r"smoke\.a2l: \d+ characteristics \(\d+ calibratable "
+                                     r"live\), \d+ measurements; XCP on CAN 0x7F0 -> 0x7F1")),
 ]
 
 

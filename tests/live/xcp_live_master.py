@@ -7,6 +7,7 @@ write refused. Prints one JSON line. Run by tests/live/test_xcp_live.py
 
 from __future__ import annotations
 
+import itertools
 import json
 import signal
 import struct
@@ -103,7 +104,7 @@ def main(out: Path) -> dict:
             daq.stop()
             wall = time.perf_counter() - t0
             stamps = [ts for _, ts, _ in daq.rows]
-            res["daq_steps_ms"] = sorted({(b - a) / 1e6 for a, b in zip(stamps, stamps[1:])})[:5]
+            res["daq_steps_ms"] = sorted({(b - a) / 1e6 for a, b in itertools.pairwise(stamps)})[:5]
             res["daq_samples_per_s"] = len(daq.rows) / wall
             res["daq_span_s"] = (stamps[-1] - stamps[0]) / 1e9 if stamps else 0.0
             res["daq_samples"] = len(daq.rows)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -84,7 +85,7 @@ def test_daq_samples_the_throttle_estimate_every_tick_with_timestamps():
     assert sim.xcp.daq.stats.odts_lost == 0
     stamps = [ts for _, ts, _ in fast]
     # the slave's timestamps (µs, scaled to ns by pyxcp) step by exactly one tick
-    assert all(b - a == TICK_NS for a, b in zip(stamps, stamps[1:]))
+    assert all(b - a == TICK_NS for a, b in itertools.pairwise(stamps))
     names = [name for name, _ in lists[0].headers]  # pyxcp orders a list's entries
     rows = [dict(zip(names, payload)) for _, _, payload in fast]
     # pyxcp gives timestamps from the first sample: find that sample's tick by its value,
@@ -98,7 +99,7 @@ def test_daq_samples_the_throttle_estimate_every_tick_with_timestamps():
         assert row["throttle.estimate_deg"] == np.float32(truth[start + ts])
         assert row["monitor.tps.status"] == 0
     slow_stamps = [ts for _, ts, _ in slow]
-    assert slow_stamps and all(b - a == 10 * TICK_NS for a, b in zip(slow_stamps, slow_stamps[1:]))
+    assert slow_stamps and all(b - a == 10 * TICK_NS for a, b in itertools.pairwise(slow_stamps))
     assert len(slow) == pytest.approx(len(fast) / 10, abs=2)
     assert engine and all(10.0 < row[2][0] < 110.0 for row in engine)  # kPa
 

@@ -41,7 +41,12 @@ class _Rig:
     """Plant, ECU with its XCP slave, and the echo, on WallClock."""
 
     def __init__(self, duration_s: float) -> None:
-        from vecu.assembly import build_functions, build_plant, schedule_ecu, schedule_plant
+        from vecu.assembly import (
+            build_functions,
+            build_plant,
+            schedule_ecu,
+            schedule_plant,
+        )
         from vecu.bus import open_bus
         from vecu.codec import DbcCodec
         from vecu.config import RunConfig
@@ -149,7 +154,7 @@ def _master_work(rig: _Rig, commands: int, daq_s: float) -> dict[str, Any]:
         m.disconnect()
     stamps = np.asarray(daq.stamps, dtype=np.int64)
     steps = np.diff(stamps) // (TIMESTAMP_NS * 1000) if len(stamps) > 1 else np.zeros(0, int)
-    out["daq"] = {"samples": int(len(stamps)), "window_s": daq_s,
+    out["daq"] = {"samples": len(stamps), "window_s": daq_s,
                   "samples_per_s": round(len(stamps) / daq_s, 1),
                   "missing_in_timestamps": int(np.sum(np.maximum(steps - 1, 0))),
                   "odts_lost_at_slave": rig.xcp.daq.stats.odts_lost,
@@ -231,12 +236,12 @@ def format_xcp(r: dict[str, Any]) -> str:
     bd, bi = r["broadcast_daq"], r["broadcast_idle"]
     return "\n".join([
         "xcp (live, WallClock, pyxcp master; same run):",
-        f"  DAQ 1 ms event: {d['samples_per_s']} samples/s over {d['window_s']} s "
-        f"({d['samples']} samples, {d['missing_in_timestamps']} missing in the timestamps), "
-        f"ODTs lost {d['odts_lost_at_slave']} of {d['odts_sent'] + d['odts_lost_at_slave']}",
-        f"  broadcast ticks kept: {bd['ticks_kept_pct']} % with DAQ ({bd['estimates_sent']} of "
-        f"{bd['ecu_ticks']}), {bi['ticks_kept_pct']} % idle ({bi['estimates_sent']} of "
-        f"{bi['ecu_ticks']})",
-        f"  command latency SHORT_UPLOAD p50 {c['p50_ms']} p99 {c['p99_ms']} ms vs bare echo "
-        f"p50 {e['p50_ms']} p99 {e['p99_ms']} ms on the same tick: x{r['latency_ratio']}",
+        (f"  DAQ 1 ms event: {d['samples_per_s']} samples/s over {d['window_s']} s "
+         f"({d['samples']} samples, {d['missing_in_timestamps']} missing in the timestamps), "
+         f"ODTs lost {d['odts_lost_at_slave']} of {d['odts_sent'] + d['odts_lost_at_slave']}"),
+        (f"  broadcast ticks kept: {bd['ticks_kept_pct']} % with DAQ ({bd['estimates_sent']} of "
+         f"{bd['ecu_ticks']}), {bi['ticks_kept_pct']} % idle ({bi['estimates_sent']} of "
+         f"{bi['ecu_ticks']})"),
+        (f"  command latency SHORT_UPLOAD p50 {c['p50_ms']} p99 {c['p99_ms']} ms vs bare echo "
+         f"p50 {e['p50_ms']} p99 {e['p99_ms']} ms on the same tick: x{r['latency_ratio']}"),
     ])

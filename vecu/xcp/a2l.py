@@ -72,12 +72,12 @@ def _characteristics(segment: CalSegment, tree: Any, cm: dict[str, str]) -> list
     out = []
     sources = {leaf.path[len("ecu."):]: leaf.source for leaf in ptree.leaves(tree, "ecu.")}
     for leaf in segment.leaves:
-        _, dtype, rl = TYPES[leaf.code]
+        rl = TYPES[leaf.code][2]
         lo, hi = leaf.bounds
         kind = "VALUE" if leaf.count == 1 else "VAL_BLK"
         lines = [f"    /begin CHARACTERISTIC {leaf.name} {_text(sources.get(leaf.path, ''))}",
-                 f"      {kind} 0x{leaf.address:X} {rl} 0 {cm[leaf.unit]} "
-                 f"{_num(lo)} {_num(hi)}"]
+                 (f"      {kind} 0x{leaf.address:X} {rl} 0 {cm[leaf.unit]} "
+                  f"{_num(lo)} {_num(hi)}")]
         if leaf.count > 1:
             lines.append(f"      MATRIX_DIM {leaf.count} 1 1")
         if not leaf.writable:

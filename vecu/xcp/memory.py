@@ -15,7 +15,6 @@ Layout (address extension 0, byte granularity; the A2L says the same):
 from __future__ import annotations
 
 import dataclasses
-
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass

@@ -95,7 +95,7 @@ class SimXcpMaster:
             address, code = self.layout[s.write]
             value: Any = s.value
             if code in "iIBH":
-                value = int(round(value))  # type: ignore[arg-type]
+                value = round(value)  # type: ignore[arg-type]
             data = struct.pack("<" + code, value)
             res.commands.append((b"\xf6\x00\x00\x00" + struct.pack("<I", address), "mta"))
             for i in range(0, len(data), 6):
