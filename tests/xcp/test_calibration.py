@@ -94,3 +94,24 @@ def test_a_timed_set_in_vecu_run_acts_from_the_next_tick_and_bad_ones_are_refuse
                          ((0.2, "ecu.throttle.noise_scale", 2.0), "not calibratable")):
         with pytest.raises(ParamError, match=message):
             run(RunConfig(**{**base.__dict__, "calibrations": (bad,)}))
+
+
+def test_a_calibration_before_the_first_tick_equals_set():
+    """The ECU taking a value mid-run is the ECU built with it: a calibration taken before the
+    first tick gives the trace of `--set` (the monitor's recalibration is its construction)."""
+    sim = XcpSim()
+    listener = sim.bus()
+    try:
+        sim.xcp.calibrate([(DEB, 20)], 0)
+        trace_cal, detected_cal = _finish(sim, listener)
+    finally:
+        sim.close()
+    config = RunConfig(duration_s=600.0, kill_tps_at_s=None).with_params([("ecu." + DEB, 20)])
+    sim = XcpSim(config)
+    listener = sim.bus()
+    try:
+        trace_set, detected_set = _finish(sim, listener)
+    finally:
+        sim.close()
+    assert len(trace_cal) > 5000 and trace_cal == trace_set
+    assert detected_cal == detected_set is not None
