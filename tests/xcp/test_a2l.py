@@ -52,6 +52,9 @@ def test_every_numeric_ecu_leaf_is_a_characteristic_with_unit_bounds_and_address
         assert c.Type == ("VAL_BLK" if isinstance(leaf.value, tuple) else "VALUE")
         addresses.add(c.Address.Value)
     assert len(addresses) == len(numeric)  # one address each
+    table = chars["ecu.manifold.kf.params.cd_table"]  # 3 rows of 7
+    dim = table.MATRIX_DIM
+    assert (dim.XDim.Value, dim.YDim.Value, dim.ZDim.Value) == (7, 3, 1)
     deb = chars["ecu.throttle.tps_monitor.plaus_debounce"]
     assert (deb.LowerLimit.Value, deb.UpperLimit.Value) == (1, 1_000_000_000)
     assert not deb.HasField("READ_ONLY")  # the running ECU takes it
@@ -59,6 +62,7 @@ def test_every_numeric_ecu_leaf_is_a_characteristic_with_unit_bounds_and_address
     meas = {m.Name.Value: m for m in module.MEASUREMENT}
     for name in ("throttle.estimate_deg", "throttle.sigma_deg", "throttle.tps_deg",
                  "speed.speed_mps", "manifold.p_im_kpa", "monitor.tps.status",
+                 "monitor.tps.value", "monitor.wheel.value", "monitor.swa.value",
                  "monitor.tps.dtc", "rx.crc_errors"):
         assert meas[name].ECU_ADDRESS.Address.Value > 0
     assert meas["throttle.estimate_deg"].DataType.Value == "FLOAT32_IEEE"  # fits a CAN DTO

@@ -73,19 +73,25 @@ def test_uploads_read_the_calibration_and_the_ecu_live(sim):
         m.setMta(addr(sim, DEB))
         deb = m.upload(4)
         sigma = read(m, addr(sim, "throttle.tps_monitor.plaus_sigma"))
-        leaf = sim.xcp.segment.by_path["throttle.model.f"] if "throttle.model.f" in \
-            sim.xcp.segment.by_path else next(l for l in sim.xcp.segment.leaves if l.count > 3)
+        leaf = next(x for x in sim.xcp.segment.leaves if len(x.dims) == 1 and x.count > 3)
         m.setMta(leaf.address)
         blk = m.upload(leaf.size)  # slave block mode: several responses
+        table = sim.xcp.segment.by_path["manifold.kf.params.cd_table"]
+        m.setMta(table.address)
+        tbl = m.upload(table.size)
         est = read(m, meas(sim, "throttle.estimate_deg").address, 4)
         status = m.shortUpload(1, meas(sim, "monitor.tps.status").address)
-        return deb, sigma, leaf, blk, est, status
+        wheel = read(m, meas(sim, "monitor.wheel.value").address, 4)
+        return deb, sigma, leaf, blk, est, status, tbl, wheel
 
-    deb, sigma, leaf, blk, est, status = sim.serve(work)
+    deb, sigma, leaf, blk, est, status, tbl, wheel = sim.serve(work)
     assert struct.unpack("<i", deb)[0] == tree.throttle.tps_monitor.plaus_debounce == 300
     assert struct.unpack("<d", sigma)[0] == tree.throttle.tps_monitor.plaus_sigma
     from vecu import params as ptree
     assert struct.unpack(f"<{leaf.count}d", blk) == ptree.get(tree, leaf.path)
+    rows = tree.manifold.kf.params.cd_table  # a table: row after row
+    assert struct.unpack(f"<{len(rows) * len(rows[0])}d", tbl) == tuple(v for r in rows for v in r)
+    assert 0.0 <= struct.unpack("<f", wheel)[0] < 300.0  # km/h, as the ECU sees the sensor
     angle = struct.unpack("<f", est)[0]
     assert math.isfinite(angle) and -5.0 < angle < 95.0
     assert status == b"\x00"  # TPS ok

@@ -1,5 +1,5 @@
 """The A2L (ASAM MCD-2 MC 1.7.1) that describes the XCP slave: the calibration segment's
-CHARACTERISTICs (every numeric `ecu.*` leaf: VALUE, or VAL_BLK for a vector), the ECU's
+CHARACTERISTICs (every numeric `ecu.*` leaf: VALUE, or VAL_BLK for a vector or a table), the ECU's
 MEASUREMENTs, one COMPU_METHOD per unit, and IF_DATA XCP (protocol layer, the calibration
 segment's two pages, DAQ with its event channels, XCP on CAN with the tree's IDs).
 
@@ -78,7 +78,9 @@ def _characteristics(segment: CalSegment, tree: Any, cm: dict[str, str]) -> list
         lines = [f"    /begin CHARACTERISTIC {leaf.name} {_text(sources.get(leaf.path, ''))}",
                  (f"      {kind} 0x{leaf.address:X} {rl} 0 {cm[leaf.unit]} "
                   f"{_num(lo)} {_num(hi)}")]
-        if leaf.count > 1:
+        if len(leaf.dims) == 2:  # a table, row after row: x = columns, y = rows
+            lines.append(f"      MATRIX_DIM {leaf.dims[1]} {leaf.dims[0]} 1")
+        elif leaf.count > 1:
             lines.append(f"      MATRIX_DIM {leaf.count} 1 1")
         if not leaf.writable:
             lines.append("      READ_ONLY")

@@ -16,6 +16,7 @@ from vecu.ecu.node import EcuNode
 from vecu.xcp.memory import MEAS_BASE, TYPES
 
 FLOAT, UBYTE, ULONG = "f", "B", "I"  # FLOAT32_IEEE: fits a DAQ entry on CAN
+SENSOR_UNITS = {"tps": "deg", "wheel": "km/h", "swa": "deg"}  # the monitors' physical units
 
 
 @dataclass(frozen=True)
@@ -99,6 +100,9 @@ def ecu_measurements(node: EcuNode) -> list[Measurement]:
         add("manifold.events", "1", ULONG, lambda: man.events, 0, 4294967295,  # type: ignore[attr-defined]
             "engine events filtered")
     for name, mon in node.monitors.items():
+        unit = SENSOR_UNITS.get(name, "1")
+        add(f"monitor.{name}.value", unit, FLOAT, lambda m=mon: m.value, -1000, 1000,
+            f"{name} sensor as the ECU sees it: last valid frame's value ({unit})")
         add(f"monitor.{name}.status", "1", UBYTE, lambda m=mon: int(m.status), 0, 255,
             f"{name} sensor status (THR_TpsStatus codes)")
         add(f"monitor.{name}.dtc", "1", UBYTE, lambda m=mon: int(m.dtc), 0, 255,

@@ -6,7 +6,8 @@ Layout (address extension 0, byte granularity; the A2L says the same):
 
   0x0001_0000  calibration segment 0: leaves in tree order, each aligned to its size
                float: FLOAT64_IEEE (8 bytes: a written value is the Python float --set parses)
-               int: SLONG (4), bool: UBYTE (0/1), tuple of floats: VAL_BLK of FLOAT64_IEEE
+               int: SLONG (4), bool: UBYTE (0/1), vector or table of floats: VAL_BLK of
+               FLOAT64_IEEE (a table row after row)
   0x0010_0000  measurements (measurements.py), read-only: FLOAT32_IEEE (a DAQ entry fits a
                CAN DTO, 7 bytes after the PID), UBYTE, ULONG
   0x00F0_0000  GET_ID: the identification GET_ID last put there (text, the A2L), read-only
@@ -15,6 +16,7 @@ Layout (address extension 0, byte granularity; the A2L says the same):
 from __future__ import annotations
 
 import dataclasses
+import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -47,7 +49,20 @@ def code_of(value: Any) -> str | None:
         return FLOAT
     if isinstance(value, tuple) and value and all(type(v) is float for v in value):
         return FLOAT
+    if (isinstance(value, tuple) and value and all(isinstance(r, tuple) for r in value)
+            and len({len(r) for r in value}) == 1
+            and all(type(v) is float for r in value for v in r)):
+        return FLOAT  # a table (rows of equal length): a 2-D VAL_BLK
     return None
+
+
+def dims_of(value: Any) -> tuple[int, ...]:
+    """(n,) of a vector, (rows, columns) of a table, () of a number."""
+    if not isinstance(value, tuple):
+        return ()
+    if value and isinstance(value[0], tuple):
+        return (len(value), len(value[0]))
+    return (len(value),)
 
 
 @dataclass(frozen=True)
@@ -61,6 +76,7 @@ class CalLeaf:
     unit: str
     bounds: tuple[float, float]
     writable: bool     # the ECU takes it live (calibration.py); else READ_ONLY
+    dims: tuple[int, ...] = ()  # (n,) a vector, (rows, columns) a table, () a number
 
     @property
     def size(self) -> int:
@@ -71,6 +87,8 @@ class CalLeaf:
         return "ecu." + self.path
 
     def pack(self, value: Any) -> bytes:
+        if len(self.dims) == 2:  # row after row
+            value = tuple(v for row in value for v in row)
         items = value if isinstance(value, tuple) else (value,)
         return struct.pack(f"<{self.count}{self.code}", *items)
 
@@ -78,6 +96,9 @@ class CalLeaf:
         items = struct.unpack(f"<{self.count}{self.code}", data)
         if self.code == BOOL:
             return items[0]  # 0/1: parse_value refuses 2..255 for a bool
+        if len(self.dims) == 2:
+            cols = self.dims[1]
+            return tuple(items[i:i + cols] for i in range(0, self.count, cols))
         return items if self.count > 1 else items[0]
 
 
@@ -93,10 +114,11 @@ class CalSegment:
                 continue
             elem = TYPES[code][0]
             offset = -(-offset // elem) * elem  # aligned
-            count = len(leaf.value) if isinstance(leaf.value, tuple) else 1
+            dims = dims_of(leaf.value)
+            count = math.prod(dims) if dims else 1
             bounds = (0.0, 1.0) if code == BOOL else _bounds(ecu_tree, leaf.path)
             self.leaves.append(CalLeaf(leaf.path, CAL_BASE + offset, code, count, leaf.unit,
-                                       bounds, writable(leaf.path)))
+                                       bounds, writable(leaf.path), dims))
             offset += elem * count
         self.size = -(-offset // 8) * 8
         self.by_path = {leaf.path: leaf for leaf in self.leaves}
