@@ -15,5 +15,9 @@ def test_bench_xcp_quick():
     assert bd["estimates_sent"] <= bd["ecu_ticks"]
     assert r["command"]["n"] == r["echo"]["n"] == 10
     assert r["command"]["p50_ms"] > 0 and r["echo"]["p50_ms"] > 0
+    cost = r["daq_cost"]  # simulated clock: three DTOs a tick, the tick well inside 1 ms
+    assert cost["odts_sent"] == 3 * cost["ticks_each"]
+    assert 0 < cost["tick_us_p50_daq"] < 1000 and cost["tick_us_p50"] > 0
     text = format_xcp(r)
     assert "samples/s" in text and "broadcast ticks kept" in text and "bare echo" in text
+    assert "ECU tick CPU" in text
