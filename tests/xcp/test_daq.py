@@ -134,6 +134,9 @@ def test_daq_configuration_errors():
             err("bad_event", m.setDaqListMode, 0x10, 0, 99, 1, 0)
             err("stim", m.setDaqListMode, 0x02, 0, 0, 1, 0)
             err("unconfigured", m.startStopDaqList, 1, 0)  # no event set yet
+            info = m.getDaqListInfo(0)
+            errs["list_info"] = (info.maxOdt, info.maxOdtEntries, info.daqListProperties.daq,
+                                 info.daqListProperties.predefined)
             m.setDaqListMode(0x00, 0, 0, 1, 0)
             err("empty_entry", m.startStopDaqList, 1, 0)  # the second entry is not written
             return errs
@@ -145,4 +148,5 @@ def test_daq_configuration_errors():
                     "no_such_list": "ERR_OUT_OF_RANGE", "unmapped": "ERR_ACCESS_DENIED",
                     "bit_daq": "ERR_OUT_OF_RANGE", "odt_too_big": "ERR_DAQ_CONFIG",
                     "bad_event": "ERR_OUT_OF_RANGE", "stim": "ERR_MODE_NOT_VALID",
-                    "unconfigured": "ERR_DAQ_CONFIG", "empty_entry": "ERR_DAQ_CONFIG"}
+                    "unconfigured": "ERR_DAQ_CONFIG", "empty_entry": "ERR_DAQ_CONFIG",
+                    "list_info": (1, 2, True, False)}

@@ -173,6 +173,12 @@ def test_calibration_pages_reference_is_the_defaults(sim):
         seen["copied"] = mon.cfg.plaus_debounce, m.shortUpload(4, addr(sim, DEB))
         seen["errors"] = (refused(m.copyCalPage, 0, 0, 0, 1), refused(m.setCalPage, 0x03, 0, 2),
                           refused(m.setCalPage, 0x03, 1, 0), refused(m.getCalPage, 0x04, 0))
+        seen["pag"] = m.getPagProcessorInfo()
+        seen["segment"] = (m.getSegmentInfo(0, 0, 0, 0), m.getSegmentInfo(0, 0, 1, 0),
+                           m.getSegmentInfo(1, 0, 0, 0))
+        seen["page_info"] = m.getPageInfo(0, 0), m.getPageInfo(0, 1)
+        seen["info_errors"] = (refused(m.getSegmentInfo, 2, 0, 0, 0), refused(m.getPageInfo, 0, 2),
+                               refused(m.getPageInfo, 1, 0))
         return seen
 
     sim.serve(work)
@@ -184,6 +190,15 @@ def test_calibration_pages_reference_is_the_defaults(sim):
     assert seen["copied"] == (300, struct.pack("<i", 300))
     assert seen["errors"] == ("ERR_WRITE_PROTECTED", "ERR_PAGE_NOT_VALID",
                               "ERR_SEGMENT_NOT_VALID", "ERR_MODE_NOT_VALID")
+    assert seen["pag"].maxSegments == 1 and not seen["pag"].pagProperties.freezeSupported
+    basic_addr, basic_len, standard = seen["segment"]
+    assert (basic_addr.basicInfo, basic_len.basicInfo) == (CAL_BASE, sim.xcp.segment.size)
+    assert standard.maxPages == 2 and standard.maxMapping == 0
+    working, reference = seen["page_info"]
+    assert working.properties.xcp_write_access and not reference.properties.xcp_write_access
+    assert working.properties.ecu_access and reference.properties.xcp_read_access
+    assert seen["info_errors"] == ("ERR_OUT_OF_RANGE", "ERR_PAGE_NOT_VALID",
+                                   "ERR_SEGMENT_NOT_VALID")
 
 
 def sim_wait(sim: XcpSim, ticks: int) -> None:

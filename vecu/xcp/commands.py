@@ -103,6 +103,7 @@ class CommandProcessor:
             0xF4: self._short_upload, 0xF3: self._build_checksum, 0xF0: self._download,
             0xEF: self._download_next, 0xEE: self._download_max, 0xED: self._short_download,
             0xEB: self._set_cal_page, 0xEA: self._get_cal_page, 0xE4: self._copy_cal_page,
+            0xE9: self._pag_processor_info, 0xE8: self._segment_info, 0xE7: self._page_info,
             **daq.commands(),
         }
         # the resource each command group needs unlocked (seed & key)
@@ -416,6 +417,31 @@ class CommandProcessor:
         if segment != 0:
             raise XcpError(ERR_SEGMENT_NOT_VALID)
         return bytes([0, 0, self.ecu_page if mode == 0x01 else self.xcp_page])
+
+    def _pag_processor_info(self, cto: bytes) -> bytes:
+        return bytes([1, 0])  # one segment, no FREEZE
+
+    def _segment_info(self, cto: bytes) -> bytes:
+        self._need(cto, 5)
+        mode, segment, info = cto[1], cto[2], cto[3]
+        if segment != 0:
+            raise XcpError(ERR_SEGMENT_NOT_VALID)
+        if mode == 0 and info in (0, 1):  # basic: address, length
+            return struct.pack("<BBBI", 0, 0, 0, CAL_BASE if info == 0 else self.segment.size)
+        if mode == 1:  # standard: 2 pages, address extension 0, no mapping, no compression
+            return bytes([2, 0, 0, 0, 0])
+        raise XcpError(ERR_OUT_OF_RANGE)  # mode 2: no address mapping
+
+    def _page_info(self, cto: bytes) -> bytes:
+        self._need(cto, 4)
+        segment, page = cto[2], cto[3]
+        if segment != 0:
+            raise XcpError(ERR_SEGMENT_NOT_VALID)
+        if page not in (WORKING, REFERENCE):
+            raise XcpError(ERR_PAGE_NOT_VALID)
+        # ECU access with and without XCP, XCP reads either way; writes only to the working page
+        props = 0x0F | (0x30 if page == WORKING else 0)
+        return bytes([props, 0])
 
     def _copy_cal_page(self, cto: bytes) -> bytes:
         self._need(cto, 5)

@@ -93,7 +93,7 @@ class Daq:
         return {0xE3: self._clear_list, 0xE2: self._set_ptr, 0xE1: self._write, 0xE0: self._set_mode,
                 0xDF: self._get_mode, 0xDE: self._start_stop_list, 0xDD: self._start_stop_synch,
                 0xDC: self._clock, 0xDA: self._processor_info, 0xD9: self._resolution_info,
-                0xD7: self._event_info, 0xD6: self._free, 0xD5: self._alloc_daq,
+                0xD7: self._event_info, 0xD8: self._list_info, 0xD6: self._free, 0xD5: self._alloc_daq,
                 0xD4: self._alloc_odt, 0xD3: self._alloc_entry}
 
     @staticmethod
@@ -125,6 +125,13 @@ class Daq:
         if self.on_event_name is not None:
             self.on_event_name(ev.name.encode("ascii"))
         return struct.pack("<BBBBBB", 0x04, 0xFF, len(ev.name), ev.cycle, ev.unit, ev.priority)
+
+    def _list_info(self, cto: bytes) -> bytes:
+        self._need(cto, 4)
+        dl = self._list(cto)
+        # dynamic DAQ list (not predefined, event not fixed), DAQ direction only
+        return struct.pack("<BBBH", 0x04, len(dl.odts), max((len(o) for o in dl.odts), default=0),
+                           0)
 
     def _clock(self, cto: bytes) -> bytes:
         # legacy format: reserved, trigger info, payload format (DWORD slave clock), timestamp
