@@ -115,3 +115,26 @@ def test_a_calibration_before_the_first_tick_equals_set():
         sim.close()
     assert len(trace_cal) > 5000 and trace_cal == trace_set
     assert detected_cal == detected_set is not None
+
+
+def test_vecu_run_set_at(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    summary = tmp_path / "s.json"
+    base = [sys.executable, "-m", "vecu", "run", "--duration", "1.5", "--kill-tps-at", "1.0",
+            "--fault", "gain", "--fault-value", "0.3", "--quiet"]
+    done = subprocess.run([*base, "--set-at", f"0.2:ecu.{DEB}=20", "--summary", str(summary)],
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+    s = json.loads(summary.read_text())
+    assert s["xcp"]["calibrations_taken"] == [[0.2, "ecu." + DEB, 20]]
+    assert s["throttle"]["detection_latency_ms"] < 150  # 20 ms debounce (300 ms: ~360 ms)
+    for bad, message in ((f"0.2:ecu.{DEB}=0", f"'ecu.{DEB}' must be >= 1"),
+                         ("7:ecu.throttle.tps_monitor.plaus_debounce=20", "0 <= S < 1.5"),
+                         ("0.2:ecu.throttle.noise_scale=2", "not calibratable mid-run")):
+        done = subprocess.run([*base, "--set-at", bad], capture_output=True, text=True,
+                              timeout=300, check=False)
+        assert done.returncode == 2 and done.stderr.startswith("vecu: error:")
+        assert message in done.stderr

@@ -53,7 +53,13 @@ class Calibrator:
     def check(self, sets: list[tuple[str, Any]], base: Any = None) -> Any:
         """`base` (default: the ECU's tree) with (path under ecu., value) pairs applied and
         checked; ParamError else."""
-        tree = ptree.apply_sets(self.tree if base is None else base, sets)
+        try:
+            tree = ptree.apply_sets(self.tree if base is None else base, sets)
+        except ptree.ParamError as exc:  # name the leaf by its whole path
+            message = str(exc)
+            for path, _ in sets:
+                message = message.replace(f"'{path}", f"'ecu.{path}")
+            raise ptree.ParamError(message) from None
         if self._validate is not None:
             self._validate(tree)
         return tree
