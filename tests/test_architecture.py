@@ -386,10 +386,13 @@ def test_layering():
     bad += _layer_violations("vecu.ecu", None, ("vecu.plant",))
     # the UDS server stands on the ECU (floor 5); the ECU knows it only as a Protocol
     bad += _layer_violations("vecu.uds", None, ("vecu.plant", "vecu.estimators.registry"))
-    bad += _layer_violations("vecu.ecu", None, ("vecu.uds",))
+    bad += _layer_violations("vecu.ecu", None, ("vecu.uds", "vecu.xcp"))
     # the restbus stands beside the plant (floor 5): never the ECU, estimators or plant
     bad += _layer_violations("vecu.restbus", None, (
         "vecu.ecu", "vecu.estimators", "vecu.plant", "vecu.uds", "vecu.runner"))
+    # the XCP slave stands on the ECU too (floor 5), beside the UDS server
+    bad += _layer_violations("vecu.xcp", None, ("vecu.plant", "vecu.estimators.registry",
+                                                "vecu.uds"))
     for name in FOUNDATION:
         bad += _layer_violations(name, ())
     _report(bad, "layering (docs/architecture.md)")

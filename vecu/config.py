@@ -33,6 +33,7 @@ from vecu.plant.manifold import ManifoldPlantConfig
 from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
 from vecu.restbus.spec import RestbusConfig
 from vecu.uds.config import UdsConfig, UdsStep
+from vecu.xcp.config import XcpConfig, XcpStep, check_xcp
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,7 @@ class EcuParams:
     steering: SteeringFunctionConfig = field(default_factory=SteeringFunctionConfig)
     manifold: ManifoldFunctionConfig = field(default_factory=ManifoldFunctionConfig)
     uds: UdsConfig = field(default_factory=UdsConfig)  # diagnostics server (docs/uds.md)
+    xcp: XcpConfig = field(default_factory=XcpConfig)  # measurement and calibration (docs/xcp.md)
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,7 @@ def validate_tree(tree: ParamTree) -> None:
     if uds.enabled and len(ids) < 3:
         raise ptree.ParamError("parameters 'ecu.uds.request_id', 'response_id', 'functional_id' "
                                f"must differ, got {sorted(ids)}")
+    check_xcp(tree.ecu.xcp, ids if uds.enabled else set())
 
 
 @dataclass(frozen=True)
@@ -146,6 +149,10 @@ class RunConfig:
     speed_manoeuvres: tuple[str, ...] | None = None  # longitudinal plant sequence (None: default)
     faults: tuple[ScheduledFault, ...] = ()  # fault timeline (scenarios), on top of the kills
     uds_steps: tuple[UdsStep, ...] = ()  # a tester's requests (scenarios; docs/uds.md)
+    # timed sets of live ecu.* leaves: (at_s, path, value), acting from the ECU's next tick, as
+    # an XCP write handled at at_s does (docs/xcp.md)
+    calibrations: tuple[tuple[float, str, object], ...] = ()
+    xcp_steps: tuple[XcpStep, ...] = ()  # a master's writes and reads (scenarios; docs/xcp.md)
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
     restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
     restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline

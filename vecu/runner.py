@@ -12,6 +12,7 @@ import numpy as np
 
 from vecu import kernels
 from vecu.assembly import (
+    PRIO_ECU,
     PRIO_PLANT,
     PRIO_PROBE,
     PRIO_RECORD,
@@ -31,7 +32,7 @@ from vecu.bus import (
 )
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.codec import DbcCodec, shared_codec
-from vecu.config import RunConfig
+from vecu.config import ParamTree, RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
 from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
 from vecu.ecu.speed_function import SpeedFunction
@@ -58,8 +59,11 @@ from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 from vecu.uds.server import attach_uds
 from vecu.uds.tester import SimTester
+from vecu.xcp.server import XcpServer, attach_xcp
+from vecu.xcp.tester import SimXcpMaster, layout_of
 
 __all__ = ["RunConfig", "RunResult", "detection", "run"]
+PRIO_CALIBRATE = PRIO_ECU + 1  # a timed set acts from the ECU's next tick, as an XCP write
 
 
 @dataclass(frozen=True)
@@ -125,6 +129,13 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
             manifold_probe = ManifoldProbe(plant.manifold, fns.manifold, config.keep_series)
         ecu = EcuNode(ecu_bus, codec, fns.enabled())
         uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
+        xcp = attach_xcp_server(ecu, config)
+        for at_s, path, value in config.calibrations:  # timed sets, as an XCP write would act
+            _schedule_calibration(sched, xcp, at_s, path, value)
+        xcp_master = None
+        if config.xcp_steps:  # a scenario's XCP master, before the ECU in each tick
+            xcp_master = _xcp_master(node_bus(), xcp, config)
+            sched.every(TICK_NS, xcp_master.tick, name="xcp-master", priority=PRIO_PLANT + 6)
         tester = None
         if config.uds_steps:  # a scenario's tester, before the ECU in each tick
             tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
@@ -189,6 +200,10 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
             summary["uds"] = uds.summary()
         if tester is not None:
             summary["uds_steps"] = tester.summary()
+        if xcp is not None:
+            summary["xcp"] = xcp.summary()
+        if xcp_master is not None:
+            summary["xcp_steps"] = xcp_master.summary()
         if speed_probe is not None:
             summary["speed"] = speed_probe.summary()
             summary["speed"]["coast_steps"] = fns.speed.coast_steps
@@ -242,6 +257,43 @@ def _sim_lane(config: RunConfig, bus_args: dict[str, Any]) -> SimLane | None:
     if cfg["interface"] != "virtual" or virtual_channel_in_use(cfg["channel"]):
         return None
     return SimLane(str(cfg["channel"]))
+
+
+def attach_xcp_server(ecu: EcuNode, config: RunConfig) -> XcpServer | None:
+    """The XCP slave on `ecu` (docs/xcp.md): the working page is config's ecu.* tree, the
+    reference page the defaults; a calibration is checked as `--set` is (validate_tree)."""
+    from dataclasses import replace
+
+    return attach_xcp(ecu, config.params.ecu.xcp, config.params.ecu, ParamTree().ecu,
+                      config.seed, lambda ecu_tree: validate_tree(replace(config.params,
+                                                                          ecu=ecu_tree)))
+
+
+def _xcp_master(bus: can.BusABC, xcp: XcpServer | None, config: RunConfig) -> SimXcpMaster:
+    """The scenario's XCP master on the slave's A2L names (an unknown name: a user error)."""
+    from vecu.errors import ConfigError
+
+    if xcp is None:
+        raise ConfigError("[[xcp]] steps need the XCP slave (ecu.xcp.enabled = true)")
+    layout = layout_of(xcp)
+    for i, step in enumerate(config.xcp_steps):
+        for name in (step.write, step.read):
+            if name is not None and name not in layout:
+                raise ConfigError(f"xcp[{i}]: no characteristic or measurement {name!r} in the "
+                                  f"A2L (`vecu a2l` lists them)")
+    return SimXcpMaster(bus, config.params.ecu.xcp, layout, config.xcp_steps)
+
+
+def _schedule_calibration(sched: Scheduler, xcp: XcpServer | None, at_s: float, path: str,
+                          value: Any) -> None:
+    """A timed set of an ecu.* leaf: taken at at_s after the ECU's tick, so that it acts from
+    the next tick, as an XCP write handled in the tick at at_s does."""
+    if xcp is None:
+        raise ValueError("timed calibrations need the XCP slave (ecu.xcp.enabled)")
+    rel = path.removeprefix("ecu.")
+    xcp.check_calibration([(rel, value)])  # a bad one is a user error before the run
+    sched.at(round(at_s * NS_PER_S), lambda t: xcp.calibrate([(rel, value)], t),
+             name="calibrate", priority=PRIO_CALIBRATE)
 
 
 def _schedule_fault(sched: Scheduler, injector: FaultInjector, f: ScheduledFault) -> None:

@@ -73,6 +73,8 @@ SMOKE: list[tuple[list[str], str]] = [
     (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
     (["restbus", str(ROOT / "vecu" / "dbc" / "vecu.dbc"), "--node", "PLANT", "--duration", "1"],
      r"vecu restbus: \d+ messages, \d+ frames in 1 s \(simulated clock"),
+    (["a2l", "--out", "smoke.a2l"], (r"smoke\.a2l: \d+ characteristics \(\d+ calibratable "
+                                     r"live\), \d+ measurements; XCP on CAN 0x7F0 -> 0x7F1")),
 ]
 
 

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakdown", "kernels",
-          "uds", "restbus")
+          "uds", "restbus", "xcp")
 
 
 _groups = argtypes.name_list(GROUPS)  # --only: one group or several, comma-separated (pipeline,replay)
@@ -52,6 +52,7 @@ SIZES: dict[str, tuple[Any, Any]] = {
     "run_backends_s": (60.0, 1.0), "scenario_limit": (0, 1),  # 0: every shipped scenario
     "log_memory_s": ((60.0, 300.0), (0.5, 1.0)),
     "uds_requests": (200, 20), "restbus_s": (10.0, 1.0),
+    "xcp_commands": (200, 20), "xcp_daq_s": (5.0, 0.5),
 }
 
 
@@ -124,6 +125,9 @@ def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
         out["campaign"] = bench_campaign(runs=int(size("campaign_runs")),
                                          duration_s=size("campaign_s"),
                                          baseline_runs=int(size("campaign_baseline_runs")))
+    if groups is not None and "xcp" in groups:  # needs pyxcp (vecu[test]): only when asked for
+        from vecu.bench.xcp import bench_xcp
+        out["xcp"] = bench_xcp(commands=int(size("xcp_commands")), daq_s=size("xcp_daq_s"))
     if want("live"):
         from vecu.bench.live import bench_live
         out["live"] = bench_live(size("live_s", live_seconds), size("memory_min", memory_minutes),
@@ -191,6 +195,9 @@ def main(args: argparse.Namespace) -> int:
     if "restbus" in res:
         from vecu.bench.restbus import format_restbus
         print(format_restbus(res["restbus"]))
+    if "xcp" in res:
+        from vecu.bench.xcp import format_xcp
+        print(format_xcp(res["xcp"]))
     if "campaign" in res:
         from vecu.bench.campaign import format_campaign
         print(format_campaign(res["campaign"]))

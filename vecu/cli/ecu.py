@@ -25,7 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "clock, estimates broadcast on the bus (see docs/live.md). "
                                    "It serves UDS on ISO-TP: requests on 0x7E0 (functional "
                                    "0x7DF), responses on 0x7E8; --set ecu.uds.request_id=... "
-                                   "moves them (docs/uds.md).")
+                                   "moves them (docs/uds.md). It is an XCP-on-CAN slave: "
+                                   "commands on 0x7F0, responses and DAQ on 0x7F1 (ecu.xcp.*), "
+                                   "described by `vecu a2l` (docs/xcp.md).")
     add_live_arguments(p)
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.*")
@@ -58,7 +60,7 @@ def main(args: argparse.Namespace) -> int:
     from vecu.ecu.sensor_monitor import SOURCE_SENSOR, SensorStatus
     from vecu.live.process import LiveProcess
     from vecu.live.sync import PhaseSync, sync_to_trigger
-    from vecu.runner import warm_up
+    from vecu.runner import attach_xcp_server, warm_up
     from vecu.stats import RunningStats
     from vecu.uds.server import attach_uds
 
@@ -79,6 +81,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms)
         uds = attach_uds(ecu, config.params.ecu.uds, args.seed)  # a tester's UDS (docs/uds.md)
+        xcp = attach_xcp_server(ecu, config)  # measurement and calibration (docs/xcp.md)
         proc.consume_only(ecu.consumed_ids)
         thr = fns.throttle
         accuracy = RunningStats()
@@ -110,7 +113,12 @@ def main(args: argparse.Namespace) -> int:
             [] if uds is None else [(
                 f"  uds: {uds.stats.requests} requests ({uds.stats.negative} negative), session "
                 f"{uds.session}, security {'unlocked' if uds.security.unlocked else 'locked'}, "
-                f"broadcast {'on' if ecu.broadcast_enabled else 'OFF'}")])
+                f"broadcast {'on' if ecu.broadcast_enabled else 'OFF'}")]) + (
+            [] if xcp is None else [(
+                f"  xcp: {xcp.proc.stats.commands} commands ({xcp.proc.stats.negative} refused), "
+                f"{'connected' if xcp.proc.connected else 'no master'}, "
+                f"{xcp.proc.stats.calibrations} calibrations, {xcp.daq.stats.odts_sent} DAQ ODTs "
+                f"({xcp.daq.stats.odts_lost} lost)")])
         warm_up(config)
         proc.signal_ready()
         sync = PhaseSync(0, None, None, args.sync_margin_us, None)
@@ -127,6 +135,8 @@ def main(args: argparse.Namespace) -> int:
             summary = proc.summary(_ecu_summary(proc, ecu, fns, accuracy, sync, changes))
             if uds is not None:
                 summary["uds"] = uds.summary()
+            if xcp is not None:
+                summary["xcp"] = xcp.summary()
             proc.write_summary(summary)
     finally:
         proc.close()

@@ -40,6 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--manifold-filter", default=None, choices=argtypes.MANIFOLD_FILTERS,
                    help="manifold filter (default sdkf; = --set ecu.manifold.filter=NAME)")
     add_set_option(p, "plant.* and ecu.*", params_file=True)
+    p.add_argument("--set-at", dest="sets_at", action="append", default=[],
+                   metavar="S:ecu.PATH=VALUE",
+                   help="calibrate a live ecu.* leaf at S s (acts from the next tick, as an XCP "
+                        "write then; docs/xcp.md), repeatable")
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
     p.add_argument("--no-truth", dest="truth", action="store_false",
@@ -48,6 +52,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", metavar="FILE.png", help="write a truth-vs-estimate plot")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=main)
+
+
+def _sets_at(items: list[str], duration: float) -> tuple[tuple[float, str, str], ...]:
+    """--set-at S:ecu.PATH=VALUE as (at_s, path, value) (the value is checked by the run)."""
+    from vecu.errors import BadArgumentError
+
+    out = []
+    for item in items:
+        at, sep, rest = item.partition(":")
+        path, eq, value = rest.partition("=")
+        try:
+            at_s = float(at)
+        except ValueError:
+            at_s = -1.0
+        if not sep or not eq or not path.startswith("ecu.") or not 0 <= at_s < duration:
+            raise BadArgumentError(f"--set-at {item!r}: expected S:ecu.PATH=VALUE with 0 <= S < "
+                                   f"{duration:g} (the run's duration)")
+        out.append((at_s, path.strip(), value.strip()))
+    return tuple(out)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -66,6 +89,10 @@ def main(args: argparse.Namespace) -> int:
         swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value,
     ).with_params(param_sets(args), noise_scale=args.noise_scale, estimator=args.estimator,
                   manifold_filter=args.manifold_filter)
+    if args.sets_at:
+        from dataclasses import replace
+
+        config = replace(config, calibrations=_sets_at(args.sets_at, args.duration))
     config.validate()  # user errors before any output is touched
     result = run(config)
     if args.summary:

@@ -84,9 +84,9 @@ class EcuFunction(Protocol):
 
 
 class DiagnosticServer(Protocol):
-    """A diagnostic server on the node (vecu.uds): it claims CAN IDs (frames on them go to
-    on_frame() instead of the functions) and works in bounded steps from tick(), called after
-    the functions have sent this tick's broadcast."""
+    """A diagnostic server on the node (vecu.uds, vecu.xcp): it claims CAN IDs (frames on them
+    go to on_frame() instead of the functions) and works in bounded steps from tick(), called
+    after the functions have sent this tick's broadcast."""
 
     ids: frozenset[tuple[int, bool]]
 
@@ -179,16 +179,26 @@ class EcuNode(BusNode):
         self._logged: dict[str, int] = {}
         # diagnostics (vecu.uds): a server on its own IDs, the broadcast switch (0x28) and the
         # sensor values a tester overrides (0x2F), by message: {signal: value}
-        self.diagnostics: DiagnosticServer | None = None
+        self.diagnostics: DiagnosticServer | None = None  # the first attached (UDS)
+        self.servers: list[DiagnosticServer] = []         # all, ticked in attach order
+        self._server_of: dict[tuple[int, bool], DiagnosticServer] = {}
         self._diag_ids: frozenset[tuple[int, bool]] = frozenset()
         self._app_send: Send = self.send
         self.broadcast_enabled = True
         self.overrides: dict[str, dict[str, float]] = {}
 
     def attach(self, server: DiagnosticServer) -> None:
-        """Serve diagnostics: frames on server.ids go to it, and it ticks after the functions."""
-        self.diagnostics = server
-        self._diag_ids = server.ids
+        """Serve diagnostics: frames on server.ids go to it, and it ticks after the functions
+        (servers in attach order; their IDs must not overlap)."""
+        clash = self._diag_ids & server.ids
+        if clash:
+            raise ValueError(f"CAN IDs {sorted(hex(i) for i, _ in clash)} already claimed")
+        if self.diagnostics is None:
+            self.diagnostics = server
+        self.servers.append(server)
+        for key in server.ids:
+            self._server_of[key] = server
+        self._diag_ids = frozenset(self._server_of)
 
     def set_broadcast(self, enabled: bool) -> None:
         """CommunicationControl: the functions and ECU_Status / ECU_Diag stop or resume sending
@@ -255,9 +265,10 @@ class EcuNode(BusNode):
             key = (msg.arbitration_id, msg.is_extended_id)
             route = self._consumers.get(key)
             if route is None:
-                if key in self._diag_ids:
+                server = self._server_of.get(key)
+                if server is not None:
                     rx.diagnostic += 1
-                    self.diagnostics.on_frame(msg, t_ns)  # type: ignore[union-attr]  # _diag_ids is empty without diagnostics
+                    server.on_frame(msg, t_ns)
                     return
                 if key in self.rx_codec.by_id:
                     rx.ignored += 1
@@ -333,8 +344,8 @@ class EcuNode(BusNode):
             self._send_diag(t_ns, on_change=False)
         elif self._diag_dirty:
             self._send_diag(t_ns, on_change=True)
-        if self.diagnostics is not None:
-            self.diagnostics.tick(t_ns)
+        for server in self.servers:
+            server.tick(t_ns)
 
     def _mark_diag(self) -> None:
         self._diag_dirty = True

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS
 from vecu.models.sensors import TpsCalibration
@@ -91,6 +91,9 @@ class Dtc:
         self._healthy_since: int | None = None
         self._was_confirmed = False
 
+    def set_heal_ms(self, heal_ms: float) -> None:
+        self._heal_ns = int(heal_ms * NS_PER_MS)
+
     def report(self, t_ns: int, failed: bool, suspicious: bool, healthy: bool) -> DtcState:
         state = self.state
         if failed:
@@ -131,17 +134,23 @@ class Dtc:
                 self.on_change()
 
 
+COUNT = {"bounds": (1, 1_000_000_000)}
+
+
 @dataclass(frozen=True)
 class SensorMonitorConfig:
     # from the DBC (GenMsgCycleTime of the sensor's frame): set by the function, not a parameter
     cycle_ms: float = field(default=1.0, metadata={"param": False})
-    timeout_cycles: int = 3        # frames stop: confirmed after 3 missed periods
-    range_debounce: int = 2        # consecutive out-of-range samples
-    e2e_debounce: int = 2          # consecutive CRC/counter errors
-    stuck_samples: int = 8         # identical raw readings in a row (needs sensor noise)
-    plaus_sigma: float = 5.0       # gate in estimator sigmas ...
-    plaus_margin: float = 4.0      # ... plus a fixed margin (physical units, deg here)
-    plaus_debounce: int = 5        # up/down counter threshold
+    # bounds: what a monitor can honour (a debounce of 0 would confirm on nothing at all)
+    timeout_cycles: int = field(default=3, metadata=COUNT)  # frames stop: 3 missed periods
+    range_debounce: int = field(default=2, metadata=COUNT)  # consecutive out-of-range samples
+    e2e_debounce: int = field(default=2, metadata=COUNT)    # consecutive CRC/counter errors
+    # identical raw readings in a row (needs sensor noise; 0: no stuck check)
+    stuck_samples: int = field(default=8, metadata={"bounds": (0, 1_000_000)})
+    plaus_sigma: float = field(default=5.0, metadata={"bounds": (0.0, 1e3)})  # gate in sigmas ...
+    # ... plus a fixed margin (physical units, deg here)
+    plaus_margin: float = field(default=4.0, metadata={"bounds": (0.0, 1e6)})
+    plaus_debounce: int = field(default=5, metadata=COUNT)  # up/down counter threshold
     heal_ms: float = 500.0         # clean time before the sensor is trusted again
     dtc_heal_ms: float = 5000.0    # healthy time after that before the DTC reads 'healed'
     enabled: bool = True           # False: no checks at all (a broken ECU, for scenario tests)
@@ -186,6 +195,15 @@ class SensorMonitor:
         self._activity_at_rx = 0
         self.host_gap = False     # the current sample is stale, but not for the sensor's fault
         self.host_gaps = 0        # host gaps seen (each counted once)
+
+    def recalibrate(self, config: SensorMonitorConfig) -> None:
+        """A new calibration (XCP, a timed set): acts from the next evaluation; the state
+        (counters, status, DTC) stays. Equal to a monitor built with it (cycle_ms is the
+        frame's, kept)."""
+        config = replace(config, cycle_ms=self.cfg.cycle_ms)
+        self.cfg = config
+        self._timeout_ns = int(config.timeout_cycles * config.cycle_ms * NS_PER_MS)
+        self.dtc_item.set_heal_ms(config.dtc_heal_ms)
 
     @classmethod
     def for_tps(cls, config: SensorMonitorConfig, cal: TpsCalibration) -> SensorMonitor:

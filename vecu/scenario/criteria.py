@@ -186,6 +186,10 @@ def evaluate(scenario: Scenario, result: RunResult) -> list[CriterionResult]:
         out.append(CriterionResult(
             f"uds[{i}] at {step['at_s']:g} s: {step['request']}",
             (step["response"] or "no response") + latency, step["expected"], step["passed"]))
+    for i, step in enumerate(summary.get("xcp_steps", [])):
+        latency = "" if step["latency_ms"] is None else f" after {step['latency_ms']:g} ms"
+        out.append(CriterionResult(f"xcp[{i}] at {step['at_s']:g} s: {step['step']}",
+                                   step["got"] + latency, step["expected"], step["passed"]))
     if crit.bus_dtc is not None:
         state = summary["diagnostics"]["bus"]["dtc"]
         out.append(CriterionResult("bus: final DTC state", state, crit.bus_dtc,

@@ -27,6 +27,7 @@ from vecu.restbus.node import RestbusNode
 from vecu.restbus.spec import RestbusConfig, build_plans
 from vecu.tomlfile import read_toml
 from vecu.uds.config import UdsStep
+from vecu.xcp.config import XcpStep
 
 MONITOR_PATHS = {"tps": "ecu.throttle.tps_monitor", "swa": "ecu.steering.monitor",
                  "wheel": "ecu.speed.wheel_monitor"}
@@ -40,7 +41,7 @@ NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
-            "uds": list, "restbus": dict}
+            "uds": list, "restbus": dict, "xcp": list}
 PLANT_KEYS = {"noise_scale": NUMBER, "speed": BOOL, "steering": BOOL, "manifold": BOOL,
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, "tps": dict, "swa": dict, "wheel": dict}
@@ -56,6 +57,8 @@ RESTBUS_KEYS = {"databases": list, "nodes": list, "e2e": STR, "values": STR,
                 "default_cycle_ms": NUMBER}
 UDS_KEYS = {"at_s": NUMBER, "request": STR, "functional": BOOL, "key": BOOL, "expect": STR,
             "expect_nrc": INT, "expect_contains": STR, "expect_absent": STR, "expect_none": BOOL}
+XCP_KEYS = {"at_s": NUMBER, "write": STR, "value": NUMBER, "read": STR, "expect": NUMBER,
+            "tolerance": NUMBER, "expect_min": NUMBER, "expect_max": NUMBER, "expect_error": STR}
 
 
 class ScenarioError(BadFileError):
@@ -174,6 +177,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
                                    restbus_node)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
+    xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
     # (scenario key, tree path, value): a value the tree refuses names the key it came from
     sets: list[tuple[str, str, Any]] = []
     for sensor, group in MONITOR_PATHS.items():
@@ -196,8 +200,8 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     config = RunConfig(
         duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
-        params=params, uds_steps=uds_steps, restbus=restbus, restbus_disturbances=disturbances,
-        **parts)
+        params=params, uds_steps=uds_steps, xcp_steps=xcp_steps, restbus=restbus,
+        restbus_disturbances=disturbances, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
                     config, criteria)
 
@@ -360,4 +364,33 @@ def _uds_steps(chk: _Checker, items: list, duration: float) -> tuple[UdsStep, ..
             expect_nrc=nrc, expect_none=item.get("expect_none", False),
             **{k: _hex(chk, pre + k, item[k]) for k in
                ("expect", "expect_contains", "expect_absent") if k in item}))
+    return tuple(out)
+
+
+def _xcp_steps(chk: _Checker, items: list, duration: float) -> tuple[XcpStep, ...]:
+    """[[xcp]]: a master's writes of characteristics and reads at at_s, and what must come
+    (names as in `vecu a2l`; checked against the A2L when the run starts)."""
+    out = []
+    for i, item in enumerate(items):
+        pre = f"xcp[{i}]."
+        chk.table(item, XCP_KEYS, pre)
+        if "at_s" not in item:
+            raise chk.fail(pre + "at_s", "required key missing")
+        at = float(item["at_s"])
+        if not 0 <= at < duration:
+            raise chk.fail(pre + "at_s", f"{at:g} s is outside the run (0..{duration:g} s)")
+        if "write" not in item and "read" not in item:
+            raise chk.fail(pre + "write", "a step writes a characteristic or reads a value")
+        if ("write" in item) != ("value" in item):
+            raise chk.fail(pre + "value", "'write' and 'value' go together")
+        if "expect_error" in item and "write" not in item:
+            raise chk.fail(pre + "expect_error", "an expected error is the write's")
+        if "expect_error" in item and not item["expect_error"].startswith("ERR_"):
+            raise chk.fail(pre + "expect_error",
+                           f"expected an XCP error name like ERR_OUT_OF_RANGE, got "
+                           f"{item['expect_error']!r}")
+        kw: dict[str, Any] = {k: (float(v) if isinstance(v, (int, float))
+                                  and not isinstance(v, bool) else v)
+                              for k, v in item.items() if k != "at_s"}
+        out.append(XcpStep(at, **kw))
     return tuple(out)

@@ -1,0 +1,41 @@
+"""Issue 31's "done when": a pyxcp master that knows only the A2L of `vecu a2l` measures and
+calibrates `vecu ecu` live on udp_multicast (private network namespace): DAQ of the throttle
+estimate at 1 kHz, the TPS plausibility debounce lowered (an implausible TPS confirmed at once),
+an out-of-bounds write refused. Fails on the tree before vecu/xcp (no answer on 0x7F0)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from vecu.live.netns import namespace_prefix, run_in_namespace
+
+HERE = Path(__file__).resolve().parent
+
+
+@pytest.mark.skipif(namespace_prefix()[0] is None, reason=namespace_prefix()[1] or "n/a")
+def test_a_pyxcp_master_measures_and_calibrates_the_live_ecu(tmp_path):
+    res = run_in_namespace([sys.executable, str(HERE / "xcp_live_master.py"), str(tmp_path)],
+                           timeout=300)
+    assert res.returncode == 0, res.stderr + res.stdout + "".join(
+        p.read_text() for p in tmp_path.glob("*.err"))
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert out["name"] == "vecu"
+    # one sample per ECU tick: the timestamps step by whole ms, and the samples per ms of the
+    # recording follow the share of ticks the ECU ran (all of them on an idle machine)
+    assert out["daq_values_ok"] and out["daq_steps_ms"][0] == 1.0
+    assert all(step == round(step) for step in out["daq_steps_ms"])
+    per_ms = out["daq_samples"] / (out["daq_span_s"] * 1000)
+    assert per_ms > 0.8 * out["ecu_runs_share"]
+    assert out["debounce"] == 20
+    assert out["out_of_bounds"] == "ERR_OUT_OF_RANGE" and out["debounce_after_refusal"] == 20
+    # the gain fault (TPS reads 0.3 of the angle) is confirmed: implausible, or below the
+    # range where the throttle is nearly shut (the detection-time change the debounce makes
+    # is measured on the simulated clock: tests/xcp/test_calibration.py)
+    assert out["detection"] and out["detection"][0][2] in ("implausible", "range_low")
+    xcp = out["xcp"]
+    assert xcp["calibrations_taken"][0][1:] == ["ecu.throttle.tps_monitor.plaus_debounce", 20]
+    assert xcp["refused_writes"] == 1 and xcp["odts_lost"] == 0
