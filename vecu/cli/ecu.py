@@ -44,6 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a silence of every frame on the bus shorter than MS is a stalled sender "
                         "(the host), not a silent sensor: no timeout, the estimate is broadcast; "
                         f"0: off (default {HOST_GAP_MS:g}; docs/live.md)")
+    p.add_argument("--security-seed", type=argtypes.seed, default=None, metavar="N",
+                   help="draw UDS security access seeds from N, reproducibly (for tests); "
+                        "default: the OS's entropy, a new seed sequence on every start")
     p.set_defaults(func=main)
 
 
@@ -78,7 +81,8 @@ def main(args: argparse.Namespace) -> int:
     summary: dict[str, Any] | None = None
     try:
         ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms)
-        uds = attach_uds(ecu, config.params.ecu.uds, args.seed)  # a tester's UDS (docs/uds.md)
+        # a tester's UDS (docs/uds.md); security seeds from the OS's entropy unless asked for
+        uds = attach_uds(ecu, config.params.ecu.uds, args.security_seed)
         proc.consume_only(ecu.consumed_ids)
         thr = fns.throttle
         accuracy = RunningStats()

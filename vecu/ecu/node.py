@@ -183,6 +183,9 @@ class EcuNode(BusNode):
         self._app_send: Send = self.send
         self.broadcast_enabled = True
         self.overrides: dict[str, dict[str, float]] = {}
+        # the sensor's own values of the last frame of each overridden message (what the ECU
+        # would see without the override: returnControlToECU answers with it)
+        self.own_values: dict[str, dict[str, float]] = {}
 
     def attach(self, server: DiagnosticServer) -> None:
         """Serve diagnostics: frames on server.ids go to it, and it ticks after the functions."""
@@ -198,6 +201,8 @@ class EcuNode(BusNode):
     def set_override(self, message: str, signal: str, value: float | None) -> None:
         """InputOutputControl: the value the functions see for message.signal (None: the
         sensor's own again). Applied to each frame that passed the receive checks."""
+        if message not in self.overrides:
+            self.own_values.pop(message, None)  # none yet of this override
         over = self.overrides.setdefault(message, {})
         if value is None:
             over.pop(signal, None)
@@ -205,6 +210,11 @@ class EcuNode(BusNode):
                 del self.overrides[message]
         else:
             over[signal] = value
+
+    def own_value(self, message: str, signal: str) -> float | None:
+        """The sensor's own value of message.signal in the last frame that came while it was
+        overridden (None: none came)."""
+        return self.own_values.get(message, {}).get(signal)
 
     @property
     def consumed_ids(self) -> frozenset[tuple[int, bool]]:
@@ -297,6 +307,7 @@ class EcuNode(BusNode):
             self.host.saw(route.cycle_ns, t_ns)
         sub = route.subscription
         if self.overrides and sub.message in self.overrides:
+            self.own_values[sub.message] = values
             values = {**values, **self.overrides[sub.message]}
         if sub.on_values(values, t_ns):  # the function refused them (it logs them)
             rx.value_errors += 1

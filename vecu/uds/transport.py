@@ -106,7 +106,13 @@ class Endpoint:
         self._in.append(to_isotp(msg))
 
     def process(self) -> None:
-        self.layer.process()
+        """Take in every frame put so far. can-isotp's process() stops at a frame that wants
+        an immediate transmission (a flow control to send, or one received while idle): called
+        once, it left the rest for the next tick, 1 frame a tick under a stream of such frames."""
+        for _ in range(len(self._in) + 1):
+            self.layer.process()
+            if not self._in:
+                break
 
     def send(self, payload: bytes, functional: bool = False) -> None:
         self.layer.send(payload, isotp.TargetAddressType.Functional if functional else None)
