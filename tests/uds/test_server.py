@@ -390,3 +390,25 @@ def test_uds_latency_counts_the_ticks_a_request_waited_in_the_inbox(sim):
     waited_ms = (answered - t0) / NS_PER_MS - 1  # the frames are taken in at the first tick
     assert waited_ms >= 3
     assert sim.uds.stats.latency_max_ms == pytest.approx(waited_ms)
+
+
+def test_a_dtc_snapshot_says_what_the_host_did_to_the_ecu_and_to_the_sensors_sender(sim):
+    """Issue 29 item 2: a live plant reports the ticks its host skipped or delayed in PLANT_Host
+    frames; the ECU keeps the latest, and a DTC's snapshot carries them (0x0003 / 0x0004) with
+    the ECU's own time not running (0x0002): a stalled host tells itself from a dead sensor."""
+    sim.run_to(0.05)
+    bus = sim.bus()
+    report = sim.codec["PLANT_Host"]
+    bus.send(report.frame({"PH_SkippedSends": 2639, "PH_LateSends": 17, "PH_MaxLateness": 50.6,
+                           "PH_Counter": 1}, 0.05))
+    sim.step(2)
+    assert (sim.ecu.host.sender_skipped, sim.ecu.host.sender_late) == (2639, 17)
+    sim.kill(FaultTarget.TPS)
+    sim.step(100)
+    response = _handle(sim, "19 04 01 22 00 01")
+    assert response[:6] == bytes.fromhex("59 04 01 22 00 2F") or response[:5] == bytes.fromhex(
+        "59 04 01 22 00")
+    snapshot = response[8:]
+    assert bytes.fromhex("0002 00000000") in snapshot  # the simulated ECU never stalls
+    assert bytes.fromhex("0003") + (2639).to_bytes(2, "big") in snapshot
+    assert bytes.fromhex("0004") + (17).to_bytes(2, "big") in snapshot

@@ -159,6 +159,11 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
                          + " -> return of send() of the next ECU_ThrottleEstimate"),
         },
         "rx": ecu.rx.as_dict(),
+        # what the host did (issue 29): this ECU not running, and what the sensor frames'
+        # sender reported of its own skipped / late ticks (PLANT_Host)
+        "host": {"ecu_stalled_ms": round(ecu.host.stalled_ns / 1e6, 1),
+                 "sender_skipped_sends": ecu.host.sender_skipped,
+                 "sender_late_sends": ecu.host.sender_late},
         "frames": {"ecu_sent": ecu.frames_sent, "send_errors": ecu.send_errors,
                    "decoded": ecu.rx.accepted,
                    "decoded_per_s": round(ecu.rx.accepted / elapsed, 1),
@@ -208,4 +213,10 @@ def format_ecu_summary(s: dict[str, Any]) -> str:
          f"{th['host_gaps']} host gaps (ECU not running {th['ecu_stalled_ms']} ms); "
          f"broadcasting the {th['final_source']}"),
     ]
+    h = s["host"]
+    if h["ecu_stalled_ms"] or h["sender_skipped_sends"] or h["sender_late_sends"]:
+        lines.append(f"  host: this ECU not running {h['ecu_stalled_ms']} ms; the sensor frames' "
+                     f"sender reported {h['sender_skipped_sends']} ticks skipped, "
+                     f"{h['sender_late_sends']} late (PLANT_Host): timeouts in that time are the "
+                     "host's doing, not a sensor's (DTC snapshots: DIDs 0x0002-0x0004)")
     return "\n".join(lines)

@@ -166,6 +166,10 @@ class EcuNode(BusNode):
         self._diag = codec["ECU_Diag"] if "ECU_Diag" in codec else None  # noqa: SIM401 (no .get)
         self._diag_dirty = False
         self._diag_counter = 0
+        # a live plant's report of its own delays (PLANT_Host): kept in self.host
+        sender = self.rx_codec["PLANT_Host"] if "PLANT_Host" in self.rx_codec else None  # noqa: SIM401
+        self._sender_report = (None if sender is None
+                               else ((sender.frame_id, sender.is_extended), sender))
         self._errors_seen = 0
         for dtc in [m.dtc_item for m in self.monitors.values()] + [self.bus_dtc]:
             dtc.on_change = self._mark_diag
@@ -270,6 +274,11 @@ class EcuNode(BusNode):
                     return
                 if key in self.rx_codec.by_id:
                     rx.ignored += 1
+                    report = self._sender_report
+                    if report is not None and key == report[0] and len(msg.data) == report[1].length:
+                        values = report[1].decode(msg.data)
+                        self.host.sender_skipped = int(values["PH_SkippedSends"])
+                        self.host.sender_late = int(values["PH_LateSends"])
                 else:
                     rx.unknown_id += 1
                     self._problem("unknown-id", msg)
