@@ -141,6 +141,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
     from vecu.clock import NS_PER_S
+    from vecu.ecu.sensor_monitor import DtcState
 
     thr = fns.throttle
     mon = thr.monitor
@@ -161,6 +162,12 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
         "rx": ecu.rx.as_dict(),
         # what the host did (issue 29): this ECU not running, and what the sensor frames'
         # sender reported of its own skipped / late ticks (PLANT_Host)
+        # every DTC confirmation, per monitored sensor: epoch seconds (bench: false DTCs)
+        "dtc_confirmed_epoch_s": {
+            name: [None if proc.start_epoch_s is None
+                   else round(proc.start_epoch_s + t / NS_PER_S, 3)
+                   for t, state in mon.dtc_item.history if state == DtcState.CONFIRMED]
+            for name, mon in ecu.monitors.items()},
         "host": {"ecu_stalled_ms": round(ecu.host.stalled_ns / 1e6, 1),
                  "sender_skipped_sends": ecu.host.sender_skipped,
                  "sender_late_sends": ecu.host.sender_late},
