@@ -151,7 +151,11 @@ def _hist_png(data: list[np.ndarray], labels: list[str], title: str, path: Path,
     filled = [d for d in data if len(d)]
     allv = np.concatenate(filled) if filled else np.zeros(1)
     lo, hi = float(allv.min()), float(allv.max())
-    bins = np.linspace(lo, hi if hi > lo else lo + 1.0, 40)
+    # a positive metric over decades (latency: 1 ms for a dead sensor, seconds for a drift):
+    # log-spaced bins on a log axis, or the fast ones all fall in the first bin
+    log_x = lo > 0 and hi / lo >= 100
+    bins = (np.geomspace(lo, hi, 40) if log_x
+            else np.linspace(lo, hi if hi > lo else lo + 1.0, 40))
     if panels:
         fig, axes = plt.subplots(len(data), 1, figsize=(7, 1.7 * len(data) + 0.8),
                                  sharex=True, squeeze=False)
@@ -163,6 +167,8 @@ def _hist_png(data: list[np.ndarray], labels: list[str], title: str, path: Path,
             ax.set_title(f"{n}: {len(d)} runs, mean {significant(float(d.mean())) if len(d) else '-'}",
                          fontsize=9, loc="left")
         fig.suptitle(title, fontsize=10)
+        if log_x:
+            axes[-1, 0].set_xscale("log")
     else:
         fig, ax = plt.subplots(figsize=(7, 3.6))
         for n, d in zip(labels, data):
@@ -171,6 +177,8 @@ def _hist_png(data: list[np.ndarray], labels: list[str], title: str, path: Path,
         ax.set_title(title, fontsize=10)
         ax.set_ylabel("runs")
         ax.legend(fontsize=8)
+        if log_x:
+            ax.set_xscale("log")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
