@@ -72,7 +72,7 @@ def with_scapy(todo: list[int]) -> tuple[dict[int, str], float]:
 def main(out: Path, first: int, last: int, step: int) -> dict:
     todo = lengths(first, last, step)
     ecu = subprocess.Popen(
-        [sys.executable, "-m", "vecu", "ecu", *BUS, "--sync-timeout", "0", "--duration", "900",
+        [sys.executable, "-m", "vecu", "ecu", *BUS, "--sync-timeout", "0", "--duration", "1800",
          "--no-speed", "--no-steering", "--no-manifold", "--quiet", "--summary",
          str(out / "ecu.json"), "--ready-file", str(out / "ecu.ready")],
         stderr=open(out / "ecu.err", "w"))  # noqa: SIM115
