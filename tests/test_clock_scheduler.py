@@ -132,3 +132,27 @@ def test_chained_task_must_move_forward():
     sched.chain(0, lambda t: t, name="stuck")
     with pytest.raises(ValueError, match="not after"):
         sched.run_until(NS_PER_MS)
+
+
+def test_a_catch_up_window_runs_missed_releases_late_instead_of_skipping_them():
+    """Issue 29: a live plant that stalls 50 ms skipped every send of those 50 ms for good; with
+    a 20 ms catch-up window the releases of the last 20 ms run late, back to back, in order,
+    and only the older ones are skipped."""
+    ft = FakeTime()
+    clock = WallClock(spin_ns=200_000, sleep=ft.sleep, monotonic_ns=ft.mono)
+    sched = Scheduler(clock)
+    starts: list[int] = []
+
+    def work(t: int) -> None:
+        starts.append(t)
+        if t == 5 * NS_PER_MS:  # one release stalls 50.5 periods
+            ft.t += 50_500_000
+
+    stats = sched.every(NS_PER_MS, work, name="plant", catch_up_ns=20 * NS_PER_MS)
+    sched.run_until(100 * NS_PER_MS)
+    assert stats.overruns == 1  # one stall
+    # it ends at 55.5 ms: 6..35 ms are older than the window (skipped), 36..55 ms run late,
+    # in order (19 of them after their next deadline: caught up), none lost
+    assert stats.skipped == 30 and stats.caught_up == 19
+    assert starts == sorted(starts) and stats.runs + stats.skipped == 100
+    assert [t // NS_PER_MS for t in starts if t > 5 * NS_PER_MS][:20] == list(range(36, 56))

@@ -99,8 +99,10 @@ def build_functions(config: RunConfig, codec: DbcCodec,
         manifold=ManifoldFunction(codec, cal.manifold) if config.manifold else None)
 
 
-def schedule_plant(sched: Scheduler, plant: PlantNode) -> None:
-    sched.every(TICK_NS, plant.tick, name="plant", priority=PRIO_PLANT)
+def schedule_plant(sched: Scheduler, plant: PlantNode, catch_up_ns: int = 0) -> None:
+    """catch_up_ns (live): after a stall, send the missed ticks' frames late within this
+    window instead of never (vecu.scheduler)."""
+    sched.every(TICK_NS, plant.tick, name="plant", priority=PRIO_PLANT, catch_up_ns=catch_up_ns)
     if plant.manifold is not None:
         sched.chain(0, plant.engine_event, name="engine-events", priority=PRIO_PLANT)
 

@@ -2,7 +2,9 @@
 
 Periodic tasks are released on absolute deadlines (release k at offset + k*period), so a late
 release never shifts later ones. A release that starts after its *next* deadline has already
-passed is an overrun: it is counted and the missed releases are skipped (no catch-up bursts).
+passed is an overrun: it is counted and the missed releases are skipped (no catch-up bursts),
+unless the task was given a catch-up window: then the missed releases not older than the window
+run late, back to back (counted as caught up), and only older ones are skipped.
 Tasks due at the same instant run in (priority, registration order), which makes a simulated run
 fully deterministic.
 """
@@ -27,6 +29,7 @@ class TaskStats:
     runs: int = 0
     overruns: int = 0
     skipped: int = 0
+    caught_up: int = 0  # releases run after their next deadline (catch_up_ns), not skipped
     max_lateness_ns: int = 0
     lateness_ns: list[int] = field(default_factory=list)
 
@@ -45,13 +48,19 @@ class Scheduler:
         # they happened in: per task (first skipped time, period, count); counted when a later
         # run_until reaches them, so a run's `runs + skipped` is exactly its releases
         self._skips_ahead: dict[int, tuple[int, int, int]] = {}
+        self._catch_up: dict[int, int] = {}  # task index -> catch-up window (ns)
 
     def every(self, period_ns: int, fn: TaskFn, *, name: str, offset_ns: int = 0,
-              priority: int = 0) -> TaskStats:
-        """Run fn(release_ns) at offset, offset + period, ... (priority: lower runs first)."""
+              priority: int = 0, catch_up_ns: int = 0) -> TaskStats:
+        """Run fn(release_ns) at offset, offset + period, ... (priority: lower runs first).
+        catch_up_ns (wall clock): after a stall, run the missed releases due within this window
+        of now, late, instead of skipping them."""
         if period_ns <= 0:
             raise ValueError(f"task {name!r}: period must be positive, got {period_ns} ns")
-        return self._add(fn, name, period_ns, offset_ns, priority)
+        stats = self._add(fn, name, period_ns, offset_ns, priority)
+        if catch_up_ns > 0:
+            self._catch_up[len(self._tasks) - 1] = catch_up_ns
+        return stats
 
     def at(self, t_ns: int, fn: TaskFn, *, name: str, priority: int = 0) -> TaskStats:
         """Run fn(t_ns) once at t_ns."""
@@ -160,10 +169,15 @@ class Scheduler:
             if period is not None:
                 nxt = due + period
                 if realtime:
+                    if late > period:
+                        stats.caught_up += 1
                     now = clock.now_ns()
                     if now > nxt:
-                        stats.overruns += 1
-                        missed = (now - nxt) // period + 1
+                        stats.overruns += late <= period  # once per stall, not per catch-up
+                        window = self._catch_up.get(idx, 0)
+                        # skip what is older than the window (all of it without one)
+                        missed = max(0, (now - window - nxt) // period + 1) if window \
+                            else (now - nxt) // period + 1
                         inside = min(missed, max(0, -((nxt - end_ns) // period)))
                         stats.skipped += inside
                         if missed > inside:

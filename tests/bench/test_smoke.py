@@ -58,6 +58,10 @@ EXPECTED = {
 CAMPAIGN = (rf"batch engine {NUM} s/run .*\n  campaign {NUM} s = {NUM} s/run: {NUM}x sequential "
             r"`vecu eval manifold`")
 LIVE_UDP = rf"ECU in its own process \(udp_multicast, {NUM} s\): tick jitter p50 {NUM}"
+# a fault-free run on a loaded host, without and with catch-up and --realtime
+LOADED = [rf"fault-free run under 3 busy processes, {w} catch-up and --realtime \(.*\): \d+ "
+          rf"false DTCs in {NUM} s = {NUM} per hour; plant ticks skipped \d+, late \d+"
+          for w in ("without", "with")]
 FAST_GROUPS = ("bus", "pipeline", "ecu", "breakdown", "kernels", "uds", "restbus")  # a few seconds each
 
 
@@ -83,6 +87,7 @@ def test_bench_quick_all_groups():
     assert not missing, "\n".join(missing) + "\n" + out
     if namespace_prefix()[0] is not None:  # else the live group reports the udp runs skipped
         assert re.search(LIVE_UDP, out), out
+        assert all(re.search(p, out) for p in LOADED), out
     else:
         assert "skipped" in out
 

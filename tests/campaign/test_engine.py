@@ -70,9 +70,9 @@ def test_one_and_two_workers_give_the_same_bytes(small, reference, tmp_path):
     assert report.count("<img") == 2
     # Dutka's Fig. 4 is the squared error, Fig. 5 the absolute one
     assert ("<h3>Fig. 4 analogue: integrated squared 6-event CAC prediction error</h3>"
-            "<img src='hist_ise.png'>") in report
+            "<img src='hist_ise.png'") in report
     assert ("<h3>Fig. 5 analogue: integrated absolute 6-event CAC prediction error</h3>"
-            "<img src='hist_iae.png'>") in report
+            "<img src='hist_iae.png'") in report
 
 
 def _spawn(args: list[str]) -> subprocess.Popen:

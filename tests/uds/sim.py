@@ -55,7 +55,8 @@ class Codec(udsoncan.DidCodec):
 
 # what a tester writes from docs/uds.md
 DIDS = {0xF190: Codec("17s"), 0xF18C: Codec("10s"), 0xF195: Codec("15s"), 0xF186: Codec("B"),
-        0x0001: Codec("I"), 0x0100: Codec("H", 0.01), 0x0101: Codec("H", 0.01),
+        0x0001: Codec("I"), 0x0002: Codec("I"), 0x0003: Codec("H"), 0x0004: Codec("H"),
+        0x0100: Codec("H", 0.01), 0x0101: Codec("H", 0.01),
         0x0102: Codec("H", 0.01), 0x0103: Codec("B"), 0x0104: Codec("H", 0.0001),
         0x0105: Codec("B"), 0x0110: Codec("H", 0.01), 0x0200: Codec("H", 0.01),
         0x0300: Codec("H", 0.01), 0x0400: Codec("h", 0.05), 0x0402: Codec("h", 0.01),

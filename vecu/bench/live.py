@@ -137,10 +137,10 @@ def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict
             "rejected": ecu.rx.rejected, "ecu_tick": meter.summary()}
 
 
-def _scenario(tmp: Path, seconds: float, extra_load: float) -> dict[str, Any]:
+def _scenario(tmp: Path, seconds: float, extra_load: float, *more: str) -> dict[str, Any]:
     res = run_in_namespace(python_module(
         "vecu.live.scenario", str(tmp), "--plant-seconds", str(seconds), "--no-log",
-        *(["--extra-load", str(extra_load)] if extra_load else [])), timeout=seconds + 300)
+        *(["--extra-load", str(extra_load)] if extra_load else []), *more), timeout=seconds + 300)
     if res.returncode != 0:
         return {"error": (res.stderr or res.stdout)[-1000:]}
     return {"ecu": json.loads((tmp / "ecu.json").read_text()),
@@ -204,8 +204,40 @@ def bench_live(seconds: float = 10.0, memory_minutes: float = 10.0,
                     "sensor_frames": _loss(ecu, plant), "rcvbuf_bytes": ecu["bus"]["rcvbuf_bytes"],
                     "ecu_tick": {k: ecu["ticks"]["ecu"][k] for k in ("overrun_pct", "skipped")},
                 }
+            out["loaded_host"] = bench_loaded_host(Path(tmp), seconds)
     out["throughput_virtual"] = bench_throughput_virtual(throughput_seconds)
     out["memory"] = bench_memory(memory_minutes)
+    return out
+
+
+CPU_LOAD = 3  # busy processes: more than this machine's 2 cores can give everyone
+# the measures of issue 29: the plant's catch-up (default on) and real-time scheduling
+WITHOUT = ("--plant-arg=--catch-up-ms=0",)
+WITH = ("--plant-arg=--realtime", "--ecu-arg=--realtime")
+
+
+def false_dtcs(ecu: dict[str, Any], plant: dict[str, Any]) -> dict[str, Any]:
+    """DTC confirmations of a fault-free run while the plant was sending (its end is a real
+    silence), per sensor, and per hour of that time."""
+    start, stop = plant["start_epoch_s"], plant["start_epoch_s"] + plant["elapsed_s"]
+    by = {name: sum(1 for t in times if t is not None and start <= t <= stop)
+          for name, times in ecu["dtc_confirmed_epoch_s"].items()}
+    n = sum(by.values())
+    return {"dtcs": n, "by_sensor": by, "per_hour": round(n * 3600.0 / max(stop - start, 1e-9), 1),
+            "plant_skipped": plant["host"]["skipped_sends"],
+            "plant_late": plant["host"]["late_sends"],
+            "plant_max_lateness_ms": plant["host"]["max_lateness_ms"],
+            "ecu_stalled_ms": ecu["host"]["ecu_stalled_ms"],
+            "realtime": {"plant": plant["realtime"], "ecu": ecu["realtime"]}}
+
+
+def bench_loaded_host(tmp: Path, seconds: float) -> dict[str, Any]:
+    """A fault-free plant + ECU under CPU_LOAD busy processes, without and with the measures
+    (bounded: `seconds` each, the load ends with the plant): false DTCs per hour."""
+    out: dict[str, Any] = {"cpu_load": CPU_LOAD, "seconds": seconds}
+    for name, args in (("without", WITHOUT), ("with", WITH)):
+        r = _scenario(tmp / f"loaded-{name}", seconds, 0.0, "--cpu-load", str(CPU_LOAD), *args)
+        out[name] = r if "error" in r else false_dtcs(r["ecu"], r["plant"])
     return out
 
 
@@ -233,6 +265,21 @@ def format_live(r: dict[str, Any]) -> str:
             f"  peak RSS: ECU {lv['peak_rss_kb']['ecu']} kB, plant {lv['peak_rss_kb']['plant']} kB"]
     else:
         lines.append(f"  live udp_multicast: {lv}")
+    lh = r.get("loaded_host")
+    if lh is not None:
+        for name in ("without", "with"):
+            d = lh[name]
+            if "per_hour" not in d:
+                lines.append(f"  loaded host ({name} catch-up / real-time): {d}")
+                continue
+            rt = "SCHED_FIFO" if d["realtime"]["plant"] and d["realtime"]["plant"]["sched_fifo"] \
+                else "normal priority"
+            lines.append(
+                f"  fault-free run under {lh['cpu_load']} busy processes, {name} catch-up and "
+                f"--realtime ({rt}): {d['dtcs']} false DTCs in {lh['seconds']:g} s = "
+                f"{d['per_hour']} per hour; plant ticks skipped {d['plant_skipped']}, late "
+                f"{d['plant_late']} (max {d['plant_max_lateness_ms']} ms), ECU not running "
+                f"{d['ecu_stalled_ms']} ms")
     tv = r["throughput_virtual"]
     lines.append(f"  throughput, virtual bus, one process: offered {tv['offered_per_s']} frames/s, "
                  f"decoded {tv['decoded_per_s']}/s, answered {tv['answered_per_s']}/s, lost "

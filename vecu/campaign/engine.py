@@ -12,12 +12,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
 import json
 import logging
 import os
+import signal
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -151,9 +153,26 @@ def open_client(workers: int | None, scheduler: str | None) -> tuple[Any, Any]:
     n = workers or os.cpu_count() or 1
     for name in ("distributed", "tornado"):  # the cluster's own INFO chatter, not the user's
         logging.getLogger(name).setLevel(logging.ERROR)
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=40)
+    # the workers ignore SIGINT (inherited through their exec): a Ctrl-C on the terminal goes to
+    # the whole process group, and each worker printed its KeyboardInterrupt traceback; vecu
+    # stops them itself (cluster.close) once it has the interrupt
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        # the workers log only what is critical: a run's own error comes back as its row, and
+        # a worker that loses its scheduler at an interrupt is not the user's business
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     return Client(cluster), cluster
+
+
+class CampaignInterrupted(Exception):
+    """Ctrl-C or SIGTERM during a campaign: the finished rows are in runs.csv (resume them)."""
+
+    def __init__(self, done: int, runs: int, out_dir: Path, signal_name: str) -> None:
+        super().__init__(f"interrupted: {done}/{runs} runs kept in {out_dir}")
+        self.done, self.runs, self.out_dir, self.signal_name = done, runs, out_dir, signal_name
 
 
 def run_campaign(spec: CampaignSpec, out: Path, workers: int | None = None,
@@ -169,9 +188,12 @@ def run_campaign(spec: CampaignSpec, out: Path, workers: int | None = None,
     if todo:
         from distributed import as_completed
 
+        from vecu.live.children import Terminated
+
         client, cluster = open_client(workers, scheduler)
         futures: list[Any] = []
         finished = False
+        stopped_by: str | None = None
         try:
             with open(out / RUNS_CSV, "a", newline="") as fh:
                 futures = [client.submit(run_one, spec, i, pure=False, retries=2,
@@ -189,13 +211,21 @@ def run_campaign(spec: CampaignSpec, out: Path, workers: int | None = None,
                     bar.update(row["status"] == "ok")
                     fut.release()
             finished = True
+        except KeyboardInterrupt:
+            stopped_by = "SIGINT"
+        except Terminated:
+            stopped_by = "SIGTERM"
         finally:
-            if not finished:  # Ctrl-C or an error: stop what is still queued
-                client.cancel([f for f in futures if not f.done()])
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            if not finished:  # Ctrl-C, SIGTERM or an error: stop what is still queued
+                _quiet_shutdown(client, cluster, futures)
+            else:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
             bar.close()
+        if stopped_by is not None:
+            kept = len(read_rows(out / RUNS_CSV, cols))
+            raise CampaignInterrupted(kept, spec.runs, out, stopped_by)
     rows = read_rows(out / RUNS_CSV, cols)
     rows.sort(key=lambda r: int(r["run_id"]))
     tmp = out / (RUNS_CSV + ".tmp")
@@ -207,6 +237,27 @@ def run_campaign(spec: CampaignSpec, out: Path, workers: int | None = None,
     write_report(spec, rows, summary, out)
     failed = sum(r["status"] != "ok" for r in rows)
     return CampaignResult(out, spec.runs, len(rows), failed, bar.new, summary)
+
+
+def _quiet_shutdown(client: Any, cluster: Any, futures: list[Any]) -> None:
+    """Cancel the queued runs and stop the cluster, once, with nothing on the terminal but
+    vecu's own line: a second Ctrl-C meanwhile does not cut the shutdown short (no orphan
+    workers), and the cluster's complaints about the work it loses are not the user's."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    levels = {name: logging.getLogger(name).level
+              for name in ("distributed", "tornado", "asyncio")}
+    for name in levels:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    try:
+        with contextlib.suppress(Exception):  # the scheduler may be gone already
+            client.cancel([f for f in futures if not f.done()])
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
+        signal.signal(signal.SIGINT, previous)
 
 
 def default_progress_stream() -> TextIO | None:

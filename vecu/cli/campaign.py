@@ -72,8 +72,16 @@ def main_run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("out") / spec.name
     stream = (sys.stderr if args.progress else None) if args.progress is not None \
         else default_progress_stream()
-    res = run_campaign(spec, out, workers=args.workers, scheduler=args.scheduler,
-                       resume=args.resume, progress=stream)
+    from vecu.campaign.engine import CampaignInterrupted
+    from vecu.live.children import EXIT_TERMINATED, sigterm_unwinds
+
+    try:
+        with sigterm_unwinds():
+            res = run_campaign(spec, out, workers=args.workers, scheduler=args.scheduler,
+                               resume=args.resume, progress=stream)
+    except CampaignInterrupted as exc:
+        print(f"vecu: {exc}; `{_resume_command(args, out)}` finishes it", file=sys.stderr)
+        return 130 if exc.signal_name == "SIGINT" else EXIT_TERMINATED
     if args.json:
         print(json.dumps(res.summary, indent=1))
     else:
@@ -81,6 +89,22 @@ def main_run(args: argparse.Namespace) -> int:
         print(f"vecu campaign: {res.done}/{res.runs} runs in {out} ({res.new} new, "
               f"{res.failed} failed); report {out / 'report.html'}")
     return 0
+
+
+def _resume_command(args: argparse.Namespace, out: Path) -> str:
+    """The command that completes an interrupted campaign (same file, runs, seed, place)."""
+    import shlex
+
+    cmd = ["vecu", "campaign", "run", args.file]
+    if args.runs is not None:
+        cmd += ["--runs", str(args.runs)]
+    if args.seed is not None:
+        cmd += ["--seed", str(args.seed)]
+    if args.workers is not None:
+        cmd += ["--workers", str(args.workers)]
+    if args.scheduler:
+        cmd += ["--scheduler", args.scheduler]
+    return shlex.join([*cmd, "--out", str(out), "--resume"])
 
 
 def main_rerun(args: argparse.Namespace) -> int:

@@ -46,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a silence of every frame on the bus shorter than MS is a stalled sender "
                         "(the host), not a silent sensor: no timeout, the estimate is broadcast; "
                         f"0: off (default {HOST_GAP_MS:g}; docs/live.md)")
+    p.add_argument("--security-seed", type=argtypes.seed, default=None, metavar="N",
+                   help="draw UDS security access seeds from N, reproducibly (for tests); "
+                        "default: the OS's entropy, a new seed sequence on every start")
     p.set_defaults(func=main)
 
 
@@ -80,7 +83,8 @@ def main(args: argparse.Namespace) -> int:
     summary: dict[str, Any] | None = None
     try:
         ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms)
-        uds = attach_uds(ecu, config.params.ecu.uds, args.seed)  # a tester's UDS (docs/uds.md)
+        # a tester's UDS (docs/uds.md); security seeds from the OS's entropy unless asked for
+        uds = attach_uds(ecu, config.params.ecu.uds, args.security_seed)
         xcp = attach_xcp_server(ecu, config)  # measurement and calibration (docs/xcp.md)
         proc.consume_only(ecu.consumed_ids)
         thr = fns.throttle
@@ -147,6 +151,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
     from vecu.clock import NS_PER_S
+    from vecu.ecu.sensor_monitor import DtcState
 
     thr = fns.throttle
     mon = thr.monitor
@@ -165,6 +170,17 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
                          + " -> return of send() of the next ECU_ThrottleEstimate"),
         },
         "rx": ecu.rx.as_dict(),
+        # what the host did (issue 29): this ECU not running, and what the sensor frames'
+        # sender reported of its own skipped / late ticks (PLANT_Host)
+        # every DTC confirmation, per monitored sensor: epoch seconds (bench: false DTCs)
+        "dtc_confirmed_epoch_s": {
+            name: [None if proc.start_epoch_s is None
+                   else round(proc.start_epoch_s + t / NS_PER_S, 3)
+                   for t, state in mon.dtc_item.history if state == DtcState.CONFIRMED]
+            for name, mon in ecu.monitors.items()},
+        "host": {"ecu_stalled_ms": round(ecu.host.stalled_ns / 1e6, 1),
+                 "sender_skipped_sends": ecu.host.sender_skipped,
+                 "sender_late_sends": ecu.host.sender_late},
         "frames": {"ecu_sent": ecu.frames_sent, "send_errors": ecu.send_errors,
                    "decoded": ecu.rx.accepted,
                    "decoded_per_s": round(ecu.rx.accepted / elapsed, 1),
@@ -215,4 +231,10 @@ def format_ecu_summary(s: dict[str, Any]) -> str:
          f"{th['host_gaps']} host gaps (ECU not running {th['ecu_stalled_ms']} ms); "
          f"broadcasting the {th['final_source']}"),
     ]
+    h = s["host"]
+    if h["ecu_stalled_ms"] or h["sender_skipped_sends"] or h["sender_late_sends"]:
+        lines.append(f"  host: this ECU not running {h['ecu_stalled_ms']} ms; the sensor frames' "
+                     f"sender reported {h['sender_skipped_sends']} ticks skipped, "
+                     f"{h['sender_late_sends']} late (PLANT_Host): timeouts in that time are the "
+                     "host's doing, not a sensor's (DTC snapshots: DIDs 0x0002-0x0004)")
     return "\n".join(lines)

@@ -17,6 +17,10 @@ from vecu.live.args import add_live_arguments, live_options
 
 # without --duration the precomputed steering manoeuvre covers this much, then holds its end
 STEERING_HORIZON_S = 900.0
+# catch-up window: below the ECU's shortest sensor deadline (TPS: 3 x 1 ms after a frame is due
+# is too short to save, ESC_Motion 3 x 2 ms, SWA 3 x 10 ms), a burst of at most ~100 frames
+CATCH_UP_MS = 20.0
+HOST_STATUS_NS = 100_000_000  # PLANT_Host every 100 ms
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,6 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steering-horizon", type=argtypes.bounded(1.0, 86_400.0), default=STEERING_HORIZON_S, metavar="S",
                    help="without --duration: the precomputed steering manoeuvre covers S s, then "
                         f"holds its last sample (default {STEERING_HORIZON_S:g})")
+    p.add_argument("--catch-up-ms", type=argtypes.bounded(0.0, 1000.0, unit="ms"),
+                   default=CATCH_UP_MS, metavar="MS",
+                   help="after a stall of this process, send the frames of the missed 1 ms "
+                        "ticks late, back to back, if they are at most MS old (older ones are "
+                        f"skipped); 0: skip them all (default {CATCH_UP_MS:g}; docs/live.md)")
     p.set_defaults(func=main)
 
 
@@ -71,12 +80,16 @@ def main(args: argparse.Namespace) -> int:
                 extra.tick(t_ns)
 
         plant.tick = meter.wrap(tick)  # type: ignore[method-assign]  # the live meter times each tick (a wrapper, not a patch of the class)
-        schedule_plant(proc.sched, plant)
+        schedule_plant(proc.sched, plant, catch_up_ns=round(args.catch_up_ms * 1e6))
         meter.stats = next(t for t in proc.sched.stats if t.name == "plant")
+        host = HostReport(codec, plant.send, meter.stats)  # counted with the plant's frames
+        proc.sched.every(HOST_STATUS_NS, host.send, name="host-status", offset_ns=HOST_STATUS_NS,
+                         priority=50)
         inj = plant.injector
         proc.status_lines = lambda: [(
             f"  faults: TPS {_active(inj, 'TPS')}, SWA {_active(inj, 'SWA')}; commands "
-            f"{sum(e.source == 'can' for e in inj.events)} obeyed, {inj.rejected_commands} rejected")]
+            f"{sum(e.source == 'can' for e in inj.events)} obeyed, {inj.rejected_commands} rejected"),
+            host.status_line()]
         warm_up(config)
         proc.signal_ready()
         try:
@@ -92,6 +105,8 @@ def main(args: argparse.Namespace) -> int:
                                   "kind": e.kind.name.lower(), "value": e.value,
                                   "source": e.source} for e in inj.events],
                 "rejected_fault_commands": inj.rejected_commands,
+                # the host's doing, not a sensor's: ticks whose frames went out late or never
+                "host": host.as_dict(),
             })
             proc.write_summary(summary)
     finally:
@@ -103,7 +118,43 @@ def main(args: argparse.Namespace) -> int:
               f"{t['overruns']} overruns, jitter p99 {t['jitter_us']['p99_us']} us; sent "
               f"{summary['frames']['plant_sent']} frames, {len(summary['fault_events'])} fault "
               f"commands obeyed, own echo {summary['bus']['own_echo']}")
+        h = summary["host"]
+        if h["skipped_sends"] or h["late_sends"]:
+            print(f"  host delayed this plant: {h['skipped_sends']} ticks' frames never sent, "
+                  f"{h['late_sends']} sent late (max lateness {h['max_lateness_ms']} ms); the "
+                  "ECU's timeouts in that time are the host's doing, not a sensor's")
     return 0
+
+
+class HostReport:
+    """The plant's own delays: in PLANT_Host frames on the bus, the status panel, the summary."""
+
+    def __init__(self, codec, send, stats) -> None:
+        self._codec = codec["PLANT_Host"] if "PLANT_Host" in codec else None  # noqa: SIM401 (no .get)
+        self._send, self._stats, self._counter, self.sent = send, stats, 0, 0
+
+    def as_dict(self) -> dict[str, Any]:
+        st = self._stats
+        return {"skipped_sends": st.skipped, "late_sends": st.caught_up,
+                "max_lateness_ms": round(st.max_lateness_ns / 1e6, 1),
+                "host_status_frames": self.sent}
+
+    def status_line(self) -> str:
+        d = self.as_dict()
+        return (f"  host: {d['skipped_sends']} ticks' frames skipped, {d['late_sends']} sent "
+                f"late, max lateness {d['max_lateness_ms']} ms")
+
+    def send(self, t_ns: int) -> None:
+        if self._codec is None:
+            return
+        d = self.as_dict()
+        self._send(self._codec.frame({
+            "PH_SkippedSends": min(d["skipped_sends"], 65535),
+            "PH_LateSends": min(d["late_sends"], 65535),
+            "PH_MaxLateness": min(d["max_lateness_ms"], 6553.5),
+            "PH_Counter": self._counter}, t_ns / 1e9))
+        self._counter = (self._counter + 1) & 0xF
+        self.sent += 1
 
 
 def _active(inj, target: str) -> str:

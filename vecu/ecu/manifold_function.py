@@ -31,6 +31,7 @@ from vecu.models.manifold_params import EngineInput
 from vecu.units import KELVIN_AT_0_DEGC, MG_PER_KG, RAD_PER_DEG
 
 log = logging.getLogger(__name__)
+MAX_BURSTS_LOGGED = 20  # bursts of refused engine events logged (all are counted)
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,7 @@ class ManifoldFunction:
         self.implausible_inputs = 0  # ENG_Event frames refused (engine speed outside n_range...)
         self.estimator_faults = 0    # non-finite CAC outputs caught here (should stay 0)
         self._refused_in_row = 0
+        self._bursts_logged = 0
         self.filter_seconds = 0.0   # time in the filter step (with the CAC: see above)
         self.predict_seconds = 0.0  # time in the CAC and its 6-event prediction apart
         self._watch = stopwatch if stopwatch is not None else Stopwatch()
@@ -90,14 +92,18 @@ class ManifoldFunction:
         if problem is not None:  # refused: the filter, the CAC and the prediction never see it
             self.implausible_inputs += 1
             self._refused_in_row += 1
-            if self._refused_in_row == 1:
+            if self._refused_in_row == 1 and self._bursts_logged < MAX_BURSTS_LOGGED:
+                self._bursts_logged += 1  # bounded: hostile and good frames interleaved
                 log.warning("ecu manifold: engine event %d refused: %s (further ones counted, "
-                            "logged again after a plausible event)",
-                            int(values["ENG_EventCounter"]), problem)
+                            "logged again after a plausible event%s)",
+                            int(values["ENG_EventCounter"]), problem,
+                            "; the last such burst logged" if self._bursts_logged
+                            == MAX_BURSTS_LOGGED else "")
             return problem
         if self._refused_in_row:
-            log.info("ecu manifold: plausible engine events again after %d refused",
-                     self._refused_in_row)
+            if self._bursts_logged < MAX_BURSTS_LOGGED:
+                log.info("ecu manifold: plausible engine events again after %d refused",
+                         self._refused_in_row)
             self._refused_in_row = 0
         self._event = (values, u)
         return None

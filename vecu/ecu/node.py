@@ -167,6 +167,10 @@ class EcuNode(BusNode):
         self._diag = codec["ECU_Diag"] if "ECU_Diag" in codec else None  # noqa: SIM401 (no .get)
         self._diag_dirty = False
         self._diag_counter = 0
+        # a live plant's report of its own delays (PLANT_Host): kept in self.host
+        sender = self.rx_codec["PLANT_Host"] if "PLANT_Host" in self.rx_codec else None  # noqa: SIM401 (DbcCodec has no .get)
+        self._sender_report = (None if sender is None
+                               else ((sender.frame_id, sender.is_extended), sender))
         self._errors_seen = 0
         for dtc in [m.dtc_item for m in self.monitors.values()] + [self.bus_dtc]:
             dtc.on_change = self._mark_diag
@@ -186,6 +190,9 @@ class EcuNode(BusNode):
         self._app_send: Send = self.send
         self.broadcast_enabled = True
         self.overrides: dict[str, dict[str, float]] = {}
+        # the sensor's own values of the last frame of each overridden message (what the ECU
+        # would see without the override: returnControlToECU answers with it)
+        self.own_values: dict[str, dict[str, float]] = {}
 
     def attach(self, server: DiagnosticServer) -> None:
         """Serve diagnostics: frames on server.ids go to it, and it ticks after the functions
@@ -209,6 +216,8 @@ class EcuNode(BusNode):
     def set_override(self, message: str, signal: str, value: float | None) -> None:
         """InputOutputControl: the value the functions see for message.signal (None: the
         sensor's own again). Applied to each frame that passed the receive checks."""
+        if message not in self.overrides:
+            self.own_values.pop(message, None)  # none yet of this override
         over = self.overrides.setdefault(message, {})
         if value is None:
             over.pop(signal, None)
@@ -216,6 +225,11 @@ class EcuNode(BusNode):
                 del self.overrides[message]
         else:
             over[signal] = value
+
+    def own_value(self, message: str, signal: str) -> float | None:
+        """The sensor's own value of message.signal in the last frame that came while it was
+        overridden (None: none came)."""
+        return self.own_values.get(message, {}).get(signal)
 
     @property
     def consumed_ids(self) -> frozenset[tuple[int, bool]]:
@@ -272,6 +286,11 @@ class EcuNode(BusNode):
                     return
                 if key in self.rx_codec.by_id:
                     rx.ignored += 1
+                    report = self._sender_report
+                    if report is not None and key == report[0] and len(msg.data) == report[1].length:
+                        values = report[1].decode(msg.data)
+                        self.host.sender_skipped = int(values["PH_SkippedSends"])
+                        self.host.sender_late = int(values["PH_LateSends"])
                 else:
                     rx.unknown_id += 1
                     self._problem("unknown-id", msg)
@@ -309,6 +328,7 @@ class EcuNode(BusNode):
             self.host.saw(route.cycle_ns, t_ns)
         sub = route.subscription
         if self.overrides and sub.message in self.overrides:
+            self.own_values[sub.message] = values
             values = {**values, **self.overrides[sub.message]}
         if sub.on_values(values, t_ns):  # the function refused them (it logs them)
             rx.value_errors += 1

@@ -58,6 +58,10 @@ class HostClock:
 
     stalled_ns: int = 0
     host_gap_ns: int = 0
+    # what the sending node says its host did to it (PLANT_Host frames, live plant): ticks whose
+    # frames it never sent, and sent late
+    sender_skipped: int = 0
+    sender_late: int = 0
     _ticks: dict[int, int] = field(default_factory=dict)  # cycle -> ticks with such a frame
     _last: dict[int, int] = field(default_factory=dict)   # cycle -> the last of those ticks
 

@@ -52,6 +52,11 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
                    help="kernel receive buffer to ask for on socketcan / udp_multicast, in MiB: "
                         "how long the node may stall without losing frames (default 4: ~4000 "
                         "frames; above net.core.rmem_max needs CAP_NET_ADMIN)")
+    p.add_argument("--realtime", action="store_true",
+                   help="SCHED_FIFO and locked memory where the OS permits (CAP_SYS_NICE / "
+                        "rtprio and memlock limits); a one-line note for what it refuses")
+    p.add_argument("--cpu", type=argtypes.bounded(0, 4095, integer=True), metavar="N",
+                   help="pin the process to CPU N (with --realtime: a core of its own)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -63,4 +68,5 @@ def live_options(args: argparse.Namespace, role: str) -> LiveOptions:
                        summary_path=args.summary, ready_file=args.ready_file,
                        spin_us=max(0, args.spin_us), status=args.status,
                        rx_filter=args.rx_filter,
-                       rx_buffer_bytes=round(args.rx_buffer_mb * (1 << 20)))
+                       rx_buffer_bytes=round(args.rx_buffer_mb * (1 << 20)),
+                       realtime=args.realtime, cpu=args.cpu)

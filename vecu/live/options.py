@@ -31,6 +31,8 @@ class LiveOptions:
     status: bool | None = None      # None: when stderr is a terminal
     rx_filter: bool = False         # receive only the IDs the node consumes (set_filters)
     rx_buffer_bytes: int = 4 << 20  # the kernel receive buffer asked for (socket interfaces)
+    realtime: bool = False          # SCHED_FIFO and locked memory where permitted
+    cpu: int | None = None          # pin to this CPU
 
 
 def bus_config(opts: LiveOptions) -> dict[str, Any]:

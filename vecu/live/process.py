@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+import logging
 import resource
 import signal
 import sys
@@ -49,6 +50,7 @@ STATUS_NS = 500 * NS_PER_MS
 FOREVER_NS = 10 * 365 * 24 * 3600 * NS_PER_S
 
 
+log = logging.getLogger(__name__)
 PR_SET_TIMERSLACK = 29
 TIMER_SLACK_NS = 1_000
 
@@ -119,6 +121,9 @@ class TickMeter:
             "runs": st.runs if st else 0,
             "overruns": st.overruns if st else 0,
             "skipped": st.skipped if st else 0,
+            # releases run late after a stall instead of skipped (a catch-up window)
+            "caught_up": st.caught_up if st else 0,
+            "max_lateness_us": round(st.max_lateness_ns / 1000, 1) if st else 0.0,
             "overrun_pct": round(100.0 * st.overruns / released, 4) if released else None,
             "jitter_us": self.lateness.summary(),
             "exec_us": self.exec_time.summary(),
@@ -150,6 +155,7 @@ class LiveProcess:
         self.cpu_s = 0.0  # CPU seconds (user + system) of the run itself, set-up excluded
         self._closed = False
         self.rx_filter: list[Key] | None = None
+        self.realtime: Any = None  # vecu.live.realtime.RealtimeResult, once run() starts
         bus_args = {k: v for k, v in cfg.items() if k != "interface"}
         try:  # a bad log file or bus: what is already open is shut again (one-line error)
             if opts.log_path:  # its own bus, like candump: sees the other nodes and this one
@@ -214,6 +220,11 @@ class LiveProcess:
             waiter.wait_until(max(0, start_at_perf_ns - perf_ns()))
         end_ns = (FOREVER_NS if self.opts.duration_s is None
                   else round(self.opts.duration_s * NS_PER_S))
+        from vecu.live.realtime import apply_realtime
+
+        self.realtime = apply_realtime(self.opts.realtime, self.opts.cpu)
+        for note in self.realtime.notes:
+            log.warning("vecu %s: %s", self.opts.role, note)
         self.clock.start()
         self.start_epoch_s = wall_time()
         wall0, cpu0 = perf_s(), process_s()
@@ -255,6 +266,7 @@ class LiveProcess:
                     else [f"0x{i:X}" for i, _ in self.rx_filter]},
             "log": None if rec is None else {"path": rec.path, "frames": rec.frames},
             "peak_rss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+            "realtime": None if self.realtime is None else self.realtime.as_dict(),
             **extra,
         }
 
@@ -304,7 +316,8 @@ class StatusPanel:
             self._last_runs[m.name] = runs
             j = m.lateness
             lines.append(f"  {m.name:<6} {rate:7.0f}/s  overruns {st.overruns if st else 0:<6}"
-                         f" skipped {st.skipped if st else 0:<6} jitter p50 "
+                         f" skipped {st.skipped if st else 0:<6} late "
+                         f"{st.caught_up if st else 0:<6} jitter p50 "
                          f"{j.percentile_us(0.5) or 0:6.0f}  p99 {j.percentile_us(0.99) or 0:6.0f}"
                          f"  max {j.max_ns / 1000:7.0f} us")
         lines.append(f"  rx {(bus.received - self._last_rx) / dt:7.0f} frames/s  own echo "

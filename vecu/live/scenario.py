@@ -68,11 +68,14 @@ def stop_process(proc: subprocess.Popen, sig: int, grace_s: float = GRACE_S) -> 
 def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, inject_kind: str,
                  extra_load: float, interface: str, channel: str, ecu_args: list[str],
                  plant_args: list[str], log: bool, after_s: float = 1.5,
-                 start_timeout_s: float = 90.0, logger: bool = False) -> dict[str, Any]:
+                 start_timeout_s: float = 90.0, logger: bool = False,
+                 cpu_load: int = 0) -> dict[str, Any]:
     """The live run; logger: a third process on the bus (`python -m can.logger` writing
     OUT/logger.log), started before the ECU. Every child has a time limit of its own (--duration,
     well past the planned stop) and dies with this process; on Terminated (a SIGTERM under
-    sigterm_unwinds) the nodes are stopped as on their own SIGTERM and scenario.json records it."""
+    sigterm_unwinds) the nodes are stopped as on their own SIGTERM and scenario.json records it.
+    cpu_load: that many busy-looping processes while the plant runs (a loaded host; each ends
+    on its own after the plant's time limit at the latest)."""
     out.mkdir(parents=True, exist_ok=True)
     vecu = [sys.executable, "-m", "vecu"]
     bus = ["--interface", interface, "--channel", channel, "--no-status", "--quiet"]
@@ -109,6 +112,9 @@ def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, injec
         _wait_for(lambda: (out / "plant.ready").exists() or plant.poll() is not None,
                   start_timeout_s)
         end_ns = clock.now_ns() + int(plant_seconds * NS_PER_S)
+        for i in range(cpu_load):
+            procs[f"load{i}"] = _spawn([sys.executable, "-c", BUSY.format(s=plant_limit_s)],
+                                       out / f"load{i}.err")
         if inject_at is not None:  # the plant runs on until the command is sent, and after_s more
             inject = procs["inject"] = _spawn(
                 [*vecu, "inject", "--interface", interface, "--channel", channel, "--target", "tps",
@@ -123,7 +129,8 @@ def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, injec
         res["stopped_by"] = "SIGTERM"
         raise
     finally:  # plant before the ECU (it drains), the logger last (it sees everything)
-        for name in ("inject", "plant", "ecu", "logger"):
+        for name in ("inject", *(f"load{i}" for i in range(cpu_load)), "plant", "ecu",
+                     "logger"):
             if name in procs:
                 stop_process(procs[name], signal.SIGINT if name == "logger" else signal.SIGTERM)
         res["returncodes"] = {name: p.returncode for name, p in procs.items()}
@@ -133,6 +140,9 @@ def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, injec
                 res["logger_frames"] = sum(1 for _ in f)
         (out / "scenario.json").write_text(json.dumps(res, indent=2) + "\n")
     return res
+
+
+BUSY = "import time\nend = time.monotonic() + {s}\nwhile time.monotonic() < end:\n    pass\n"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -149,15 +159,17 @@ def main(argv: list[str] | None = None) -> int:
                    help="a third process on the bus: python -m can.logger -> OUT/logger.log")
     p.add_argument("--ecu-arg", action="append", default=[], help="extra `vecu ecu` argument")
     p.add_argument("--plant-arg", action="append", default=[], help="extra `vecu plant` argument")
+    p.add_argument("--cpu-load", type=int, default=0, help="busy processes while the plant runs")
     a = p.parse_args(argv)
     try:
         with sigterm_unwinds():
             res = run_scenario(a.out, a.plant_seconds, a.inject_at, a.inject_kind, a.extra_load,
                                a.interface, a.channel, a.ecu_arg, a.plant_arg, not a.no_log,
-                               logger=a.logger)
+                               logger=a.logger, cpu_load=a.cpu_load)
     except Terminated:
         return EXIT_TERMINATED
-    return 0 if all(rc == 0 for name, rc in res["returncodes"].items() if name != "logger") else 1
+    return 0 if all(rc == 0 for name, rc in res["returncodes"].items()
+                    if name != "logger" and not name.startswith("load")) else 1
 
 
 if __name__ == "__main__":

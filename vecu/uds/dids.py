@@ -83,6 +83,14 @@ def build_dids(node: EcuNode, config: UdsConfig, now_ns: Callable[[], int],
             _ascii(config.serial)),
         Did(0xF186, "active diagnostic session", "B", 1, "", lambda: float(session())),
         Did(0x0001, "ECU time since start", "I", 1, "ms", lambda: now_ns() // 1_000_000),
+        # the host's doing, not a sensor's (a live bus): in a DTC's snapshot they tell a
+        # stalled ECU or sender from a silent sensor
+        Did(0x0002, "ECU not running since start (skipped base ticks)", "I", 1, "ms",
+            lambda: node.host.stalled_ns // 1_000_000),
+        Did(0x0003, "sensor frames' sender: ticks its host skipped (PLANT_Host)", "H", 1, "",
+            lambda: float(node.host.sender_skipped)),
+        Did(0x0004, "sensor frames' sender: ticks its host delayed (PLANT_Host)", "H", 1, "",
+            lambda: float(node.host.sender_late)),
     ]
     thr = node.function("throttle")
     if thr is not None:
@@ -148,7 +156,8 @@ def build_dids(node: EcuNode, config: UdsConfig, now_ns: Callable[[], int],
 
 
 # the freeze frame stored with a DTC at confirmation (those of them the ECU has)
-SNAPSHOT_DIDS = (0x0001, 0x0100, 0x0101, 0x0104, 0x0105, 0x0300, 0x0400, 0x0403)
+SNAPSHOT_DIDS = (0x0001, 0x0002, 0x0003, 0x0004, 0x0100, 0x0101, 0x0104, 0x0105, 0x0300,
+                 0x0400, 0x0403)
 
 
 def did_table(dids: dict[int, Did]) -> str:

@@ -2,9 +2,15 @@
 
 Key algorithm (docs/uds.md): key = (rotl32(seed XOR 0x56454355, 7) + 0x00001D0F) mod 2**32,
 seed and key 4 bytes big-endian. 0x56454355 is "VECU" in ASCII.
+
+Seeds: from the OS's entropy (`secrets`) unless a generator is given: a live ECU gives a
+different seed after every start, so a sniffed key never works again; the simulated clock
+(and `vecu ecu --security-seed N`) draws them from a seeded generator, reproducibly.
 """
 
 from __future__ import annotations
+
+import secrets
 
 import numpy as np
 
@@ -24,7 +30,8 @@ def key_from_seed(seed: bytes) -> bytes:
 class SecurityAccess:
     """Lock state of level 1. request_seed()/send_key() return the response data or an NRC."""
 
-    def __init__(self, rng: np.random.Generator, attempts: int, delay_ns: int) -> None:
+    def __init__(self, rng: np.random.Generator | None, attempts: int, delay_ns: int) -> None:
+        """rng: the seeds' generator; None: the OS's entropy."""
         self._rng = rng
         self.max_attempts = attempts
         self.delay_ns = delay_ns
@@ -46,7 +53,8 @@ class SecurityAccess:
             self.failed = 0
         if self.unlocked:
             return bytes(SEED_BYTES)  # already unlocked: the all-zero seed (ISO 14229-1)
-        seed = bytes(self._rng.integers(1, 256, SEED_BYTES, dtype=np.uint8))
+        seed = (bytes(self._rng.integers(1, 256, SEED_BYTES, dtype=np.uint8)) if self._rng is not None
+                else bytes(1 + secrets.randbelow(255) for _ in range(SEED_BYTES)))
         self._seed = seed
         return seed
 

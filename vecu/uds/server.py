@@ -83,7 +83,10 @@ class UdsStats:
     transport_errors: int = 0    # ISO-TP errors (bad sequence, timeouts, ...) reported by can-isotp
     echoes: int = 0              # frames on the response ID (own echoes, another server)
     resets: int = 0
-    latency_max_ms: float = 0.0  # request complete -> response queued (ticks waited)
+    # the request's last CAN frame taken from the bus -> its response handed to ISO-TP, on the
+    # ECU's clock (whole ticks: 0 when answered in the tick the request arrived; more when the
+    # inbox, the request queue or the per-tick limits made it wait)
+    latency_max_ms: float = 0.0
 
 
 def flow_control_block_size(config: UdsConfig) -> int:
@@ -94,7 +97,8 @@ def flow_control_block_size(config: UdsConfig) -> int:
 class UdsServer:
     """The diagnostic server of `node` (attach with node.attach(server))."""
 
-    def __init__(self, node: EcuNode, config: UdsConfig, rng: np.random.Generator) -> None:
+    def __init__(self, node: EcuNode, config: UdsConfig, rng: np.random.Generator | None) -> None:
+        """rng: security access seeds (None: the OS's entropy, vecu.uds.security)."""
         self.node = node
         self.cfg = config
         self._now = 0
@@ -110,7 +114,7 @@ class UdsServer:
                              errors=self._tp_error, params=fc)
         self.ids = frozenset({(config.request_id, False), (config.functional_id, False),
                               (config.response_id, False)})
-        self._inbox: deque[can.Message] = deque()
+        self._inbox: deque[tuple[can.Message, int]] = deque()  # (frame, taken from the bus)
         self._inbox_max = 4 * config.frames_per_tick
         self._queue: deque[tuple[bytes, bool, int]] = deque()
         self._awake = False
@@ -148,7 +152,7 @@ class UdsServer:
         elif len(self._inbox) >= self._inbox_max:
             self.stats.frames_dropped += 1
         else:
-            self._inbox.append(msg)
+            self._inbox.append((msg, t_ns))
             self._awake = True
 
     def tick(self, t_ns: int) -> None:
@@ -160,9 +164,12 @@ class UdsServer:
     def _work(self, t_ns: int) -> None:
         cfg, inbox, queue, stats = self.cfg, self._inbox, self._queue, self.stats
         functional_id = cfg.functional_id
+        rx_ns = {}  # endpoint -> when its last frame taken in this tick came
         for _ in range(min(len(inbox), cfg.frames_per_tick)):
-            msg = inbox.popleft()
-            (self.func if msg.arbitration_id == functional_id else self.phys).put(msg)
+            msg, t_rx = inbox.popleft()
+            ep = self.func if msg.arbitration_id == functional_id else self.phys
+            ep.put(msg)
+            rx_ns[ep] = t_rx
         self.phys.process()
         self.func.process()
         for ep, functional in ((self.phys, False), (self.func, True)):
@@ -170,7 +177,7 @@ class UdsServer:
                 if len(queue) >= cfg.request_queue:
                     stats.requests_dropped += 1
                 else:
-                    queue.append((payload, functional, t_ns))
+                    queue.append((payload, functional, rx_ns.get(ep, t_ns)))
         for _ in range(min(len(queue), cfg.requests_per_tick)):
             payload, functional, t_rx = queue.popleft()
             response = self.handle(payload, functional, t_ns)
@@ -425,9 +432,10 @@ class UdsServer:
             return C.IncorrectMessageLengthOrInvalidFormat
         if not self.security.unlocked:
             return C.SecurityAccessDenied
-        if option in (0, 1):  # returnControlToECU, resetToDefault
+        if option in (0, 1):  # returnControlToECU, resetToDefault: the ECU's own value again
+            own = self.node.own_value(*d.io)  # the sensor's, if a frame came while forced
             self._release(did)
-            return p[1:4] + d.value()
+            return p[1:4] + (d.value() if own is None else d.encode(own))
         value = d.read() if option == 2 else d.decode(p[4:])  # freeze / shortTermAdjustment
         if value is None:
             return C.ConditionsNotCorrect if option == 2 else C.RequestOutOfRange
@@ -471,13 +479,15 @@ def _dtc_bytes(rec: DtcRecord) -> bytes:
     return rec.spec.number.to_bytes(3, "big") + bytes([rec.status & AVAILABILITY_MASK])
 
 
-def attach_uds(node: EcuNode, config: UdsConfig, seed: int) -> UdsServer | None:
-    """Serve UDS on `node` (None when ecu.uds.enabled is false); security seeds come from the
-    run's seed (the named stream 'uds.security')."""
+def attach_uds(node: EcuNode, config: UdsConfig, seed: int | None) -> UdsServer | None:
+    """Serve UDS on `node` (None when ecu.uds.enabled is false); security seeds come from
+    `seed` (the named stream 'uds.security': the simulated clock, reproducible), or from the
+    OS's entropy when it is None (a live ECU)."""
     if not config.enabled:
         return None
     from vecu.rng import rng_streams
 
-    server = UdsServer(node, config, rng_streams(seed, ("uds.security",))["uds.security"])
+    rng = None if seed is None else rng_streams(seed, ("uds.security",))["uds.security"]
+    server = UdsServer(node, config, rng)
     node.attach(server)
     return server

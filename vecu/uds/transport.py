@@ -8,6 +8,7 @@ is served the same way on the simulated clock in every run.
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -23,7 +24,11 @@ ISOTP_PARAMS: dict[str, Any] = {
     "stmin": 0, "blocksize": 0, "tx_padding": 0xCC, "tx_data_length": 8,
     "rx_flowcontrol_timeout": 1000, "rx_consecutive_frame_timeout": 1000,
     "max_frame_size": 4095, "blocking_send": False,
+    # can-isotp logs every bad frame at WARNING: a flood of them floods the log; vecu counts
+    # them (UdsStats.transport_errors) and logs the first 20 itself
+    "logger_name": "vecu.uds.isotp",
 }
+logging.getLogger("vecu.uds.isotp").setLevel(logging.ERROR)
 
 
 class ClockTimer(Timer):
@@ -106,7 +111,13 @@ class Endpoint:
         self._in.append(to_isotp(msg))
 
     def process(self) -> None:
-        self.layer.process()
+        """Take in every frame put so far. can-isotp's process() stops at a frame that wants
+        an immediate transmission (a flow control to send, or one received while idle): called
+        once, it left the rest for the next tick, 1 frame a tick under a stream of such frames."""
+        for _ in range(len(self._in) + 1):
+            self.layer.process()
+            if not self._in:
+                break
 
     def send(self, payload: bytes, functional: bool = False) -> None:
         self.layer.send(payload, isotp.TargetAddressType.Functional if functional else None)
