@@ -20,6 +20,7 @@ from udsoncan.exceptions import TimeoutException
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from tests.uds.sim import CLIENT_CONFIG
+from vecu.live.scenario import stop_all
 
 GROUP = "239.74.163.2"
 INTERFACE, CHANNEL = "udp_multicast", GROUP  # argv 2, 3: e.g. socketcan vcan0
@@ -83,13 +84,7 @@ def main(out: Path) -> dict:
             c.io_control(0x0104, control_param=0)
         bus.shutdown()
     finally:
-        for p in procs:
-            p.send_signal(signal.SIGTERM)
-        for p in procs:
-            try:
-                p.wait(30)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_all(procs, signal.SIGTERM, 30.0)
     summary = json.loads((out / "ecu.json").read_text()) if (out / "ecu.json").exists() else {}
     res["uds"] = summary.get("uds")
     res["lost_throttle_estimates"] = summary.get("lost_throttle_estimates")

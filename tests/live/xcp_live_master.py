@@ -26,6 +26,7 @@ from pyxcp.types import XcpResponseError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from tests.xcp.sim import master_config
+from vecu.live.scenario import stop_all
 
 GROUP = "239.74.163.2"  # the namespace routes this group (vecu.live.netns)
 BUS = ["--interface", "udp_multicast", "--channel", GROUP]
@@ -125,13 +126,7 @@ def main(out: Path) -> dict:
             m.disconnect()
         bus.shutdown()
     finally:
-        for p in procs:
-            p.send_signal(signal.SIGTERM)
-        for p in procs:
-            try:
-                p.wait(30)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_all(procs, signal.SIGTERM, 30.0)
     summary = json.loads((out / "ecu.json").read_text()) if (out / "ecu.json").exists() else {}
     res["xcp"] = summary.get("xcp")
     res["detection"] = summary.get("throttle", {}).get("status_changes")

@@ -65,6 +65,17 @@ def stop_process(proc: subprocess.Popen, sig: int, grace_s: float = GRACE_S) -> 
     return proc.wait()
 
 
+def stop_all(procs: list[subprocess.Popen], sig: int = signal.SIGTERM,
+             grace_s: float = GRACE_S) -> list[int]:
+    """Signal every process first (so they stop side by side), then reap each as stop_process
+    does; their exit codes."""
+    for proc in procs:
+        if proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(sig)
+    return [stop_process(proc, sig, grace_s) for proc in procs]
+
+
 def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, inject_kind: str,
                  extra_load: float, interface: str, channel: str, ecu_args: list[str],
                  plant_args: list[str], log: bool, after_s: float = 1.5,
