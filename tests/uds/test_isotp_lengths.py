@@ -1,4 +1,4 @@
-"""Issue 29 item 1: every request length 1..4095 from a tester that sends as fast as the ECU's
+"""Every request length 1..4095 from a tester that sends as fast as the ECU's
 flow control allows (can-isotp, STmin 0) gets the answer ISO 14229 owes, while the 1 ms
 broadcast keeps every tick; what the ECU cannot take gets a flow control overflow, never
 silence. Simulated clock; the live sweep (can-isotp and scapy) is tests/live/test_isotp_live.py."""
@@ -6,6 +6,7 @@ silence. Simulated clock; the live sweep (can-isotp and scapy) is tests/live/tes
 from __future__ import annotations
 
 import can
+import pytest
 
 from tests.uds.isotp_sweep import MAX_LENGTH, expected, request
 from vecu.assembly import TICK_NS, build_functions, schedule_ecu
@@ -34,6 +35,7 @@ class EcuAlone:
         schedule_ecu(self.sched, self.ecu)
         self.t_ns = 0
         self.tester = Endpoint(0x7E8, 0x7E0, lambda: self.t_ns)  # can-isotp, STmin 0, BS 0
+        self.flow_controls: list[bytes] = []  # the ECU's FC frames (PCI byte, BS, STmin)
 
     def step(self) -> None:
         self.t_ns += TICK_NS
@@ -47,6 +49,8 @@ class EcuAlone:
         for ticks in range(max_ticks):
             while (msg := bus.recv(0.0)) is not None:
                 if msg.arbitration_id == 0x7E8:
+                    if msg.data[0] >> 4 == 3:
+                        self.flow_controls.append(bytes(msg.data[:3]))
                     tester.put(msg)
             tester.process()
             while tester.out:
@@ -102,5 +106,26 @@ def test_a_request_longer_than_4095_bytes_gets_a_flow_control_overflow():
         assert [g[:1] for g in got] == [b"\x32"]  # FC, flow status 2: overflow
         answers, _ = run.exchange(request(33))  # and the next request is answered as ever
         assert answers == [expected(33)]
+    finally:
+        run.close()
+
+
+@pytest.mark.parametrize("request_hex,want", [
+    ("22" + "F190" * 16, "62" + ("F190" + b"1VECU00SIM0000001".hex()) * 16),  # 33 bytes
+    ("22" + "00" * 999, "7F2213"),    # odd DID bytes
+    ("22" + "F190" * 2047, "7F2213"),  # 4095 bytes: more DIDs than max_dids_per_request
+])
+def test_the_ecus_flow_control_paces_a_long_request_in_blocks_of_16(request_hex, want):
+    """FC CTS, BS 16 (= ecu.uds.frames_per_tick // 2), STmin 0, once per block: with BS 0
+    ("send everything") a 4095-byte request overran the ECU's 128-frame inbox, no answer."""
+    run = EcuAlone("isotp-fc")
+    try:
+        run.step()
+        answers, _ = run.exchange(bytes.fromhex(request_hex), max_ticks=400)
+        assert answers == [bytes.fromhex(want)]
+        assert run.uds is not None
+        assert run.uds.stats.frames_dropped == 0 and run.uds.stats.transport_errors == 0
+        cfs = -(-(len(request_hex) // 2 - 6) // 7)
+        assert run.flow_controls == [bytes([0x30, 16, 0])] * -(-cfs // 16)
     finally:
         run.close()
