@@ -304,3 +304,72 @@ def test_communication_control_stops_and_resumes_every_broadcast(sim):
     sim.step(10)
     assert sim.ecu.frames_sent > tx + 10
     assert TICK_NS == NS_PER_MS
+
+
+def test_return_control_to_the_ecu_answers_with_the_sensors_own_value(sim):
+    """2F .. 00 (returnControlToECU) carries the value the ECU sees again: the sensor's own,
+    not the forced one (it answered 0.2 V, the override, before issue 29)."""
+    sim.run_to(0.2)
+    _handle(sim, "10 03")
+    _handle(sim, "27 02" + key_from_seed(_handle(sim, "27 01")[2:]).hex())
+    assert _handle(sim, "2F 01 04 03 07 D0") == bytes.fromhex("6F 01 04 03 07 D0")  # 0.2 V
+    sim.step(20)
+    mon = sim.fns.throttle.monitor
+    assert mon.raw == pytest.approx(0.2)
+    own = sim.ecu.own_value("TPS_Sensor", "TPS_Voltage")
+    assert own is not None and own > 0.5  # the plant's sensor, far from the forced 0.2 V
+    response = _handle(sim, "2F 01 04 00")
+    assert response[:4] == bytes.fromhex("6F 01 04 00")
+    assert int.from_bytes(response[4:6], "big") == round(own / 0.0001)
+    sim.step(2)
+    assert abs(mon.raw - own) < 0.3  # what the ECU sees from the next frame on (it moves)
+
+
+def test_uds_latency_counts_the_ticks_a_request_waited_in_the_inbox(sim):
+    """latency_max_ms: request's last frame taken from the bus -> response, on the ECU's clock.
+    A request behind 100 frames waits 4 ticks in the inbox (32 frames a tick); before issue 29
+    it was stamped when reassembled, and read 0.0 whatever the wait."""
+    sim.run_to(0.02)
+    bus = sim.bus()
+    assert sim.uds.stats.latency_max_ms == 0.0
+    _handle(sim, "10 01")
+    sim.step()
+    assert sim.uds.stats.latency_max_ms == 0.0  # handled directly: no wait
+    for _ in range(100):  # flow controls with no transfer of the ECU's: inbox work, no request
+        bus.send(to_can_frame(0x7E0, bytes.fromhex("30 00 00 CC CC CC CC CC")))
+    bus.send(to_can_frame(0x7E0, bytes.fromhex("03 22 F1 86 CC CC CC CC")))
+    t0 = sim.t_ns
+    answered = None
+    for _ in range(20):
+        sim.step()
+        while (msg := bus.recv(0.0)) is not None:
+            if msg.arbitration_id == 0x7E8 and answered is None:
+                answered = sim.t_ns
+        if answered is not None:
+            break
+    assert answered is not None
+    waited_ms = (answered - t0) / NS_PER_MS - 1  # the frames are taken in at the first tick
+    assert waited_ms >= 3
+    assert sim.uds.stats.latency_max_ms == pytest.approx(waited_ms)
+
+
+def test_a_dtc_snapshot_says_what_the_host_did_to_the_ecu_and_to_the_sensors_sender(sim):
+    """Issue 29 item 2: a live plant reports the ticks its host skipped or delayed in PLANT_Host
+    frames; the ECU keeps the latest, and a DTC's snapshot carries them (0x0003 / 0x0004) with
+    the ECU's own time not running (0x0002): a stalled host tells itself from a dead sensor."""
+    sim.run_to(0.05)
+    bus = sim.bus()
+    report = sim.codec["PLANT_Host"]
+    bus.send(report.frame({"PH_SkippedSends": 2639, "PH_LateSends": 17, "PH_MaxLateness": 50.6,
+                           "PH_Counter": 1}, 0.05))
+    sim.step(2)
+    assert (sim.ecu.host.sender_skipped, sim.ecu.host.sender_late) == (2639, 17)
+    sim.kill(FaultTarget.TPS)
+    sim.step(100)
+    response = _handle(sim, "19 04 01 22 00 01")
+    assert response[:6] == bytes.fromhex("59 04 01 22 00 2F") or response[:5] == bytes.fromhex(
+        "59 04 01 22 00")
+    snapshot = response[8:]
+    assert bytes.fromhex("0002 00000000") in snapshot  # the simulated ECU never stalls
+    assert bytes.fromhex("0003") + (2639).to_bytes(2, "big") in snapshot
+    assert bytes.fromhex("0004") + (17).to_bytes(2, "big") in snapshot
