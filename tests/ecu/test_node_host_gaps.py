@@ -51,6 +51,13 @@ class Rig:
         self.sender.send(can.Message(arbitration_id=0x101, is_extended_id=False,
                                      data=struct.pack("<HH", 2000, 0) + struct.pack("<f", 4.0)))
 
+    def host_report(self, skipped: int, late: int = 0) -> None:
+        """The sender's PLANT_Host: its own count of skipped and late ticks so far."""
+        data = self.codec["PLANT_Host"].encode({"PH_SkippedSends": skipped, "PH_LateSends": late,
+                                                "PH_MaxLateness": 0, "PH_Counter": 0})
+        self.sender.send(can.Message(arbitration_id=self.codec["PLANT_Host"].frame_id,
+                                     data=data, is_extended_id=False))
+
     def tick(self, ms: int) -> SensorStatus:
         self.ecu.tick(ms * MS)
         self.sources.append(self.thr.source)
@@ -160,3 +167,55 @@ def test_simulated_clock_a_silence_of_every_frame_is_a_timeout_as_before(rig):
     r.run(0, 19)
     st = r.run(20, 25, tps=False, watt=False)
     assert st.index(SensorStatus.TIMEOUT) == 2 and r.thr.monitor.host_gaps == 0
+
+
+def test_a_timeout_is_put_on_the_sender_host_when_it_reported_skipped_sends_meanwhile(rig):
+    """Issue 29 item 2: the sender (a loaded live plant) skipped the TPS frames of 20..29 ms and
+    says so in its next PLANT_Host; the timeout is kept with that cause (summary and closing
+    line), not left as a sensor fault."""
+    r = rig()
+    r.host_report(0)
+    r.run(0, 19)
+    st = r.run(20, 29, tps=False)  # its wattmeter frames went on (e.g. sent late), not the TPS
+    assert SensorStatus.TIMEOUT in st
+    r.host_report(10, 3)
+    r.run(30, 60)
+    causes = r.thr.monitor.timeout_causes()
+    assert len(causes) == 1 and causes[0]["cause"] == "sender-host"
+    assert causes[0]["sender_skipped"] == 10 and causes[0]["sender_late"] == 3 and causes[0]["t_s"] == pytest.approx(0.022)
+    assert causes[0]["silent_ms"] == pytest.approx(3.0)
+
+
+def test_a_timeout_the_host_does_not_explain_is_the_sensors(rig):
+    """Same silence, but the sender's reports say it skipped nothing (its count before the
+    timeout does not count either): the sensor or its wiring."""
+    r = rig()
+    r.host_report(4)  # skipped earlier, before the TPS went silent
+    r.run(0, 19)
+    r.run(20, 29, tps=False)
+    r.host_report(4)
+    r.run(30, 60)
+    (cause,) = r.thr.monitor.timeout_causes()
+    assert cause["cause"] == "sensor" and cause["sender_skipped"] == 0
+
+
+def test_a_timeout_across_an_ecu_stall_is_put_on_this_ecus_host(rig):
+    r = rig()
+    r.run(0, 20)
+    for _ in range(21, 30):
+        r.watt()
+    r.run(30, 35, tps=False)
+    (cause,) = r.thr.monitor.timeout_causes()
+    assert cause["cause"] == "ecu-host" and cause["ecu_not_running_ms"] == pytest.approx(9.0)  # ticks 21..29
+
+
+def test_the_ecu_closing_lines_say_who_dropped_the_frames():
+    from vecu.cli.ecu import _timeout_lines
+
+    lines = _timeout_lines({
+        "tps": [{"t_s": 1.5, "silent_ms": 3.0, "ecu_not_running_ms": 0.0, "sender_skipped": 12,
+                 "sender_late": 0, "cause": "sender-host"}],
+        "wheel": [{"t_s": 0.5, "silent_ms": 6.0, "ecu_not_running_ms": 0.0, "sender_skipped": 0,
+                   "sender_late": 0, "cause": "sensor"}]})
+    assert lines[0].startswith("  timeout wheel at 0.500 s") and "the sensor or its wiring" in lines[0]
+    assert "the host, not the sensor: the sender skipped 12 and delayed 0 sends" in lines[1]

@@ -2,7 +2,8 @@
 machine's cores, private network namespace, udp_multicast). The plant catches up what it can,
 counts what it skipped and sent late, and says so on the bus (PLANT_Host); the ECU keeps what
 it said for its DTC snapshots and its summary. A DTC raised in such a run is then never silent
-about the host: the plant's or the ECU's own delays are there beside it."""
+about the host: the plant's or the ECU's own delays are there beside it, and every timeout
+while the plant sent is put on the host (summary `timeout_causes`, the ECU's closing lines)."""
 
 from __future__ import annotations
 
@@ -34,6 +35,12 @@ def test_a_loaded_host_is_caught_up_counted_and_reported_on_the_bus(tmp_path):
                 + said["ecu_stalled_ms"])
     dtcs = (ecu.get("uds") or {}).get("dtcs") or {}
     assert not dtcs or evidence > 0, (dtcs, said, host)
+    # every timeout while the plant was sending says the host dropped the frames, not a sensor
+    # (after the plant's stop the silence is real: the sensor's, as it should read)
+    start, stop = plant["start_epoch_s"], plant["start_epoch_s"] + plant["elapsed_s"]
+    during = [(name, e) for name, events in ecu["timeout_causes"].items() for e in events
+              if start <= e["epoch_s"] <= stop]
+    assert all(e["cause"] != "sensor" for _name, e in during), during
     # late rather than never: on this loaded host the plant ran missed ticks late
     if host["max_lateness_ms"] > 2.0:
         assert host["late_sends"] > 0, host

@@ -223,7 +223,11 @@ def false_dtcs(ecu: dict[str, Any], plant: dict[str, Any]) -> dict[str, Any]:
     by = {name: sum(1 for t in times if t is not None and start <= t <= stop)
           for name, times in ecu["dtc_confirmed_epoch_s"].items()}
     n = sum(by.values())
+    # the timeouts among them that the host explains (SensorMonitor.timeout_causes)
+    causes = [e["cause"] for events in ecu.get("timeout_causes", {}).values() for e in events
+              if e.get("epoch_s") is not None and start <= e["epoch_s"] <= stop]
     return {"dtcs": n, "by_sensor": by, "per_hour": round(n * 3600.0 / max(stop - start, 1e-9), 1),
+            "timeouts_by_cause": {c: causes.count(c) for c in sorted(set(causes))},
             "plant_skipped": plant["host"]["skipped_sends"],
             "plant_late": plant["host"]["late_sends"],
             "plant_max_lateness_ms": plant["host"]["max_lateness_ms"],
@@ -279,7 +283,7 @@ def format_live(r: dict[str, Any]) -> str:
                 f"--realtime ({rt}): {d['dtcs']} false DTCs in {lh['seconds']:g} s = "
                 f"{d['per_hour']} per hour; plant ticks skipped {d['plant_skipped']}, late "
                 f"{d['plant_late']} (max {d['plant_max_lateness_ms']} ms), ECU not running "
-                f"{d['ecu_stalled_ms']} ms")
+                f"{d['ecu_stalled_ms']} ms; timeouts by cause {d['timeouts_by_cause'] or 'none'}")
     tv = r["throughput_virtual"]
     lines.append(f"  throughput, virtual bus, one process: offered {tv['offered_per_s']} frames/s, "
                  f"decoded {tv['decoded_per_s']}/s, answered {tv['answered_per_s']}/s, lost "

@@ -178,6 +178,12 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
                    else round(proc.start_epoch_s + t / NS_PER_S, 3)
                    for t, state in mon.dtc_item.history if state == DtcState.CONFIRMED]
             for name, mon in ecu.monitors.items()},
+        # every kept timeout with who dropped the frames as far as the host can tell
+        # (sender-host / ecu-host / sensor: SensorMonitor.timeout_causes)
+        "timeout_causes": {
+            name: [{**e, "epoch_s": None if proc.start_epoch_s is None
+                    else round(proc.start_epoch_s + e["t_s"], 3)} for e in mon.timeout_causes()]
+            for name, mon in ecu.monitors.items()},
         "host": {"ecu_stalled_ms": round(ecu.host.stalled_ns / 1e6, 1),
                  "sender_skipped_sends": ecu.host.sender_skipped,
                  "sender_late_sends": ecu.host.sender_late},
@@ -237,4 +243,28 @@ def format_ecu_summary(s: dict[str, Any]) -> str:
                      f"sender reported {h['sender_skipped_sends']} ticks skipped, "
                      f"{h['sender_late_sends']} late (PLANT_Host): timeouts in that time are the "
                      "host's doing, not a sensor's (DTC snapshots: DIDs 0x0002-0x0004)")
+    lines += _timeout_lines(s.get("timeout_causes", {}))
     return "\n".join(lines)
+
+
+_CAUSE_TEXT = {
+    "sender-host": ("the host, not the sensor: the sender skipped {sender_skipped} and delayed "
+                    "{sender_late} sends then"),
+    "ecu-host": "the host, not the sensor: this ECU was not running {ecu_not_running_ms:.1f} ms of it",
+    "sensor": "the sensor or its wiring: nothing on the host explains it",
+}
+TIMEOUT_LINES_SHOWN = 5
+
+
+def _timeout_lines(causes: dict[str, list[dict]]) -> list[str]:
+    """One line per sensor timeout (the first few): when, how long silent, and who dropped the
+    frames as far as the host can tell."""
+    events = sorted(((e["t_s"], name, e) for name, evs in causes.items() for e in evs),
+                    key=lambda item: item[0])
+    lines = [f"  timeout {name} at {t:.3f} s, silent {e['silent_ms']:.1f} ms: "
+             + _CAUSE_TEXT[e["cause"]].format(**e)
+             for t, name, e in events[:TIMEOUT_LINES_SHOWN]]
+    if len(events) > TIMEOUT_LINES_SHOWN:
+        lines.append(f"  … {len(events) - TIMEOUT_LINES_SHOWN} more timeouts in the summary "
+                     "(timeout_causes)")
+    return lines

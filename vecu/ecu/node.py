@@ -289,8 +289,8 @@ class EcuNode(BusNode):
                     report = self._sender_report
                     if report is not None and key == report[0] and len(msg.data) == report[1].length:
                         values = report[1].decode(msg.data)
-                        self.host.sender_skipped = int(values["PH_SkippedSends"])
-                        self.host.sender_late = int(values["PH_LateSends"])
+                        self.host.sender_report(t_ns, int(values["PH_SkippedSends"]),
+                                                int(values["PH_LateSends"]))
                 else:
                     rx.unknown_id += 1
                     self._problem("unknown-id", msg)

@@ -11,6 +11,7 @@ confirmed again if the fault comes back. docs/scenarios.md describes it.
 from __future__ import annotations
 
 import enum
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -44,6 +45,10 @@ _OK, _TIMEOUT, _RANGE_LOW, _RANGE_HIGH, _E2E_ERROR, _IMPLAUSIBLE, _STUCK = Senso
 _NONE, _PENDING, _CONFIRMED, _HEALED = DtcState
 
 SENDER_ALIVE_TICKS = 2  # ticks with the sender's traffic at a sensor's rate: it is running
+# a sender reports its skipped ticks every 100 ms (PLANT_Host): a timeout is judged on the
+# reports up to this long after it
+SENDER_REPORT_WINDOW_NS = 250 * NS_PER_MS
+TIMEOUT_EVENTS_KEPT = 64
 
 
 @dataclass
@@ -62,6 +67,9 @@ class HostClock:
     # frames it never sent, and sent late
     sender_skipped: int = 0
     sender_late: int = 0
+    last_report_ns: int | None = None  # when the last PLANT_Host came
+    # the sender's reports as they changed: (t_ns, skipped, late), the first one always
+    reports: deque[tuple[int, int, int]] = field(default_factory=lambda: deque(maxlen=4096))
     _ticks: dict[int, int] = field(default_factory=dict)  # cycle -> ticks with such a frame
     _last: dict[int, int] = field(default_factory=dict)   # cycle -> the last of those ticks
 
@@ -70,12 +78,53 @@ class HostClock:
             self._last[cycle_ns] = t_ns
             self._ticks[cycle_ns] = self._ticks.get(cycle_ns, 0) + 1
 
+    def sender_report(self, t_ns: int, skipped: int, late: int) -> None:
+        """A PLANT_Host frame: the sender's own count of skipped and late ticks so far."""
+        if not self.reports or (skipped, late) != (self.sender_skipped, self.sender_late):
+            self.reports.append((t_ns, skipped, late))
+        self.sender_skipped, self.sender_late = skipped, late
+        self.last_report_ns = t_ns
+
+    def sender_counts_at(self, t_ns: int) -> tuple[int, int]:
+        """The sender's (skipped, late) tick counts as last reported at or before t_ns (0, 0
+        before any)."""
+        counts = (0, 0)
+        for t, skipped, late in self.reports:
+            if t > t_ns:
+                break
+            counts = (skipped, late)
+        return counts
+
     def activity(self, cycle_ns: int, before_ns: int | None = None) -> int:
         """Ticks so far (before before_ns, when given) that took a frame of a message sent at
         least as often as cycle_ns."""
         last = self._last
         return sum(n - (last[cycle] == before_ns) for cycle, n in self._ticks.items()
                    if cycle <= cycle_ns)
+
+
+@dataclass(frozen=True)
+class TimeoutEvent:
+    """A sensor's frames went silent past the deadline (a new timeout): when, since when, and
+    how long of that silence this ECU itself was not running."""
+
+    t_ns: int
+    last_rx_ns: int
+    ecu_stalled_ns: int
+
+    def cause(self, host: HostClock) -> dict:
+        """Who dropped the frames, as far as the host can tell (issue 29): `sender-host` when
+        the sender reported ticks it skipped or sent late (caught up) during the silence (PLANT_Host, judged on the reports
+        up to SENDER_REPORT_WINDOW_NS after the timeout), `ecu-host` when this ECU was not running
+        for part of it, else `sensor` (nothing on the host explains it)."""
+        end = self.t_ns + SENDER_REPORT_WINDOW_NS
+        skipped, late = (a - b for a, b in zip(host.sender_counts_at(end),
+                                               host.sender_counts_at(self.last_rx_ns)))
+        cause = ("sender-host" if skipped or late else "ecu-host" if self.ecu_stalled_ns > 0
+                 else "sensor")
+        return {"t_s": self.t_ns / 1e9, "silent_ms": (self.t_ns - self.last_rx_ns) / 1e6,
+                "ecu_not_running_ms": self.ecu_stalled_ns / 1e6, "sender_skipped": skipped,
+                "sender_late": late, "cause": cause}
 
 
 class Dtc:
@@ -199,6 +248,8 @@ class SensorMonitor:
         self._activity_at_rx = 0
         self.host_gap = False     # the current sample is stale, but not for the sensor's fault
         self.host_gaps = 0        # host gaps seen (each counted once)
+        # the last new timeouts with the host's part in them (timeout_causes())
+        self.timeout_events: deque[TimeoutEvent] = deque(maxlen=TIMEOUT_EVENTS_KEPT)
 
     def recalibrate(self, config: SensorMonitorConfig) -> None:
         """A new calibration (XCP, a timed set): acts from the next evaluation; the state
@@ -260,6 +311,9 @@ class SensorMonitor:
                 if self._plaus >= cfg.plaus_debounce:
                     finding = _IMPLAUSIBLE
         self._fresh = False
+        if finding == _TIMEOUT and self.status == _OK:
+            self.timeout_events.append(TimeoutEvent(
+                t_ns, last_rx, self.host.stalled_ns - self._stalled_at_rx))
         if gap and not self.host_gap:
             self.host_gaps += 1
         self.host_gap = gap
@@ -329,6 +383,11 @@ class SensorMonitor:
                                        if self.first_fault_status else None),
                 "status_history": [(t / 1e9, st.name.lower()) for t, st in self.status_history],
                 "dtc_history": [(t / 1e9, st.name.lower()) for t, st in dtc.history]}
+
+    def timeout_causes(self) -> list[dict]:
+        """The kept timeouts (the last TIMEOUT_EVENTS_KEPT), each with its cause as far as the
+        host can tell (TimeoutEvent.cause)."""
+        return [event.cause(self.host) for event in self.timeout_events]
 
     def select(self, t_ns: int, est: float, est_std: float) -> tuple[float, int, SensorStatus]:
         """Diagnose (evaluate) and pick what to broadcast: (value, source, status), the sensor's
