@@ -5,6 +5,7 @@ rules. Each failure names the module and the line."""
 from __future__ import annotations
 
 import ast
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cache
@@ -410,3 +411,80 @@ def test_the_walk_sees_every_module_and_nested_imports():
     assert all((m.name, s.lineno) in listed for m in mods.values() for n in ast.walk(m.tree)
                if isinstance(n, ast.FunctionDef) for s in ast.walk(n)
                if isinstance(s, (ast.Import, ast.ImportFrom)))
+
+
+# ---------------------------------------------------------------- 8. the floor map
+
+# docs/architecture.md's floor map: every top-level module or package of vecu/ on one floor.
+# A module imports its own floor and the floors below, never a higher one (the wall between the
+# plant and the estimators/ECU is held by test_layering).
+FLOORS: dict[int, tuple[str, ...]] = {
+    0: ("errors", "units", "rng", "clock", "kernels", "stats", "argtypes", "tomlfile", "shipped",
+        "dbc", "data"),
+    1: ("models",),
+    2: ("params",),
+    3: ("bus", "codec", "block_codec", "e2e", "frames", "framer", "fault_kinds", "faults",
+        "scheduler", "recorder"),
+    4: ("estimators",),
+    5: ("plant", "restbus", "ecu", "uds", "xcp"),
+    6: ("config", "assembly", "runner", "probes"),
+    7: ("replay", "scenario", "campaign", "eval", "bench", "live", "plot", "figures", "ident"),
+    8: ("cli", "__main__"),
+}
+FLOOR_OF = {name: floor for floor, names in FLOORS.items() for name in names}
+
+
+def _top(dotted: str) -> str | None:
+    parts = dotted.split(".")
+    return parts[1] if len(parts) > 1 and parts[0] == "vecu" else None
+
+
+def test_every_module_is_on_a_floor():
+    tops = {p.stem if p.suffix == ".py" else p.name for p in PKG.iterdir()
+            if (p.suffix == ".py" and p.name != "__init__.py")
+            or (p.is_dir() and (p / "__init__.py").exists())}
+    missing = sorted(tops - set(FLOOR_OF))
+    gone = sorted(set(FLOOR_OF) - tops)
+    assert not missing, f"modules on no floor (add them to FLOORS and docs/architecture.md): {missing}"
+    assert not gone, f"FLOORS names modules that do not exist: {gone}"
+
+
+def test_no_import_reaches_a_higher_floor():
+    bad = []
+    for mod in modules().values():
+        here = _top(mod.name)
+        if here is None:
+            continue
+        for line, target in _vecu_imports(mod):
+            there = _top(target)
+            if there in FLOOR_OF and FLOOR_OF[there] > FLOOR_OF[here]:
+                bad.append(f"{mod.rel}:{line} imports {target} (floor {FLOOR_OF[there]} above "
+                           f"{here}'s {FLOOR_OF[here]})")
+    _report(bad, "floors (docs/architecture.md)")
+
+
+def test_the_documented_floor_map_names_every_module_on_its_floor():
+    """The diagram in docs/architecture.md: each floor's rows (between its rules) name exactly
+    the modules FLOORS puts there (`name.py` or `name/`)."""
+    doc = (ROOT / "docs" / "architecture.md").read_text()
+    diagram = doc.split("```")[1]
+    rows: dict[int, str] = {}
+    floor = None
+    for line in diagram.splitlines():
+        head = re.match(r"\s*(\d)\s", line)
+        if head:
+            floor = int(head.group(1))
+        elif "─" in line:
+            floor = None
+        if floor is not None and "│" in line:
+            rows[floor] = rows.get(floor, "") + " " + line.replace("║", " ")
+    bad = []
+    for floor, names in FLOORS.items():
+        text = rows.get(floor, "")
+        for name in names:
+            if f"{name}.py" not in text and f"{name}/" not in text:
+                bad.append(f"floor {floor} row does not name {name}")
+        for other, f in FLOOR_OF.items():
+            if f != floor and (f" {other}.py" in text or f" {other}/" in text):
+                bad.append(f"floor {floor} row names {other}, which FLOORS puts on {f}")
+    _report(bad, "the floor map in docs/architecture.md")
