@@ -77,7 +77,7 @@ def test_the_lateral_speed_is_the_wheel_speed_at_every_100_ms(bus_log):
             assert v_lat <= 0.5 and v_wheel == 0.0, (t, v_lat, v_wheel)
         diffs.append(v_lat - v_wheel)
     d = np.array(diffs)
-    assert stopped >= 60  # the paper's stop and the launch-and-brake cycles' stops were seen
+    assert stopped >= 30  # the stops of the paper braking and of the launch-and-brake cycle
     assert float(np.sqrt(np.mean(d * d))) < 1.0
     assert np.ptp(samples[:, 1]) > 70.0  # from ~84 km/h to standstill
 
@@ -94,7 +94,7 @@ def test_engine_speed_is_the_vehicle_speed_through_a_gear(bus_log):
             ratio = n / v
             assert per_mps[-1] * 0.99 <= ratio <= per_mps[0] * 1.01, (t, n, v)
             in_gear += bool(np.min(np.abs(ratio / per_mps - 1.0)) < 0.01)
-        elif v == 0.0 and _at(true, t - 0.5) == 0.0:  # standing: the engine idles
+        elif v == 0.0 and _at(true, t - 0.5) == _at(true, t + 0.05) == 0.0:  # standing: idle
             assert n == pytest.approx(IDLE_RPM, abs=0.25), (t, n)
     assert locked > 1000
     assert in_gear >= 0.85 * locked  # the rest: the 0.3 s of a shift

@@ -2,8 +2,9 @@
 
 Issue 29 item 6 ("one car"): the longitudinal, lateral and engine parts used to drive three cars
 (CHS_Lateral said 76 km/h while ESC_Motion had braked to 0). Now the longitudinal manoeuvres
-(vecu.plant.longitudinal, Hernandez 2005: the paper's braking to standstill, then launch-and-brake
-cycles) are the car's motion on the 2 ms grid; the longitudinal part sends their sensors, the
+(vecu.plant.longitudinal, after Hernandez 2005: by default the paper's braking to standstill, a
+launch-and-brake cycle, then road legs; the last of a sequence repeats) are the car's motion on
+the 2 ms grid; the longitudinal part sends their sensors, the
 lateral part steers the single-track model at their speed, and the manifold part runs the engine
 the driveline (vecu.plant.driveline) puts behind them. Legs (one manoeuvre each) are made on
 demand, in order, from the seed alone, so the drive is the same whoever reads it first.
@@ -28,7 +29,9 @@ from vecu.plant.longitudinal import (
     simulate_speed,
 )
 
-SEQUENCE = ("paper", "launch_brake")  # the default: paper braking, then launch-and-brake cycles
+# the default: the paper's braking, one launch-and-brake cycle, then road legs (launch, 30-60 s
+# at 72-108 km/h, brake to rest) for as long as the plant runs
+SEQUENCE = ("paper", "launch_brake", "road")
 KEEP_S = 120.0  # legs ending this long before the furthest sample asked for are dropped
 
 
@@ -70,7 +73,8 @@ class Drive:
     def _make(self) -> Leg:
         i = self._made
         kind = self.sequence[min(i, len(self.sequence) - 1)]
-        trace = simulate_speed(seed=(self.seed << 16) + i, manoeuvre=ManoeuvreConfig(kind=kind),
+        trace = simulate_speed(seed=(self.seed << 16) + i,
+                               manoeuvre=ManoeuvreConfig(kind=kind, rolling=i == 0),
                                wheel=self._sensors[0], accel=self._sensors[1])
         eng = engine_track(trace.v, trace.a, DT_S, self._vehicle.mass_kg, self._line,
                            self._engine, self._state)
