@@ -168,3 +168,31 @@ def test_live_plant_lateral_speed_is_its_wheel_speed_through_the_stop(tmp_path):
         assert abs(v_lat - v_wheel) <= tol, (t, v_lat, v_wheel)
     speeds = [v for _, v in lat_rows]
     assert checked > 30 and max(speeds) > 70.0 and min(speeds) < 0.5
+
+
+def test_the_gearbox_does_not_hunt_at_cruise_and_idles_at_rest():
+    """Pedal flutter at a steady 86 km/h (the paper's cruise, 0.3 m/s^2 of road noise) keeps one
+    gear; a stop ends in first gear at idle; a launch slips the converter above idle."""
+    from vecu.models.manifold_params import V8_5L7
+    from vecu.plant.driveline import DrivelineState, engine_track
+
+    rng = np.random.default_rng(1)
+    n = 15_000  # 30 s
+    v = np.full(n, 86.0 * MPS_PER_KMH)
+    a = 0.3 * rng.standard_normal(n)
+    eng = engine_track(v, a, 0.002, 1410.0, Driveline(), V8_5L7, DrivelineState())
+    assert len(set(eng.gear.tolist())) == 1 and 1500.0 < eng.n_rpm.min()
+    stop = np.linspace(86.0, 0.0, 2000) * MPS_PER_KMH
+    state = DrivelineState()
+    eng = engine_track(stop, np.full(2000, -12.0), 0.002, 1410.0, Driveline(), V8_5L7, state)
+    assert state.gear == 1 and eng.n_rpm[-1] == IDLE_RPM and np.all(eng.ta_sp[-100:] < 0.14)
+    eng = engine_track(np.zeros(10), np.full(10, 2.5), 0.002, 1410.0, Driveline(), V8_5L7, state)
+    assert np.all(eng.n_rpm > IDLE_RPM + 100.0) and np.all(eng.pedal > 0.2)
+
+
+def test_the_drive_forgets_legs_long_behind_it():
+    drive = Drive(2, ("road",))
+    assert drive.speed(round(400.0 / drive.dt_s)) >= 0.0
+    with pytest.raises(LookupError):
+        drive.leg(0)
+    assert drive.leg_at(round(399.0 / drive.dt_s)).end > round(399.0 / drive.dt_s)
