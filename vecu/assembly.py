@@ -22,6 +22,7 @@ from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.faults import FaultInjector
+from vecu.plant.drive import Drive
 from vecu.plant.input_file import FileInput, load_input_file
 from vecu.plant.node import (
     LateralPart,
@@ -70,15 +71,18 @@ def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
     parts: list[PlantPart] = [ThrottlePart(
         codec, ThrottlePlant(car.throttle, rngs["throttle.plant"]), inputs, injector,
         car.sensors.tps)]
+    # one car: every part reads the same drive (vecu.plant.drive, docs/models.md "One car")
+    drive = Drive(config.seed, config.speed_manoeuvres, car.sensors.wheel, car.sensors.accel,
+                  car.lateral, car.driveline, car.manifold.engine)
     if config.speed:
-        parts.append(LongitudinalPart(codec, config.seed, config.speed_manoeuvres,
-                                      car.sensors.wheel, car.sensors.accel))
+        parts.append(LongitudinalPart(codec, config.seed, drive=drive))
     if config.steering:
-        parts.append(LateralPart(codec, config.seed, config.duration_s, injector, car.lateral,
+        parts.append(LateralPart(codec, drive, config.seed, injector, car.lateral,
                                  car.sensors.lateral))
     plant = PlantNode(bus, codec, injector, parts)
+    plant.drive = drive
     if config.manifold:
-        plant.manifold = ManifoldPart(codec, config.seed, car.manifold)
+        plant.manifold = ManifoldPart(codec, config.seed, car.manifold, drive)
     if truth:
         plant.enable_truth(codec)
     return plant

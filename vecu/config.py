@@ -26,6 +26,7 @@ from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
 from vecu.models.lateral import VehicleParams
 from vecu.models.sensors import TpsCalibration
+from vecu.plant.driveline import Driveline
 from vecu.plant.input_file import load_input_file
 from vecu.plant.lateral import LateralSensors
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
@@ -48,13 +49,14 @@ class PlantSensors:
 
 @dataclass(frozen=True)
 class PlantParams:
-    """The simulated car: throttle body and its excitation, vehicle, engine, sensors."""
+    """The simulated car: throttle body and its excitation, vehicle, engine, sensors, driveline."""
 
     throttle: ThrottlePlantConfig = field(default_factory=ThrottlePlantConfig)
     input: InputConfig = field(default_factory=InputConfig)
     lateral: VehicleParams = field(default_factory=VehicleParams)
     manifold: ManifoldPlantConfig = field(default_factory=ManifoldPlantConfig)
     sensors: PlantSensors = field(default_factory=PlantSensors)
+    driveline: Driveline = field(default_factory=Driveline)  # gears: engine speed from speed
 
 
 @dataclass(frozen=True)

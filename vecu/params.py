@@ -42,6 +42,7 @@ SOURCES: dict[str, str] = {
                            "'Vehicle speed and acceleration'",
     "plant.sensors.lateral": "shared/design/steering.md; Khalid eq. 3 (Y = G Y0 + nu)",
     "plant.lateral": "Khalid Section III (M, I_z); shared/design/steering.md (the rest)",
+    "plant.driveline": "vecu decision, docs/models.md 'One car'",
     "plant.manifold": "Dutka 2006 eq. 1-9; engine values shared/design/manifold.md",
     "plant.manifold.noise": "Dutka 2006 Section IV (Q, R)",
     "plant.manifold.noise_scale": "vecu decision (1 = the paper's Q and R)",

@@ -35,8 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="pad the bus with this many extra ESC_Motion frames per second (copies of "
                         "the current one), for throughput tests; needs the speed part")
     p.add_argument("--steering-horizon", type=argtypes.bounded(1.0, 86_400.0), default=STEERING_HORIZON_S, metavar="S",
-                   help="without --duration: the precomputed steering manoeuvre covers S s, then "
-                        f"holds its last sample (default {STEERING_HORIZON_S:g})")
+                   help="kept for old command lines, no effect on the drive: the steering "
+                        "manoeuvre is made as the car drives, for as long as the plant runs "
+                        f"(default {STEERING_HORIZON_S:g})")
     p.add_argument("--catch-up-ms", type=argtypes.bounded(0.0, 1000.0, unit="ms"),
                    default=CATCH_UP_MS, metavar="MS",
                    help="after a stall of this process, send the frames of the missed 1 ms "

@@ -1,24 +1,29 @@
-"""Single-track vehicle simulator: a seeded 300 s steering manoeuvre and in-vehicle sensors.
+"""Single-track vehicle simulator: a seeded steering manoeuvre and in-vehicle sensors.
 
 The model (after Khalid, a sane single-track vehicle) is vecu.models.lateral; this module adds
-the manoeuvre, RK4 stepping and the eq. (3) sensors.
+the manoeuvre, RK4 stepping and the eq. (3) sensors: `simulate_lateral`, a 300 s run at its own
+20-30 m/s (the offline evaluations), and `DrivenLateral`, the plant's vehicle sample by sample
+at the drive's speed (vecu.plant.drive: one car on the bus).
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from vecu.models.lateral import (
     DT_S,
+    TyreConsts,
     VehicleParams,
     h,
     rk4_step,
     steady_state,
     tyre_consts,
 )
+from vecu.plant.drive import Drive
 from vecu.rng import rng_streams
 from vecu.units import RAD_PER_DEG
 
@@ -45,6 +50,10 @@ class SensorModel:
     def measure(self, true: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """G * true + bias + sigma * N(0, 1), vectorised."""
         return self.gain * true + self.bias + self.sigma * rng.standard_normal(np.shape(true))
+
+    def reading(self, true: float, z: float) -> float:
+        """One reading, z a standard normal draw."""
+        return self.gain * true + self.bias + self.sigma * z
 
 
 @dataclass(frozen=True)
@@ -185,6 +194,19 @@ def steering_profile(cfg: ManoeuvreConfig, p: VehicleParams, rng: np.random.Gene
     return v, _low_pass2(swa, cfg.column_hz, dt)
 
 
+def advance(x: tuple[float, float], d0: float, v0: float, d1: float, v1: float,
+            params: VehicleParams, tc: TyreConsts) -> tuple[float, float]:
+    """The state one sample (DT_S) on: SIM_SUBSTEPS RK4 steps, the inputs (road-wheel angle,
+    speed) linear from (d0, v0) to (d1, v1) within the sample."""
+    hsub = DT_S / SIM_SUBSTEPS
+    for s in range(SIM_SUBSTEPS):
+        a0, a1 = s / SIM_SUBSTEPS, (s + 1) / SIM_SUBSTEPS
+        u0 = (d0 + a0 * (d1 - d0), v0 + a0 * (v1 - v0))
+        u1 = (d0 + a1 * (d1 - d0), v0 + a1 * (v1 - v0))
+        x = rk4_step(x, u0, u1, hsub, params, tc)
+    return x
+
+
 def simulate_lateral(
     seed: int = 1, cfg: ManoeuvreConfig = ManoeuvreConfig(),
     params: VehicleParams = VehicleParams(), sensors: LateralSensors = LateralSensors(),
@@ -201,16 +223,11 @@ def simulate_lateral(
     r = np.empty(n)
     ay = np.empty(n)
     d_l, v_l = delta.tolist(), v_x.tolist()
-    hsub = DT_S / SIM_SUBSTEPS
     for k in range(n):
         vy[k], r[k] = x
         ay[k] = h(x, (d_l[k], v_l[k]), params, tc)[1]
         if k + 1 < n:
-            for s in range(SIM_SUBSTEPS):
-                a0, a1 = s / SIM_SUBSTEPS, (s + 1) / SIM_SUBSTEPS
-                u0 = (d_l[k] + a0 * (d_l[k + 1] - d_l[k]), v_l[k] + a0 * (v_l[k + 1] - v_l[k]))
-                u1 = (d_l[k] + a1 * (d_l[k + 1] - d_l[k]), v_l[k] + a1 * (v_l[k + 1] - v_l[k]))
-                x = rk4_step(x, u0, u1, hsub, params, tc)
+            x = advance(x, d_l[k], v_l[k], d_l[k + 1], v_l[k + 1], params, tc)
     rs = rngs["steer.sensors"]
     # One stream, drawn in a fixed order: yaw rate, a_y, speed, steering wheel.
     m_r = sensors.yaw_rate.measure(r, rs)
@@ -222,3 +239,127 @@ def simulate_lateral(
         beta=np.arctan2(vy, v_x), a_y=ay, meas_r=m_r, meas_ay=m_ay, meas_vx=m_vx,
         meas_swa=m_swa, params=params,
     )
+
+
+# --------------------------------------------------------------------------- on the drive
+V_KINEMATIC_MPS = 2.0  # below: the linear steady state (the tyre model is stiff, then singular)
+STEER_GATE_MPS = (5.0, 12.0)  # the manoeuvre's steering fades in between these speeds
+AHEAD_S = 36.0  # a segment's amplitude is set for the fastest speed this far ahead (sweep + straight)
+NOISE_BLOCK = 256  # sensor noise rows drawn at a time (4 per sample: r, a_y, v_x, SWA)
+
+
+def linear_steady_state(delta: float, v_x: float, p: VehicleParams) -> tuple[float, float]:
+    """(v_y, r) of the linear single-track model's steady turn: r = v delta / (L + K v^2),
+    v_y = r (l_r - M l_f v^2 / (C_r L)); (0, 0) at standstill."""
+    L = p.wheelbase_m
+    r = v_x * delta / (L + p.understeer_rad_per_mps2 * v_x * v_x)
+    return r * (p.l_r_m - p.mass_kg * p.l_f_m * v_x * v_x / (p.c_r_n_per_rad * L)), r
+
+
+@dataclass(frozen=True)
+class LateralSample:
+    """One 10 ms sample of the vehicle on the drive: truth (rad, m/s) and sensor readings."""
+
+    swa: float
+    beta: float
+    v_x: float
+    meas_r: float
+    meas_ay: float
+    meas_vx: float
+    meas_swa: float
+
+
+class DrivenLateral:
+    """The single-track vehicle at the drive's speed (vecu.plant.drive), one 10 ms sample per
+    call: the manoeuvre of ManoeuvreConfig (the steady curve at the start, straight driving with
+    corrections, segments in random order) made segment by segment, each amplitude set for the
+    fastest speed the drive reaches within AHEAD_S (so a_y stays within ay_range), the command
+    faded out below STEER_GATE_MPS (nobody slaloms at walking pace), then the steering column's
+    low-pass. Stepped by `advance` (RK4) at and above V_KINEMATIC_MPS, held on the linear steady
+    state below it (0 at standstill). Sensors as simulate_lateral's, the speed reading >= 0."""
+
+    def __init__(self, drive: Drive, seed: int, cfg: ManoeuvreConfig = ManoeuvreConfig(),
+                 params: VehicleParams = VehicleParams(),
+                 sensors: LateralSensors = LateralSensors()) -> None:
+        rngs = rng_streams(seed, STREAMS)
+        self._rng, self._rs = rngs["steer.manoeuvre"], rngs["steer.sensors"]
+        self._drive, self._cfg, self._p, self._sensors = drive, cfg, params, sensors
+        self._tc = tyre_consts(params)
+        self._stride = round(DT_S / drive.dt_s)  # drive samples per lateral sample
+        self._ahead = round(AHEAD_S / DT_S)
+        self._col = math.exp(-2.0 * math.pi * cfg.column_hz * DT_S)
+        self._cmd: deque[float] = deque()  # raw steering-wheel command of the samples to come (rad)
+        self._order: list[str] = []
+        self._j = 0  # index of the next sample made by _command
+        self._s1: float | None = None
+        self._s2 = 0.0
+        self._noise: list[list[float]] = []
+        self._start_curve()
+        self._cur = self._command()
+        d0, v0 = self._cur[0] / params.steering_ratio, self._cur[1]
+        self._x = (steady_state(d0, v0, params) if v0 >= V_KINEMATIC_MPS
+                   else linear_steady_state(d0, v0, params))
+
+    def _v_ref(self) -> float:
+        """The fastest speed within AHEAD_S of the next command sample (at least the gate's)."""
+        k = self._stride * (self._j + len(self._cmd))
+        v = self._drive.speeds(k, k + self._stride * self._ahead)
+        return max(float(v.max()), STEER_GATE_MPS[0])
+
+    def _start_curve(self) -> None:
+        """A steady curve (a_y 1.5-3 m/s^2) held 3-6 s, released over 1.5 s (as simulate_lateral)."""
+        rng = self._rng
+        amp0 = (_swa_for_ay(rng.uniform(1.5, 3.0), self._v_ref(), self._p)
+                * (1.0 if rng.uniform() < 0.5 else -1.0))
+        ramp = np.linspace(1.0, 0.0, int(1.5 / DT_S))
+        self._cmd.extend((amp0 * np.concatenate([np.ones(int(rng.uniform(3.0, 6.0) / DT_S)),
+                                                 ramp])).tolist())
+
+    def _extend(self) -> None:
+        """Straight driving with small corrections, then the next segment."""
+        rng = self._rng
+        if not self._order:
+            self._order = list(self._cfg.segments)
+            rng.shuffle(self._order)
+        straight = int(rng.uniform(2.0, 5.0) / DT_S)
+        self._cmd.extend(np.convolve(rng.normal(0.0, 1.0 * RAD_PER_DEG, straight),
+                                     np.ones(50) / 50 ** 0.5, mode="same").tolist())
+        self._cmd.extend(_segment(self._order.pop(), self._v_ref(), self._cfg, self._p, DT_S,
+                                  rng).tolist())
+
+    def _command(self) -> tuple[float, float]:
+        """(steering-wheel angle after the column, speed) of the next sample."""
+        if not self._cmd:
+            self._extend()
+        raw = self._cmd.popleft()
+        v = self._drive.speed(self._stride * self._j)
+        self._j += 1
+        lo, hi = STEER_GATE_MPS
+        x = raw * min(max((v - lo) / (hi - lo), 0.0), 1.0)
+        a = self._col
+        if self._s1 is None:
+            self._s1 = self._s2 = x
+        self._s1 = a * self._s1 + (1.0 - a) * x
+        self._s2 = a * self._s2 + (1.0 - a) * self._s1
+        return self._s2, v
+
+    def sample(self) -> LateralSample:
+        """This sample's truth and readings; the vehicle then moves on one sample."""
+        p = self._p
+        swa, v = self._cur
+        nxt = self._command()
+        delta = swa / p.steering_ratio
+        x = self._x
+        ay = h(x, (delta, v), p, self._tc)[1] if v >= V_KINEMATIC_MPS else v * x[1]
+        d1, v1 = nxt[0] / p.steering_ratio, nxt[1]
+        self._x = (advance(x, delta, v, d1, v1, p, self._tc)
+                   if min(v, v1) >= V_KINEMATIC_MPS else linear_steady_state(d1, v1, p))
+        self._cur = nxt
+        if not self._noise:
+            self._noise = self._rs.standard_normal((NOISE_BLOCK, 4)).tolist()[::-1]
+        z = self._noise.pop()
+        s = self._sensors
+        return LateralSample(
+            swa, math.atan2(x[0], v), v, s.yaw_rate.reading(x[1], z[0]),
+            s.lat_accel.reading(ay, z[1]), max(s.speed.reading(v, z[2]), 0.0),
+            s.steering_wheel.reading(swa, z[3]))

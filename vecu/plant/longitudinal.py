@@ -13,7 +13,9 @@ active (variant "abs", above 10 km/h); readings are >= 0 (the sensor cannot tell
 Accelerometer: a + offset + pitch ringing after the stop + white noise, clipped to +-2 g.
 Manoeuvres: "paper" (~84 km/h, -8 m/s^2 to rest), "gentle" (~50 km/h, -3 m/s^2, eased near the
 end), "abs" (~84 km/h, -9.5 m/s^2 with ABS wheel slip), "launch_brake" (rest, ~2.5 m/s^2 to
-~40 km/h, -5 m/s^2 to rest, eased near the end).
+~40 km/h, -5 m/s^2 to rest, eased near the end), "road" (1 s at rest, ~2 m/s^2 to 72-108 km/h,
+30-60 s of cruise towards a new 72-108 km/h target every 15 s at 0.3-0.8 m/s^2, -3 m/s^2 to
+rest, eased; ManoeuvreConfig.rolling: start cruising at speed instead).
 """
 
 from __future__ import annotations
@@ -27,8 +29,10 @@ from vecu.rng import rng_streams
 from vecu.units import G_MPS2, MPS_PER_KMH
 
 DT_S = 0.002  # 500 Hz, the paper's sampling frequency
-MANOEUVRES = ("paper", "gentle", "abs", "launch_brake")
+MANOEUVRES = ("paper", "gentle", "abs", "launch_brake", "road")
 STREAMS = ("speed.manoeuvre", "speed.wheel", "speed.accel")
+ROAD_SPEED_MPS = (20.0, 30.0)  # "road" cruise targets (72-108 km/h, the steering evaluation's)
+MAX_S = 60.0  # longest manoeuvre before its stop ("road": 150 s)
 
 
 @dataclass(frozen=True)
@@ -37,6 +41,7 @@ class ManoeuvreConfig:
 
     kind: str = "paper"
     standstill_s: float = 1.5  # simulated time after the stop
+    rolling: bool = False  # "road": start cruising at speed instead of launching from rest
     cruise_accel_std: float = 0.15  # m/s^2, low-passed (1 Hz) road/engine fluctuation in cruise
 
 
@@ -107,19 +112,33 @@ def _draw_profile(kind: str, rng: np.random.Generator) -> _Profile:
     if kind == "launch_brake":
         return _Profile(u(35.0, 45.0) * MPS_PER_KMH, u(0.8, 1.2), u(4.0, 6.0), u(15.0, 25.0), u(2.0, 3.0),
                         u(6.0, 10.0), u(1.5, 2.5), 0.0, 0.0)
+    if kind == "road":  # t_brake: the cruise's length (from reaching v0)
+        return _Profile(u(*ROAD_SPEED_MPS), u(30.0, 60.0), u(2.5, 3.5), u(8.0, 12.0), u(1.5, 2.5),
+                        u(8.0, 12.0), u(1.0, 1.8), 0.0, 0.0)
     raise ValueError(f"unknown manoeuvre {kind!r}; choose from {', '.join(MANOEUVRES)}")
+
+
+def _road_targets(p: _Profile, rng: np.random.Generator) -> list[tuple[float, float]]:
+    """"road": (speed target m/s, rate m/s^2) for each 15 s of the cruise, the first v0."""
+    n = int(p.t_brake // 15.0) + 1
+    out = [(p.v0, 0.5)]
+    for _ in range(n - 1):
+        out.append((float(rng.uniform(*ROAD_SPEED_MPS)), float(rng.uniform(0.3, 0.8))))
+    return out
 
 
 def _truth(cfg: ManoeuvreConfig, p: _Profile, rng: np.random.Generator
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """(v, a, braking flag, index of the stop) on the 2 ms grid."""
     dt = DT_S
-    launch = p.launch_accel > 0.0
+    road = cfg.kind == "road"
+    launch = p.launch_accel > 0.0 and not (road and cfg.rolling)
     # Cruise fluctuation: white noise through a 1 Hz first-order low-pass, std cruise_accel_std.
     alpha = math.exp(-2.0 * math.pi * 1.0 * dt)
     gain = cfg.cruise_accel_std * math.sqrt(1.0 - alpha * alpha)
-    n_max = round(60.0 / dt)
+    n_max = round((150.0 if road else MAX_S) / dt)
     white = rng.standard_normal(n_max).tolist()
+    targets = _road_targets(p, rng) if road else []
     v_list: list[float] = []
     a_list: list[float] = []
     brk: list[bool] = []
@@ -127,6 +146,7 @@ def _truth(cfg: ManoeuvreConfig, p: _Profile, rng: np.random.Generator
     a = 0.0
     fluct = cfg.cruise_accel_std * white[0]
     phase = "rest" if launch else "cruise"
+    t_cruise = 0.0 if road else -1.0  # road: when the cruise began (its length is t_brake)
     stop_k = -1
     for k in range(n_max):
         t = k * dt
@@ -134,16 +154,19 @@ def _truth(cfg: ManoeuvreConfig, p: _Profile, rng: np.random.Generator
         a_list.append(a)
         if phase == "rest":
             a_cmd = 0.0
-            if t >= p.t_brake:  # launch_brake: t_brake is the launch time
+            if t >= (1.0 if road else p.t_brake):  # launch_brake: t_brake is the launch time
                 phase = "launch"
         elif phase == "launch":
             a_cmd = p.launch_accel
             if v >= p.v0:
-                phase = "brake"
+                phase, t_cruise = ("cruise", t) if road else ("brake", t_cruise)
         elif phase == "cruise":
             fluct = alpha * fluct + gain * white[k]
             a_cmd = fluct
-            if t >= p.t_brake:
+            if road:  # towards the target of the moment, at its rate
+                target, rate = targets[min(int((t - t_cruise) / 15.0), len(targets) - 1)]
+                a_cmd += max(-rate, min(rate, 0.5 * (target - v)))
+            if t >= (t_cruise + p.t_brake if road else p.t_brake):
                 phase = "brake"
         elif phase == "brake":
             a_cmd = -p.decel
@@ -167,7 +190,7 @@ def _truth(cfg: ManoeuvreConfig, p: _Profile, rng: np.random.Generator
         if stop_k >= 0 and k + 1 >= stop_k + round(cfg.standstill_s / dt):
             break
     if stop_k < 0:
-        raise RuntimeError("manoeuvre did not stop within 60 s")
+        raise RuntimeError(f"manoeuvre did not stop within {n_max * dt:g} s")
     return np.asarray(v_list), np.asarray(a_list), np.asarray(brk, dtype=bool), stop_k
 
 

@@ -27,12 +27,11 @@ from vecu.models.manifold import (
     steady_state_vector,
 )
 from vecu.models.sensors import TpsCalibration
-from vecu.plant.drive_profile import us06_like
+from vecu.plant.drive import Drive, Leg
 from vecu.plant.input_file import BufferedInput
-from vecu.plant.lateral import LateralSensors, simulate_lateral
+from vecu.plant.lateral import DrivenLateral, LateralSensors
 from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
-from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig, simulate_speed
-from vecu.plant.longitudinal import ManoeuvreConfig as SpeedManoeuvre
+from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
 from vecu.plant.manifold import (
     EventsAhead,
     ManifoldPlant,
@@ -175,36 +174,30 @@ def _payload_list(encoded: tuple[np.ndarray, np.ndarray] | None, n: int
 class LongitudinalPart:
     """Longitudinal vehicle (Hernandez 2005): ESC_Motion (wheel speed, accelerometer) every 2 ms.
 
-    Plays seeded manoeuvres back to back: the paper's 84 km/h -> standstill braking first, then
-    launch-and-brake cycles (each starts and ends at rest, so speed is continuous).
+    Sends the sensors of the drive's manoeuvres (vecu.plant.drive: the paper's 84 km/h ->
+    standstill braking first, then a launch-and-brake cycle and road legs), sample t_ns / 2 ms
+    of the drive at each tick; without a drive it makes its own from seed and sequence.
     """
 
     name = "longitudinal"
     period_ns = 2 * NS_PER_MS
-    SEQUENCE = ("paper", "launch_brake")
 
     def __init__(self, codec: DbcCodec, seed: int, sequence: tuple[str, ...] | None = None,
                  wheel: WheelSensorConfig = WheelSensorConfig(),
-                 accel: AccelSensorConfig = AccelSensorConfig()) -> None:
+                 accel: AccelSensorConfig = AccelSensorConfig(), drive: Drive | None = None) -> None:
         self._msg = codec["ESC_Motion"]
         self._frame = self._msg.framer(("ESC_WheelSpeed", "ESC_LongAccel"))
-        self._seed = seed
-        self._sensors = (wheel, accel)
-        if sequence:
-            self.SEQUENCE = tuple(sequence)
-        self._index = 0
-        self._k = 0
-        self._trace = self._next_trace()
+        self.drive = drive if drive is not None else Drive(seed, sequence, wheel, accel)
+        self._cols: tuple[list[float], ...] = ()
+        self._payloads: list[bytearray | None] = []
+        self._leg = leg = self.drive.leg_at(0)
+        self._enter(leg)
         self.truth_msg = None  # TRUTH_Speed codec when recording truth
         self.v = self.a = self.wheel = self.accel = 0.0  # truth and raw sensors of the last tick (SI)
 
-    def _next_trace(self):
-        kind = self.SEQUENCE[min(self._index, len(self.SEQUENCE) - 1)]
-        trace = simulate_speed(seed=(self._seed << 16) + self._index,
-                               manoeuvre=SpeedManoeuvre(kind=kind), wheel=self._sensors[0],
-                               accel=self._sensors[1])
-        self._index += 1
-        self._k = 0
+    def _enter(self, leg: Leg) -> None:
+        self._leg = leg
+        trace = leg.trace
         self._cols = (trace.v.tolist(), trace.a.tolist(), trace.wheel.tolist(),
                       trace.accel.tolist())
         # the whole manoeuvre's ESC_Motion payloads at once (FrameCodec.encode_rows: the
@@ -212,18 +205,19 @@ class LongitudinalPart:
         encoded = self._msg.encode_rows(("ESC_WheelSpeed", "ESC_LongAccel"),
                                         (trace.wheel / MPS_PER_KMH, trace.accel))
         self._payloads = _payload_list(encoded, len(trace.v))
-        return trace
 
     def tick(self, t_ns: int, send: Send) -> None:
-        if self._k >= len(self._cols[0]):
-            self._trace = self._next_trace()
-        k = self._k
-        self._k += 1
+        k = t_ns // self.period_ns
+        leg = self._leg
+        if not leg.start <= k < leg.end:
+            leg = self.drive.leg_at(k)
+            self._enter(leg)
+        i = k - leg.start
         cols = self._cols
-        v, a, wheel, accel = cols[0][k], cols[1][k], cols[2][k], cols[3][k]
+        v, a, wheel, accel = cols[0][i], cols[1][i], cols[2][i], cols[3][i]
         self.v, self.a, self.wheel, self.accel = v, a, wheel, accel
         ts = t_ns / NS_PER_S
-        data = self._payloads[k]
+        data = self._payloads[i]
         if data is not None:
             send(message(ts, self._msg.frame_id, self._msg.is_extended, data, self._msg.is_fd))
         else:
@@ -233,14 +227,15 @@ class LongitudinalPart:
 
 
 class LateralPart:
-    """Single-track vehicle (Khalid): CHS_Lateral (gyro, lateral accelerometer, speed) and the
-    E2E-protected SWA_Sensor every 10 ms. The fault injector acts on the SWA sensor (deg)."""
+    """Single-track vehicle (Khalid) on the drive's speed: CHS_Lateral (gyro, lateral
+    accelerometer, speed) and the E2E-protected SWA_Sensor every 10 ms (sample t_ns / 10 ms of
+    vecu.plant.lateral.DrivenLateral). The fault injector acts on the SWA sensor (deg)."""
 
     name = "lateral"
     period_ns = 10 * NS_PER_MS
 
-    def __init__(self, codec: DbcCodec, seed: int, duration_s: float,
-                 injector: FaultInjector, vehicle: VehicleParams = VehicleParams(),
+    def __init__(self, codec: DbcCodec, drive: Drive, seed: int, injector: FaultInjector,
+                 vehicle: VehicleParams = VehicleParams(),
                  sensors: LateralSensors = LateralSensors()) -> None:
         self._lat = codec["CHS_Lateral"]
         self._swa = codec["SWA_Sensor"]
@@ -248,12 +243,8 @@ class LateralPart:
         self._swa_frame = self._swa.framer(("SWA_CRC", "SWA_AliveCounter", "SWA_Angle"))
         self._modulo = self._swa.e2e.protection.counter_modulo  # P11: 0..14
         self.injector = injector
-        tr = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)),
-                              vehicle, sensors)
-        self._cols = ((tr.swa * DEG_PER_RAD).tolist(), (tr.beta * DEG_PER_RAD).tolist(),
-                      (tr.meas_r * DEG_PER_RAD).tolist(), tr.meas_ay.tolist(), (tr.meas_vx / MPS_PER_KMH).tolist(),
-                      (tr.meas_swa * DEG_PER_RAD).tolist())
-        self._k = 0
+        self.vehicle = DrivenLateral(drive, seed, LateralManoeuvre(), vehicle, sensors)
+        self._j = 0  # the next sample of the vehicle
         self._counter = 0
         self.truth_msg = None  # TRUTH_Steering codec when recording truth
         # truth and sensor of the last tick (deg), read by probes
@@ -261,15 +252,19 @@ class LateralPart:
         self.swa_sensor: float | None = None
 
     def tick(self, t_ns: int, send: Send) -> None:
-        k = min(self._k, len(self._cols[0]) - 1)  # the trace covers the run; hold at its end
-        self._k += 1
-        swa, beta, r, ay, vx, swa_meas = (col[k] for col in self._cols)
+        j = t_ns // self.period_ns
+        s = self.vehicle.sample()
+        self._j += 1
+        while self._j <= j:  # ticks the scheduler left out (live): the car drove on meanwhile
+            s = self.vehicle.sample()
+            self._j += 1
+        swa, beta = s.swa * DEG_PER_RAD, s.beta * DEG_PER_RAD
         self.swa, self.beta = swa, beta
         ts = t_ns / NS_PER_S
-        send(self._lat_frame(ts, r, ay, vx))
+        send(self._lat_frame(ts, s.meas_r * DEG_PER_RAD, s.meas_ay, s.meas_vx / MPS_PER_KMH))
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_SwAngle": swa, "TRU_SideSlip": beta}, ts))
-        v = self.injector.apply(_SWA, swa_meas)
+        v = self.injector.apply(_SWA, s.meas_swa * DEG_PER_RAD)
         self.swa_sensor = v
         if v is not None:
             send(self._swa_frame(ts, 0, self._counter, v))
@@ -279,21 +274,23 @@ class LateralPart:
 class ManifoldPart:
     """Engine intake (Dutka 2006) stepped once per engine event, Ts = 120 / (8 N): sends
     ENG_Event (counter, N, throttle setpoint and angle, MAP) and ENG_Intake (IAT) at each event.
-    Plays seeded 80 s US06-like profiles back to back (each starts where the last ended: idle)."""
+    The engine speed and throttle setpoint are the drive's (vecu.plant.drive: the driveline
+    behind the car's speed), one leg's profile after the other on the drive's clock."""
 
     name = "manifold"
 
     def __init__(self, codec: DbcCodec, seed: int,
-                 config: ManifoldPlantConfig = ManifoldPlantConfig()) -> None:
+                 config: ManifoldPlantConfig = ManifoldPlantConfig(),
+                 drive: Drive | None = None) -> None:
         self._ev = codec["ENG_Event"]
         self._engine = engine = config.engine
         self._iat = codec["ENG_Intake"]
         self._ev_frame = self._ev.framer(("ENG_EventCounter", "ENG_Speed", "ENG_ThrottleSetpoint",
                                           "ENG_ThrottleAngle", "ENG_MAP"))
         self._iat_frame = self._iat.framer(("ENG_IntakeCounter", "ENG_IAT"))
-        self._seed = seed
+        self.drive = drive if drive is not None else Drive(seed, engine=engine)
         self._profile_index = 0
-        self._profile = us06_like(seed, params=engine)
+        self._profile = self.drive.leg(0).profile
         self._t0_ns = 0
         n0, sp0 = self._profile.at(0.0)
         rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
@@ -320,15 +317,16 @@ class ManifoldPart:
         ahead.start_profile(self._profile)
         return ahead
 
-    def _next_profile(self, t_ns: int) -> None:
-        """The next profile, continuing from the current state, starts at t_ns."""
+    def _next_profile(self) -> None:
+        """The next leg's profile, continuing from the current state, where the last one ended."""
         self._profile_index += 1
-        self._profile = us06_like((self._seed << 8) + self._profile_index, params=self._engine)
-        self._t0_ns = t_ns
+        leg = self.drive.leg(self._profile_index)
+        self._profile = leg.profile
+        self._t0_ns = leg.start * round(self.drive.dt_s * NS_PER_S)
         if self._ahead is not None:
             if EventsAhead.usable(self._profile):
                 self._ahead.start_profile(self._profile)
-            else:  # (not for us06_like profiles) go on stepping ManifoldPlant from here
+            else:  # (not for drive profiles) go on stepping ManifoldPlant from here
                 self.plant.x = self._ahead.state.tolist()
                 self._ahead = None
 
@@ -336,9 +334,9 @@ class ManifoldPart:
         """One event stepped by ManifoldPlant: (N, TA_SP, the TA, P_im and T_im.out readings,
         the truth's P_im, T_im and CAC, the next event's time)."""
         t_s = (t_ns - self._t0_ns) / NS_PER_S
-        if t_s >= self._profile.duration_s:
-            self._next_profile(t_ns)
-            t_s = 0.0
+        while t_s >= self._profile.duration_s:
+            self._next_profile()
+            t_s = (t_ns - self._t0_ns) / NS_PER_S
         n, sp = self._profile.at(t_s)
         plant = self.plant
         ta, p_kpa, t_meas = plant.measure()
@@ -356,8 +354,8 @@ class ManifoldPart:
         i = self._i
         if i >= len(self._rows):
             k = ahead.fill(t_ns, self._t0_ns)
-            if k == 0:  # the profile ends before t_ns
-                self._next_profile(t_ns)
+            while k == 0:  # the profile ends before t_ns
+                self._next_profile()
                 if self._ahead is None:
                     return self._step(t_ns)
                 k = ahead.fill(t_ns, self._t0_ns)
@@ -406,6 +404,7 @@ class PlantNode(BusNode):
         self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
         self.lateral = next((p for p in parts if isinstance(p, LateralPart)), None)
         self.manifold: ManifoldPart | None = None
+        self.drive: Drive | None = None  # the car's motion all parts read (set by build_plant)
 
     @property
     def consumed_ids(self) -> frozenset[tuple[int, bool]]:

@@ -1,0 +1,126 @@
+"""The drive: one car's speed, acceleration and engine, read by every plant part tick by tick.
+
+Issue 29 item 6 ("one car"): the longitudinal, lateral and engine parts used to drive three cars
+(CHS_Lateral said 76 km/h while ESC_Motion had braked to 0). Now the longitudinal manoeuvres
+(vecu.plant.longitudinal, after Hernandez 2005: by default the paper's braking to standstill, a
+launch-and-brake cycle, then road legs; the last of a sequence repeats) are the car's motion on
+the 2 ms grid; the longitudinal part sends their sensors, the
+lateral part steers the single-track model at their speed, and the manifold part runs the engine
+the driveline (vecu.plant.driveline) puts behind them. Legs (one manoeuvre each) are made on
+demand, in order, from the seed alone, so the drive is the same whoever reads it first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vecu.models.lateral import VehicleParams
+from vecu.models.manifold_params import V8_5L7, ManifoldParams
+from vecu.plant.drive_profile import DriveProfile
+from vecu.plant.driveline import Driveline, DrivelineState, EngineTrack, engine_track
+from vecu.plant.longitudinal import (
+    DT_S,
+    AccelSensorConfig,
+    ManoeuvreConfig,
+    SpeedTrace,
+    WheelSensorConfig,
+    simulate_speed,
+)
+
+# the default: the paper's braking, one launch-and-brake cycle, then road legs (launch, 30-60 s
+# at 72-108 km/h, brake to rest) for as long as the plant runs
+SEQUENCE = ("paper", "launch_brake", "road")
+KEEP_S = 120.0  # legs ending this long before the furthest sample asked for are dropped
+
+
+@dataclass(frozen=True)
+class Leg:
+    """One manoeuvre of the drive: samples start .. start + len(trace.v) - 1 of the 2 ms grid."""
+
+    index: int
+    start: int
+    trace: SpeedTrace
+    engine: EngineTrack
+    profile: DriveProfile  # the engine's (N, throttle setpoint) for vecu.plant.node.ManifoldPart
+
+    @property
+    def end(self) -> int:
+        return self.start + len(self.trace.v)
+
+
+class Drive:
+    """The car's motion on the 2 ms grid (sample k at k * DT_S), leg by leg (module docstring)."""
+
+    dt_s = DT_S
+
+    def __init__(self, seed: int, sequence: tuple[str, ...] | None = None,
+                 wheel: WheelSensorConfig = WheelSensorConfig(),
+                 accel: AccelSensorConfig = AccelSensorConfig(),
+                 vehicle: VehicleParams = VehicleParams(), driveline: Driveline = Driveline(),
+                 engine: ManifoldParams = V8_5L7) -> None:
+        self.seed = seed
+        self.sequence = tuple(sequence) if sequence else SEQUENCE
+        self._sensors = (wheel, accel)
+        self._vehicle, self._line, self._engine = vehicle, driveline, engine
+        self._state = DrivelineState()
+        self._legs: list[Leg] = []
+        self._made = 0  # legs made so far (the next leg's index)
+        self._next_start = 0
+        self._furthest = 0
+
+    def _make(self) -> Leg:
+        i = self._made
+        kind = self.sequence[min(i, len(self.sequence) - 1)]
+        trace = simulate_speed(seed=(self.seed << 16) + i,
+                               manoeuvre=ManoeuvreConfig(kind=kind, rolling=i == 0),
+                               wheel=self._sensors[0], accel=self._sensors[1])
+        eng = engine_track(trace.v, trace.a, DT_S, self._vehicle.mass_kg, self._line,
+                           self._engine, self._state)
+        # the profile's last point holds the leg's last sample (the next leg starts there)
+        profile = DriveProfile(dt_s=DT_S, n_rpm=np.append(eng.n_rpm, eng.n_rpm[-1]),
+                               ta_sp=np.append(eng.ta_sp, eng.ta_sp[-1]))
+        leg = Leg(i, self._next_start, trace, eng, profile)
+        self._made += 1
+        self._next_start = leg.end
+        self._legs.append(leg)
+        return leg
+
+    def leg(self, index: int) -> Leg:
+        """Leg `index` (0: the first manoeuvre); made on demand."""
+        while self._made <= index:
+            self._make()
+        for leg in self._legs:
+            if leg.index == index:
+                return leg
+        raise LookupError(f"drive leg {index} was dropped (more than {KEEP_S} s behind)")
+
+    def leg_at(self, k: int) -> Leg:
+        """The leg that holds sample k."""
+        self._furthest = max(self._furthest, k)
+        while self._next_start <= k:
+            self._make()
+        keep = self._furthest - round(KEEP_S / DT_S)
+        while len(self._legs) > 1 and self._legs[0].end < keep:
+            self._legs.pop(0)
+        for leg in reversed(self._legs):
+            if leg.start <= k:
+                return leg
+        raise LookupError(f"drive sample {k} was dropped (more than {KEEP_S} s behind)")
+
+    def speed(self, k: int) -> float:
+        """True speed (m/s) at sample k."""
+        leg = self.leg_at(k)
+        return float(leg.trace.v[k - leg.start])
+
+    def speeds(self, k0: int, k1: int) -> np.ndarray:
+        """True speeds (m/s) at samples k0 .. k1 - 1."""
+        out = np.empty(k1 - k0)
+        k = k0
+        while k < k1:
+            leg = self.leg_at(k)
+            m = min(k1, leg.end) - k
+            out[k - k0:k - k0 + m] = leg.trace.v[k - leg.start:k - leg.start + m]
+            k += m
+        return out
