@@ -12,11 +12,12 @@ import numpy as np
 
 from vecu.probes import SpeedSeries, SteeringSeries, ThrottleSeries
 from vecu.runner import RunResult
+from vecu.summary import RunSummary
 
 
 def plot_run(result: RunResult, path: str) -> None:
     """Throttle panels (angles, broadcast error) and, when present, a speed panel."""
-    series, summary = result.throttle_series, result.summary
+    series, summary = result.throttle_series, result.report
     extra = [(plot, data) for plot, data in ((_plot_speed, result.speed_series),
                                              (_plot_steering, result.steering_series),
                                              (_plot_manifold, result.manifold_series))
@@ -62,7 +63,7 @@ def _plot_steering(st: SteeringSeries, ax: Any) -> None:
     ax.legend(loc="upper right", fontsize=8, ncol=5)
 
 
-def _plot_throttle(series: ThrottleSeries, summary: dict[str, Any], ax1: Any, ax2: Any) -> None:
+def _plot_throttle(series: ThrottleSeries, summary: RunSummary, ax1: Any, ax2: Any) -> None:
     """Angles (truth, TPS, broadcast, estimate ± 2 sigma) and the broadcast error."""
     t = series.t_s
     ax1.fill_between(t, series.theta_est - 2 * series.theta_est_std,
@@ -72,20 +73,21 @@ def _plot_throttle(series: ThrottleSeries, summary: dict[str, Any], ax1: Any, ax
     ax1.plot(t, series.theta_sensor, color="tab:blue", lw=0.6, alpha=0.7, label="TPS sensor")
     ax1.plot(t, series.theta_est, color="tab:orange", lw=0.8, label="estimate (hot standby)")
     ax1.plot(t, series.theta_broadcast, color="tab:red", lw=0.8, ls="--", label="broadcast")
-    th = summary["throttle"]
+    th = summary.throttle
+    kill_s = th.detection.kill_time_s
     on_est = series.source == 1
     if on_est.any():
         ax1.fill_between(t, 0, 1, where=on_est, transform=ax1.get_xaxis_transform(),
                          color="tab:red", alpha=0.07, lw=0, label="broadcasting estimate")
-    if th["kill_time_s"] is not None:
+    if kill_s is not None:
         for ax in (ax1, ax2):
-            ax.axvline(th["kill_time_s"], color="tab:purple", lw=1.2, ls=":")
-        ax1.text(th["kill_time_s"], 92, f" TPS {th['fault']}", color="tab:purple", va="bottom")
+            ax.axvline(kill_s, color="tab:purple", lw=1.2, ls=":")
+        ax1.text(kill_s, 92, f" TPS {th.fault}", color="tab:purple", va="bottom")
     ax1.set_ylim(-5, 100)
     ax1.set_ylabel("throttle angle (deg)")
     ax1.legend(loc="upper left", fontsize=8, ncol=3)
-    ax1.set_title(f"vecu run — seed {summary['config']['seed']}, α = "
-                  f"{summary['config']['noise_scale']}, estimator {th['estimator']}")
+    ax1.set_title(f"vecu run — seed {summary.config['seed']}, α = "
+                  f"{summary.config['noise_scale']}, estimator {th.estimator}")
     ax2.plot(t, series.theta_broadcast - series.theta_true, color="tab:red", lw=0.6)
     ax2.axhline(0, color="black", lw=0.5)
     ax2.set_ylabel("broadcast − true (deg)")

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from vecu.clock import NS_PER_S
+from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.ecu.manifold_function import ManifoldFunction
+from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
 from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.plant.node import LateralPart, LongitudinalPart, ManifoldPart, ThrottlePart
-from vecu.stats import RunningStats
+from vecu.stats import ErrorStats, RunningStats
+from vecu.summary import FLATTEN, Detection, KillSplit
 from vecu.units import MPS_PER_KMH
 
 LOW_SPEED_KMH = 5.0  # the paper's split: the wheel-speed sensor is useless below 5 km/h
@@ -94,6 +95,150 @@ class SteeringSeries:
     source: np.ndarray
 
 
+@dataclass(frozen=True)
+class PhaseErrors:
+    """Throttle errors (deg) in one phase of the run (before / after the TPS kill)."""
+
+    broadcast_error_deg: ErrorStats
+    estimate_error_deg: ErrorStats
+
+
+@dataclass(frozen=True)
+class ThrottleSummary:
+    """The throttle function's section of a run summary."""
+
+    estimator: str
+    estimator_resets: int
+    estimator_faults: int
+    detection: Detection = field(metadata=FLATTEN)
+    fault: str | None
+    final_status: str
+    final_source: str
+    nan_outputs: int
+    missing_broadcasts: int  # ticks without an estimate frame (skipped releases, send errors)
+    before_kill: PhaseErrors
+    after_kill: PhaseErrors
+
+
+@dataclass(frozen=True)
+class SpeedBand:
+    estimate_error_kmh: ErrorStats
+    raw_wheel_error_kmh: ErrorStats
+    gain_db: float | None
+
+
+@dataclass(frozen=True)
+class AccelErrors:
+    estimate_error_mps2: ErrorStats
+    raw_accelerometer_error_mps2: ErrorStats
+    gain_db: float | None
+
+
+@dataclass(frozen=True)
+class SpeedFilterCounts:
+    resets: int
+    rejected_wheel: int
+    rejected_accel: int
+
+
+@dataclass(frozen=True)
+class SpeedSummary:
+    """The speed function's section of a run summary (the paper's dB gains)."""
+
+    burn_in_s: float
+    speed_ge_5kmh: SpeedBand
+    speed_lt_5kmh: SpeedBand
+    accel: AccelErrors
+    filter: SpeedFilterCounts
+    estimates_sent: int
+    coast_steps: int
+
+    def lines(self) -> list[str]:
+        """For `vecu run`'s printed summary."""
+        hi, lo, ac = self.speed_ge_5kmh, self.speed_lt_5kmh, self.accel
+        parts = [f"no samples after the {self.burn_in_s:g} s burn-in" if hi.gain_db is None
+                 else f"speed >= 5 km/h: RMS {hi.estimate_error_kmh.rms:.2f} km/h "
+                 f"(raw wheel {hi.raw_wheel_error_kmh.rms:.2f}, {hi.gain_db:+.1f} dB)"]
+        if lo.gain_db is not None:
+            parts.append(f"< 5 km/h: {lo.gain_db:+.1f} dB")
+        if ac.gain_db is not None:
+            parts.append(f"accel RMS {ac.estimate_error_mps2.rms:.3f} m/s^2 "
+                         f"({ac.gain_db:+.1f} dB vs accelerometer)")
+        return ["speed estimate: " + "; ".join(parts)]
+
+
+@dataclass(frozen=True)
+class SteeringSummary:
+    """The steering function's section of a run summary."""
+
+    swa_broadcast_error_deg: KillSplit
+    swa_ukf_error_deg: ErrorStats
+    swa_smoothed_error_deg: ErrorStats
+    side_slip_ukf_error_deg: ErrorStats
+    side_slip_smoothed_error_deg: ErrorStats
+    smoother_lag_ms: float | None
+    estimates_sent: int
+    ukf_rejected: int
+    detection: Detection = field(metadata=FLATTEN)
+    fault: str | None
+    final_source: str
+    missing_broadcasts: int
+
+    def lines(self) -> list[str]:
+        """For `vecu run`'s printed summary."""
+        det = self.detection
+        smoothed = ("fixed-lag smoother: no output yet (the run is shorter than its lag)"
+                    if self.smoother_lag_ms is None else
+                    f"fixed-lag smoother ({self.smoother_lag_ms} ms behind) "
+                    f"{self.swa_smoothed_error_deg.rms:.2f} deg")
+        line = (f"steering: SWA UKF RMS {self.swa_ukf_error_deg.rms:.2f} deg, {smoothed}, "
+                f"side-slip {self.side_slip_ukf_error_deg.rms:.3f} deg")
+        if det.kill_time_s is not None:
+            after = self.swa_broadcast_error_deg.after_kill
+            line += (f"; SWA fault '{self.fault}' at {det.kill_time_s:.2f} s "
+                     + (f"detected as {det.detected_as} after {det.detection_latency_ms:.0f} ms"
+                        if det.detected else "NOT detected")
+                     + f", broadcast error after {after.rms:.2f} deg RMS")
+        if det.false_alarm:
+            line += f"; WARNING: SWA fault reported before any injection ({det.detection_time_s} s)"
+        return [line]
+
+
+@dataclass(frozen=True)
+class ManifoldSummary:
+    """The manifold function's section of a run summary (Dutka 2006 Table 3 errors)."""
+
+    filter: str
+    events: int
+    lost_events: int
+    implausible_inputs: int  # events refused (e.g. 0 rpm)
+    # under numba the usual event's filter, CAC and prediction are one call, timed in the
+    # first (ManifoldFunction); their sum is the event's cost under both backends
+    filter_us_per_event: float
+    cac_prediction_us_per_event: float
+    p_im_error_kpa: ErrorStats
+    t_im_error_k: ErrorStats
+    cac_error_mg: ErrorStats
+    cac_pred6_error_mg: ErrorStats
+    cac_pred6_abs_error_pct: ErrorStats
+    p_im_estimate_range_kpa: list[float] | None
+    filter_resets: int
+    estimator_faults: int
+
+    def lines(self) -> list[str]:
+        """For `vecu run`'s printed summary."""
+        return [(f"manifold ({self.filter}, {self.events} engine events, {self.lost_events} lost): "
+                 f"P_im RMS {self.p_im_error_kpa.rms:.3f} kPa, T_im {self.t_im_error_k.rms:.2f} K, "
+                 f"CAC {self.cac_error_mg.rms:.2f} mg, 6-event CAC prediction "
+                 f"{self.cac_pred6_abs_error_pct.mean:.2f} % mean |error|; "
+                 f"{self.filter_us_per_event + self.cac_prediction_us_per_event:.0f} us/event "
+                 "(filter, CAC and prediction)")]
+
+
+def _source_name(source: int) -> str:
+    return "estimate" if source == SOURCE_ESTIMATE else "sensor"
+
+
 class ThrottleProbe:
     """Broadcast and estimator error against the true angle, split at the TPS kill time."""
 
@@ -131,10 +276,19 @@ class ThrottleProbe:
         return ThrottleSeries(s[0], s[1], s[2], s[3], s[4], s[5], s[6].astype(int),
                               s[7].astype(int))
 
-    def summary(self) -> dict[str, Any]:
-        return {phase: {"broadcast_error_deg": self.bc[phase].as_dict(),
-                        "estimate_error_deg": self.est[phase].as_dict()}
-                for phase in ("before_kill", "after_kill")}
+    def summary(self, n_ticks: int, fault: str) -> ThrottleSummary:
+        """The section after n_ticks ticks; fault: the TPS fault kind (when killed)."""
+        fn = self.fn
+        phases = {phase: PhaseErrors(self.bc[phase].summary(), self.est[phase].summary())
+                  for phase in ("before_kill", "after_kill")}
+        return ThrottleSummary(
+            estimator=fn.estimator.name, estimator_resets=fn.estimator.resets,
+            estimator_faults=fn.estimator_faults,
+            detection=Detection.of(fn.monitor, self.kill_ns),
+            fault=fault if self.kill_ns is not None else None,
+            final_status=fn.status.name.lower(), final_source=_source_name(fn.source),
+            nan_outputs=self.nan_outputs, missing_broadcasts=n_ticks - fn.estimates_sent,
+            before_kill=phases["before_kill"], after_kill=phases["after_kill"])
 
 
 def _gain_db(raw: RunningStats, est: RunningStats) -> float | None:
@@ -176,19 +330,18 @@ class SpeedProbe:
     def series(self) -> SpeedSeries | None:
         return None if self._series is None else SpeedSeries(*self._series.view())
 
-    def summary(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"burn_in_s": SPEED_BURN_IN_NS / NS_PER_S}
-        for band, label in (("high", "speed_ge_5kmh"), ("low", "speed_lt_5kmh")):
-            out[label] = {"estimate_error_kmh": self.v_est[band].as_dict(),
-                          "raw_wheel_error_kmh": self.v_raw[band].as_dict(),
-                          "gain_db": _gain_db(self.v_raw[band], self.v_est[band])}
-        out["accel"] = {"estimate_error_mps2": self.a_est.as_dict(),
-                        "raw_accelerometer_error_mps2": self.a_raw.as_dict(),
-                        "gain_db": _gain_db(self.a_raw, self.a_est)}
-        out["filter"] = {"resets": self.fn.kf.resets, "rejected_wheel": self.fn.kf.rejected_wheel,
-                         "rejected_accel": self.fn.kf.rejected_accel}
-        out["estimates_sent"] = self.fn.estimates_sent
-        return out
+    def summary(self) -> SpeedSummary:
+        bands = {band: SpeedBand(self.v_est[band].summary(), self.v_raw[band].summary(),
+                                 _gain_db(self.v_raw[band], self.v_est[band]))
+                 for band in ("high", "low")}
+        kf = self.fn.kf
+        return SpeedSummary(
+            burn_in_s=SPEED_BURN_IN_NS / NS_PER_S, speed_ge_5kmh=bands["high"],
+            speed_lt_5kmh=bands["low"],
+            accel=AccelErrors(self.a_est.summary(), self.a_raw.summary(),
+                              _gain_db(self.a_raw, self.a_est)),
+            filter=SpeedFilterCounts(kf.resets, kf.rejected_wheel, kf.rejected_accel),
+            estimates_sent=self.fn.estimates_sent, coast_steps=self.fn.coast_steps)
 
 
 class SteeringProbe:
@@ -236,17 +389,22 @@ class SteeringProbe:
         s = self._series.view()
         return SteeringSeries(s[0], s[1], s[2], s[3], s[4], s[5].astype(int))
 
-    def summary(self) -> dict[str, Any]:
-        return {
-            "swa_broadcast_error_deg": {ph: st.as_dict() for ph, st in self.bc.items()},
-            "swa_ukf_error_deg": self.ukf.as_dict(),
-            "swa_smoothed_error_deg": self.smoothed.as_dict(),
-            "side_slip_ukf_error_deg": self.beta_ukf.as_dict(),
-            "side_slip_smoothed_error_deg": self.beta_smoothed.as_dict(),
-            "smoother_lag_ms": self.fn.lagged[0] if self.fn.lagged else None,
-            "estimates_sent": self.fn.estimates_sent,
-            "ukf_rejected": self.fn.ukf.rejected,
-        }
+    def summary(self, n_ticks: int, fault: str) -> SteeringSummary:
+        """The section after n_ticks base ticks; fault: the SWA fault kind (when killed)."""
+        fn = self.fn
+        return SteeringSummary(
+            swa_broadcast_error_deg=KillSplit(self.bc["before_kill"].summary(),
+                                              self.bc["after_kill"].summary()),
+            swa_ukf_error_deg=self.ukf.summary(),
+            swa_smoothed_error_deg=self.smoothed.summary(),
+            side_slip_ukf_error_deg=self.beta_ukf.summary(),
+            side_slip_smoothed_error_deg=self.beta_smoothed.summary(),
+            smoother_lag_ms=fn.lagged[0] if fn.lagged else None,
+            estimates_sent=fn.estimates_sent, ukf_rejected=fn.ukf.rejected,
+            detection=Detection.of(fn.monitor, self.kill_ns),
+            fault=fault if self.kill_ns is not None else None,
+            final_source=_source_name(fn.source),
+            missing_broadcasts=n_ticks * NS_PER_MS // fn.period_ns - fn.estimates_sent)
 
 
 class ManifoldProbe:
@@ -293,24 +451,16 @@ class ManifoldProbe:
         """Rows (t_s, true P_im, estimated P_im), one per engine event."""
         return None if self._series is None else np.array(self._series).reshape(-1, 3)
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> ManifoldSummary:
         fn = self.fn
-        return {
-            "filter": fn.filter_name,
-            "events": fn.events,
-            "lost_events": fn.lost_events,
-            "implausible_inputs": fn.implausible_inputs,  # events refused (e.g. 0 rpm)
-            # under numba the usual event's filter, CAC and prediction are one call, timed in
-            # the first (ManifoldFunction); their sum is the event's cost under both backends
-            "filter_us_per_event": round(fn.filter_seconds / max(fn.events, 1) * 1e6, 1),
-            "cac_prediction_us_per_event": round(fn.predict_seconds / max(fn.events, 1) * 1e6, 1),
-            "p_im_error_kpa": self.p_err.as_dict(),
-            "t_im_error_k": self.t_err.as_dict(),
-            "cac_error_mg": self.cac_err.as_dict(),
-            "cac_pred6_error_mg": self.pred_err.as_dict(),
-            "cac_pred6_abs_error_pct": self.pred_rel.as_dict(),
-            "p_im_estimate_range_kpa": ([round(self.p_min, 2), round(self.p_max, 2)]
-                                        if self.p_err.n else None),
-            "filter_resets": fn.filter.resets,
-            "estimator_faults": fn.estimator_faults,
-        }
+        return ManifoldSummary(
+            filter=fn.filter_name, events=fn.events, lost_events=fn.lost_events,
+            implausible_inputs=fn.implausible_inputs,
+            filter_us_per_event=round(fn.filter_seconds / max(fn.events, 1) * 1e6, 1),
+            cac_prediction_us_per_event=round(fn.predict_seconds / max(fn.events, 1) * 1e6, 1),
+            p_im_error_kpa=self.p_err.summary(), t_im_error_k=self.t_err.summary(),
+            cac_error_mg=self.cac_err.summary(), cac_pred6_error_mg=self.pred_err.summary(),
+            cac_pred6_abs_error_pct=self.pred_rel.summary(),
+            p_im_estimate_range_kpa=([round(self.p_min, 2), round(self.p_max, 2)]
+                                     if self.p_err.n else None),
+            filter_resets=fn.filter.resets, estimator_faults=fn.estimator_faults)

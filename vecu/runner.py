@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import can
@@ -34,15 +35,10 @@ from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, mono
 from vecu.codec import DbcCodec, shared_codec
 from vecu.config import ParamTree, RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
-from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
 from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
-from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, FaultTarget, ScheduledFault, parse_kind
-from vecu.plant.node import (
-    PlantNode,
-)
 from vecu.probes import (
     ManifoldProbe,
     SpeedProbe,
@@ -57,22 +53,28 @@ from vecu.restbus.node import RestbusNode, schedule_disturbances
 from vecu.restbus.spec import build_plans
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
+from vecu.summary import FrameCounts, RunSummary, to_json
 from vecu.uds.server import attach_uds
 from vecu.uds.tester import SimTester
 from vecu.xcp.server import XcpServer, attach_xcp
 from vecu.xcp.tester import SimXcpMaster, layout_of
 
-__all__ = ["RunConfig", "RunResult", "detection", "run"]
+__all__ = ["RunConfig", "RunResult", "run"]
 PRIO_CALIBRATE = PRIO_ECU + 1  # a timed set acts from the ECU's next tick, as an XCP write
 
 
 @dataclass(frozen=True)
 class RunResult:
-    summary: dict[str, Any]
+    report: RunSummary  # typed; `summary` is its JSON form
     throttle_series: ThrottleSeries | None
     speed_series: SpeedSeries | None = None
     steering_series: SteeringSeries | None = None
     manifold_series: np.ndarray | None = None  # rows (t_s, true P_im, estimated P_im) per event
+
+    @cached_property
+    def summary(self) -> dict[str, Any]:
+        """The summary as a user sees it (`vecu run --summary`): to_json(report)."""
+        return to_json(self.report)
 
 
 def run(config: RunConfig, progress: Callable[[float, float], None] | None = None, *,
@@ -186,43 +188,47 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         ecu.overruns = ecu_task.overruns
         if recorder is not None:  # frames sent after the ECU's last tick: stamped before end
             recorder.drain(end_ns, before_ns=end_ns)
-        summary = _summary(config, sched, plant, ecu, throttle_fn, probe, injector, kill_ns,
-                           n_ticks, wall, recorder)
-        summary["kernel_load_s"] = round(kernel_load_s, 3)
-        summary["bus"] = "vecu lane" if lane is not None else type(ecu_bus).__name__
-        summary["diagnostics"] = {**{name: mon.report() for name, mon in ecu.monitors.items()},
-                                  "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
-                                          "confirmations": ecu.bus_dtc.confirmations}}
-        if restbus is not None:
-            summary["restbus"] = restbus.summary()
-            summary["frames"]["sent"] += restbus.frames_sent
-        if uds is not None:
-            summary["uds"] = uds.summary()
-        if tester is not None:
-            summary["uds_steps"] = tester.summary()
-        if xcp is not None:
-            summary["xcp"] = xcp.summary()
-        if xcp_master is not None:
-            summary["xcp_steps"] = xcp_master.summary()
+        frames_sent = plant.frames_sent + ecu.frames_sent + (
+            restbus.frames_sent if restbus is not None else 0)
+        sections: dict[str, object] = {}
         if speed_probe is not None:
-            summary["speed"] = speed_probe.summary()
-            summary["speed"]["coast_steps"] = fns.speed.coast_steps
+            sections["speed"] = speed_probe.summary()
         if manifold_probe is not None:
-            summary["manifold"] = manifold_probe.summary()
+            sections["manifold"] = manifold_probe.summary()
         if steering_probe is not None:
-            summary["steering"] = {**steering_probe.summary(),
-                                   **detection(steering_fn.monitor, swa_kill_ns),
-                                   "fault": config.swa_fault if swa_kill_ns is not None else None,
-                                   "final_source": ("estimate"
-                                                    if steering_fn.source == SOURCE_ESTIMATE
-                                                    else "sensor"),
-                                   "missing_broadcasts": n_ticks // 10 - steering_fn.estimates_sent}
+            sections["steering"] = steering_probe.summary(n_ticks, config.swa_fault)
+        summary = RunSummary(
+            config=config.summary(), ticks=n_ticks, overruns=sched.overruns,
+            tasks={t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
+                            "max_lateness_ms": round(t.max_lateness_ns / NS_PER_MS, 3)}
+                   for t in sched.stats},
+            sim_time_s=n_ticks / 1000.0, wall_time_s=round(wall, 4),
+            x_realtime=round(n_ticks / 1000.0 / wall, 2) if wall > 0 else None,
+            kernels=kernels.backend(), throttle=probe.summary(n_ticks, config.fault),
+            frames=FrameCounts(
+                sent=frames_sent, plant_sent=plant.frames_sent, ecu_sent=ecu.frames_sent,
+                send_errors=plant.send_errors + ecu.send_errors, received=ecu.rx.received,
+                rejected=ecu.rx.rejected, ecu_rx=ecu.rx.as_dict(),
+                logged=recorder.frames if recorder else None,
+                rejected_fault_commands=injector.rejected_commands),
+            fault_events=_fault_events(injector),
+            kernel_load_s=round(kernel_load_s, 3),
+            bus="vecu lane" if lane is not None else type(ecu_bus).__name__,
+            diagnostics={**{name: mon.report() for name, mon in ecu.monitors.items()},
+                         "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
+                                 "confirmations": ecu.bus_dtc.confirmations}},
+            restbus=restbus.summary() if restbus is not None else None,
+            uds=uds.summary() if uds is not None else None,
+            uds_steps=tester.summary() if tester is not None else None,
+            xcp=xcp.summary() if xcp is not None else None,
+            xcp_steps=xcp_master.summary() if xcp_master is not None else None,
+            functions=sections)
     finally:
         if recorder is not None:
             recorder.close()
         for bus in buses:
             bus.shutdown()
-    return RunResult(summary=summary, throttle_series=probe.series(),
+    return RunResult(report=summary, throttle_series=probe.series(),
                      speed_series=speed_probe.series() if speed_probe else None,
                      steering_series=steering_probe.series() if steering_probe else None,
                      manifold_series=manifold_probe.series() if manifold_probe else None)
@@ -351,66 +357,7 @@ def warm_up(config: RunConfig) -> None:
     gc.freeze()
 
 
-def detection(mon: SensorMonitor, kill_ns: int | None) -> dict[str, Any]:
-    """Kill time, first confirmed fault, latency, and whether it came before any kill."""
-    detect_ns = mon.first_fault_ns
-    detected = detect_ns is not None and kill_ns is not None and detect_ns >= kill_ns
-    return {
-        "kill_time_s": None if kill_ns is None else kill_ns / NS_PER_S,
-        "detected": detected,
-        "detection_time_s": detect_ns / NS_PER_S if detect_ns is not None else None,
-        "detection_latency_ms": (detect_ns - kill_ns) / NS_PER_MS if detected else None,
-        "detected_as": mon.first_fault_status.name.lower() if mon.first_fault_status else None,
-        "false_alarm": detect_ns is not None and (kill_ns is None or detect_ns < kill_ns),
-        "dtc": mon.dtc.name.lower(),
-    }
-
-
-def _summary(config: RunConfig, sched: Scheduler, plant: PlantNode, ecu: EcuNode,
-             fn: ThrottleFunction, probe: ThrottleProbe, injector: FaultInjector,
-             kill_ns: int | None, n_ticks: int, wall_s: float,
-             recorder: Recorder | None) -> dict[str, Any]:
-    mon = fn.monitor
-    throttle: dict[str, Any] = {
-        "estimator": fn.estimator.name,
-        "estimator_resets": fn.estimator.resets,
-        "estimator_faults": fn.estimator_faults,
-        **detection(mon, kill_ns),
-        "fault": config.fault if kill_ns is not None else None,
-        "final_status": fn.status.name.lower(),
-        "final_source": "estimate" if fn.source == SOURCE_ESTIMATE else "sensor",
-        "nan_outputs": probe.nan_outputs,
-        # ticks without an estimate frame on the bus (skipped releases in live runs, send errors)
-        "missing_broadcasts": n_ticks - fn.estimates_sent,
-    }
-    throttle.update(probe.summary())
-    sim_s = n_ticks / 1000.0
-    return {
-        "config": config.summary(),
-        "ticks": n_ticks,
-        "overruns": sched.overruns,
-        "tasks": {t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
-                           "max_lateness_ms": round(t.max_lateness_ns / NS_PER_MS, 3)}
-                  for t in sched.stats},
-        "sim_time_s": sim_s,
-        "wall_time_s": round(wall_s, 4),
-        "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
-        "kernels": kernels.backend(),
-        "throttle": throttle,
-        "frames": {
-            "sent": plant.frames_sent + ecu.frames_sent,
-            "plant_sent": plant.frames_sent,
-            "ecu_sent": ecu.frames_sent,
-            "send_errors": plant.send_errors + ecu.send_errors,
-            "received": ecu.rx.received,
-            "rejected": ecu.rx.rejected,
-            "ecu_rx": ecu.rx.as_dict(),
-            "logged": recorder.frames if recorder else None,
-            "rejected_fault_commands": injector.rejected_commands,
-        },
-        "fault_events": [
-            {"t_s": e.t_ns / NS_PER_S, "target": e.target.name, "kind": e.kind.name.lower(),
+def _fault_events(injector: FaultInjector) -> list[dict[str, Any]]:
+    return [{"t_s": e.t_ns / NS_PER_S, "target": e.target.name, "kind": e.kind.name.lower(),
              "value": e.value, "source": e.source,
-             "ended": [k.name.lower() for k in e.cleared]} for e in injector.events
-        ],
-    }
+             "ended": [k.name.lower() for k in e.cleared]} for e in injector.events]

@@ -16,6 +16,7 @@ import math
 import sys
 import threading
 from dataclasses import asdict, dataclass
+from functools import cached_property
 from typing import Any
 
 import can
@@ -38,8 +39,16 @@ from vecu.replay.signal_map import (
     mapped_routes,
 )
 from vecu.replay.source import IDLE_GAP_NS, TraceReadError, TraceSource
+from vecu.replay.summary import (
+    FunctionReport,
+    IdleGaps,
+    MapReport,
+    ReplayFrames,
+    ReplaySummary,
+)
 from vecu.runner import ensure_kernels, warm_up
 from vecu.scheduler import Scheduler
+from vecu.summary import to_json
 
 log = logging.getLogger(__name__)
 
@@ -88,9 +97,14 @@ class ReplayConfig:
 
 @dataclass(frozen=True)
 class ReplayResult:
-    summary: dict[str, Any]
+    report: ReplaySummary  # typed; `summary` is its JSON form
     error: str | None  # a read error (the summary covers everything before it)
     series: dict[str, list[tuple[float, float, float]]] | None = None
+
+    @cached_property
+    def summary(self) -> dict[str, Any]:
+        """The summary as a user sees it (`vecu replay --summary`): to_json(report)."""
+        return to_json(self.report)
 
 
 def replay(config: ReplayConfig) -> ReplayResult:
@@ -174,8 +188,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
         if not live:
             ecu_bus.shutdown()
     summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
-                       writer.frames if writer is not None else 0)
-    summary["kernel_load_s"] = round(kernel_load_s, 3)
+                       writer.frames if writer is not None else 0, kernel_load_s)
     return ReplayResult(summary, source.error, scorer.series)
 
 
@@ -345,7 +358,7 @@ def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
 
 def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: FrameTally,
              ecu: EcuNode, smap: SignalMap, functions: list[EcuFunction], scorer: TruthScorer,
-             wall_s: float, written: int) -> dict[str, Any]:
+             wall_s: float, written: int, kernel_load_s: float) -> ReplaySummary:
     rx = ecu.rx.as_dict()
     sim_s = feeder.last_ns / NS_PER_S
     st = source.stats
@@ -355,57 +368,46 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
                          "malformed") and v}
     rejected.update({f"decode_{k}": v for k, v in tally.decode_errors.items()})
     armed = {f.name for f in ecu.armed}
-    fn_report: dict[str, Any] = {}
+    fn_report: dict[str, FunctionReport] = {}
     for name in ("throttle", "speed", "steering", "manifold"):
         if name in smap.disabled:
-            fn_report[name] = {"enabled": False, "reason": smap.disabled[name]}
+            fn_report[name] = FunctionReport(False, reason=smap.disabled[name])
         else:
             fn = next((f for f in functions if f.name == name), None)
-            fn_report[name] = {"enabled": True, "ran": name in armed,
-                               "estimates_sent": getattr(fn, "estimates_sent", None)}
-            if name not in armed:
-                fn_report[name]["reason"] = "no input frames in the trace"
-    out: dict[str, Any] = {
-        "trace": config.trace,
-        "mode": "live" if config.speed is not None else "fast",
-        "config": {k: v for k, v in asdict(config).items()
-                   if k not in ("progress", "progress_every_s", "keep_series", "block")},
-        "error": source.error,
-        "frames": {
-            "read": st.frames_read,
-            "decoded": rx["accepted"] + tally.truth + tally.decoded_other,
-            "ignored_known": rx["ignored"],
-            "unknown_id": rx["unknown_id"],
-            "error_frames": rx["error_frames"],
-            "remote_frames": rx["remote_frames"],
-            "rejected": sum(rejected.values()),
-            "rejected_by_reason": rejected,
-            "truth": tally.truth,
-            "out_of_order": st.out_of_order,
-            "late": st.late,
-            "non_finite_time": st.non_finite_time,
-            "ecu_rx": rx,
-        },
-        "functions": fn_report,
-        "map": {"file": config.signal_map, "notes": list(smap.notes)},
-        "trace_duration_s": round(trace_s, 6),
-        "simulated_s": round(sim_s, 6),  # what the ECU ran: the trace less the idle time skipped
-        "idle_gaps": {"threshold_s": config.idle_gap_s, "count": st.gaps,
-                      "skipped_s": round(st.skipped_ns / NS_PER_S, 6),
-                      "longest_s": round(st.longest_gap_ns / NS_PER_S, 6),
-                      "first": [[round(a / NS_PER_S, 6), round(g / NS_PER_S, 6)]
-                                for a, g in st.gap_list]},
-        "wall_time_s": round(wall_s, 4),
-        "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
-        "frames_per_s": round(st.frames_read / wall_s) if wall_s > 0 else None,
-        "kernels": kernels.backend(),
-        "frames_written": written,
-        "ecu_overruns": ecu.overruns,
-        "score": scorer.summary() if scorer.active else None,
-    }
-    if config.speed is not None:
-        out["schedule_error"] = feeder.schedule_error.summary()
-    return out
+            fn_report[name] = FunctionReport(
+                True, ran=name in armed, estimates_sent=getattr(fn, "estimates_sent", None),
+                reason=None if name in armed else "no input frames in the trace")
+    return ReplaySummary(
+        trace=config.trace,
+        mode="live" if config.speed is not None else "fast",
+        config={k: v for k, v in asdict(config).items()
+                if k not in ("progress", "progress_every_s", "keep_series", "block")},
+        error=source.error,
+        frames=ReplayFrames(
+            read=st.frames_read,
+            decoded=rx["accepted"] + tally.truth + tally.decoded_other,
+            ignored_known=rx["ignored"], unknown_id=rx["unknown_id"],
+            error_frames=rx["error_frames"], remote_frames=rx["remote_frames"],
+            rejected=sum(rejected.values()), rejected_by_reason=rejected, truth=tally.truth,
+            out_of_order=st.out_of_order, late=st.late, non_finite_time=st.non_finite_time,
+            ecu_rx=rx),
+        functions=fn_report,
+        map=MapReport(config.signal_map, list(smap.notes)),
+        trace_duration_s=round(trace_s, 6),
+        simulated_s=round(sim_s, 6),
+        idle_gaps=IdleGaps(config.idle_gap_s, st.gaps, round(st.skipped_ns / NS_PER_S, 6),
+                           round(st.longest_gap_ns / NS_PER_S, 6),
+                           [[round(a / NS_PER_S, 6), round(g / NS_PER_S, 6)]
+                            for a, g in st.gap_list]),
+        wall_time_s=round(wall_s, 4),
+        x_realtime=round(sim_s / wall_s, 2) if wall_s > 0 else None,
+        frames_per_s=round(st.frames_read / wall_s) if wall_s > 0 else None,
+        kernels=kernels.backend(),
+        frames_written=written,
+        ecu_overruns=ecu.overruns,
+        score=scorer.summary() if scorer.active else None,
+        schedule_error=feeder.schedule_error.summary() if config.speed is not None else None,
+        kernel_load_s=round(kernel_load_s, 3))
 
 
 __all__ = ["SCHEDULE_ERROR_LIMIT_US", "FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError",

@@ -12,12 +12,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import can
 
 from vecu.clock import NS_PER_MS
 from vecu.codec import DbcCodec, FrameCodec
+from vecu.replay.summary import ReplayScore, ScoreSection
 from vecu.stats import RunningStats
 
 SPEED_BURN_IN_NS = 500 * NS_PER_MS  # as the live probe: the filter starts at rest
@@ -138,12 +138,11 @@ class TruthScorer:
                 continue
             stats[p.key].add(est[p.estimate_signal] - truth[p.truth_signal])
 
-    def summary(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"truth_frames": self.truth_frames,
-                               "bad_truth_frames": self.bad_truth_frames}
+    def summary(self) -> ReplayScore:
+        sections = {}
         for ch in CHANNELS:
             stats = self.stats[ch.estimate]
             if any(s.n for s in stats.values()) or self.unmatched[ch.estimate]:
-                out[GROUP[ch.estimate]] = {**{k: s.as_dict() for k, s in stats.items()},
-                                           "unmatched_estimates": self.unmatched[ch.estimate]}
-        return out
+                sections[GROUP[ch.estimate]] = ScoreSection(
+                    {k: s.summary() for k, s in stats.items()}, self.unmatched[ch.estimate])
+        return ReplayScore(self.truth_frames, self.bad_truth_frames, sections)

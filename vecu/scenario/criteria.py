@@ -82,7 +82,7 @@ def _series(result: RunResult, sensor: str) -> tuple[np.ndarray, np.ndarray, np.
 
 def _sensor(scenario: Scenario, result: RunResult, c: SensorCriteria) -> list[CriterionResult]:
     out: list[CriterionResult] = []
-    diag = result.summary["diagnostics"].get(c.sensor)
+    diag = result.report.diagnostics.get(c.sensor)
     if diag is None:
         return [CriterionResult(f"{c.sensor}: monitored", "no monitor", "present", False)]
     t0 = c.fault_at_s if c.fault_at_s is not None else fault_start(scenario, c.sensor)
@@ -153,21 +153,21 @@ def _error_after(result: RunResult, sensor: str, t_fb: float | None) -> np.ndarr
 def evaluate(scenario: Scenario, result: RunResult) -> list[CriterionResult]:
     """Every criterion of the scenario against one run."""
     crit = scenario.criteria
-    summary: dict[str, Any] = result.summary
+    summary = result.report
     out: list[CriterionResult] = []
     if crit.no_nan:
-        nan = summary["throttle"]["nan_outputs"]
+        nan = summary.throttle.nan_outputs
         for sensor in ("tps", "swa", "wheel"):
             s = _series(result, sensor)
             if s is not None:
                 nan += int(np.count_nonzero(~np.isfinite(s[1])))
         out.append(CriterionResult("no NaN outputs", f"{nan} NaN", "0 NaN", nan == 0))
     if crit.no_overruns:
-        out.append(CriterionResult("no scheduler overruns", str(summary["overruns"]), "0",
-                                   summary["overruns"] == 0))
+        out.append(CriterionResult("no scheduler overruns", str(summary.overruns), "0",
+                                   summary.overruns == 0))
     if crit.no_false_dtc:
         false = []
-        for name, diag in summary["diagnostics"].items():
+        for name, diag in summary.diagnostics.items():
             if name == "bus":
                 kinds = {f.kind for f in scenario.config.faults}
                 if diag["confirmations"] and "error_frames" not in kinds:
@@ -181,17 +181,17 @@ def evaluate(scenario: Scenario, result: RunResult) -> list[CriterionResult]:
                                    ", ".join(false) or "none", "none", not false))
     for c in crit.sensors:
         out.extend(_sensor(scenario, result, c))
-    for i, step in enumerate(summary.get("uds_steps", [])):
+    for i, step in enumerate(summary.uds_steps or []):
         latency = "" if step["latency_ms"] is None else f" after {step['latency_ms']:g} ms"
         out.append(CriterionResult(
             f"uds[{i}] at {step['at_s']:g} s: {step['request']}",
             (step["response"] or "no response") + latency, step["expected"], step["passed"]))
-    for i, step in enumerate(summary.get("xcp_steps", [])):
+    for i, step in enumerate(summary.xcp_steps or []):
         latency = "" if step["latency_ms"] is None else f" after {step['latency_ms']:g} ms"
         out.append(CriterionResult(f"xcp[{i}] at {step['at_s']:g} s: {step['step']}",
                                    step["got"] + latency, step["expected"], step["passed"]))
     if crit.bus_dtc is not None:
-        state = summary["diagnostics"]["bus"]["dtc"]
+        state = summary.diagnostics["bus"]["dtc"]
         out.append(CriterionResult("bus: final DTC state", state, crit.bus_dtc,
                                    state == crit.bus_dtc))
     return out

@@ -126,7 +126,7 @@ def plot_scenario(scenario: Scenario, result: RunResult, path: str) -> None:
         panels.append(("wheel", result.speed_series))
     fig, axes = plt.subplots(len(panels), 1, figsize=(11, 3.2 * len(panels) + 0.6), sharex=True,
                              squeeze=False)
-    diag = result.summary.get("diagnostics", {})
+    diag = result.report.diagnostics
     for ax, (name, s) in zip(axes[:, 0], panels):
         if name == "tps":
             lines = [(s.theta_true, "true θ", "black", "-"), (s.theta_sensor, "TPS sensor",
