@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gc
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
@@ -11,13 +10,14 @@ from typing import Any
 import can
 import numpy as np
 
-from vecu import kernels
+from vecu import kernels, warmup
 from vecu.assembly import (
     PRIO_ECU,
     PRIO_PLANT,
     PRIO_PROBE,
     PRIO_RECORD,
     TICK_NS,
+    EcuFunctions,
     EstimatorFactory,
     build_functions,
     build_plant,
@@ -39,6 +39,7 @@ from vecu.ecu.speed_function import SpeedFunction
 from vecu.ecu.steering_function import SteeringFunction
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, FaultTarget, ScheduledFault, parse_kind
+from vecu.plant.node import PlantNode
 from vecu.probes import (
     ManifoldProbe,
     SpeedProbe,
@@ -52,9 +53,9 @@ from vecu.recorder import Recorder
 from vecu.restbus.node import RestbusNode, schedule_disturbances
 from vecu.restbus.spec import build_plans
 from vecu.rng import rng_streams
-from vecu.scheduler import Scheduler
+from vecu.scheduler import Scheduler, TaskStats
 from vecu.summary import FrameCounts, RunSummary, to_json
-from vecu.uds.server import attach_uds
+from vecu.uds.server import UdsServer, attach_uds
 from vecu.uds.tester import SimTester
 from vecu.xcp.server import XcpServer, attach_xcp
 from vecu.xcp.tester import SimXcpMaster, layout_of
@@ -77,165 +78,248 @@ class RunResult:
         return to_json(self.report)
 
 
+@dataclass
+class Pipeline:
+    """A built run: clock and scheduler, buses, plant, ECU, probes, servers and testers, each
+    made with its hooks (build()); schedule() puts their tasks on the scheduler, execute() runs
+    it, summarise() reads the result; close() shuts the buses (and the log)."""
+
+    config: RunConfig
+    clock: SimClock | WallClock
+    sched: Scheduler
+    n_ticks: int
+    lane: SimLane | None
+    buses: list[can.BusABC]
+    recorder: Recorder | None = None
+    injector: FaultInjector | None = None
+    plant: PlantNode | None = None
+    ecu: EcuNode | None = None
+    fns: EcuFunctions | None = None
+    probe: ThrottleProbe | None = None
+    speed_probe: SpeedProbe | None = None
+    steering_probe: SteeringProbe | None = None
+    manifold_probe: ManifoldProbe | None = None
+    uds: UdsServer | None = None
+    xcp: XcpServer | None = None
+    xcp_master: SimXcpMaster | None = None
+    tester: SimTester | None = None
+    restbus: RestbusNode | None = None
+    ecu_task: TaskStats | None = None
+
+    @property
+    def end_ns(self) -> int:
+        return self.n_ticks * TICK_NS
+
+    def close(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()
+        for bus in self.buses:
+            bus.shutdown()
+
+
 def run(config: RunConfig, progress: Callable[[float, float], None] | None = None, *,
         make_estimator: EstimatorFactory = make_throttle_estimator) -> RunResult:
     """Run plant + injector + ECU (+ recorder) for config.duration_s on one scheduler;
     progress(t_s, duration_s), when given, is called after each simulated second;
     make_estimator builds the ECU's throttle estimator (benches pass a timed one)."""
     config.validate()
-    rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
-    codec = shared_codec()  # built once per process
-    bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     clock = WallClock() if config.realtime else SimClock()
-    sched = Scheduler(clock)
-    n_ticks = round(config.duration_s * 1000)
-    end_ns = n_ticks * TICK_NS
-    kill_ns = None if config.kill_tps_at_s is None else round(config.kill_tps_at_s * NS_PER_S)
-    buses: list[can.BusABC] = []
-    recorder: Recorder | None = None
-    lane = _sim_lane(config, bus_args)
-
-    def node_bus(edge: bool = False) -> can.BusABC:
-        if lane is not None:
-            bus = lane.bus(edge=edge)
-        else:  # a recorder (edge) listens only
-            bus = open_bus(**bus_args, **({"receive_own_messages": False} if edge else {}))
-        buses.append(bus)
-        return bus
-
+    pipeline = Pipeline(config, clock, Scheduler(clock), round(config.duration_s * 1000),
+                        _sim_lane(config), [])
     try:
-        if config.log_path:  # open first so it sees every frame
-            recorder = Recorder(node_bus(edge=True), config.log_path)
-        plant_bus = node_bus()
-        ecu_bus = node_bus()
-        injector = FaultInjector(rngs["faults"])
-        plant = build_plant(config, codec, plant_bus, injector,
-                            truth=config.truth and recorder is not None)
-        fns = build_functions(config, codec, make_estimator)
-        throttle_fn = fns.throttle
-        throttle_part = plant.throttle
-        assert throttle_part is not None
-        speed_probe = None
-        if fns.speed is not None and plant.longitudinal is not None:
-            speed_probe = SpeedProbe(plant.longitudinal, fns.speed, n_ticks // 2 + 1,
-                                     config.keep_series)
-        steering_probe = None
-        steering_fn = fns.steering
-        swa_kill_ns = (None if config.kill_swa_at_s is None
-                       else round(config.kill_swa_at_s * NS_PER_S))
-        if steering_fn is not None and plant.lateral is not None:
-            steering_probe = SteeringProbe(plant.lateral, steering_fn, swa_kill_ns,
-                                           n_ticks // 10 + 1, config.keep_series)
-        manifold_probe = None
-        if fns.manifold is not None and plant.manifold is not None:
-            manifold_probe = ManifoldProbe(plant.manifold, fns.manifold, config.keep_series)
-        ecu = EcuNode(ecu_bus, codec, fns.enabled())
-        uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
-        xcp = attach_xcp_server(ecu, config)
-        for at_s, path, value in config.calibrations:  # timed sets, as an XCP write would act
-            _schedule_calibration(sched, xcp, at_s, path, value)
-        xcp_master = None
-        if config.xcp_steps:  # a scenario's XCP master, before the ECU in each tick
-            xcp_master = _xcp_master(node_bus(), xcp, config)
-            sched.every(TICK_NS, xcp_master.tick, name="xcp-master", priority=PRIO_PLANT + 6)
-        tester = None
-        if config.uds_steps:  # a scenario's tester, before the ECU in each tick
-            tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
-            sched.every(TICK_NS, tester.tick, name="uds-tester", priority=PRIO_PLANT + 5)
-        probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
-        schedule_plant(sched, plant)
-        ecu_task = schedule_ecu(sched, ecu)
-        sched.every(TICK_NS, probe.tick, name="probe", priority=PRIO_PROBE)
-        if speed_probe is not None:
-            sched.every(SpeedFunction.period_ns, speed_probe.tick, name="speed-probe",
-                        priority=PRIO_PROBE)
-        if steering_probe is not None:
-            sched.every(SteeringFunction.period_ns, steering_probe.tick, name="steering-probe",
-                        priority=PRIO_PROBE)
-        if manifold_probe is not None:
-            sched.every(TICK_NS, manifold_probe.tick, name="manifold-probe", priority=PRIO_PROBE)
-        if recorder is not None:
-            sched.every(TICK_NS, recorder.drain, name="recorder", priority=PRIO_RECORD)
-        if kill_ns is not None:
-            kind = parse_kind(config.fault)
-            sched.at(kill_ns, lambda t: injector.inject(t, FaultTarget.TPS, kind, config.fault_value,
-                                                        source="schedule"),
-                     name="kill-tps", priority=PRIO_PLANT - 1)
-        if swa_kill_ns is not None:
-            swa_kind = parse_kind(config.swa_fault)
-            sched.at(swa_kill_ns, lambda t: injector.inject(t, FaultTarget.SWA, swa_kind,
-                                                            config.swa_fault_value,
-                                                            source="schedule"),
-                     name="kill-swa", priority=PRIO_PLANT - 1)
-        for f in config.faults:  # the scenario timeline
-            _schedule_fault(sched, injector, f)
-        restbus = None
-        if config.restbus is not None:  # the user's bus on the same lane and clock
-            restbus = attach_restbus(sched, config, codec, node_bus())
+        build(pipeline, make_estimator)
+        schedule(pipeline)
         if config.realtime:
             warm_up(config)
         # one-time: loading (on a fresh install compiling) the kernels is not the run's speed
         kernel_load_s = ensure_kernels(config)
-        watch = Stopwatch()
-        clock.start()  # set-up time must not count against the first deadlines
-        if progress is None:
-            sched.run_until(end_ns)
-        else:
-            for chunk_end in range(NS_PER_S, end_ns + NS_PER_S, NS_PER_S):
-                sched.run_until(min(chunk_end, end_ns))
-                progress(min(chunk_end, end_ns) / NS_PER_S, config.duration_s)
-        wall = watch.elapsed()
-        ecu.overruns = ecu_task.overruns
-        if recorder is not None:  # frames sent after the ECU's last tick: stamped before end
-            recorder.drain(end_ns, before_ns=end_ns)
-        frames_sent = plant.frames_sent + ecu.frames_sent + (
-            restbus.frames_sent if restbus is not None else 0)
-        sections: dict[str, object] = {}
-        if speed_probe is not None:
-            sections["speed"] = speed_probe.summary()
-        if manifold_probe is not None:
-            sections["manifold"] = manifold_probe.summary()
-        if steering_probe is not None:
-            sections["steering"] = steering_probe.summary(n_ticks, config.swa_fault)
-        summary = RunSummary(
-            config=config.summary(), ticks=n_ticks, overruns=sched.overruns,
-            tasks={t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
-                            "max_lateness_ms": round(t.max_lateness_ns / NS_PER_MS, 3)}
-                   for t in sched.stats},
-            sim_time_s=n_ticks / 1000.0, wall_time_s=round(wall, 4),
-            x_realtime=round(n_ticks / 1000.0 / wall, 2) if wall > 0 else None,
-            kernels=kernels.backend(), throttle=probe.summary(n_ticks, config.fault),
-            frames=FrameCounts(
-                sent=frames_sent, plant_sent=plant.frames_sent, ecu_sent=ecu.frames_sent,
-                send_errors=plant.send_errors + ecu.send_errors, received=ecu.rx.received,
-                rejected=ecu.rx.rejected, ecu_rx=ecu.rx.as_dict(),
-                logged=recorder.frames if recorder else None,
-                rejected_fault_commands=injector.rejected_commands),
-            fault_events=_fault_events(injector),
-            kernel_load_s=round(kernel_load_s, 3),
-            bus="vecu lane" if lane is not None else type(ecu_bus).__name__,
-            diagnostics={**{name: mon.report() for name, mon in ecu.monitors.items()},
-                         "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
-                                 "confirmations": ecu.bus_dtc.confirmations}},
-            restbus=restbus.summary() if restbus is not None else None,
-            uds=uds.summary() if uds is not None else None,
-            uds_steps=tester.summary() if tester is not None else None,
-            xcp=xcp.summary() if xcp is not None else None,
-            xcp_steps=xcp_master.summary() if xcp_master is not None else None,
-            functions=sections)
+        wall = execute(pipeline, progress)
+        summary = summarise(pipeline, wall, kernel_load_s)
     finally:
-        if recorder is not None:
-            recorder.close()
-        for bus in buses:
-            bus.shutdown()
-    return RunResult(report=summary, throttle_series=probe.series(),
-                     speed_series=speed_probe.series() if speed_probe else None,
-                     steering_series=steering_probe.series() if steering_probe else None,
-                     manifold_series=manifold_probe.series() if manifold_probe else None)
+        pipeline.close()
+    p = pipeline
+    return RunResult(
+        report=summary, throttle_series=p.probe.series() if p.probe else None,
+        speed_series=p.speed_probe.series() if p.speed_probe else None,
+        steering_series=p.steering_probe.series() if p.steering_probe else None,
+        manifold_series=p.manifold_probe.series() if p.manifold_probe else None)
+
+
+def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimator) -> None:
+    """Open the buses and make every node of p.config's run, each with its hooks."""
+    config = p.config
+    codec = shared_codec()  # built once per process
+    rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
+    bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
+    n_ticks = p.n_ticks
+
+    def node_bus(edge: bool = False) -> can.BusABC:
+        if p.lane is not None:
+            bus = p.lane.bus(edge=edge)
+        else:  # a recorder (edge) listens only
+            bus = open_bus(**bus_args, **({"receive_own_messages": False} if edge else {}))
+        p.buses.append(bus)
+        return bus
+
+    if config.log_path:  # open first so it sees every frame
+        p.recorder = Recorder(node_bus(edge=True), config.log_path)
+    plant_bus = node_bus()
+    ecu_bus = node_bus()
+    p.injector = FaultInjector(rngs["faults"])
+    p.plant = plant = build_plant(config, codec, plant_bus, p.injector,
+                                  truth=config.truth and p.recorder is not None)
+    p.fns = fns = build_functions(config, codec, make_estimator)
+    assert plant.throttle is not None
+    if fns.speed is not None and plant.longitudinal is not None:
+        p.speed_probe = SpeedProbe(plant.longitudinal, fns.speed, n_ticks // 2 + 1,
+                                   config.keep_series)
+    if fns.steering is not None and plant.lateral is not None:
+        p.steering_probe = SteeringProbe(plant.lateral, fns.steering,
+                                         _at_ns(config.kill_swa_at_s), n_ticks // 10 + 1,
+                                         config.keep_series)
+    if fns.manifold is not None and plant.manifold is not None:
+        p.manifold_probe = ManifoldProbe(plant.manifold, fns.manifold, config.keep_series)
+    p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled())
+    p.uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
+    p.xcp = attach_xcp_server(ecu, config)
+    for _, path, value in config.calibrations:  # a bad one is a user error before the run
+        _check_calibration(p.xcp, path, value)
+    if config.xcp_steps:  # a scenario's XCP master
+        p.xcp_master = _xcp_master(node_bus(), p.xcp, config)
+    if config.uds_steps:  # a scenario's tester
+        p.tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
+    p.probe = ThrottleProbe(plant.throttle, fns.throttle, _at_ns(config.kill_tps_at_s), n_ticks,
+                            config.keep_series)
+    for f in config.faults:  # the timeline's targets checked against the DBC
+        p.injector.check(f.target, parse_kind(f.kind), f.value)
+    if config.restbus is not None:  # the user's bus on the same lane and clock
+        p.restbus = _restbus_node(p.clock, config, codec, node_bus())
+
+
+def schedule(p: Pipeline) -> None:
+    """Every task of the built pipeline on its scheduler, in a fixed order (ties at one time
+    and priority run in this order)."""
+    config, sched = p.config, p.sched
+    assert p.plant is not None and p.ecu is not None and p.injector is not None
+    assert p.probe is not None
+    for at_s, path, value in config.calibrations:  # timed sets, as an XCP write would act
+        _schedule_calibration(sched, p.xcp, at_s, path, value)
+    if p.xcp_master is not None:  # before the ECU in each tick
+        sched.every(TICK_NS, p.xcp_master.tick, name="xcp-master", priority=PRIO_PLANT + 6)
+    if p.tester is not None:  # before the ECU in each tick
+        sched.every(TICK_NS, p.tester.tick, name="uds-tester", priority=PRIO_PLANT + 5)
+    schedule_plant(sched, p.plant)
+    p.ecu_task = schedule_ecu(sched, p.ecu)
+    sched.every(TICK_NS, p.probe.tick, name="probe", priority=PRIO_PROBE)
+    if p.speed_probe is not None:
+        sched.every(SpeedFunction.period_ns, p.speed_probe.tick, name="speed-probe",
+                    priority=PRIO_PROBE)
+    if p.steering_probe is not None:
+        sched.every(SteeringFunction.period_ns, p.steering_probe.tick, name="steering-probe",
+                    priority=PRIO_PROBE)
+    if p.manifold_probe is not None:
+        sched.every(TICK_NS, p.manifold_probe.tick, name="manifold-probe", priority=PRIO_PROBE)
+    if p.recorder is not None:
+        sched.every(TICK_NS, p.recorder.drain, name="recorder", priority=PRIO_RECORD)
+    injector = p.injector
+    kill_ns = _at_ns(config.kill_tps_at_s)
+    if kill_ns is not None:
+        kind = parse_kind(config.fault)
+        sched.at(kill_ns, lambda t: injector.inject(t, FaultTarget.TPS, kind, config.fault_value,
+                                                    source="schedule"),
+                 name="kill-tps", priority=PRIO_PLANT - 1)
+    swa_kill_ns = _at_ns(config.kill_swa_at_s)
+    if swa_kill_ns is not None:
+        swa_kind = parse_kind(config.swa_fault)
+        sched.at(swa_kill_ns, lambda t: injector.inject(t, FaultTarget.SWA, swa_kind,
+                                                        config.swa_fault_value,
+                                                        source="schedule"),
+                 name="kill-swa", priority=PRIO_PLANT - 1)
+    for f in config.faults:  # the scenario timeline
+        _schedule_fault(sched, injector, f)
+    if p.restbus is not None:
+        p.restbus.schedule(sched, priority=PRIO_PLANT)
+        schedule_disturbances(sched, p.restbus, config.restbus_disturbances,
+                              priority=PRIO_PLANT - 1)
+
+
+def execute(p: Pipeline, progress: Callable[[float, float], None] | None = None) -> float:
+    """Run the scheduled pipeline to its end; the wall seconds the run loop took."""
+    sched, end_ns = p.sched, p.end_ns
+    watch = Stopwatch()
+    p.clock.start()  # set-up time must not count against the first deadlines
+    if progress is None:
+        sched.run_until(end_ns)
+    else:
+        for chunk_end in range(NS_PER_S, end_ns + NS_PER_S, NS_PER_S):
+            sched.run_until(min(chunk_end, end_ns))
+            progress(min(chunk_end, end_ns) / NS_PER_S, p.config.duration_s)
+    wall = watch.elapsed()
+    assert p.ecu is not None and p.ecu_task is not None
+    p.ecu.overruns = p.ecu_task.overruns
+    if p.recorder is not None:  # frames sent after the ECU's last tick: stamped before end
+        p.recorder.drain(end_ns, before_ns=end_ns)
+    return wall
+
+
+def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:
+    """The run's typed summary after execute()."""
+    config, sched, plant, ecu, n_ticks = p.config, p.sched, p.plant, p.ecu, p.n_ticks
+    assert plant is not None and ecu is not None and p.injector is not None
+    assert p.probe is not None
+    restbus, uds, tester, xcp, xcp_master = p.restbus, p.uds, p.tester, p.xcp, p.xcp_master
+    frames_sent = plant.frames_sent + ecu.frames_sent + (
+        restbus.frames_sent if restbus is not None else 0)
+    sections: dict[str, object] = {}
+    if p.speed_probe is not None:
+        sections["speed"] = p.speed_probe.summary()
+    if p.manifold_probe is not None:
+        sections["manifold"] = p.manifold_probe.summary()
+    if p.steering_probe is not None:
+        sections["steering"] = p.steering_probe.summary(n_ticks, config.swa_fault)
+    return RunSummary(
+        config=config.summary(), ticks=n_ticks, overruns=sched.overruns,
+        tasks={t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
+                        "max_lateness_ms": round(t.max_lateness_ns / NS_PER_MS, 3)}
+               for t in sched.stats},
+        sim_time_s=n_ticks / 1000.0, wall_time_s=round(wall, 4),
+        x_realtime=round(n_ticks / 1000.0 / wall, 2) if wall > 0 else None,
+        kernels=kernels.backend(), throttle=p.probe.summary(n_ticks, config.fault),
+        frames=FrameCounts(
+            sent=frames_sent, plant_sent=plant.frames_sent, ecu_sent=ecu.frames_sent,
+            send_errors=plant.send_errors + ecu.send_errors, received=ecu.rx.received,
+            rejected=ecu.rx.rejected, ecu_rx=ecu.rx.as_dict(),
+            logged=p.recorder.frames if p.recorder else None,
+            rejected_fault_commands=p.injector.rejected_commands),
+        fault_events=_fault_events(p.injector),
+        kernel_load_s=round(kernel_load_s, 3),
+        bus="vecu lane" if p.lane is not None else type(ecu.bus).__name__,
+        diagnostics={**{name: mon.report() for name, mon in ecu.monitors.items()},
+                     "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
+                             "confirmations": ecu.bus_dtc.confirmations}},
+        restbus=restbus.summary() if restbus is not None else None,
+        uds=uds.summary() if uds is not None else None,
+        uds_steps=tester.summary() if tester is not None else None,
+        xcp=xcp.summary() if xcp is not None else None,
+        xcp_steps=xcp_master.summary() if xcp_master is not None else None,
+        functions=sections)
+
+
+def _at_ns(at_s: float | None) -> int | None:
+    return None if at_s is None else round(at_s * NS_PER_S)
 
 
 def attach_restbus(sched: Scheduler, config: RunConfig, codec: DbcCodec,
                    bus: can.BusABC) -> RestbusNode:
+    """The restbus of config.restbus on its own bus node, on `sched` (see _restbus_node)."""
+    node = _restbus_node(sched.clock, config, codec, bus)
+    node.schedule(sched, priority=PRIO_PLANT)
+    schedule_disturbances(sched, node, config.restbus_disturbances, priority=PRIO_PLANT - 1)
+    return node
+
+
+def _restbus_node(clock: SimClock | WallClock, config: RunConfig, codec: DbcCodec,
+                  bus: can.BusABC) -> RestbusNode:
     """The restbus of config.restbus on its own bus node: every message the databases give the
     chosen nodes except those vecu's plant and ECU send themselves, released with the plant, its
     disturbance timeline (FI_Event frames, as vecu's faults)."""
@@ -245,21 +329,19 @@ def attach_restbus(sched: Scheduler, config: RunConfig, codec: DbcCodec,
     cfg = replace(config.restbus, exclude=frozenset(codec.by_id), seed=config.seed)
     plans, _, _ = build_plans(cfg)
     sender = BusNode(bus, "restbus")
-    node = RestbusNode(plans, sender.send, rng_streams(config.seed, ("restbus.faults",))[
-        "restbus.faults"], codec["FI_Event"], clock=sched.clock)
-    node.schedule(sched, priority=PRIO_PLANT)
-    schedule_disturbances(sched, node, config.restbus_disturbances, priority=PRIO_PLANT - 1)
-    return node
+    return RestbusNode(plans, sender.send, rng_streams(config.seed, ("restbus.faults",))[
+        "restbus.faults"], codec["FI_Event"], clock=clock)
 
 
-def _sim_lane(config: RunConfig, bus_args: dict[str, Any]) -> SimLane | None:
+def _sim_lane(config: RunConfig) -> SimLane | None:
     """The in-process lane (vecu.bus.SimLane) for a simulated-clock run on python-can's
     `virtual` interface, unless a bus of this process already listens on that channel (then
     python-can's channel, so that the listener hears the run); a wall-clock run or any other
     interface keeps python-can end to end."""
     if config.realtime:
         return None
-    cfg = resolve_bus_config(**bus_args)
+    cfg = resolve_bus_config(interface=config.interface, channel=config.channel,
+                             bitrate=config.bitrate)
     if cfg["interface"] != "virtual" or virtual_channel_in_use(cfg["channel"]):
         return None
     return SimLane(str(cfg["channel"]))
@@ -290,22 +372,26 @@ def _xcp_master(bus: can.BusABC, xcp: XcpServer | None, config: RunConfig) -> Si
     return SimXcpMaster(bus, config.params.ecu.xcp, layout, config.xcp_steps)
 
 
+def _check_calibration(xcp: XcpServer | None, path: str, value: Any) -> None:
+    """A timed set's leaf and value, checked as an XCP write's (a user error before the run)."""
+    if xcp is None:
+        raise ValueError("timed calibrations need the XCP slave (ecu.xcp.enabled)")
+    xcp.check_calibration([(path.removeprefix("ecu."), value)])
+
+
 def _schedule_calibration(sched: Scheduler, xcp: XcpServer | None, at_s: float, path: str,
                           value: Any) -> None:
     """A timed set of an ecu.* leaf: taken at at_s after the ECU's tick, so that it acts from
     the next tick, as an XCP write handled in the tick at at_s does."""
-    if xcp is None:
-        raise ValueError("timed calibrations need the XCP slave (ecu.xcp.enabled)")
+    assert xcp is not None  # _check_calibration
     rel = path.removeprefix("ecu.")
-    xcp.check_calibration([(rel, value)])  # a bad one is a user error before the run
     sched.at(round(at_s * NS_PER_S), lambda t: xcp.calibrate([(rel, value)], t),
              name="calibrate", priority=PRIO_CALIBRATE)
 
 
 def _schedule_fault(sched: Scheduler, injector: FaultInjector, f: ScheduledFault) -> None:
-    """Start (and end) one timeline fault; the target is checked against the DBC now."""
+    """Start (and end) one timeline fault (its target checked against the DBC by build())."""
     kind = parse_kind(f.kind)
-    injector.check(f.target, kind, f.value)
     sched.at(round(f.start_s * NS_PER_S),
              lambda t: injector.inject(t, f.target, kind, f.value, source="scenario"),
              name=f"fault-{f.kind}-{f.target}", priority=PRIO_PLANT - 1)
@@ -326,21 +412,11 @@ def _run_briefly(config: RunConfig) -> None:
                 log_path=None, keep_series=False, faults=()))
 
 
-_loaded_backends: set[str] = set()  # kernel backends this process has loaded the kernels of
-
-
 def ensure_kernels(config: RunConfig) -> float:
     """Under the numba backend, the first call in a process loads (on a fresh install: compiles,
     ~40 s) the kernels of config's pipeline by a brief run of it; returns the seconds that took,
-    0.0 afterwards and under the python backend. Timed runs call it before their clock starts,
-    so their x real time is the pipeline's, and report the seconds apart (kernel_load_s)."""
-    backend = kernels.backend()
-    if backend != "numba" or backend in _loaded_backends:
-        return 0.0
-    _loaded_backends.add(backend)  # first: the brief run below must not recurse
-    watch = Stopwatch()
-    _run_briefly(config)
-    return watch.elapsed()
+    0.0 afterwards and under the python backend (vecu.warmup)."""
+    return warmup.ensure_kernels("run", lambda: _run_briefly(config))
 
 
 def load_kernels() -> None:
@@ -351,10 +427,7 @@ def load_kernels() -> None:
 def warm_up(config: RunConfig) -> None:
     """Before a wall-clock run: a brief run of the same pipeline, then the set-up objects are
     frozen out of the garbage collector's way, so the first ticks keep time."""
-    _loaded_backends.add(kernels.backend())
-    _run_briefly(config)
-    gc.collect()
-    gc.freeze()
+    warmup.warm_up("run", lambda: _run_briefly(config))
 
 
 def _fault_events(injector: FaultInjector) -> list[dict[str, Any]]:

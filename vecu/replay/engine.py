@@ -15,16 +15,16 @@ import logging
 import math
 import sys
 import threading
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from typing import Any
 
 import can
 
-from vecu import kernels
+from vecu import kernels, warmup
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import SinkBus, open_bus
-from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
+from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path, shared_codec
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
@@ -46,7 +46,6 @@ from vecu.replay.summary import (
     ReplayFrames,
     ReplaySummary,
 )
-from vecu.runner import ensure_kernels, warm_up
 from vecu.scheduler import Scheduler
 from vecu.summary import to_json
 
@@ -58,6 +57,7 @@ SWITCH_INTERVAL_S = 2e-5
 STEP_NS = NS_PER_S // 10  # the scheduler runs this much simulated time between progress checks
 PROGRESS_EVERY_S = 1.0  # wall time between progress lines
 PRIO_TRACE_END = PRIO_ECU - 1  # the end-of-trace check: after the frames due, before the ECU
+BRIEF_NS = 300 * NS_PER_MS  # the warm-up replays this much of the trace's head
 
 
 @dataclass(frozen=True)
@@ -110,6 +110,18 @@ class ReplayResult:
 def replay(config: ReplayConfig) -> ReplayResult:
     """Replay config.trace through the ECU; see the module docstring."""
     config.validate()
+    return _replay(config)
+
+
+def _brief(config: ReplayConfig) -> ReplayResult:
+    """The warm-up of this pipeline: the ECU alone on the trace's first BRIEF_NS, fast,
+    nothing written (no plant: a replay has none)."""
+    return _replay(replace(config, out=None, with_inputs=False, speed=None, progress=False,
+                           keep_series=False), until_ns=BRIEF_NS)
+
+
+def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
+    """replay(); until_ns: stop after the trace's frames up to this time (a warm-up)."""
     ecu_codec = shared_codec()  # built once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
@@ -124,6 +136,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
     live = config.speed is not None
     writer = _open_writer(config.out, locked=live)
     buses: list[can.BusABC] = []
+    player_bus: can.BusABC | None = None
     try:
         # live: the ECU thread sleeps its whole waits (no spin holding the GIL); the player spins
         # the last PLAYER_SPIN_NS (sleep overshoots ~0.1 ms here)
@@ -137,8 +150,6 @@ def replay(config: ReplayConfig) -> ReplayResult:
             buses += [player_bus, ecu_bus]
         else:
             ecu_bus = SinkBus("replay")
-        ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
-                      arm_on_input=True)
         def on_sent(msg: can.Message) -> None:
             t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
             scorer.on_estimate(msg, t_ns)
@@ -148,20 +159,22 @@ def replay(config: ReplayConfig) -> ReplayResult:
                 if msg.channel is None:
                     msg.channel = OUT_CHANNEL
                 writer.on_message_received(msg)
-        ecu.tap = on_sent
+        ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
+                      arm_on_input=True, tap=on_sent)
         tally = FrameTally()
         feeder = Feeder(source, ecu, trace_db, scorer, tally, routes,
-                         writer if config.with_inputs else None,
-                         block=config.block and not live)
-        if live:
-            feeder.player = player_bus
-            feeder.speed = config.speed
+                        writer if config.with_inputs else None,
+                        block=config.block and not live,
+                        player=player_bus, speed=config.speed or 1.0,
+                        clock=clock if isinstance(clock, WallClock) else None, until_ns=until_ns)
         ecu_task = schedule_ecu(sched, ecu)
         trace_end = _TraceEnd(sched, feeder, live)
         sched.every(TICK_NS, trace_end, name="trace-end", priority=PRIO_TRACE_END)
         if live:  # first numpy / cantools calls and the compiled kernels' loading: not mid-run
-            warm_up(run_cfg)
-        kernel_load_s = ensure_kernels(run_cfg)  # one-time: not counted in the replay's speed
+            warmup.warm_up("replay", lambda: _brief(config))
+        # one-time: not counted in the replay's speed
+        kernel_load_s = (0.0 if until_ns is not None
+                         else warmup.ensure_kernels("replay", lambda: _brief(config)))
         show = config.progress if config.progress is not None else sys.stderr.isatty()
         progress = _Progress(source, clock, config.speed or 1.0,
                              config.progress_every_s if show else None)
@@ -292,7 +305,6 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: Feeder, trace_end: _Tr
     player_clock = clock.sibling(spin_ns=PLAYER_SPIN_NS)
     player = Scheduler(player_clock)
     player.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
-    feeder.clock = player_clock
     failure: list[BaseException] = []
 
     def play() -> None:
