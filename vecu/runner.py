@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
 import can
-import numpy as np
 
-from vecu import kernels, warmup
+from vecu import functions, kernels, warmup
 from vecu.assembly import (
     PRIO_ECU,
     PRIO_PLANT,
@@ -21,6 +20,7 @@ from vecu.assembly import (
     EstimatorFactory,
     build_functions,
     build_plant,
+    plant_part,
     schedule_ecu,
     schedule_plant,
 )
@@ -32,23 +32,14 @@ from vecu.bus import (
     virtual_channel_in_use,
 )
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
-from vecu.codec import DbcCodec, shared_codec
+from vecu.codec import DbcCodec
 from vecu.config import ParamTree, RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
-from vecu.ecu.speed_function import SpeedFunction
-from vecu.ecu.steering_function import SteeringFunction
 from vecu.estimators.registry import make_throttle_estimator
-from vecu.faults import FaultInjector, FaultTarget, ScheduledFault, parse_kind
+from vecu.faults import FaultInjector, ScheduledFault, parse_kind
+from vecu.functions.base import Kill
 from vecu.plant.node import PlantNode
-from vecu.probes import (
-    ManifoldProbe,
-    SpeedProbe,
-    SpeedSeries,
-    SteeringProbe,
-    SteeringSeries,
-    ThrottleProbe,
-    ThrottleSeries,
-)
+from vecu.probes import Probe
 from vecu.recorder import Recorder
 from vecu.restbus.node import RestbusNode, schedule_disturbances
 from vecu.restbus.spec import build_plans
@@ -67,10 +58,17 @@ PRIO_CALIBRATE = PRIO_ECU + 1  # a timed set acts from the ECU's next tick, as a
 @dataclass(frozen=True)
 class RunResult:
     report: RunSummary  # typed; `summary` is its JSON form
-    throttle_series: ThrottleSeries | None
-    speed_series: SpeedSeries | None = None
-    steering_series: SteeringSeries | None = None
-    manifold_series: np.ndarray | None = None  # rows (t_s, true P_im, estimated P_im) per event
+    series: dict[str, Any]  # per function (keep_series): its probe's series (None: not kept)
+
+    def series_of(self, name: str) -> Any:
+        """Function name's series (None: not kept, or the run had no such function)."""
+        return self.series.get(name)
+
+    # the built-in functions' series (vecu.functions.<name>)
+    throttle_series = property(lambda self: self.series_of("throttle"))
+    speed_series = property(lambda self: self.series_of("speed"))
+    steering_series = property(lambda self: self.series_of("steering"))
+    manifold_series = property(lambda self: self.series_of("manifold"))
 
     @cached_property
     def summary(self) -> dict[str, Any]:
@@ -95,10 +93,7 @@ class Pipeline:
     plant: PlantNode | None = None
     ecu: EcuNode | None = None
     fns: EcuFunctions | None = None
-    probe: ThrottleProbe | None = None
-    speed_probe: SpeedProbe | None = None
-    steering_probe: SteeringProbe | None = None
-    manifold_probe: ManifoldProbe | None = None
+    probes: dict[str, Probe] = field(default_factory=dict)  # by function, in registry order
     uds: UdsServer | None = None
     xcp: XcpServer | None = None
     xcp_master: SimXcpMaster | None = None
@@ -137,18 +132,13 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
         summary = summarise(pipeline, wall, kernel_load_s)
     finally:
         pipeline.close()
-    p = pipeline
-    return RunResult(
-        report=summary, throttle_series=p.probe.series() if p.probe else None,
-        speed_series=p.speed_probe.series() if p.speed_probe else None,
-        steering_series=p.steering_probe.series() if p.steering_probe else None,
-        manifold_series=p.manifold_probe.series() if p.manifold_probe else None)
+    return RunResult(summary, {name: probe.series() for name, probe in pipeline.probes.items()})
 
 
 def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimator) -> None:
     """Open the buses and make every node of p.config's run, each with its hooks."""
     config = p.config
-    codec = shared_codec()  # built once per process
+    codec = functions.function_codec()  # built once per process
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     n_ticks = p.n_ticks
@@ -169,16 +159,10 @@ def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimato
     p.plant = plant = build_plant(config, codec, plant_bus, p.injector,
                                   truth=config.truth and p.recorder is not None)
     p.fns = fns = build_functions(config, codec, make_estimator)
-    assert plant.throttle is not None
-    if fns.speed is not None and plant.longitudinal is not None:
-        p.speed_probe = SpeedProbe(plant.longitudinal, fns.speed, n_ticks // 2 + 1,
-                                   config.keep_series)
-    if fns.steering is not None and plant.lateral is not None:
-        p.steering_probe = SteeringProbe(plant.lateral, fns.steering,
-                                         _at_ns(config.kill_swa_at_s), n_ticks // 10 + 1,
-                                         config.keep_series)
-    if fns.manifold is not None and plant.manifold is not None:
-        p.manifold_probe = ManifoldProbe(plant.manifold, fns.manifold, config.keep_series)
+    for spec in functions.enabled(config):  # each function's truth-vs-output probe
+        part, fn = plant_part(plant, spec.part_name), fns.get(spec.name)
+        if spec.probe is not None and part is not None and fn is not None:
+            p.probes[spec.name] = spec.probe(part, fn, config, n_ticks)
     p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled())
     p.uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
     p.xcp = attach_xcp_server(ecu, config)
@@ -188,8 +172,6 @@ def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimato
         p.xcp_master = _xcp_master(node_bus(), p.xcp, config)
     if config.uds_steps:  # a scenario's tester
         p.tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
-    p.probe = ThrottleProbe(plant.throttle, fns.throttle, _at_ns(config.kill_tps_at_s), n_ticks,
-                            config.keep_series)
     for f in config.faults:  # the timeline's targets checked against the DBC
         p.injector.check(f.target, parse_kind(f.kind), f.value)
     if config.restbus is not None:  # the user's bus on the same lane and clock
@@ -201,7 +183,6 @@ def schedule(p: Pipeline) -> None:
     and priority run in this order)."""
     config, sched = p.config, p.sched
     assert p.plant is not None and p.ecu is not None and p.injector is not None
-    assert p.probe is not None
     for at_s, path, value in config.calibrations:  # timed sets, as an XCP write would act
         _schedule_calibration(sched, p.xcp, at_s, path, value)
     if p.xcp_master is not None:  # before the ECU in each tick
@@ -210,33 +191,17 @@ def schedule(p: Pipeline) -> None:
         sched.every(TICK_NS, p.tester.tick, name="uds-tester", priority=PRIO_PLANT + 5)
     schedule_plant(sched, p.plant)
     p.ecu_task = schedule_ecu(sched, p.ecu)
-    sched.every(TICK_NS, p.probe.tick, name="probe", priority=PRIO_PROBE)
-    if p.speed_probe is not None:
-        sched.every(SpeedFunction.period_ns, p.speed_probe.tick, name="speed-probe",
+    for name, probe in p.probes.items():
+        sched.every(probe.period_ns, probe.tick, name=functions.spec(name).probe_task,
                     priority=PRIO_PROBE)
-    if p.steering_probe is not None:
-        sched.every(SteeringFunction.period_ns, p.steering_probe.tick, name="steering-probe",
-                    priority=PRIO_PROBE)
-    if p.manifold_probe is not None:
-        sched.every(TICK_NS, p.manifold_probe.tick, name="manifold-probe", priority=PRIO_PROBE)
     if p.recorder is not None:
         sched.every(TICK_NS, p.recorder.drain, name="recorder", priority=PRIO_RECORD)
-    injector = p.injector
-    kill_ns = _at_ns(config.kill_tps_at_s)
-    if kill_ns is not None:
-        kind = parse_kind(config.fault)
-        sched.at(kill_ns, lambda t: injector.inject(t, FaultTarget.TPS, kind, config.fault_value,
-                                                    source="schedule"),
-                 name="kill-tps", priority=PRIO_PLANT - 1)
-    swa_kill_ns = _at_ns(config.kill_swa_at_s)
-    if swa_kill_ns is not None:
-        swa_kind = parse_kind(config.swa_fault)
-        sched.at(swa_kill_ns, lambda t: injector.inject(t, FaultTarget.SWA, swa_kind,
-                                                        config.swa_fault_value,
-                                                        source="schedule"),
-                 name="kill-swa", priority=PRIO_PLANT - 1)
+    for spec in functions.enabled(config):  # the sensor kills of the run's own options
+        kill = spec.kill(config) if spec.kill is not None else None
+        if kill is not None:
+            _schedule_kill(sched, p.injector, kill)
     for f in config.faults:  # the scenario timeline
-        _schedule_fault(sched, injector, f)
+        _schedule_fault(sched, p.injector, f)
     if p.restbus is not None:
         p.restbus.schedule(sched, priority=PRIO_PLANT)
         schedule_disturbances(sched, p.restbus, config.restbus_disturbances,
@@ -266,17 +231,11 @@ def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:
     """The run's typed summary after execute()."""
     config, sched, plant, ecu, n_ticks = p.config, p.sched, p.plant, p.ecu, p.n_ticks
     assert plant is not None and ecu is not None and p.injector is not None
-    assert p.probe is not None
     restbus, uds, tester, xcp, xcp_master = p.restbus, p.uds, p.tester, p.xcp, p.xcp_master
     frames_sent = plant.frames_sent + ecu.frames_sent + (
         restbus.frames_sent if restbus is not None else 0)
-    sections: dict[str, object] = {}
-    if p.speed_probe is not None:
-        sections["speed"] = p.speed_probe.summary()
-    if p.manifold_probe is not None:
-        sections["manifold"] = p.manifold_probe.summary()
-    if p.steering_probe is not None:
-        sections["steering"] = p.steering_probe.summary(n_ticks, config.swa_fault)
+    ranked = sorted(p.probes, key=lambda name: functions.spec(name).report_rank)
+    sections = {name: p.probes[name].summary() for name in ranked}
     return RunSummary(
         config=config.summary(), ticks=n_ticks, overruns=sched.overruns,
         tasks={t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
@@ -284,7 +243,7 @@ def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:
                for t in sched.stats},
         sim_time_s=n_ticks / 1000.0, wall_time_s=round(wall, 4),
         x_realtime=round(n_ticks / 1000.0 / wall, 2) if wall > 0 else None,
-        kernels=kernels.backend(), throttle=p.probe.summary(n_ticks, config.fault),
+        kernels=kernels.backend(), throttle=sections.pop("throttle"),
         frames=FrameCounts(
             sent=frames_sent, plant_sent=plant.frames_sent, ecu_sent=ecu.frames_sent,
             send_errors=plant.send_errors + ecu.send_errors, received=ecu.rx.received,
@@ -305,8 +264,11 @@ def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:
         functions=sections)
 
 
-def _at_ns(at_s: float | None) -> int | None:
-    return None if at_s is None else round(at_s * NS_PER_S)
+def _schedule_kill(sched: Scheduler, injector: FaultInjector, kill: Kill) -> None:
+    kind = parse_kind(kill.kind)
+    sched.at(kill.at_ns, lambda t: injector.inject(t, kill.target, kind, kill.value,
+                                                   source="schedule"),
+             name=kill.task, priority=PRIO_PLANT - 1)
 
 
 def attach_restbus(sched: Scheduler, config: RunConfig, codec: DbcCodec,

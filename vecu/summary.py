@@ -109,7 +109,7 @@ class RunSummary:
     wall_time_s: float
     x_realtime: float | None
     kernels: str
-    throttle: Any  # vecu.probes.ThrottleSummary
+    throttle: Any  # vecu.functions.throttle.ThrottleSummary
     frames: FrameCounts
     fault_events: list[dict[str, Any]]
     kernel_load_s: float

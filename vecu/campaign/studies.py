@@ -119,6 +119,7 @@ def _get(summary: dict[str, Any], path: str) -> Any:
 
 def drive_study(spec: CampaignSpec, d: RunDraw) -> dict[str, Any]:
     from vecu.config import RunConfig
+    from vecu.functions import OPTIONAL
     from vecu.runner import run
 
     r = spec.run
@@ -129,8 +130,8 @@ def drive_study(spec: CampaignSpec, d: RunDraw) -> dict[str, Any]:
         at = duration / 2
     cfg = RunConfig(duration_s=duration, seed=d.sim_seed, kill_tps_at_s=None if kind is None else
                     float(at), fault=str(kind or "dead"), fault_value=d.fault.get("value"),
-                    speed=bool(r.get("speed", True)), steering=bool(r.get("steering", True)),
-                    manifold=bool(r.get("manifold", True)), params=tree_for(d))
+                    params=tree_for(d),
+                    **{name: bool(r.get(name, True)) for name in OPTIONAL})  # type: ignore[arg-type]  # the functions' bool switches
     cfg.validate()
     result = run(cfg)
     report = result.report

@@ -109,22 +109,16 @@ def format_summary(s: ReplaySummary) -> str:
 
 
 def score_lines(score: dict[str, ScoreSection]) -> list[str]:
-    """One line per function scored against the trace's truth frames."""
+    """One line per function scored against the trace's truth frames (its registry entry's
+    truth channel words it; a plug-in without one: its errors' RMS)."""
+    from vecu import functions
+
     lines = []
-    th, sp, st, mf = (score[k].errors if k in score else None
-                      for k in ("throttle", "speed", "steering", "manifold"))
-    if th:
-        lines.append(f"score throttle: broadcast RMS {th['broadcast_error_deg'].rms:.2f} deg, "
-                     f"estimator {th['estimate_error_deg'].rms:.2f} deg, after fallback "
-                     f"{th['fallback_error_deg'].rms:.2f} deg ({th['fallback_error_deg'].n} ticks)")
-    if sp:
-        lines.append(f"score speed: RMS {sp['speed_error_kmh'].rms:.3f} km/h, "
-                     f"accel {sp['accel_error_mps2'].rms:.3f} m/s^2")
-    if st:
-        lines.append(f"score steering: SWA broadcast RMS {st['swa_broadcast_error_deg'].rms:.2f} "
-                     f"deg, UKF {st['swa_estimate_error_deg'].rms:.2f} deg, side-slip "
-                     f"{st['side_slip_error_deg'].rms:.3f} deg")
-    if mf:
-        lines.append(f"score manifold: MAP RMS {mf['map_error_kpa'].rms:.3f} kPa, "
-                     f"IMT {mf['imt_error_k'].rms:.2f} K, CAC {mf['cac_error_mg'].rms:.2f} mg")
+    for spec in functions.specs():
+        section = score.get(spec.name)
+        if section is None or spec.truth is None:
+            continue
+        lines.append(f"score {spec.name}: " + (
+            spec.truth.describe(section.errors) if spec.truth.describe is not None else
+            ", ".join(f"{k} RMS {e.rms:.3f}" for k, e in section.errors.items())))
     return lines

@@ -21,11 +21,12 @@ from typing import Any
 
 import can
 
+from vecu import functions as registry
 from vecu import kernels, warmup
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import SinkBus, open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
-from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path, shared_codec
+from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
 from vecu.errors import BadArgumentError
@@ -122,7 +123,7 @@ def _brief(config: ReplayConfig) -> ReplayResult:
 
 def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
     """replay(); until_ns: stop after the trace's frames up to this time (a warm-up)."""
-    ecu_codec = shared_codec()  # built once per process
+    ecu_codec = registry.function_codec()  # built once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
             else identity_map(trace_db))
@@ -381,7 +382,7 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
     rejected.update({f"decode_{k}": v for k, v in tally.decode_errors.items()})
     armed = {f.name for f in ecu.armed}
     fn_report: dict[str, FunctionReport] = {}
-    for name in ("throttle", "speed", "steering", "manifold"):
+    for name in (spec.name for spec in registry.specs()):
         if name in smap.disabled:
             fn_report[name] = FunctionReport(False, reason=smap.disabled[name])
         else:

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from vecu import functions
 from vecu.faults import parse_site
 from vecu.runner import RunResult
 from vecu.scenario.loader import SENSORS, Scenario, SensorCriteria
@@ -67,17 +68,9 @@ def _first_after(history: list, t0: float, states: tuple[str, ...] | None = None
 
 def _series(result: RunResult, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                        np.ndarray | None] | None:
-    """(t, broadcast, truth, source or None) for the sensor's output."""
-    if sensor == "tps" and result.throttle_series is not None:
-        s = result.throttle_series
-        return s.t_s, s.theta_broadcast, s.theta_true, s.source
-    if sensor == "swa" and result.steering_series is not None:
-        s = result.steering_series
-        return s.t_s, s.swa_broadcast, s.swa_true, s.source
-    if sensor == "wheel" and result.speed_series is not None:
-        s = result.speed_series
-        return s.t_s, s.v_est, s.v_true, None
-    return None
+    """(t, broadcast, truth, source or None) for the sensor's output (its function's series)."""
+    series = result.series_of(functions.sensors()[sensor][0])
+    return None if series is None else series.output()
 
 
 def _sensor(scenario: Scenario, result: RunResult, c: SensorCriteria) -> list[CriterionResult]:
@@ -112,7 +105,7 @@ def _sensor(scenario: Scenario, result: RunResult, c: SensorCriteria) -> list[Cr
                                    ms is not None and ms <= c.fallback_within_ms + 1e-6))
     if c.max_error_after_fallback is not None or c.rms_error_after_fallback is not None:
         err = _error_after(result, c.sensor, fb)
-        unit = "km/h" if c.sensor == "wheel" else "deg"
+        unit = functions.sensors()[c.sensor][1].unit
         for label, limit, value in (("max", c.max_error_after_fallback,
                                      None if err is None else float(np.max(np.abs(err)))),
                                     ("RMS", c.rms_error_after_fallback,
@@ -157,7 +150,7 @@ def evaluate(scenario: Scenario, result: RunResult) -> list[CriterionResult]:
     out: list[CriterionResult] = []
     if crit.no_nan:
         nan = summary.throttle.nan_outputs
-        for sensor in ("tps", "swa", "wheel"):
+        for sensor in SENSORS:
             s = _series(result, sensor)
             if s is not None:
                 nan += int(np.count_nonzero(~np.isfinite(s[1])))
