@@ -43,6 +43,13 @@ class SpeedSeries:
         coasting on the accelerometer is the fallback)."""
         return self.t_s, self.v_est, self.v_true, None
 
+    def panel(self) -> tuple[str, list[tuple[np.ndarray, str, str, str]]]:
+        """A scenario plot's panel: its y label and (values, label, colour, line style)."""
+        return "speed (km/h)", [
+            (self.v_true, "true speed", "black", "-"),
+            (self.v_wheel, "wheel sensor (plant)", "tab:blue", "-"),
+            (self.v_est, "estimate", "tab:red", "--")]
+
 
 @dataclass(frozen=True)
 class SpeedBand:

@@ -41,6 +41,14 @@ class SteeringSeries:
         """(t, broadcast, truth, source): what a scenario's SWA criteria read."""
         return self.t_s, self.swa_broadcast, self.swa_true, self.source
 
+    def panel(self) -> tuple[str, list[tuple[np.ndarray, str, str, str]]]:
+        """A scenario plot's panel: its y label and (values, label, colour, line style)."""
+        return "steering wheel (deg)", [
+            (self.swa_true, "true SWA", "black", "-"), (self.swa_sensor, "SWA sensor",
+                                                       "tab:blue", "-"),
+            (self.swa_est, "UKF estimate", "tab:orange", "-"),
+            (self.swa_broadcast, "broadcast", "tab:red", "--")]
+
 
 @dataclass(frozen=True)
 class SteeringSummary:

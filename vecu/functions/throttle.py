@@ -43,6 +43,14 @@ class ThrottleSeries:
         """(t, broadcast, truth, source): what a scenario's TPS criteria read."""
         return self.t_s, self.theta_broadcast, self.theta_true, self.source
 
+    def panel(self) -> tuple[str, list[tuple[np.ndarray, str, str, str]]]:
+        """A scenario plot's panel: its y label and (values, label, colour, line style)."""
+        return "throttle (deg)", [
+            (self.theta_true, "true θ", "black", "-"), (self.theta_sensor, "TPS sensor",
+                                                       "tab:blue", "-"),
+            (self.theta_est, "estimate", "tab:orange", "-"),
+            (self.theta_broadcast, "broadcast", "tab:red", "--")]
+
 
 @dataclass(frozen=True)
 class PhaseErrors:
