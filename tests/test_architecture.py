@@ -427,7 +427,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
         "scheduler", "recorder"),
     4: ("estimators",),
     5: ("plant", "restbus", "ecu", "uds", "xcp"),
-    6: ("config", "assembly", "runner", "probes"),
+    6: ("config", "assembly", "runner", "probes", "summary", "warmup", "functions"),
     7: ("replay", "scenario", "campaign", "eval", "bench", "live", "plot", "figures", "ident"),
     8: ("cli", "__main__"),
 }

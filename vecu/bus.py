@@ -337,12 +337,14 @@ MAX_LOGGED_SEND_ERRORS = 20
 class BusNode:
     """Base of the plant and ECU nodes: send() counts frames and failures instead of raising."""
 
-    def __init__(self, bus: can.BusABC, name: str) -> None:
+    def __init__(self, bus: can.BusABC, name: str,
+                 tap: Callable[[can.Message], None] | None = None) -> None:
+        """tap, when given, sees every frame sent (replay: scoring and --out)."""
         self.bus = bus
         self.node_name = name
         self.frames_sent = 0
         self.send_errors = 0
-        self.tap: Callable[[can.Message], None] | None = None  # sees every frame sent (replay --out)
+        self.tap = tap
         self._log = logging.getLogger(f"vecu.{name}")
 
     def send(self, msg: can.Message) -> bool:

@@ -15,13 +15,12 @@ from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from vecu import params as ptree
-from vecu.argtypes import MANIFOLD_FILTERS
 from vecu.ecu.manifold_function import ManifoldFunctionConfig
 from vecu.ecu.speed_function import SpeedFunctionConfig
 from vecu.ecu.steering_function import SteeringFunctionConfig
 from vecu.ecu.throttle_function import ThrottleFunctionConfig
 from vecu.errors import ConfigError
-from vecu.estimators.registry import THROTTLE_ESTIMATORS
+from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
 from vecu.models.lateral import VehicleParams

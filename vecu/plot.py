@@ -10,17 +10,20 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from vecu.probes import SpeedSeries, SteeringSeries, ThrottleSeries
+from vecu import functions
+from vecu.functions.throttle import ThrottleSeries
 from vecu.runner import RunResult
+from vecu.summary import RunSummary
 
 
 def plot_run(result: RunResult, path: str) -> None:
-    """Throttle panels (angles, broadcast error) and, when present, a speed panel."""
-    series, summary = result.throttle_series, result.summary
-    extra = [(plot, data) for plot, data in ((_plot_speed, result.speed_series),
-                                             (_plot_steering, result.steering_series),
-                                             (_plot_manifold, result.manifold_series))
-             if data is not None and not (isinstance(data, np.ndarray) and data.size == 0)]
+    """Throttle panels (angles, broadcast error) and a panel per other function with a series
+    (its registry entry's `plot`)."""
+    series, summary = result.throttle_series, result.report
+    extra = [(spec.plot, data) for spec in functions.specs()  # each other function's panel
+             if spec.plot is not None and spec.name != "throttle"
+             and (data := result.series_of(spec.name)) is not None
+             and not (isinstance(data, np.ndarray) and data.size == 0)]
     n = 2 + len(extra)
     fig, axes = plt.subplots(n, 1, figsize=(11, 7 + 2.6 * (n - 2)), sharex=True,
                              gridspec_kw={"height_ratios": [3, 1.3] + [2] * len(extra)})
@@ -33,36 +36,7 @@ def plot_run(result: RunResult, path: str) -> None:
     plt.close(fig)
 
 
-def _plot_speed(sp: SpeedSeries, ax: Any) -> None:
-    ax.plot(sp.t_s, sp.v_wheel, color="tab:gray", lw=0.5, alpha=0.6, label="wheel-speed sensor")
-    ax.plot(sp.t_s, sp.v_true, color="black", lw=1.0, label="true speed")
-    ax.plot(sp.t_s, sp.v_est, color="tab:green", lw=0.9, ls="--", label="estimate (500 Hz KF)")
-    ax.set_ylabel("speed (km/h)")
-    ax.legend(loc="upper right", fontsize=8, ncol=3)
-
-
-def _plot_manifold(rows: np.ndarray, ax: Any) -> None:
-    ax.plot(rows[:, 0], rows[:, 1], color="black", lw=1.0, label="true manifold pressure")
-    ax.plot(rows[:, 0], rows[:, 2], color="tab:purple", lw=0.8, ls="--",
-            label="SDKF estimate (per engine event)")
-    ax.set_ylabel("P_im (kPa)")
-    ax.legend(loc="upper right", fontsize=8, ncol=2)
-
-
-def _plot_steering(st: SteeringSeries, ax: Any) -> None:
-    ax.plot(st.t_s, st.swa_sensor, color="tab:gray", lw=0.6, alpha=0.7, label="SWA sensor")
-    ax.plot(st.t_s, st.swa_true, color="black", lw=1.0, label="true SWA")
-    ax.plot(st.t_s, st.swa_est, color="tab:orange", lw=0.8, label="UKF estimate")
-    ax.plot(st.t_s, st.swa_broadcast, color="tab:red", lw=0.8, ls="--", label="broadcast")
-    on_est = st.source == 1
-    if on_est.any():
-        ax.fill_between(st.t_s, 0, 1, where=on_est, transform=ax.get_xaxis_transform(),
-                        color="tab:red", alpha=0.07, lw=0, label="broadcasting estimate")
-    ax.set_ylabel("steering wheel (deg)")
-    ax.legend(loc="upper right", fontsize=8, ncol=5)
-
-
-def _plot_throttle(series: ThrottleSeries, summary: dict[str, Any], ax1: Any, ax2: Any) -> None:
+def _plot_throttle(series: ThrottleSeries, summary: RunSummary, ax1: Any, ax2: Any) -> None:
     """Angles (truth, TPS, broadcast, estimate ± 2 sigma) and the broadcast error."""
     t = series.t_s
     ax1.fill_between(t, series.theta_est - 2 * series.theta_est_std,
@@ -72,20 +46,21 @@ def _plot_throttle(series: ThrottleSeries, summary: dict[str, Any], ax1: Any, ax
     ax1.plot(t, series.theta_sensor, color="tab:blue", lw=0.6, alpha=0.7, label="TPS sensor")
     ax1.plot(t, series.theta_est, color="tab:orange", lw=0.8, label="estimate (hot standby)")
     ax1.plot(t, series.theta_broadcast, color="tab:red", lw=0.8, ls="--", label="broadcast")
-    th = summary["throttle"]
+    th = summary.throttle
+    kill_s = th.detection.kill_time_s
     on_est = series.source == 1
     if on_est.any():
         ax1.fill_between(t, 0, 1, where=on_est, transform=ax1.get_xaxis_transform(),
                          color="tab:red", alpha=0.07, lw=0, label="broadcasting estimate")
-    if th["kill_time_s"] is not None:
+    if kill_s is not None:
         for ax in (ax1, ax2):
-            ax.axvline(th["kill_time_s"], color="tab:purple", lw=1.2, ls=":")
-        ax1.text(th["kill_time_s"], 92, f" TPS {th['fault']}", color="tab:purple", va="bottom")
+            ax.axvline(kill_s, color="tab:purple", lw=1.2, ls=":")
+        ax1.text(kill_s, 92, f" TPS {th.fault}", color="tab:purple", va="bottom")
     ax1.set_ylim(-5, 100)
     ax1.set_ylabel("throttle angle (deg)")
     ax1.legend(loc="upper left", fontsize=8, ncol=3)
-    ax1.set_title(f"vecu run — seed {summary['config']['seed']}, α = "
-                  f"{summary['config']['noise_scale']}, estimator {th['estimator']}")
+    ax1.set_title(f"vecu run — seed {summary.config['seed']}, α = "
+                  f"{summary.config['noise_scale']}, estimator {th.estimator}")
     ax2.plot(t, series.theta_broadcast - series.theta_true, color="tab:red", lw=0.6)
     ax2.axhline(0, color="black", lw=0.5)
     ax2.set_ylabel("broadcast − true (deg)")

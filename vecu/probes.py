@@ -1,25 +1,26 @@
-"""Probes: read plant truth and ECU output after each tick, in constant memory (plus optional series)."""
+"""Probes: read plant truth and ECU output after each tick, in constant memory (plus optional
+series). The mechanics shared by every function's probe; each probe lives with its function's
+registry entry (vecu.functions)."""
 
 from __future__ import annotations
 
-import math
-from collections import deque
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from vecu.clock import NS_PER_S
-from vecu.ecu.manifold_function import ManifoldFunction
-from vecu.ecu.speed_function import SpeedFunction
-from vecu.ecu.steering_function import SteeringFunction
-from vecu.ecu.throttle_function import ThrottleFunction
-from vecu.plant.node import LateralPart, LongitudinalPart, ManifoldPart, ThrottlePart
-from vecu.stats import RunningStats
-from vecu.units import MPS_PER_KMH
+from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE
 
-LOW_SPEED_KMH = 5.0  # the paper's split: the wheel-speed sensor is useless below 5 km/h
-SPEED_BURN_IN_NS = 500_000_000  # the filter starts at rest: skip its start-up, as vecu.eval.speed does
+
+class Probe(Protocol):
+    """Compares one ECU function's output with the plant's truth, every period_ns."""
+
+    period_ns: int
+
+    def tick(self, t_ns: int) -> None: ...
+
+    def series(self) -> Any: ...  # per-sample rows for plots (None: not kept)
+
+    def summary(self) -> Any: ...  # the function's typed section of the run summary
 
 
 class SeriesBuffer:
@@ -56,261 +57,6 @@ class SeriesBuffer:
         return self._array[:, :self._n]
 
 
-@dataclass(frozen=True)
-class ThrottleSeries:
-    """Per-tick throttle signals (deg) for plots."""
-
-    t_s: np.ndarray
-    theta_true: np.ndarray
-    theta_sensor: np.ndarray  # NaN where no TPS frame was sent
-    theta_broadcast: np.ndarray
-    theta_est: np.ndarray
-    theta_est_std: np.ndarray
-    source: np.ndarray
-    status: np.ndarray
-
-
-@dataclass(frozen=True)
-class SpeedSeries:
-    """Per-2-ms speed signals (km/h, m/s^2) for plots."""
-
-    t_s: np.ndarray
-    v_true: np.ndarray
-    v_wheel: np.ndarray
-    v_est: np.ndarray
-    a_true: np.ndarray
-    a_est: np.ndarray
-
-
-@dataclass(frozen=True)
-class SteeringSeries:
-    """Per-10-ms steering signals (deg) for plots."""
-
-    t_s: np.ndarray
-    swa_true: np.ndarray
-    swa_sensor: np.ndarray  # NaN where no SWA frame was sent
-    swa_broadcast: np.ndarray
-    swa_est: np.ndarray
-    source: np.ndarray
-
-
-class ThrottleProbe:
-    """Broadcast and estimator error against the true angle, split at the TPS kill time."""
-
-    def __init__(self, part: ThrottlePart, fn: ThrottleFunction, kill_ns: int | None,
-                 n_ticks: int, keep_series: bool) -> None:
-        self.part, self.fn, self.kill_ns = part, fn, kill_ns
-        self.bc = {"before_kill": RunningStats(), "after_kill": RunningStats()}
-        self.est = {"before_kill": RunningStats(), "after_kill": RunningStats()}
-        self.nan_outputs = 0
-        self._k = 0
-        self._series = SeriesBuffer(8, n_ticks) if keep_series else None
-
-    def tick(self, t_ns: int) -> None:
-        fn = self.fn
-        truth = self.part.theta
-        angle = fn.angle
-        est = fn.estimator
-        if not math.isfinite(angle):
-            self.nan_outputs += 1
-        phase = "after_kill" if self.kill_ns is not None and t_ns >= self.kill_ns else "before_kill"
-        self.bc[phase].add(angle - truth)
-        self.est[phase].add(est.theta_deg - truth)
-        s = self._series
-        if s is not None:
-            v = self.part.tps_voltage
-            s.append((t_ns / NS_PER_S, truth,
-                      self.part.calibration.angle(v) if v is not None else np.nan, angle,
-                      est.theta_deg, est.theta_std_deg, fn.source, int(fn.status)))
-        self._k += 1
-
-    def series(self) -> ThrottleSeries | None:
-        if self._series is None:
-            return None
-        s = self._series.view()
-        return ThrottleSeries(s[0], s[1], s[2], s[3], s[4], s[5], s[6].astype(int),
-                              s[7].astype(int))
-
-    def summary(self) -> dict[str, Any]:
-        return {phase: {"broadcast_error_deg": self.bc[phase].as_dict(),
-                        "estimate_error_deg": self.est[phase].as_dict()}
-                for phase in ("before_kill", "after_kill")}
-
-
-def _gain_db(raw: RunningStats, est: RunningStats) -> float | None:
-    if raw.n == 0 or est.n == 0 or est.rms == 0.0:
-        return None
-    return round(20.0 * math.log10(raw.rms / est.rms), 2)
-
-
-class SpeedProbe:
-    """Estimated vs true speed and acceleration, and the raw sensors' errors (the paper's dB)."""
-
-    def __init__(self, part: LongitudinalPart, fn: SpeedFunction, n_samples: int,
-                 keep_series: bool) -> None:
-        self.part, self.fn = part, fn
-        self.v_est = {"high": RunningStats(), "low": RunningStats()}
-        self.v_raw = {"high": RunningStats(), "low": RunningStats()}
-        self.a_est = RunningStats()
-        self.a_raw = RunningStats()
-        self._last_accel_raw = 0.0
-        self._k = 0
-        self._series = SeriesBuffer(6, n_samples) if keep_series else None
-
-    def tick(self, t_ns: int) -> None:
-        part, kf = self.part, self.fn.kf
-        v, a = part.v, part.a
-        s = self._series
-        if s is not None:
-            s.append((t_ns / NS_PER_S, v / MPS_PER_KMH, part.wheel / MPS_PER_KMH,
-                      kf.speed_mps / MPS_PER_KMH, a, kf.accel_mps2))
-        self._k += 1
-        if t_ns < SPEED_BURN_IN_NS:
-            return
-        band = "high" if v / MPS_PER_KMH >= LOW_SPEED_KMH else "low"
-        self.v_est[band].add((kf.speed_mps - v) / MPS_PER_KMH)
-        self.v_raw[band].add((part.wheel - v) / MPS_PER_KMH)
-        self.a_est.add(kf.accel_mps2 - a)
-        self.a_raw.add(part.accel - a)
-
-    def series(self) -> SpeedSeries | None:
-        return None if self._series is None else SpeedSeries(*self._series.view())
-
-    def summary(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"burn_in_s": SPEED_BURN_IN_NS / NS_PER_S}
-        for band, label in (("high", "speed_ge_5kmh"), ("low", "speed_lt_5kmh")):
-            out[label] = {"estimate_error_kmh": self.v_est[band].as_dict(),
-                          "raw_wheel_error_kmh": self.v_raw[band].as_dict(),
-                          "gain_db": _gain_db(self.v_raw[band], self.v_est[band])}
-        out["accel"] = {"estimate_error_mps2": self.a_est.as_dict(),
-                        "raw_accelerometer_error_mps2": self.a_raw.as_dict(),
-                        "gain_db": _gain_db(self.a_raw, self.a_est)}
-        out["filter"] = {"resets": self.fn.kf.resets, "rejected_wheel": self.fn.kf.rejected_wheel,
-                         "rejected_accel": self.fn.kf.rejected_accel}
-        out["estimates_sent"] = self.fn.estimates_sent
-        return out
-
-
-class SteeringProbe:
-    """Steering-wheel angle and side-slip errors (deg): broadcast, live UKF, and the fixed-lag
-    smoother against the truth of the time its estimate describes; split at the SWA kill time."""
-
-    def __init__(self, part: LateralPart, fn: SteeringFunction, kill_ns: int | None,
-                 n_samples: int, keep_series: bool) -> None:
-        self.part, self.fn, self.kill_ns = part, fn, kill_ns
-        self.bc = {"before_kill": RunningStats(), "after_kill": RunningStats()}
-        self.ukf = RunningStats()
-        self.smoothed = RunningStats()
-        self.beta_ukf = RunningStats()
-        self.beta_smoothed = RunningStats()
-        self._truth: deque[tuple[float, float]] = deque(maxlen=1000)
-        self._k = 0
-        self._series = SeriesBuffer(6, n_samples) if keep_series else None
-
-    def tick(self, t_ns: int) -> None:
-        part, fn = self.part, self.fn
-        swa, beta = part.swa, part.beta
-        self._truth.append((swa, beta))
-        phase = "after_kill" if self.kill_ns is not None and t_ns >= self.kill_ns else "before_kill"
-        self.bc[phase].add(fn.angle - swa)
-        ukf = fn.ukf
-        self.ukf.add(ukf.swa_rad * 180.0 / math.pi - swa)
-        self.beta_ukf.add(ukf.side_slip_rad * 180.0 / math.pi - beta)
-        if fn.lagged is not None:
-            lag_ms, swa_s, beta_s = fn.lagged
-            back = round(lag_ms * 1e6 / fn.period_ns)
-            if back < len(self._truth):
-                swa_then, beta_then = self._truth[-1 - back]
-                self.smoothed.add(swa_s - swa_then)
-                self.beta_smoothed.add(beta_s - beta_then)
-        s = self._series
-        if s is not None:
-            v = part.swa_sensor
-            s.append((t_ns / NS_PER_S, swa, np.nan if v is None else v, fn.angle,
-                      ukf.swa_rad * 180.0 / math.pi, fn.source))
-        self._k += 1
-
-    def series(self) -> SteeringSeries | None:
-        if self._series is None:
-            return None
-        s = self._series.view()
-        return SteeringSeries(s[0], s[1], s[2], s[3], s[4], s[5].astype(int))
-
-    def summary(self) -> dict[str, Any]:
-        return {
-            "swa_broadcast_error_deg": {ph: st.as_dict() for ph, st in self.bc.items()},
-            "swa_ukf_error_deg": self.ukf.as_dict(),
-            "swa_smoothed_error_deg": self.smoothed.as_dict(),
-            "side_slip_ukf_error_deg": self.beta_ukf.as_dict(),
-            "side_slip_smoothed_error_deg": self.beta_smoothed.as_dict(),
-            "smoother_lag_ms": self.fn.lagged[0] if self.fn.lagged else None,
-            "estimates_sent": self.fn.estimates_sent,
-            "ukf_rejected": self.fn.ukf.rejected,
-        }
-
-
-class ManifoldProbe:
-    """Per engine event: posterior P_im / T_im and CAC against the plant's truth at that event,
-    and each 6-event CAC prediction against the truth when that event comes."""
-
-    def __init__(self, part: ManifoldPart, fn: ManifoldFunction, keep_series: bool,
-                 horizon: int = 6) -> None:
-        self.part, self.fn, self.horizon = part, fn, horizon
-        self._series: list[tuple[float, float, float]] | None = [] if keep_series else None
-        self.p_err = RunningStats()
-        self.t_err = RunningStats()
-        self.cac_err = RunningStats()
-        self.pred_err = RunningStats()
-        self.pred_rel = RunningStats()
-        self.p_min, self.p_max = math.inf, -math.inf
-        self._pending: dict[int, float] = {}
-        self._seen = -1
-
-    def tick(self, t_ns: int) -> None:
-        last = self.fn.last
-        if last is None or last[0] == self._seen:
-            return
-        idx, p, t, cac, cac6 = last
-        self._seen = idx
-        truth = self.part.truth.get(idx)
-        if truth is not None:
-            p_true, t_true, cac_true = truth
-            self.p_err.add(p - p_true)
-            self.t_err.add(t - t_true)
-            self.cac_err.add((cac - cac_true) * 1e6)
-            self.p_min, self.p_max = min(self.p_min, p), max(self.p_max, p)
-            if self._series is not None:
-                self._series.append((t_ns / NS_PER_S, p_true, p))
-            pred = self._pending.pop(idx, None)
-            if pred is not None:
-                self.pred_err.add((pred - cac_true) * 1e6)
-                self.pred_rel.add(100.0 * abs(pred - cac_true) / cac_true)
-        self._pending[idx + self.horizon] = cac6
-        for old in [k for k in self._pending if k < idx]:
-            del self._pending[old]
-
-    def series(self) -> np.ndarray | None:
-        """Rows (t_s, true P_im, estimated P_im), one per engine event."""
-        return None if self._series is None else np.array(self._series).reshape(-1, 3)
-
-    def summary(self) -> dict[str, Any]:
-        fn = self.fn
-        return {
-            "filter": fn.filter_name,
-            "events": fn.events,
-            "lost_events": fn.lost_events,
-            "implausible_inputs": fn.implausible_inputs,  # events refused (e.g. 0 rpm)
-            # under numba the usual event's filter, CAC and prediction are one call, timed in
-            # the first (ManifoldFunction); their sum is the event's cost under both backends
-            "filter_us_per_event": round(fn.filter_seconds / max(fn.events, 1) * 1e6, 1),
-            "cac_prediction_us_per_event": round(fn.predict_seconds / max(fn.events, 1) * 1e6, 1),
-            "p_im_error_kpa": self.p_err.as_dict(),
-            "t_im_error_k": self.t_err.as_dict(),
-            "cac_error_mg": self.cac_err.as_dict(),
-            "cac_pred6_error_mg": self.pred_err.as_dict(),
-            "cac_pred6_abs_error_pct": self.pred_rel.as_dict(),
-            "p_im_estimate_range_kpa": ([round(self.p_min, 2), round(self.p_max, 2)]
-                                        if self.p_err.n else None),
-            "filter_resets": fn.filter.resets,
-            "estimator_faults": fn.estimator_faults,
-        }
+def source_name(source: int) -> str:
+    """A function's output source code as the summary names it."""
+    return "estimate" if source == SOURCE_ESTIMATE else "sensor"

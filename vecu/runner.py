@@ -2,24 +2,25 @@
 
 from __future__ import annotations
 
-import gc
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import can
-import numpy as np
 
-from vecu import kernels
+from vecu import functions, kernels, warmup
 from vecu.assembly import (
     PRIO_ECU,
     PRIO_PLANT,
     PRIO_PROBE,
     PRIO_RECORD,
     TICK_NS,
+    EcuFunctions,
     EstimatorFactory,
     build_functions,
     build_plant,
+    plant_part,
     schedule_ecu,
     schedule_plant,
 )
@@ -31,48 +32,84 @@ from vecu.bus import (
     virtual_channel_in_use,
 )
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
-from vecu.codec import DbcCodec, shared_codec
+from vecu.codec import DbcCodec
 from vecu.config import ParamTree, RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
-from vecu.ecu.sensor_monitor import SOURCE_ESTIMATE, SensorMonitor
-from vecu.ecu.speed_function import SpeedFunction
-from vecu.ecu.steering_function import SteeringFunction
-from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
-from vecu.faults import FaultInjector, FaultTarget, ScheduledFault, parse_kind
-from vecu.plant.node import (
-    PlantNode,
-)
-from vecu.probes import (
-    ManifoldProbe,
-    SpeedProbe,
-    SpeedSeries,
-    SteeringProbe,
-    SteeringSeries,
-    ThrottleProbe,
-    ThrottleSeries,
-)
+from vecu.faults import FaultInjector, ScheduledFault, parse_kind
+from vecu.functions.base import Kill
+from vecu.plant.node import PlantNode
+from vecu.probes import Probe
 from vecu.recorder import Recorder
 from vecu.restbus.node import RestbusNode, schedule_disturbances
 from vecu.restbus.spec import build_plans
 from vecu.rng import rng_streams
-from vecu.scheduler import Scheduler
-from vecu.uds.server import attach_uds
+from vecu.scheduler import Scheduler, TaskStats
+from vecu.summary import FrameCounts, RunSummary, to_json
+from vecu.uds.server import UdsServer, attach_uds
 from vecu.uds.tester import SimTester
 from vecu.xcp.server import XcpServer, attach_xcp
 from vecu.xcp.tester import SimXcpMaster, layout_of
 
-__all__ = ["RunConfig", "RunResult", "detection", "run"]
+__all__ = ["RunConfig", "RunResult", "run"]
 PRIO_CALIBRATE = PRIO_ECU + 1  # a timed set acts from the ECU's next tick, as an XCP write
 
 
 @dataclass(frozen=True)
 class RunResult:
-    summary: dict[str, Any]
-    throttle_series: ThrottleSeries | None
-    speed_series: SpeedSeries | None = None
-    steering_series: SteeringSeries | None = None
-    manifold_series: np.ndarray | None = None  # rows (t_s, true P_im, estimated P_im) per event
+    report: RunSummary  # typed; `summary` is its JSON form
+    series: dict[str, Any]  # per function (keep_series): its probe's series (None: not kept)
+
+    def series_of(self, name: str) -> Any:
+        """Function name's series (None: not kept, or the run had no such function)."""
+        return self.series.get(name)
+
+    # the built-in functions' series (vecu.functions.<name>)
+    throttle_series = property(lambda self: self.series_of("throttle"))
+    speed_series = property(lambda self: self.series_of("speed"))
+    steering_series = property(lambda self: self.series_of("steering"))
+    manifold_series = property(lambda self: self.series_of("manifold"))
+
+    @cached_property
+    def summary(self) -> dict[str, Any]:
+        """The summary as a user sees it (`vecu run --summary`): to_json(report)."""
+        return to_json(self.report)
+
+
+@dataclass
+class Pipeline:
+    """A built run: clock and scheduler, buses, plant, ECU, probes, servers and testers, each
+    made with its hooks (build()); schedule() puts their tasks on the scheduler, execute() runs
+    it, summarise() reads the result; close() shuts the buses (and the log)."""
+
+    config: RunConfig
+    clock: SimClock | WallClock
+    sched: Scheduler
+    n_ticks: int
+    lane: SimLane | None
+    buses: list[can.BusABC]
+    recorder: Recorder | None = None
+    injector: FaultInjector | None = None
+    plant: PlantNode | None = None
+    ecu: EcuNode | None = None
+    fns: EcuFunctions | None = None
+    probes: dict[str, Probe] = field(default_factory=dict)  # by function, in registry order
+    uds: UdsServer | None = None
+    xcp: XcpServer | None = None
+    xcp_master: SimXcpMaster | None = None
+    tester: SimTester | None = None
+    restbus: RestbusNode | None = None
+    ecu_task: TaskStats | None = None
+
+    @property
+    def end_ns(self) -> int:
+        return self.n_ticks * TICK_NS
+
+    def close(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()
+        for bus in self.buses:
+            bus.shutdown()
 
 
 def run(config: RunConfig, progress: Callable[[float, float], None] | None = None, *,
@@ -81,155 +118,170 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
     progress(t_s, duration_s), when given, is called after each simulated second;
     make_estimator builds the ECU's throttle estimator (benches pass a timed one)."""
     config.validate()
-    rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
-    codec = shared_codec()  # built once per process
-    bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     clock = WallClock() if config.realtime else SimClock()
-    sched = Scheduler(clock)
-    n_ticks = round(config.duration_s * 1000)
-    end_ns = n_ticks * TICK_NS
-    kill_ns = None if config.kill_tps_at_s is None else round(config.kill_tps_at_s * NS_PER_S)
-    buses: list[can.BusABC] = []
-    recorder: Recorder | None = None
-    lane = _sim_lane(config, bus_args)
-
-    def node_bus(edge: bool = False) -> can.BusABC:
-        if lane is not None:
-            bus = lane.bus(edge=edge)
-        else:  # a recorder (edge) listens only
-            bus = open_bus(**bus_args, **({"receive_own_messages": False} if edge else {}))
-        buses.append(bus)
-        return bus
-
+    pipeline = Pipeline(config, clock, Scheduler(clock), round(config.duration_s * 1000),
+                        _sim_lane(config), [])
     try:
-        if config.log_path:  # open first so it sees every frame
-            recorder = Recorder(node_bus(edge=True), config.log_path)
-        plant_bus = node_bus()
-        ecu_bus = node_bus()
-        injector = FaultInjector(rngs["faults"])
-        plant = build_plant(config, codec, plant_bus, injector,
-                            truth=config.truth and recorder is not None)
-        fns = build_functions(config, codec, make_estimator)
-        throttle_fn = fns.throttle
-        throttle_part = plant.throttle
-        assert throttle_part is not None
-        speed_probe = None
-        if fns.speed is not None and plant.longitudinal is not None:
-            speed_probe = SpeedProbe(plant.longitudinal, fns.speed, n_ticks // 2 + 1,
-                                     config.keep_series)
-        steering_probe = None
-        steering_fn = fns.steering
-        swa_kill_ns = (None if config.kill_swa_at_s is None
-                       else round(config.kill_swa_at_s * NS_PER_S))
-        if steering_fn is not None and plant.lateral is not None:
-            steering_probe = SteeringProbe(plant.lateral, steering_fn, swa_kill_ns,
-                                           n_ticks // 10 + 1, config.keep_series)
-        manifold_probe = None
-        if fns.manifold is not None and plant.manifold is not None:
-            manifold_probe = ManifoldProbe(plant.manifold, fns.manifold, config.keep_series)
-        ecu = EcuNode(ecu_bus, codec, fns.enabled())
-        uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
-        xcp = attach_xcp_server(ecu, config)
-        for at_s, path, value in config.calibrations:  # timed sets, as an XCP write would act
-            _schedule_calibration(sched, xcp, at_s, path, value)
-        xcp_master = None
-        if config.xcp_steps:  # a scenario's XCP master, before the ECU in each tick
-            xcp_master = _xcp_master(node_bus(), xcp, config)
-            sched.every(TICK_NS, xcp_master.tick, name="xcp-master", priority=PRIO_PLANT + 6)
-        tester = None
-        if config.uds_steps:  # a scenario's tester, before the ECU in each tick
-            tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
-            sched.every(TICK_NS, tester.tick, name="uds-tester", priority=PRIO_PLANT + 5)
-        probe = ThrottleProbe(throttle_part, throttle_fn, kill_ns, n_ticks, config.keep_series)
-        schedule_plant(sched, plant)
-        ecu_task = schedule_ecu(sched, ecu)
-        sched.every(TICK_NS, probe.tick, name="probe", priority=PRIO_PROBE)
-        if speed_probe is not None:
-            sched.every(SpeedFunction.period_ns, speed_probe.tick, name="speed-probe",
-                        priority=PRIO_PROBE)
-        if steering_probe is not None:
-            sched.every(SteeringFunction.period_ns, steering_probe.tick, name="steering-probe",
-                        priority=PRIO_PROBE)
-        if manifold_probe is not None:
-            sched.every(TICK_NS, manifold_probe.tick, name="manifold-probe", priority=PRIO_PROBE)
-        if recorder is not None:
-            sched.every(TICK_NS, recorder.drain, name="recorder", priority=PRIO_RECORD)
-        if kill_ns is not None:
-            kind = parse_kind(config.fault)
-            sched.at(kill_ns, lambda t: injector.inject(t, FaultTarget.TPS, kind, config.fault_value,
-                                                        source="schedule"),
-                     name="kill-tps", priority=PRIO_PLANT - 1)
-        if swa_kill_ns is not None:
-            swa_kind = parse_kind(config.swa_fault)
-            sched.at(swa_kill_ns, lambda t: injector.inject(t, FaultTarget.SWA, swa_kind,
-                                                            config.swa_fault_value,
-                                                            source="schedule"),
-                     name="kill-swa", priority=PRIO_PLANT - 1)
-        for f in config.faults:  # the scenario timeline
-            _schedule_fault(sched, injector, f)
-        restbus = None
-        if config.restbus is not None:  # the user's bus on the same lane and clock
-            restbus = attach_restbus(sched, config, codec, node_bus())
+        build(pipeline, make_estimator)
+        schedule(pipeline)
         if config.realtime:
             warm_up(config)
         # one-time: loading (on a fresh install compiling) the kernels is not the run's speed
         kernel_load_s = ensure_kernels(config)
-        watch = Stopwatch()
-        clock.start()  # set-up time must not count against the first deadlines
-        if progress is None:
-            sched.run_until(end_ns)
-        else:
-            for chunk_end in range(NS_PER_S, end_ns + NS_PER_S, NS_PER_S):
-                sched.run_until(min(chunk_end, end_ns))
-                progress(min(chunk_end, end_ns) / NS_PER_S, config.duration_s)
-        wall = watch.elapsed()
-        ecu.overruns = ecu_task.overruns
-        if recorder is not None:  # frames sent after the ECU's last tick: stamped before end
-            recorder.drain(end_ns, before_ns=end_ns)
-        summary = _summary(config, sched, plant, ecu, throttle_fn, probe, injector, kill_ns,
-                           n_ticks, wall, recorder)
-        summary["kernel_load_s"] = round(kernel_load_s, 3)
-        summary["bus"] = "vecu lane" if lane is not None else type(ecu_bus).__name__
-        summary["diagnostics"] = {**{name: mon.report() for name, mon in ecu.monitors.items()},
-                                  "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
-                                          "confirmations": ecu.bus_dtc.confirmations}}
-        if restbus is not None:
-            summary["restbus"] = restbus.summary()
-            summary["frames"]["sent"] += restbus.frames_sent
-        if uds is not None:
-            summary["uds"] = uds.summary()
-        if tester is not None:
-            summary["uds_steps"] = tester.summary()
-        if xcp is not None:
-            summary["xcp"] = xcp.summary()
-        if xcp_master is not None:
-            summary["xcp_steps"] = xcp_master.summary()
-        if speed_probe is not None:
-            summary["speed"] = speed_probe.summary()
-            summary["speed"]["coast_steps"] = fns.speed.coast_steps
-        if manifold_probe is not None:
-            summary["manifold"] = manifold_probe.summary()
-        if steering_probe is not None:
-            summary["steering"] = {**steering_probe.summary(),
-                                   **detection(steering_fn.monitor, swa_kill_ns),
-                                   "fault": config.swa_fault if swa_kill_ns is not None else None,
-                                   "final_source": ("estimate"
-                                                    if steering_fn.source == SOURCE_ESTIMATE
-                                                    else "sensor"),
-                                   "missing_broadcasts": n_ticks // 10 - steering_fn.estimates_sent}
+        wall = execute(pipeline, progress)
+        summary = summarise(pipeline, wall, kernel_load_s)
     finally:
-        if recorder is not None:
-            recorder.close()
-        for bus in buses:
-            bus.shutdown()
-    return RunResult(summary=summary, throttle_series=probe.series(),
-                     speed_series=speed_probe.series() if speed_probe else None,
-                     steering_series=steering_probe.series() if steering_probe else None,
-                     manifold_series=manifold_probe.series() if manifold_probe else None)
+        pipeline.close()
+    return RunResult(summary, {name: probe.series() for name, probe in pipeline.probes.items()})
+
+
+def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimator) -> None:
+    """Open the buses and make every node of p.config's run, each with its hooks."""
+    config = p.config
+    codec = functions.function_codec()  # built once per process
+    rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
+    bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
+    n_ticks = p.n_ticks
+
+    def node_bus(edge: bool = False) -> can.BusABC:
+        if p.lane is not None:
+            bus = p.lane.bus(edge=edge)
+        else:  # a recorder (edge) listens only
+            bus = open_bus(**bus_args, **({"receive_own_messages": False} if edge else {}))
+        p.buses.append(bus)
+        return bus
+
+    if config.log_path:  # open first so it sees every frame
+        p.recorder = Recorder(node_bus(edge=True), config.log_path)
+    plant_bus = node_bus()
+    ecu_bus = node_bus()
+    p.injector = FaultInjector(rngs["faults"])
+    p.plant = plant = build_plant(config, codec, plant_bus, p.injector,
+                                  truth=config.truth and p.recorder is not None)
+    p.fns = fns = build_functions(config, codec, make_estimator)
+    for spec in functions.enabled(config):  # each function's truth-vs-output probe
+        part, fn = plant_part(plant, spec.part_name), fns.get(spec.name)
+        if spec.probe is not None and part is not None and fn is not None:
+            p.probes[spec.name] = spec.probe(part, fn, config, n_ticks)
+    p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled())
+    p.uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
+    p.xcp = attach_xcp_server(ecu, config)
+    for _, path, value in config.calibrations:  # a bad one is a user error before the run
+        _check_calibration(p.xcp, path, value)
+    if config.xcp_steps:  # a scenario's XCP master
+        p.xcp_master = _xcp_master(node_bus(), p.xcp, config)
+    if config.uds_steps:  # a scenario's tester
+        p.tester = SimTester(node_bus(), config.params.ecu.uds, config.uds_steps)
+    for f in config.faults:  # the timeline's targets checked against the DBC
+        p.injector.check(f.target, parse_kind(f.kind), f.value)
+    if config.restbus is not None:  # the user's bus on the same lane and clock
+        p.restbus = _restbus_node(p.clock, config, codec, node_bus())
+
+
+def schedule(p: Pipeline) -> None:
+    """Every task of the built pipeline on its scheduler, in a fixed order (ties at one time
+    and priority run in this order)."""
+    config, sched = p.config, p.sched
+    assert p.plant is not None and p.ecu is not None and p.injector is not None
+    for at_s, path, value in config.calibrations:  # timed sets, as an XCP write would act
+        _schedule_calibration(sched, p.xcp, at_s, path, value)
+    if p.xcp_master is not None:  # before the ECU in each tick
+        sched.every(TICK_NS, p.xcp_master.tick, name="xcp-master", priority=PRIO_PLANT + 6)
+    if p.tester is not None:  # before the ECU in each tick
+        sched.every(TICK_NS, p.tester.tick, name="uds-tester", priority=PRIO_PLANT + 5)
+    schedule_plant(sched, p.plant)
+    p.ecu_task = schedule_ecu(sched, p.ecu)
+    for name, probe in p.probes.items():
+        sched.every(probe.period_ns, probe.tick, name=functions.spec(name).probe_task,
+                    priority=PRIO_PROBE)
+    if p.recorder is not None:
+        sched.every(TICK_NS, p.recorder.drain, name="recorder", priority=PRIO_RECORD)
+    for spec in functions.enabled(config):  # the sensor kills of the run's own options
+        kill = spec.kill(config) if spec.kill is not None else None
+        if kill is not None:
+            _schedule_kill(sched, p.injector, kill)
+    for f in config.faults:  # the scenario timeline
+        _schedule_fault(sched, p.injector, f)
+    if p.restbus is not None:
+        p.restbus.schedule(sched, priority=PRIO_PLANT)
+        schedule_disturbances(sched, p.restbus, config.restbus_disturbances,
+                              priority=PRIO_PLANT - 1)
+
+
+def execute(p: Pipeline, progress: Callable[[float, float], None] | None = None) -> float:
+    """Run the scheduled pipeline to its end; the wall seconds the run loop took."""
+    sched, end_ns = p.sched, p.end_ns
+    watch = Stopwatch()
+    p.clock.start()  # set-up time must not count against the first deadlines
+    if progress is None:
+        sched.run_until(end_ns)
+    else:
+        for chunk_end in range(NS_PER_S, end_ns + NS_PER_S, NS_PER_S):
+            sched.run_until(min(chunk_end, end_ns))
+            progress(min(chunk_end, end_ns) / NS_PER_S, p.config.duration_s)
+    wall = watch.elapsed()
+    assert p.ecu is not None and p.ecu_task is not None
+    p.ecu.overruns = p.ecu_task.overruns
+    if p.recorder is not None:  # frames sent after the ECU's last tick: stamped before end
+        p.recorder.drain(end_ns, before_ns=end_ns)
+    return wall
+
+
+def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:
+    """The run's typed summary after execute()."""
+    config, sched, plant, ecu, n_ticks = p.config, p.sched, p.plant, p.ecu, p.n_ticks
+    assert plant is not None and ecu is not None and p.injector is not None
+    restbus, uds, tester, xcp, xcp_master = p.restbus, p.uds, p.tester, p.xcp, p.xcp_master
+    frames_sent = plant.frames_sent + ecu.frames_sent + (
+        restbus.frames_sent if restbus is not None else 0)
+    ranked = sorted(p.probes, key=lambda name: functions.spec(name).report_rank)
+    sections = {name: p.probes[name].summary() for name in ranked}
+    return RunSummary(
+        config=config.summary(), ticks=n_ticks, overruns=sched.overruns,
+        tasks={t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
+                        "max_lateness_ms": round(t.max_lateness_ns / NS_PER_MS, 3)}
+               for t in sched.stats},
+        sim_time_s=n_ticks / 1000.0, wall_time_s=round(wall, 4),
+        x_realtime=round(n_ticks / 1000.0 / wall, 2) if wall > 0 else None,
+        kernels=kernels.backend(), throttle=sections.pop("throttle"),
+        frames=FrameCounts(
+            sent=frames_sent, plant_sent=plant.frames_sent, ecu_sent=ecu.frames_sent,
+            send_errors=plant.send_errors + ecu.send_errors, received=ecu.rx.received,
+            rejected=ecu.rx.rejected, ecu_rx=ecu.rx.as_dict(),
+            logged=p.recorder.frames if p.recorder else None,
+            rejected_fault_commands=p.injector.rejected_commands),
+        fault_events=_fault_events(p.injector),
+        kernel_load_s=round(kernel_load_s, 3),
+        bus="vecu lane" if p.lane is not None else type(ecu.bus).__name__,
+        diagnostics={**{name: mon.report() for name, mon in ecu.monitors.items()},
+                     "bus": {"dtc": ecu.bus_dtc.state.name.lower(),
+                             "confirmations": ecu.bus_dtc.confirmations}},
+        restbus=restbus.summary() if restbus is not None else None,
+        uds=uds.summary() if uds is not None else None,
+        uds_steps=tester.summary() if tester is not None else None,
+        xcp=xcp.summary() if xcp is not None else None,
+        xcp_steps=xcp_master.summary() if xcp_master is not None else None,
+        functions=sections)
+
+
+def _schedule_kill(sched: Scheduler, injector: FaultInjector, kill: Kill) -> None:
+    kind = parse_kind(kill.kind)
+    sched.at(kill.at_ns, lambda t: injector.inject(t, kill.target, kind, kill.value,
+                                                   source="schedule"),
+             name=kill.task, priority=PRIO_PLANT - 1)
 
 
 def attach_restbus(sched: Scheduler, config: RunConfig, codec: DbcCodec,
                    bus: can.BusABC) -> RestbusNode:
+    """The restbus of config.restbus on its own bus node, on `sched` (see _restbus_node)."""
+    node = _restbus_node(sched.clock, config, codec, bus)
+    node.schedule(sched, priority=PRIO_PLANT)
+    schedule_disturbances(sched, node, config.restbus_disturbances, priority=PRIO_PLANT - 1)
+    return node
+
+
+def _restbus_node(clock: SimClock | WallClock, config: RunConfig, codec: DbcCodec,
+                  bus: can.BusABC) -> RestbusNode:
     """The restbus of config.restbus on its own bus node: every message the databases give the
     chosen nodes except those vecu's plant and ECU send themselves, released with the plant, its
     disturbance timeline (FI_Event frames, as vecu's faults)."""
@@ -239,21 +291,19 @@ def attach_restbus(sched: Scheduler, config: RunConfig, codec: DbcCodec,
     cfg = replace(config.restbus, exclude=frozenset(codec.by_id), seed=config.seed)
     plans, _, _ = build_plans(cfg)
     sender = BusNode(bus, "restbus")
-    node = RestbusNode(plans, sender.send, rng_streams(config.seed, ("restbus.faults",))[
-        "restbus.faults"], codec["FI_Event"], clock=sched.clock)
-    node.schedule(sched, priority=PRIO_PLANT)
-    schedule_disturbances(sched, node, config.restbus_disturbances, priority=PRIO_PLANT - 1)
-    return node
+    return RestbusNode(plans, sender.send, rng_streams(config.seed, ("restbus.faults",))[
+        "restbus.faults"], codec["FI_Event"], clock=clock)
 
 
-def _sim_lane(config: RunConfig, bus_args: dict[str, Any]) -> SimLane | None:
+def _sim_lane(config: RunConfig) -> SimLane | None:
     """The in-process lane (vecu.bus.SimLane) for a simulated-clock run on python-can's
     `virtual` interface, unless a bus of this process already listens on that channel (then
     python-can's channel, so that the listener hears the run); a wall-clock run or any other
     interface keeps python-can end to end."""
     if config.realtime:
         return None
-    cfg = resolve_bus_config(**bus_args)
+    cfg = resolve_bus_config(interface=config.interface, channel=config.channel,
+                             bitrate=config.bitrate)
     if cfg["interface"] != "virtual" or virtual_channel_in_use(cfg["channel"]):
         return None
     return SimLane(str(cfg["channel"]))
@@ -284,22 +334,26 @@ def _xcp_master(bus: can.BusABC, xcp: XcpServer | None, config: RunConfig) -> Si
     return SimXcpMaster(bus, config.params.ecu.xcp, layout, config.xcp_steps)
 
 
+def _check_calibration(xcp: XcpServer | None, path: str, value: Any) -> None:
+    """A timed set's leaf and value, checked as an XCP write's (a user error before the run)."""
+    if xcp is None:
+        raise ValueError("timed calibrations need the XCP slave (ecu.xcp.enabled)")
+    xcp.check_calibration([(path.removeprefix("ecu."), value)])
+
+
 def _schedule_calibration(sched: Scheduler, xcp: XcpServer | None, at_s: float, path: str,
                           value: Any) -> None:
     """A timed set of an ecu.* leaf: taken at at_s after the ECU's tick, so that it acts from
     the next tick, as an XCP write handled in the tick at at_s does."""
-    if xcp is None:
-        raise ValueError("timed calibrations need the XCP slave (ecu.xcp.enabled)")
+    assert xcp is not None  # _check_calibration
     rel = path.removeprefix("ecu.")
-    xcp.check_calibration([(rel, value)])  # a bad one is a user error before the run
     sched.at(round(at_s * NS_PER_S), lambda t: xcp.calibrate([(rel, value)], t),
              name="calibrate", priority=PRIO_CALIBRATE)
 
 
 def _schedule_fault(sched: Scheduler, injector: FaultInjector, f: ScheduledFault) -> None:
-    """Start (and end) one timeline fault; the target is checked against the DBC now."""
+    """Start (and end) one timeline fault (its target checked against the DBC by build())."""
     kind = parse_kind(f.kind)
-    injector.check(f.target, kind, f.value)
     sched.at(round(f.start_s * NS_PER_S),
              lambda t: injector.inject(t, f.target, kind, f.value, source="scenario"),
              name=f"fault-{f.kind}-{f.target}", priority=PRIO_PLANT - 1)
@@ -320,21 +374,11 @@ def _run_briefly(config: RunConfig) -> None:
                 log_path=None, keep_series=False, faults=()))
 
 
-_loaded_backends: set[str] = set()  # kernel backends this process has loaded the kernels of
-
-
 def ensure_kernels(config: RunConfig) -> float:
     """Under the numba backend, the first call in a process loads (on a fresh install: compiles,
     ~40 s) the kernels of config's pipeline by a brief run of it; returns the seconds that took,
-    0.0 afterwards and under the python backend. Timed runs call it before their clock starts,
-    so their x real time is the pipeline's, and report the seconds apart (kernel_load_s)."""
-    backend = kernels.backend()
-    if backend != "numba" or backend in _loaded_backends:
-        return 0.0
-    _loaded_backends.add(backend)  # first: the brief run below must not recurse
-    watch = Stopwatch()
-    _run_briefly(config)
-    return watch.elapsed()
+    0.0 afterwards and under the python backend (vecu.warmup)."""
+    return warmup.ensure_kernels("run", lambda: _run_briefly(config))
 
 
 def load_kernels() -> None:
@@ -345,72 +389,10 @@ def load_kernels() -> None:
 def warm_up(config: RunConfig) -> None:
     """Before a wall-clock run: a brief run of the same pipeline, then the set-up objects are
     frozen out of the garbage collector's way, so the first ticks keep time."""
-    _loaded_backends.add(kernels.backend())
-    _run_briefly(config)
-    gc.collect()
-    gc.freeze()
+    warmup.warm_up("run", lambda: _run_briefly(config))
 
 
-def detection(mon: SensorMonitor, kill_ns: int | None) -> dict[str, Any]:
-    """Kill time, first confirmed fault, latency, and whether it came before any kill."""
-    detect_ns = mon.first_fault_ns
-    detected = detect_ns is not None and kill_ns is not None and detect_ns >= kill_ns
-    return {
-        "kill_time_s": None if kill_ns is None else kill_ns / NS_PER_S,
-        "detected": detected,
-        "detection_time_s": detect_ns / NS_PER_S if detect_ns is not None else None,
-        "detection_latency_ms": (detect_ns - kill_ns) / NS_PER_MS if detected else None,
-        "detected_as": mon.first_fault_status.name.lower() if mon.first_fault_status else None,
-        "false_alarm": detect_ns is not None and (kill_ns is None or detect_ns < kill_ns),
-        "dtc": mon.dtc.name.lower(),
-    }
-
-
-def _summary(config: RunConfig, sched: Scheduler, plant: PlantNode, ecu: EcuNode,
-             fn: ThrottleFunction, probe: ThrottleProbe, injector: FaultInjector,
-             kill_ns: int | None, n_ticks: int, wall_s: float,
-             recorder: Recorder | None) -> dict[str, Any]:
-    mon = fn.monitor
-    throttle: dict[str, Any] = {
-        "estimator": fn.estimator.name,
-        "estimator_resets": fn.estimator.resets,
-        "estimator_faults": fn.estimator_faults,
-        **detection(mon, kill_ns),
-        "fault": config.fault if kill_ns is not None else None,
-        "final_status": fn.status.name.lower(),
-        "final_source": "estimate" if fn.source == SOURCE_ESTIMATE else "sensor",
-        "nan_outputs": probe.nan_outputs,
-        # ticks without an estimate frame on the bus (skipped releases in live runs, send errors)
-        "missing_broadcasts": n_ticks - fn.estimates_sent,
-    }
-    throttle.update(probe.summary())
-    sim_s = n_ticks / 1000.0
-    return {
-        "config": config.summary(),
-        "ticks": n_ticks,
-        "overruns": sched.overruns,
-        "tasks": {t.name: {"runs": t.runs, "overruns": t.overruns, "skipped": t.skipped,
-                           "max_lateness_ms": round(t.max_lateness_ns / NS_PER_MS, 3)}
-                  for t in sched.stats},
-        "sim_time_s": sim_s,
-        "wall_time_s": round(wall_s, 4),
-        "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
-        "kernels": kernels.backend(),
-        "throttle": throttle,
-        "frames": {
-            "sent": plant.frames_sent + ecu.frames_sent,
-            "plant_sent": plant.frames_sent,
-            "ecu_sent": ecu.frames_sent,
-            "send_errors": plant.send_errors + ecu.send_errors,
-            "received": ecu.rx.received,
-            "rejected": ecu.rx.rejected,
-            "ecu_rx": ecu.rx.as_dict(),
-            "logged": recorder.frames if recorder else None,
-            "rejected_fault_commands": injector.rejected_commands,
-        },
-        "fault_events": [
-            {"t_s": e.t_ns / NS_PER_S, "target": e.target.name, "kind": e.kind.name.lower(),
+def _fault_events(injector: FaultInjector) -> list[dict[str, Any]]:
+    return [{"t_s": e.t_ns / NS_PER_S, "target": e.target.name, "kind": e.kind.name.lower(),
              "value": e.value, "source": e.source,
-             "ended": [k.name.lower() for k in e.cleared]} for e in injector.events
-        ],
-    }
+             "ended": [k.name.lower() for k in e.cleared]} for e in injector.events]

@@ -4,10 +4,23 @@ fixed-size histograms of durations (1 us bins up to a limit, overflow counted, e
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 NS_PER_US = 1_000
 COARSE_US = 100  # second-level bins of DurationHistogram (fast percentile queries)
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """A finished RunningStats, rounded for a summary (JSON: the same keys, in this order)."""
+
+    n: int
+    mean: float
+    std: float
+    rms: float
+    max_abs: float
+    non_finite: int
 
 
 class RunningStats:
@@ -48,6 +61,11 @@ class RunningStats:
         return {"n": self.n, "mean": round(self.mean, digits), "std": round(self.std, digits),
                 "rms": round(self.rms, digits), "max_abs": round(self.max_abs, digits),
                 "non_finite": self.non_finite}
+
+    def summary(self, digits: int = 4) -> ErrorStats:
+        """as_dict() as a typed record."""
+        return ErrorStats(self.n, round(self.mean, digits), round(self.std, digits),
+                          round(self.rms, digits), round(self.max_abs, digits), self.non_finite)
 
 
 class DurationHistogram:

@@ -56,3 +56,23 @@ def test_production_with_fractional_switching_angles_agrees_across_backends() ->
     with kernels.using("numba"):
         nb = _thetas(make_throttle_estimator("production", 1.0, model), tr)
     np.testing.assert_allclose(py, nb, atol=1e-6)
+
+
+def test_every_family_has_one_name_to_estimator_registry():
+    """ESTIMATORS: each family's names each make a fresh estimator, an unknown name is a user
+    error; the command line's manifold filter list is the registry's."""
+    from vecu import argtypes
+    from vecu.errors import BadArgumentError
+    from vecu.estimators.registry import ESTIMATORS, MANIFOLD_FILTERS
+
+    assert set(ESTIMATORS) == {"throttle", "speed", "steering", "manifold"}
+    assert argtypes.MANIFOLD_FILTERS == MANIFOLD_FILTERS
+    for family in ESTIMATORS.values():
+        for name in family.names:
+            first, second = family.make(name), family.make(name)
+            assert first is not second and type(first) is type(second)
+    for family in ("throttle", "speed", "steering"):
+        with pytest.raises(BadArgumentError):
+            ESTIMATORS[family].make("no-such-filter")
+    with pytest.raises(ValueError):
+        ESTIMATORS["manifold"].make("no-such-filter")

@@ -50,10 +50,10 @@ COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
     ("vecu.estimators.manifold.filters", "_ManifoldKF", "step", "estimator: manifold SDKF"),
     ("vecu.ecu.manifold_function", None, "predict_cac", "estimator: manifold CAC prediction"),
     ("vecu.ecu.sensor_monitor", "SensorMonitor", "select", "ecu: sensor monitors"),
-    ("vecu.probes", "ThrottleProbe", "tick", "probes"),
-    ("vecu.probes", "SpeedProbe", "tick", "probes"),
-    ("vecu.probes", "SteeringProbe", "tick", "probes"),
-    ("vecu.probes", "ManifoldProbe", "tick", "probes"),
+    ("vecu.functions.throttle", "ThrottleProbe", "tick", "probes"),
+    ("vecu.functions.speed", "SpeedProbe", "tick", "probes"),
+    ("vecu.functions.steering", "SteeringProbe", "tick", "probes"),
+    ("vecu.functions.manifold", "ManifoldProbe", "tick", "probes"),
 )
 
 

@@ -21,7 +21,7 @@ def _whole_run(duration_s: float) -> float:
     from vecu.runner import RunConfig, run
 
     cfg = RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2, seed=0)
-    return float(run(cfg).summary["x_realtime"])
+    return float(run(cfg).report.x_realtime or 0.0)
 
 
 def bench_kernels(duration_s: float = 5.0, repeats: int = 2) -> dict[str, Any]:

@@ -76,9 +76,9 @@ def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> l
             cfg = runner.RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2,
                                    log_path=log).with_params(estimator=estimator)
             res = runner.run(cfg, make_estimator=make)  # the seam: a timed estimator
-            wall = res.summary["wall_time_s"]  # the run loop (kernel loading not counted)
+            wall = res.report.wall_time_s  # the run loop (kernel loading not counted)
             est = timed[-1]
-            per_tick = wall / res.summary["ticks"] * 1e6
+            per_tick = wall / res.report.ticks * 1e6
             est_us = est.seconds / max(est.steps, 1) * 1e6
             rows.append({"name": f"vecu run pipeline ({label})", "estimator": estimator,
                          "sim_s": duration_s, "wall_s": round(wall, 3),
@@ -109,12 +109,12 @@ def bench_run_backends(duration_s: float = 60.0) -> list[dict[str, Any]]:
         with kernels.using(name):
             load_kernels()  # compiling or loading the kernels is not the run's speed
             cfg = RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2)
-            s = run(cfg).summary
+            s = run(cfg).report
             alone_us = throttle_estimator_alone_us(min(20.0, max(5.0, duration_s)))
         rows.append({"name": f"vecu run --duration {duration_s:g}", "kernels": name,
-                     "wall_s": s["wall_time_s"], "x_realtime": s["x_realtime"],
+                     "wall_s": s.wall_time_s, "x_realtime": s.x_realtime,
                      "target_x_realtime": TARGET_RUN_X[name],
-                     "met": bool(s["x_realtime"] and s["x_realtime"] >= TARGET_RUN_X[name]),
+                     "met": bool(s.x_realtime and s.x_realtime >= TARGET_RUN_X[name]),
                      "throttle_estimator_alone_us_per_tick": round(alone_us, 1),
                      "ceiling_x_realtime": round(1000.0 / alone_us, 1),
                      "budget_left_us_per_tick": round(1000.0 / TARGET_RUN_X[name] - alone_us, 1)})

@@ -99,14 +99,15 @@ def bench_live(path: str, seconds: float, estimator: str) -> dict[str, Any]:
         baseline = bench_player_baseline(short, seconds, "vecu-bench-player")
         res = replay(ReplayConfig(trace=short, speed=1.0, channel="vecu-bench-replay",
                                   estimator=estimator, progress=False))
-    s = res.summary
-    ours = s["schedule_error"]
-    return {"seconds": seconds, "frames": s["frames"]["read"], "vecu": ours,
+    s = res.report
+    ours = s.schedule_error
+    assert ours is not None  # a live replay
+    return {"seconds": seconds, "frames": s.frames.read, "vecu": ours,
             "python_can_player": baseline,
             "p99_ratio": (round(baseline["p99_us"] / ours["p99_us"], 1)
                           if ours["p99_us"] and baseline["p99_us"] else None),
-            "ecu_overruns": s["ecu_overruns"],
-            "ecu_accepted": s["frames"]["ecu_rx"]["accepted"]}
+            "ecu_overruns": s.ecu_overruns,
+            "ecu_accepted": s.frames.ecu_rx["accepted"]}
 
 
 def bench_replay(duration_s: float, live_seconds: float, estimator: str) -> dict[str, Any]:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from vecu.errors import BadFileError
+from vecu.functions import OPTIONAL
 from vecu.params import flatten_toml
 from vecu.tomlfile import read_toml
 
@@ -59,7 +60,7 @@ class CampaignSpec:
 
 ENGINES = ("batch", "scalar")  # manifold studies: runs of events per compiled call, or stepped
 RUN_KEYS = {"manifold": {"duration_s": float, "stride": int, "engine": str},
-            "drive": {"duration_s": float, "speed": bool, "steering": bool, "manifold": bool}}
+            "drive": {"duration_s": float, **dict.fromkeys(OPTIONAL, bool)}}
 
 
 def _fail(path: str, key: str, reason: str) -> BadFileError:

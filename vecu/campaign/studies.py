@@ -12,25 +12,29 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from vecu.campaign.draws import RunDraw, tree_for
 from vecu.campaign.spec import CampaignSpec
 
+if TYPE_CHECKING:
+    from vecu.summary import RunSummary
+
 METHODS = ("direct_ol", "direct", "ekf", "sdkf", "adaptive")
 FILTERS = ("ekf", "sdkf", "adaptive")
 MANIFOLD_METRICS = tuple(f"{m}_{k}" for k in ("iae", "ise") for m in METHODS) + (
     "events", "ekf_resets", "sdkf_resets", "adaptive_resets", "adaptive_eta", "true_eta")
-DRIVE_METRICS: dict[str, str] = {  # metric -> run-summary path
-    "detected": "throttle.detected",
-    "detection_latency_ms": "throttle.detection_latency_ms",
-    "false_alarm": "throttle.false_alarm",
-    "after_kill_rms_deg": "throttle.after_kill.broadcast_error_deg.rms",
-    "after_kill_max_deg": "throttle.after_kill.broadcast_error_deg.max_abs",
-    "missing_broadcasts": "throttle.missing_broadcasts",
-    "nan_outputs": "throttle.nan_outputs",
+DRIVE_METRICS: dict[str, Callable[[RunSummary], Any]] = {  # metric -> its run-summary field
+    "detected": lambda s: s.throttle.detection.detected,
+    "detection_latency_ms": lambda s: s.throttle.detection.detection_latency_ms,
+    "false_alarm": lambda s: s.throttle.detection.false_alarm,
+    "after_kill_rms_deg": lambda s: s.throttle.after_kill.broadcast_error_deg.rms,
+    "after_kill_max_deg": lambda s: s.throttle.after_kill.broadcast_error_deg.max_abs,
+    "missing_broadcasts": lambda s: s.throttle.missing_broadcasts,
+    "nan_outputs": lambda s: s.throttle.nan_outputs,
 }
 
 
@@ -104,6 +108,7 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
 
 
 def _get(summary: dict[str, Any], path: str) -> Any:
+    """A user's metric: a dotted path into the run summary's JSON (None: not there)."""
     node: Any = summary
     for part in path.split("."):
         if not isinstance(node, dict) or part not in node:
@@ -114,6 +119,7 @@ def _get(summary: dict[str, Any], path: str) -> Any:
 
 def drive_study(spec: CampaignSpec, d: RunDraw) -> dict[str, Any]:
     from vecu.config import RunConfig
+    from vecu.functions import OPTIONAL
     from vecu.runner import run
 
     r = spec.run
@@ -124,17 +130,18 @@ def drive_study(spec: CampaignSpec, d: RunDraw) -> dict[str, Any]:
         at = duration / 2
     cfg = RunConfig(duration_s=duration, seed=d.sim_seed, kill_tps_at_s=None if kind is None else
                     float(at), fault=str(kind or "dead"), fault_value=d.fault.get("value"),
-                    speed=bool(r.get("speed", True)), steering=bool(r.get("steering", True)),
-                    manifold=bool(r.get("manifold", True)), params=tree_for(d))
+                    params=tree_for(d),
+                    **{name: bool(r.get(name, True)) for name in OPTIONAL})  # type: ignore[arg-type]  # the functions' bool switches
     cfg.validate()
-    summary = run(cfg).summary
+    result = run(cfg)
+    report = result.report
     out: dict[str, Any] = {}
     for name in metric_names(spec):
         if name in DRIVE_METRICS:
-            out[name] = _get(summary, DRIVE_METRICS[name])
+            out[name] = DRIVE_METRICS[name](report)
         elif name not in ("dtc_confirmations", "dtcs_per_hour"):
-            out[name] = _get(summary, name)
-    conf = sum(int(v.get("confirmations", 0)) for v in summary["diagnostics"].values())
+            out[name] = _get(result.summary, name)
+    conf = sum(int(v.get("confirmations", 0)) for v in report.diagnostics.values())
     out["dtc_confirmations"] = conf
     out["dtcs_per_hour"] = conf * 3600.0 / duration
     return out

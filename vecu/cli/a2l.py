@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from vecu.cli import add_set_option, param_sets
+from vecu.live.args import add_function_switches, function_switches
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,9 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "DAQ events. Give the same --set as to `vecu ecu` (docs/xcp.md).")
     p.add_argument("--out", metavar="FILE.a2l", help="write here (default: standard output)")
     add_set_option(p, "ecu.*: as the ECU will run")
-    p.add_argument("--no-speed", action="store_true", help="as `vecu ecu --no-speed`")
-    p.add_argument("--no-steering", action="store_true", help="as `vecu ecu --no-steering`")
-    p.add_argument("--no-manifold", action="store_true", help="as `vecu ecu --no-manifold`")
+    add_function_switches(p, "as `vecu ecu --no-{}`")
     p.set_defaults(func=main)
 
 
@@ -35,8 +34,7 @@ def main(args: argparse.Namespace) -> int:
 
     if args.out is not None and not args.out.endswith((".a2l", ".A2L")):
         raise BadArgumentError(f"--out {args.out}: expected a .a2l file name")
-    config = RunConfig(kill_tps_at_s=None, speed=not args.no_speed,
-                       steering=not args.no_steering, manifold=not args.no_manifold,
+    config = RunConfig(kill_tps_at_s=None, **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
                        ).with_params(param_sets(args, only="ecu."))
     config.validate()
     if not config.params.ecu.xcp.enabled:

@@ -13,7 +13,7 @@ from vecu.cli import (
     configure_logging,
     param_sets,
 )
-from vecu.live.args import add_live_arguments, live_options
+from vecu.live.args import add_live_arguments, function_switches, live_options
 
 MAX_STATUS_CHANGES = 64
 HOST_GAP_MS = 100.0  # longer than the stalls of a loaded machine, short for a lost sender
@@ -71,8 +71,7 @@ def main(args: argparse.Namespace) -> int:
     if args.tps_timeout_cycles is not None:
         sets.append(("ecu.throttle.tps_monitor.timeout_cycles", args.tps_timeout_cycles))
     config = RunConfig(duration_s=args.duration or 1.0, seed=args.seed, kill_tps_at_s=None,
-                       speed=not args.no_speed, steering=not args.no_steering,
-                       manifold=not args.no_manifold,
+                       **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
                        ).with_params(sets, noise_scale=args.noise_scale, estimator=args.estimator,
                                      manifold_filter=args.manifold_filter)
     codec = DbcCodec()

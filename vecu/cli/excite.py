@@ -62,10 +62,10 @@ def main(args: argparse.Namespace) -> int:
     config.validate()
     result = run(config)
     if not args.quiet:
-        changed = result.summary["config"]["params"]
+        changed = result.report.config["params"]
         what = "throttle excitation" if args.input is None else f"throttle input {args.input}"
         print(f"recorded {duration:g} s of {what} to {args.log} "
-              f"({result.summary['frames']['sent']} frames)"
+              f"({result.report.frames.sent} frames)"
               + (f"; plant changed: {', '.join(f'{k}={v}' for k, v in changed.items())}"
                  if changed else "; plant: Table I"))
         print(f"next: vecu identify throttle {args.log} --out params.toml")

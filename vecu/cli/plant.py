@@ -13,7 +13,7 @@ from vecu.cli import (
     configure_logging,
     param_sets,
 )
-from vecu.live.args import add_live_arguments, live_options
+from vecu.live.args import add_live_arguments, function_switches, live_options
 
 # without --duration the precomputed steering manoeuvre covers this much, then holds its end
 STEERING_HORIZON_S = 900.0
@@ -61,8 +61,8 @@ def main(args: argparse.Namespace) -> int:
         raise UserInputError("--extra-load sends ESC_Motion copies: it needs the speed part")
     horizon = args.duration if args.duration is not None else args.steering_horizon
     config = RunConfig(duration_s=horizon, seed=args.seed,
-                       kill_tps_at_s=None, speed=not args.no_speed, steering=not args.no_steering,
-                       manifold=not args.no_manifold,
+                       kill_tps_at_s=None,
+                       **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
                        ).with_params(param_sets(args, only="plant."), noise_scale=args.noise_scale)
     codec = DbcCodec()
     config.validate()

@@ -5,10 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from vecu import argtypes
 from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+
+if TYPE_CHECKING:
+    from vecu.replay.summary import ReplaySummary, ScoreSection
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -65,56 +68,57 @@ def main(args: argparse.Namespace) -> int:
         from vecu.replay.plot import plot_replay
         plot_replay(result.series, args.plot, f"vecu replay {Path(args.trace).name}")
     if not args.quiet:
-        print(format_summary(result.summary))
+        print(format_summary(result.report))
     if result.error:
         raise TraceReadError(None, result.error)  # after the summary of what was read
     return 0
 
 
-def format_summary(s: dict[str, Any]) -> str:
-    fr = s["frames"]
-    lines = [(f"vecu replay ({s['mode']}): {s['trace']}: {s['trace_duration_s']:.3f} s of trace in "
-             f"{s['wall_time_s']:.2f} s ({s['x_realtime']}x real time, {s['frames_per_s']} frames/s)"),
-             f"frames: read {fr['read']}, decoded {fr['decoded']} (truth {fr['truth']}), unknown id "
-             f"{fr['unknown_id']}, error frames {fr['error_frames']}, remote {fr['remote_frames']}, "
-             f"rejected {fr['rejected']}"
-             + (f" ({', '.join(f'{k} {v}' for k, v in fr['rejected_by_reason'].items())})"
-                if fr["rejected"] else "")
-             + (f"; out of order {fr['out_of_order']} (re-ordered), late {fr['late']}"
-                if fr["out_of_order"] or fr["late"] else "")]
-    gaps = s.get("idle_gaps") or {}
-    if gaps.get("count"):
-        at, length = gaps["first"][0]
-        lines.append(f"idle gaps: {gaps['count']} longer than {gaps['threshold_s']:g} s, "
-                     f"{gaps['skipped_s']:.3f} s skipped (the ECU ran {gaps['threshold_s']:g} s "
+def format_summary(s: ReplaySummary) -> str:
+    fr = s.frames
+    lines = [(f"vecu replay ({s.mode}): {s.trace}: {s.trace_duration_s:.3f} s of trace in "
+             f"{s.wall_time_s:.2f} s ({s.x_realtime}x real time, {s.frames_per_s} frames/s)"),
+             f"frames: read {fr.read}, decoded {fr.decoded} (truth {fr.truth}), unknown id "
+             f"{fr.unknown_id}, error frames {fr.error_frames}, remote {fr.remote_frames}, "
+             f"rejected {fr.rejected}"
+             + (f" ({', '.join(f'{k} {v}' for k, v in fr.rejected_by_reason.items())})"
+                if fr.rejected else "")
+             + (f"; out of order {fr.out_of_order} (re-ordered), late {fr.late}"
+                if fr.out_of_order or fr.late else "")]
+    gaps = s.idle_gaps
+    if gaps.count:
+        at, length = gaps.first[0]
+        lines.append(f"idle gaps: {gaps.count} longer than {gaps.threshold_s:g} s, "
+                     f"{gaps.skipped_s:.3f} s skipped (the ECU ran {gaps.threshold_s:g} s "
                      f"of each silence); the first at {at:.3f} s, {length:.3f} s long")
-    for name, f in s["functions"].items():
-        if not f["enabled"] or not f["ran"]:
-            lines.append(f"{name}: {f['reason']}")
+    for name, f in s.functions.items():
+        if not f.enabled or not f.ran:
+            lines.append(f"{name}: {f.reason}")
         else:
-            lines.append(f"{name}: {f['estimates_sent']} estimates")
-    lines += [f"note: {n}" for n in s["map"]["notes"]]
-    score = s.get("score")
-    if score:
-        th, sp, st, mf = (score.get(k) for k in ("throttle", "speed", "steering", "manifold"))
-        if th:
-            lines.append(f"score throttle: broadcast RMS {th['broadcast_error_deg']['rms']:.2f} deg, "
-                         f"estimator {th['estimate_error_deg']['rms']:.2f} deg, after fallback "
-                         f"{th['fallback_error_deg']['rms']:.2f} deg ({th['fallback_error_deg']['n']} ticks)")
-        if sp:
-            lines.append(f"score speed: RMS {sp['speed_error_kmh']['rms']:.3f} km/h, "
-                         f"accel {sp['accel_error_mps2']['rms']:.3f} m/s^2")
-        if st:
-            lines.append(f"score steering: SWA broadcast RMS {st['swa_broadcast_error_deg']['rms']:.2f} "
-                         f"deg, UKF {st['swa_estimate_error_deg']['rms']:.2f} deg, side-slip "
-                         f"{st['side_slip_error_deg']['rms']:.3f} deg")
-        if mf:
-            lines.append(f"score manifold: MAP RMS {mf['map_error_kpa']['rms']:.3f} kPa, "
-                         f"IMT {mf['imt_error_k']['rms']:.2f} K, CAC {mf['cac_error_mg']['rms']:.2f} mg")
-    if "schedule_error" in s:
-        e = s["schedule_error"]
+            lines.append(f"{name}: {f.estimates_sent} estimates")
+    lines += [f"note: {n}" for n in s.map.notes]
+    if s.score is not None:
+        lines += score_lines(s.score.functions)
+    if s.schedule_error is not None:
+        e = s.schedule_error
         lines.append(f"schedule error: p50 {e['p50_us']} us, p99 {e['p99_us']} us, max "
                      f"{e['max_us']} us over {e['count']} frames")
-    if s.get("frames_written"):
-        lines.append(f"wrote {s['frames_written']} frames to {s['config']['out']}")
+    if s.frames_written:
+        lines.append(f"wrote {s.frames_written} frames to {s.config['out']}")
     return "\n".join(lines)
+
+
+def score_lines(score: dict[str, ScoreSection]) -> list[str]:
+    """One line per function scored against the trace's truth frames (its registry entry's
+    truth channel words it; a plug-in without one: its errors' RMS)."""
+    from vecu import functions
+
+    lines = []
+    for spec in functions.specs():
+        section = score.get(spec.name)
+        if section is None or spec.truth is None:
+            continue
+        lines.append(f"score {spec.name}: " + (
+            spec.truth.describe(section.errors) if spec.truth.describe is not None else
+            ", ".join(f"{k} RMS {e.rms:.3f}" for k, e in section.errors.items())))
+    return lines

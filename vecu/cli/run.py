@@ -5,10 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from vecu import argtypes
 from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+
+if TYPE_CHECKING:
+    from vecu.summary import RunSummary
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -101,7 +104,7 @@ def main(args: argparse.Namespace) -> int:
         from vecu.plot import plot_run
         plot_run(result, args.plot)
     if not args.quiet:
-        print(format_summary(result.summary))
+        print(format_summary(result.report))
         print(outputs_line(plot=args.plot, log=args.log, summary=args.summary))
     return 0
 
@@ -119,72 +122,37 @@ def outputs_line(**given: str | None) -> str:
     return "outputs: " + "; ".join(parts)
 
 
-def format_summary(s: dict[str, Any]) -> str:
-    th = s["throttle"]
-    fr = s["frames"]
-    load = (f"; kernels loaded in {s['kernel_load_s']:.1f} s before, not counted"
-            if s.get("kernel_load_s") else "")
-    lines = [(f"vecu run: {s['sim_time_s']:.3f} s in {s['wall_time_s']:.2f} s wall "
-             f"({s['x_realtime']}x real time, {s['kernels']} kernels{load}), {s['ticks']} ticks, "
-             f"{s['overruns']} overruns")]
-    if th["kill_time_s"] is None:
+def format_summary(s: RunSummary) -> str:
+    """The run's summary as a few lines: timing, the TPS fault, frames, each other function."""
+    th = s.throttle
+    det = th.detection
+    fr = s.frames
+    load = (f"; kernels loaded in {s.kernel_load_s:.1f} s before, not counted"
+            if s.kernel_load_s else "")
+    lines = [(f"vecu run: {s.sim_time_s:.3f} s in {s.wall_time_s:.2f} s wall "
+             f"({s.x_realtime}x real time, {s.kernels} kernels{load}), {s.ticks} ticks, "
+             f"{s.overruns} overruns")]
+    if det.kill_time_s is None:
         lines.append("TPS: no fault injected")
-    elif th["detected"]:
-        lines.append(f"TPS fault '{th['fault']}' at {th['kill_time_s']:.3f} s: detected as "
-                     f"{th['detected_as']} after {th['detection_latency_ms']:.1f} ms; "
-                     f"broadcasting the {th['final_source']} (status {th['final_status']})")
+    elif det.detected:
+        lines.append(f"TPS fault '{th.fault}' at {det.kill_time_s:.3f} s: detected as "
+                     f"{det.detected_as} after {det.detection_latency_ms:.1f} ms; "
+                     f"broadcasting the {th.final_source} (status {th.final_status})")
     else:
-        lines.append(f"TPS fault '{th['fault']}' at {th['kill_time_s']:.3f} s: NOT detected")
-    if th["false_alarm"]:
-        lines.append(f"WARNING: TPS fault reported before any injection (at {th['detection_time_s']} s)")
-    for phase, label in (("before_kill", "before fault"), ("after_kill", "after fault")):
-        b = th[phase]["broadcast_error_deg"]
-        e = th[phase]["estimate_error_deg"]
-        if b["n"]:
-            lines.append(f"  {label:12s} broadcast error {b['mean']:+6.2f} ± {b['std']:5.2f} deg | "
-                         f"estimator ({th['estimator']}) {e['mean']:+6.2f} ± {e['std']:5.2f} deg")
-    rx = fr["ecu_rx"]
-    lines.append(f"frames: sent {fr['sent']} (plant {fr['plant_sent']}, ecu {fr['ecu_sent']}), "
-                 f"ECU received {fr['received']}, rejected {fr['rejected']} "
+        lines.append(f"TPS fault '{th.fault}' at {det.kill_time_s:.3f} s: NOT detected")
+    if det.false_alarm:
+        lines.append(f"WARNING: TPS fault reported before any injection (at {det.detection_time_s} s)")
+    for phase, label in ((th.before_kill, "before fault"), (th.after_kill, "after fault")):
+        b, e = phase.broadcast_error_deg, phase.estimate_error_deg
+        if b.n:
+            lines.append(f"  {label:12s} broadcast error {b.mean:+6.2f} ± {b.std:5.2f} deg | "
+                         f"estimator ({th.estimator}) {e.mean:+6.2f} ± {e.std:5.2f} deg")
+    rx = fr.ecu_rx
+    lines.append(f"frames: sent {fr.sent} (plant {fr.plant_sent}, ecu {fr.ecu_sent}), "
+                 f"ECU received {fr.received}, rejected {fr.rejected} "
                  f"(dlc {rx['dlc_errors']}, crc {rx['crc_errors']}, counter {rx['counter_errors']}, "
                  f"value {rx['value_errors']}, unknown id {rx['unknown_id']})")
-    lines.append(f"broadcast: {th['missing_broadcasts']} missing ticks, {th['nan_outputs']} NaN")
-    sp = s.get("speed")
-    if sp:
-        hi, lo, ac = sp["speed_ge_5kmh"], sp["speed_lt_5kmh"], sp["accel"]
-        parts = [f"no samples after the {sp['burn_in_s']:g} s burn-in" if hi["gain_db"] is None
-                 else f"speed >= 5 km/h: RMS {hi['estimate_error_kmh']['rms']:.2f} km/h "
-                 f"(raw wheel {hi['raw_wheel_error_kmh']['rms']:.2f}, {hi['gain_db']:+.1f} dB)"]
-        if lo["gain_db"] is not None:
-            parts.append(f"< 5 km/h: {lo['gain_db']:+.1f} dB")
-        if ac["gain_db"] is not None:
-            parts.append(f"accel RMS {ac['estimate_error_mps2']['rms']:.3f} m/s^2 "
-                         f"({ac['gain_db']:+.1f} dB vs accelerometer)")
-        lines.append("speed estimate: " + "; ".join(parts))
-    mf = s.get("manifold")
-    if mf:
-        lines.append(
-            f"manifold ({mf['filter']}, {mf['events']} engine events, {mf['lost_events']} lost): "
-            f"P_im RMS {mf['p_im_error_kpa']['rms']:.3f} kPa, T_im {mf['t_im_error_k']['rms']:.2f} K, "
-            f"CAC {mf['cac_error_mg']['rms']:.2f} mg, 6-event CAC prediction "
-            f"{mf['cac_pred6_abs_error_pct']['mean']:.2f} % mean |error|; "
-            f"{mf['filter_us_per_event'] + mf['cac_prediction_us_per_event']:.0f} us/event "
-            "(filter, CAC and prediction)")
-    st = s.get("steering")
-    if st:
-        smoothed = ("fixed-lag smoother: no output yet (the run is shorter than its lag)"
-                    if st["smoother_lag_ms"] is None else
-                    f"fixed-lag smoother ({st['smoother_lag_ms']} ms behind) "
-                    f"{st['swa_smoothed_error_deg']['rms']:.2f} deg")
-        line = (f"steering: SWA UKF RMS {st['swa_ukf_error_deg']['rms']:.2f} deg, {smoothed}, "
-                f"side-slip {st['side_slip_ukf_error_deg']['rms']:.3f} deg")
-        if st["kill_time_s"] is not None:
-            after = st["swa_broadcast_error_deg"]["after_kill"]
-            line += (f"; SWA fault '{st['fault']}' at {st['kill_time_s']:.2f} s "
-                     + (f"detected as {st['detected_as']} after {st['detection_latency_ms']:.0f} ms"
-                        if st["detected"] else "NOT detected")
-                     + f", broadcast error after {after['rms']:.2f} deg RMS")
-        if st["false_alarm"]:
-            line += f"; WARNING: SWA fault reported before any injection ({st['detection_time_s']} s)"
-        lines.append(line)
+    lines.append(f"broadcast: {th.missing_broadcasts} missing ticks, {th.nan_outputs} NaN")
+    for section in s.functions.values():  # the other functions, each in its own words
+        lines.extend(section.lines())
     return "\n".join(lines)

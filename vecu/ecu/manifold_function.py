@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 from vecu.clock import NS_PER_MS, NS_PER_S, Stopwatch
 from vecu.codec import DbcCodec
+from vecu.ecu.diagnostics import FLOAT, ULONG, Did, Reader, Variable
 from vecu.ecu.node import Send, Subscription
 from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
 from vecu.estimators.manifold.factory import make_filter
@@ -170,4 +171,33 @@ class ManifoldFunction:
 
     def status_signals(self) -> dict[str, int]:
         return {}
+
+    def _last(self, i: int, scale: float = 1.0, offset: float = 0.0) -> Reader:
+        """Element i of the last event's output (None before the first), scaled."""
+        return lambda: None if self.last is None else self.last[i] * scale + offset
+
+    def dids(self) -> list[Did]:
+        """UDS: the last event's P_im, T_im, CAC and 6-event CAC prediction."""
+        last = self._last
+        return [
+            Did(0x0200, "manifold pressure", "H", 0.01, "kPa", last(1)),
+            Did(0x0201, "manifold temperature", "h", 0.01, "degC",
+                last(2, offset=-KELVIN_AT_0_DEGC)),
+            Did(0x0202, "cylinder air charge", "H", 0.1, "mg", last(3, MG_PER_KG)),
+            Did(0x0203, "cylinder air charge, 6 events ahead", "H", 0.1, "mg",
+                last(4, MG_PER_KG)),
+        ]
+
+    def variables(self) -> list[Variable]:
+        """XCP measurements: the last event's estimates (SI), events filtered."""
+        out = [Variable(f"manifold.{name}", unit, FLOAT, self._last(i), lo, hi, doc)
+               for i, (name, unit, lo, hi, doc) in enumerate((
+                   ("p_im_kpa", "kPa", 0, 200, "manifold pressure estimate"),
+                   ("t_im_k", "K", 200, 400, "manifold temperature estimate"),
+                   ("cac_kg", "kg", 0, 0.002, "cylinder air charge"),
+                   ("cac_pred6_kg", "kg", 0, 0.002,
+                    "cylinder air charge predicted 6 events ahead")), start=1)]
+        out.append(Variable("manifold.events", "1", ULONG, lambda: self.events, 0, 4294967295,
+                            "engine events filtered"))
+        return out
 

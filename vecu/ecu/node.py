@@ -131,7 +131,8 @@ class EcuNode(BusNode):
     def __init__(self, bus: can.BusABC, codec: DbcCodec, functions: list[EcuFunction], *,
                  routes: dict[tuple[int, bool], Route] | None = None,
                  rx_codec: DbcCodec | None = None, arm_on_input: bool = False,
-                 tick_ns: int = NS_PER_MS, host_gap_ms: float = 0.0) -> None:
+                 tick_ns: int = NS_PER_MS, host_gap_ms: float = 0.0,
+                 tap: Callable[[can.Message], None] | None = None) -> None:
         """codec encodes the ECU's own frames. By default the functions consume their messages
         of that codec; `routes` (trace replay with a signal map) replaces that table, and
         `rx_codec` is the database that tells an ignored (known) ID from an unknown one.
@@ -144,8 +145,9 @@ class EcuNode(BusNode):
         releases were skipped), which the sensor monitors do not charge to a sensor.
         host_gap_ms (live bus): a sensor silence shorter than this while the sender's traffic
         at the sensor's rate stopped too is a stalled sender, not a silent sensor (HostClock;
-        0 on the simulated clock)."""
-        super().__init__(bus, "ecu")
+        0 on the simulated clock).
+        tap (trace replay): sees every frame the node sends."""
+        super().__init__(bus, "ecu", tap)
         self.codec = codec
         self.rx_codec = rx_codec if rx_codec is not None else codec
         self.functions = functions

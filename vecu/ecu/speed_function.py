@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
+from vecu.ecu.diagnostics import FLOAT, UBYTE, Did, Variable, status_reader
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
 from vecu.estimators.speed.kf import SpeedFilterConfig, SpeedKalmanFilter
@@ -100,3 +101,32 @@ class SpeedFunction:
 
     def status_signals(self) -> dict[str, int]:
         return {}
+
+    def dids(self) -> list[Did]:
+        """UDS: speed, acceleration, wheel-speed input and status, filter mode."""
+        kf, wmon = self.kf, self.monitor
+        return [
+            Did(0x0300, "vehicle speed", "H", 0.01, "km/h", lambda: kf.speed_mps / MPS_PER_KMH),
+            Did(0x0301, "vehicle acceleration", "h", 0.001, "m/s^2", lambda: kf.accel_mps2),
+            Did(0x0302, "wheel speed (last valid)", "H", 0.01, "km/h", lambda: wmon.value,
+                io=("ESC_Motion", "ESC_WheelSpeed")),
+            Did(0x0303, "wheel-speed sensor status", "B", 1, "", status_reader(wmon)),
+            Did(0x0304, "speed filter mode (0 normal, 1 standstill, 2 ABS, 3 coast)", "B", 1,
+                "", lambda: float(self.mode)),
+        ]
+
+    def variables(self) -> list[Variable]:
+        """XCP measurements: the filter's speed, sigma, acceleration, offset and mode."""
+        kf = self.kf
+        return [
+            Variable("speed.speed_mps", "m/s", FLOAT, lambda: kf.speed_mps, -100, 100,
+                     "vehicle speed estimate"),
+            Variable("speed.speed_std_mps", "m/s", FLOAT, lambda: kf.speed_std_mps, 0, 100,
+                     "vehicle speed standard deviation"),
+            Variable("speed.accel_mps2", "m/s^2", FLOAT, lambda: kf.accel_mps2, -50, 50,
+                     "longitudinal acceleration estimate"),
+            Variable("speed.offset_mps2", "m/s^2", FLOAT, lambda: kf.offset_mps2, -50, 50,
+                     "accelerometer offset state"),
+            Variable("speed.mode", "1", UBYTE, lambda: self.mode, 0, 3,
+                     "0 normal, 1 standstill, 2 ABS, 3 coast"),
+        ]

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
+from vecu.ecu.diagnostics import FLOAT, UBYTE, Did, Variable, status_reader
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import (
     SOURCE_SENSOR,
@@ -112,3 +113,27 @@ class SteeringFunction:
 
     def status_signals(self) -> dict[str, int]:
         return {}
+
+    def dids(self) -> list[Did]:
+        """UDS: SWA broadcast and estimate, side-slip, SWA input and status."""
+        ukf, smon = self.ukf, self.monitor
+        return [
+            Did(0x0400, "steering-wheel angle (broadcast)", "h", 0.05, "deg",
+                lambda: self.angle),
+            Did(0x0401, "steering-wheel angle estimate", "h", 0.05, "deg",
+                lambda: ukf.swa_rad * DEG_PER_RAD),
+            Did(0x0402, "side-slip angle estimate", "h", 0.01, "deg",
+                lambda: ukf.side_slip_rad * DEG_PER_RAD),
+            Did(0x0403, "steering-wheel angle sensor (last valid)", "h", 0.05, "deg",
+                lambda: smon.value, io=("SWA_Sensor", "SWA_Angle")),
+            Did(0x0404, "steering-wheel angle sensor status", "B", 1, "", status_reader(smon)),
+        ]
+
+    def variables(self) -> list[Variable]:
+        """XCP measurements: the SWA broadcast and its source."""
+        return [
+            Variable("steering.angle_deg", "deg", FLOAT, lambda: self.angle, -1000, 1000,
+                     "steering-wheel angle broadcast (sensor or estimate)"),
+            Variable("steering.source", "1", UBYTE, lambda: self.source, 0, 1,
+                     "0 sensor, 1 estimate"),
+        ]

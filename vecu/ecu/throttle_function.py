@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
+from vecu.ecu.diagnostics import FLOAT, UBYTE, ULONG, Did, Variable, status_reader
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import (
     SOURCE_SENSOR,
@@ -123,3 +124,41 @@ class ThrottleFunction:
 
     def status_signals(self) -> dict[str, int]:
         return {"ECU_TpsDtc": int(self.monitor.dtc)}
+
+    def dids(self) -> list[Did]:
+        """UDS: angles, source, TPS input and status, the TPS plausibility margin (0x2E)."""
+        mon, est = self.monitor, self.estimator
+
+        def set_margin(v: float) -> None:
+            mon.cfg = replace(mon.cfg, plaus_margin=v)
+
+        return [
+            Did(0x0100, "throttle angle (broadcast)", "H", 0.01, "deg", lambda: self.angle),
+            Did(0x0101, "throttle angle estimate", "H", 0.01, "deg", lambda: est.theta_deg),
+            Did(0x0102, "throttle estimate std", "H", 0.01, "deg", lambda: est.theta_std_deg),
+            Did(0x0103, "throttle source (0 sensor, 1 estimate)", "B", 1, "",
+                lambda: float(self.source)),
+            Did(0x0104, "TPS voltage (last valid)", "H", 0.0001, "V", lambda: mon.raw,
+                io=("TPS_Sensor", "TPS_Voltage")),
+            Did(0x0105, "TPS status", "B", 1, "", status_reader(mon)),
+            Did(0x0110, "TPS plausibility margin (ecu.throttle.tps_monitor.plaus_margin)",
+                "H", 0.01, "deg", lambda: mon.cfg.plaus_margin, write=set_margin),
+        ]
+
+    def variables(self) -> list[Variable]:
+        """XCP measurements: estimate, sigma, broadcast, TPS angle, source, resets."""
+        est, mon = self.estimator, self.monitor
+        return [
+            Variable("throttle.estimate_deg", "deg", FLOAT, lambda: est.theta_deg, -10, 100,
+                     "throttle angle estimate"),
+            Variable("throttle.sigma_deg", "deg", FLOAT, lambda: est.theta_std_deg, 0, 100,
+                     "throttle estimate standard deviation"),
+            Variable("throttle.angle_deg", "deg", FLOAT, lambda: self.angle, -10, 100,
+                     "throttle angle broadcast (sensor or estimate)"),
+            Variable("throttle.tps_deg", "deg", FLOAT, lambda: mon.value, -10, 100,
+                     "TPS angle as the ECU sees it (last valid frame)"),
+            Variable("throttle.source", "1", UBYTE, lambda: self.source, 0, 1,
+                     "0 sensor, 1 estimate"),
+            Variable("throttle.estimator_resets", "1", ULONG, lambda: est.resets, 0, 4294967295,
+                     "estimator resets"),
+        ]

@@ -1,6 +1,13 @@
-"""Throttle estimators by name (what `vecu run` / `vecu eval` accept)."""
+"""Estimators by name, one table entry per family (ESTIMATORS: names and a make(name, ...)):
+what `vecu run` / `vecu eval` and the parameter tree (ecu.throttle.estimator,
+ecu.manifold.filter) accept. The throttle family's filters are listed here; the other
+families' makers import their modules on first use."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 from vecu.errors import BadArgumentError, UnavailableError
 from vecu.estimators.throttle.base import ThrottleEstimator
@@ -82,3 +89,58 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0,
     raise BadArgumentError(
         f"unknown throttle estimator {name!r}; choose from {', '.join(THROTTLE_ESTIMATORS)}"
     )
+
+
+# ecu.manifold.filter: Dutka 2006's EKF and SDKF, the adaptive EKF (vecu.argtypes holds the
+# command line's copy of these names; tests/estimators/test_registry.py keeps the two equal)
+MANIFOLD_FILTERS: tuple[str, ...] = ("sdkf", "ekf", "adaptive")
+
+
+def make_manifold_filter(name: str, config: Any = None, x0: Any = None) -> Any:
+    """A manifold filter by name (estimators.manifold.factory.make_filter, which also takes the
+    Riccati variants 'sdkf_doubling', 'sdkf_scipy')."""
+    from vecu.estimators.manifold.factory import make_filter
+    from vecu.estimators.manifold.filters import ManifoldFilterConfig
+
+    return make_filter(name, config if config is not None else ManifoldFilterConfig(), x0)
+
+
+def make_speed_estimator(name: str = "kf", config: Any = None) -> Any:
+    """'kf': Hernandez 2005's 500 Hz Kalman filter."""
+    from vecu.estimators.speed.kf import SpeedFilterConfig, SpeedKalmanFilter
+
+    if name != "kf":
+        raise BadArgumentError(f"unknown speed estimator {name!r}; choose from kf")
+    return SpeedKalmanFilter(config if config is not None else SpeedFilterConfig())
+
+
+def make_steering_estimator(name: str = "ukf-smoother", model: Any = None,
+                            lag_s: float = 0.25) -> Any:
+    """'ukf': Khalid's UKF; 'ukf-smoother': the UKF inside the fixed-lag unscented RTS
+    smoother (what the ECU runs)."""
+    from vecu.estimators.steering.filters import SteeringUKF
+    from vecu.estimators.steering.model import SteeringModel
+    from vecu.estimators.steering.smoothers import FixedLagSmoother
+
+    ukf = SteeringUKF(model if model is not None else SteeringModel())
+    if name == "ukf":
+        return ukf
+    if name == "ukf-smoother":
+        return FixedLagSmoother(lag_s=lag_s, filt=ukf)
+    raise BadArgumentError(f"unknown steering estimator {name!r}; choose from ukf, ukf-smoother")
+
+
+@dataclass(frozen=True)
+class EstimatorFamily:
+    """One family's estimators: the names it accepts and make(name, ...) -> a fresh one."""
+
+    names: tuple[str, ...]
+    make: Callable[..., Any]
+
+
+ESTIMATORS: dict[str, EstimatorFamily] = {
+    "throttle": EstimatorFamily(THROTTLE_ESTIMATORS, make_throttle_estimator),
+    "speed": EstimatorFamily(("kf",), make_speed_estimator),
+    "steering": EstimatorFamily(("ukf", "ukf-smoother"), make_steering_estimator),
+    "manifold": EstimatorFamily(MANIFOLD_FILTERS, make_manifold_filter),
+}

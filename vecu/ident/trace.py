@@ -16,8 +16,9 @@ import numpy as np
 
 from vecu.codec import DbcCodec
 from vecu.errors import BadFileError
+from vecu.functions import spec
 from vecu.models.sensors import TpsCalibration
-from vecu.replay.signal_map import INPUTS, identity_map, load_signal_map
+from vecu.replay.signal_map import identity_map, load_signal_map
 from vecu.replay.source import TraceSource
 
 MIN_SAMPLES = 3000  # 3 s at 1 kHz: fewer cannot pin down 29 parameters
@@ -54,7 +55,7 @@ def read_throttle_trace(path: str | Path, dbc: tuple[str, ...] = (), signal_map:
     db = DbcCodec(list(dbc)) if dbc else DbcCodec()
     smap = load_signal_map(signal_map, db) if signal_map else identity_map(db)
     wanted = {m.name: m for m in smap.inputs if m.function == "throttle"}
-    missing = [name for name in INPUTS["throttle"] if name not in wanted]
+    missing = [name for name in spec("throttle").inputs if name not in wanted]
     if missing:
         raise TraceFitError(path, f"the database has no {', '.join(missing)} signal for the "
                             "throttle (map it with --map MAP.toml: [throttle] motor_voltage, "

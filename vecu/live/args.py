@@ -6,6 +6,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from vecu import argtypes
+from vecu.functions import OPTIONAL
 
 if TYPE_CHECKING:
     from vecu.live.options import LiveOptions
@@ -27,9 +28,7 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-scale", type=argtypes.noise_scale, default=None, metavar="A",
                    help="process-noise scale alpha of the throttle model (1 = paper; "
                         f"0..{argtypes.NOISE_SCALE_MAX:g})")
-    p.add_argument("--no-speed", action="store_true", help="leave out the speed part/function")
-    p.add_argument("--no-steering", action="store_true", help="leave out the steering part/function")
-    p.add_argument("--no-manifold", action="store_true", help="leave out the manifold part/function")
+    add_function_switches(p)
     p.add_argument("--log", metavar="FILE", help="record every frame on the bus; format by suffix "
                                                  "(.log .asc .blf ...), flushed on every exit")
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary on exit")
@@ -58,6 +57,18 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cpu", type=argtypes.bounded(0, 4095, integer=True), metavar="N",
                    help="pin the process to CPU N (with --realtime: a core of its own)")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+
+
+def add_function_switches(p: argparse.ArgumentParser,
+                          help_text: str = "leave out the {} part/function") -> None:
+    """--no-NAME for each ECU function a run may leave out (vecu.functions.OPTIONAL)."""
+    for name in OPTIONAL:
+        p.add_argument(f"--no-{name}", action="store_true", help=help_text.format(name))
+
+
+def function_switches(args: argparse.Namespace) -> dict[str, bool]:
+    """RunConfig's switches from the --no-NAME options: {name: enabled}."""
+    return {name: not getattr(args, f"no_{name}") for name in OPTIONAL}
 
 
 def live_options(args: argparse.Namespace, role: str) -> LiveOptions:

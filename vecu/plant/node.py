@@ -389,7 +389,7 @@ class PlantNode(BusNode):
     """Runs its parts at their rates from a 1 ms base tick; acts on FI_Command frames."""
 
     def __init__(self, bus: can.BusABC, codec: DbcCodec, injector: FaultInjector,
-                 parts: list[PlantPart]) -> None:
+                 parts: list[PlantPart], drive: Drive | None = None) -> None:
         super().__init__(bus, "plant")
         self.injector = injector
         self.parts = parts
@@ -404,7 +404,7 @@ class PlantNode(BusNode):
         self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
         self.lateral = next((p for p in parts if isinstance(p, LateralPart)), None)
         self.manifold: ManifoldPart | None = None
-        self.drive: Drive | None = None  # the car's motion all parts read (set by build_plant)
+        self.drive = drive  # the car's motion all parts read (vecu.plant.drive)
 
     @property
     def consumed_ids(self) -> frozenset[tuple[int, bool]]:

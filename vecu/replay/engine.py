@@ -15,16 +15,18 @@ import logging
 import math
 import sys
 import threading
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import can
 
-from vecu import kernels
+from vecu import functions as registry
+from vecu import kernels, warmup
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import SinkBus, open_bus
-from vecu.clock import NS_PER_S, SimClock, Stopwatch, WallClock
-from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path, shared_codec
+from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
+from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
 from vecu.errors import BadArgumentError
@@ -38,8 +40,15 @@ from vecu.replay.signal_map import (
     mapped_routes,
 )
 from vecu.replay.source import IDLE_GAP_NS, TraceReadError, TraceSource
-from vecu.runner import ensure_kernels, warm_up
+from vecu.replay.summary import (
+    FunctionReport,
+    IdleGaps,
+    MapReport,
+    ReplayFrames,
+    ReplaySummary,
+)
 from vecu.scheduler import Scheduler
+from vecu.summary import to_json
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +58,7 @@ SWITCH_INTERVAL_S = 2e-5
 STEP_NS = NS_PER_S // 10  # the scheduler runs this much simulated time between progress checks
 PROGRESS_EVERY_S = 1.0  # wall time between progress lines
 PRIO_TRACE_END = PRIO_ECU - 1  # the end-of-trace check: after the frames due, before the ECU
+BRIEF_NS = 300 * NS_PER_MS  # the warm-up replays this much of the trace's head
 
 
 @dataclass(frozen=True)
@@ -88,15 +98,32 @@ class ReplayConfig:
 
 @dataclass(frozen=True)
 class ReplayResult:
-    summary: dict[str, Any]
+    report: ReplaySummary  # typed; `summary` is its JSON form
     error: str | None  # a read error (the summary covers everything before it)
     series: dict[str, list[tuple[float, float, float]]] | None = None
+
+    @cached_property
+    def summary(self) -> dict[str, Any]:
+        """The summary as a user sees it (`vecu replay --summary`): to_json(report)."""
+        return to_json(self.report)
 
 
 def replay(config: ReplayConfig) -> ReplayResult:
     """Replay config.trace through the ECU; see the module docstring."""
     config.validate()
-    ecu_codec = shared_codec()  # built once per process
+    return _replay(config)
+
+
+def _brief(config: ReplayConfig) -> ReplayResult:
+    """The warm-up of this pipeline: the ECU alone on the trace's first BRIEF_NS, fast,
+    nothing written (no plant: a replay has none)."""
+    return _replay(replace(config, out=None, with_inputs=False, speed=None, progress=False,
+                           keep_series=False), until_ns=BRIEF_NS)
+
+
+def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
+    """replay(); until_ns: stop after the trace's frames up to this time (a warm-up)."""
+    ecu_codec = registry.function_codec()  # built once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
             else identity_map(trace_db))
@@ -110,6 +137,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
     live = config.speed is not None
     writer = _open_writer(config.out, locked=live)
     buses: list[can.BusABC] = []
+    player_bus: can.BusABC | None = None
     try:
         # live: the ECU thread sleeps its whole waits (no spin holding the GIL); the player spins
         # the last PLAYER_SPIN_NS (sleep overshoots ~0.1 ms here)
@@ -123,8 +151,6 @@ def replay(config: ReplayConfig) -> ReplayResult:
             buses += [player_bus, ecu_bus]
         else:
             ecu_bus = SinkBus("replay")
-        ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
-                      arm_on_input=True)
         def on_sent(msg: can.Message) -> None:
             t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
             scorer.on_estimate(msg, t_ns)
@@ -134,20 +160,22 @@ def replay(config: ReplayConfig) -> ReplayResult:
                 if msg.channel is None:
                     msg.channel = OUT_CHANNEL
                 writer.on_message_received(msg)
-        ecu.tap = on_sent
+        ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
+                      arm_on_input=True, tap=on_sent)
         tally = FrameTally()
         feeder = Feeder(source, ecu, trace_db, scorer, tally, routes,
-                         writer if config.with_inputs else None,
-                         block=config.block and not live)
-        if live:
-            feeder.player = player_bus
-            feeder.speed = config.speed
+                        writer if config.with_inputs else None,
+                        block=config.block and not live,
+                        player=player_bus, speed=config.speed or 1.0,
+                        clock=clock if isinstance(clock, WallClock) else None, until_ns=until_ns)
         ecu_task = schedule_ecu(sched, ecu)
         trace_end = _TraceEnd(sched, feeder, live)
         sched.every(TICK_NS, trace_end, name="trace-end", priority=PRIO_TRACE_END)
         if live:  # first numpy / cantools calls and the compiled kernels' loading: not mid-run
-            warm_up(run_cfg)
-        kernel_load_s = ensure_kernels(run_cfg)  # one-time: not counted in the replay's speed
+            warmup.warm_up("replay", lambda: _brief(config))
+        # one-time: not counted in the replay's speed
+        kernel_load_s = (0.0 if until_ns is not None
+                         else warmup.ensure_kernels("replay", lambda: _brief(config)))
         show = config.progress if config.progress is not None else sys.stderr.isatty()
         progress = _Progress(source, clock, config.speed or 1.0,
                              config.progress_every_s if show else None)
@@ -174,8 +202,7 @@ def replay(config: ReplayConfig) -> ReplayResult:
         if not live:
             ecu_bus.shutdown()
     summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
-                       writer.frames if writer is not None else 0)
-    summary["kernel_load_s"] = round(kernel_load_s, 3)
+                       writer.frames if writer is not None else 0, kernel_load_s)
     return ReplayResult(summary, source.error, scorer.series)
 
 
@@ -279,7 +306,6 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: Feeder, trace_end: _Tr
     player_clock = clock.sibling(spin_ns=PLAYER_SPIN_NS)
     player = Scheduler(player_clock)
     player.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
-    feeder.clock = player_clock
     failure: list[BaseException] = []
 
     def play() -> None:
@@ -345,7 +371,7 @@ def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
 
 def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: FrameTally,
              ecu: EcuNode, smap: SignalMap, functions: list[EcuFunction], scorer: TruthScorer,
-             wall_s: float, written: int) -> dict[str, Any]:
+             wall_s: float, written: int, kernel_load_s: float) -> ReplaySummary:
     rx = ecu.rx.as_dict()
     sim_s = feeder.last_ns / NS_PER_S
     st = source.stats
@@ -355,57 +381,46 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
                          "malformed") and v}
     rejected.update({f"decode_{k}": v for k, v in tally.decode_errors.items()})
     armed = {f.name for f in ecu.armed}
-    fn_report: dict[str, Any] = {}
-    for name in ("throttle", "speed", "steering", "manifold"):
+    fn_report: dict[str, FunctionReport] = {}
+    for name in (spec.name for spec in registry.specs()):
         if name in smap.disabled:
-            fn_report[name] = {"enabled": False, "reason": smap.disabled[name]}
+            fn_report[name] = FunctionReport(False, reason=smap.disabled[name])
         else:
             fn = next((f for f in functions if f.name == name), None)
-            fn_report[name] = {"enabled": True, "ran": name in armed,
-                               "estimates_sent": getattr(fn, "estimates_sent", None)}
-            if name not in armed:
-                fn_report[name]["reason"] = "no input frames in the trace"
-    out: dict[str, Any] = {
-        "trace": config.trace,
-        "mode": "live" if config.speed is not None else "fast",
-        "config": {k: v for k, v in asdict(config).items()
-                   if k not in ("progress", "progress_every_s", "keep_series", "block")},
-        "error": source.error,
-        "frames": {
-            "read": st.frames_read,
-            "decoded": rx["accepted"] + tally.truth + tally.decoded_other,
-            "ignored_known": rx["ignored"],
-            "unknown_id": rx["unknown_id"],
-            "error_frames": rx["error_frames"],
-            "remote_frames": rx["remote_frames"],
-            "rejected": sum(rejected.values()),
-            "rejected_by_reason": rejected,
-            "truth": tally.truth,
-            "out_of_order": st.out_of_order,
-            "late": st.late,
-            "non_finite_time": st.non_finite_time,
-            "ecu_rx": rx,
-        },
-        "functions": fn_report,
-        "map": {"file": config.signal_map, "notes": list(smap.notes)},
-        "trace_duration_s": round(trace_s, 6),
-        "simulated_s": round(sim_s, 6),  # what the ECU ran: the trace less the idle time skipped
-        "idle_gaps": {"threshold_s": config.idle_gap_s, "count": st.gaps,
-                      "skipped_s": round(st.skipped_ns / NS_PER_S, 6),
-                      "longest_s": round(st.longest_gap_ns / NS_PER_S, 6),
-                      "first": [[round(a / NS_PER_S, 6), round(g / NS_PER_S, 6)]
-                                for a, g in st.gap_list]},
-        "wall_time_s": round(wall_s, 4),
-        "x_realtime": round(sim_s / wall_s, 2) if wall_s > 0 else None,
-        "frames_per_s": round(st.frames_read / wall_s) if wall_s > 0 else None,
-        "kernels": kernels.backend(),
-        "frames_written": written,
-        "ecu_overruns": ecu.overruns,
-        "score": scorer.summary() if scorer.active else None,
-    }
-    if config.speed is not None:
-        out["schedule_error"] = feeder.schedule_error.summary()
-    return out
+            fn_report[name] = FunctionReport(
+                True, ran=name in armed, estimates_sent=getattr(fn, "estimates_sent", None),
+                reason=None if name in armed else "no input frames in the trace")
+    return ReplaySummary(
+        trace=config.trace,
+        mode="live" if config.speed is not None else "fast",
+        config={k: v for k, v in asdict(config).items()
+                if k not in ("progress", "progress_every_s", "keep_series", "block")},
+        error=source.error,
+        frames=ReplayFrames(
+            read=st.frames_read,
+            decoded=rx["accepted"] + tally.truth + tally.decoded_other,
+            ignored_known=rx["ignored"], unknown_id=rx["unknown_id"],
+            error_frames=rx["error_frames"], remote_frames=rx["remote_frames"],
+            rejected=sum(rejected.values()), rejected_by_reason=rejected, truth=tally.truth,
+            out_of_order=st.out_of_order, late=st.late, non_finite_time=st.non_finite_time,
+            ecu_rx=rx),
+        functions=fn_report,
+        map=MapReport(config.signal_map, list(smap.notes)),
+        trace_duration_s=round(trace_s, 6),
+        simulated_s=round(sim_s, 6),
+        idle_gaps=IdleGaps(config.idle_gap_s, st.gaps, round(st.skipped_ns / NS_PER_S, 6),
+                           round(st.longest_gap_ns / NS_PER_S, 6),
+                           [[round(a / NS_PER_S, 6), round(g / NS_PER_S, 6)]
+                            for a, g in st.gap_list]),
+        wall_time_s=round(wall_s, 4),
+        x_realtime=round(sim_s / wall_s, 2) if wall_s > 0 else None,
+        frames_per_s=round(st.frames_read / wall_s) if wall_s > 0 else None,
+        kernels=kernels.backend(),
+        frames_written=written,
+        ecu_overruns=ecu.overruns,
+        score=scorer.summary() if scorer.active else None,
+        schedule_error=feeder.schedule_error.summary() if config.speed is not None else None,
+        kernel_load_s=round(kernel_load_s, 3))
 
 
 __all__ = ["SCHEDULE_ERROR_LIMIT_US", "FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError",

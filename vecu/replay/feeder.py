@@ -48,7 +48,12 @@ class Feeder:
 
     def __init__(self, source: TraceSource, ecu: EcuNode, db: DbcCodec, scorer: TruthScorer,
                  tally: FrameTally, routes: dict[tuple[int, bool], Route],
-                 copy_to: can.Listener | None, block: bool = False) -> None:
+                 copy_to: can.Listener | None, block: bool = False,
+                 player: can.BusABC | None = None, speed: float = 1.0,
+                 clock: WallClock | None = None, until_ns: int | None = None) -> None:
+        """Live (player given): every frame is sent onto `player` at `speed` times its recorded
+        pace, its schedule error measured on `clock` (the player's time base); else the frames
+        are handed to the ECU. until_ns: the trace ends after its frames up to this time."""
         self.frames: Iterator[tuple[int, can.Message]] = iter(source)
         self.block = block
         self._chunk = CHUNK if block else SMALL_CHUNK
@@ -61,9 +66,10 @@ class Feeder:
         self.copy_to = copy_to
         self.done = False
         self.last_ns = 0
-        self.player: can.BusABC | None = None
-        self.speed = 1.0
-        self.clock: WallClock | None = None
+        self.player = player
+        self.speed = speed
+        self.clock = clock
+        self.until_ns = until_ns
         self.schedule_error = DurationHistogram(limit_us=SCHEDULE_ERROR_LIMIT_US)
         self._pending = self._next()
         if self._pending is None:
@@ -81,7 +87,10 @@ class Feeder:
                 self._i = 0
                 return None
         self._i = i
-        return self._buf[i]
+        frame = self._buf[i]
+        if self.until_ns is not None and frame[0] > self.until_ns:
+            return None
+        return frame
 
     def _check_block(self, buf: list[tuple[int, can.Message]]
                      ) -> tuple[list[BlockChecks | None], list[int]]:

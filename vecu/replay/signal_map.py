@@ -6,20 +6,22 @@ each ECU input, with unit conversion; the result is the ECU's receive table (ecu
     long_accel  = { signal = "IMU.AccelX", unit = "g" }
 
 Unit: the map's `unit`, else the signal's unit in the DBC; converted to the ECU's unit (table
-INPUTS). `scale` / `offset` (applied first: x * scale + offset) cover anything else. A function
+function_inputs()). `scale` / `offset` (applied first: x * scale + offset) cover anything else. A function
 with a required input unmapped is disabled, with the reason in the summary.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from vecu import functions
 from vecu.codec import DbcCodec
 from vecu.ecu.node import EcuFunction, Route, Subscription
 from vecu.errors import BadFileError
+from vecu.functions.base import EcuInput
 from vecu.tomlfile import read_toml
 
 
@@ -27,42 +29,11 @@ class SignalMapError(BadFileError):
     """A bad signal map: SignalMapError(path, problem), the problem naming the key."""
 
 
-@dataclass(frozen=True)
-class EcuInput:
-    """One input of an ECU function: the vecu message.signal it becomes, its unit, whether the
-    function can run without it."""
+def function_inputs() -> dict[str, Mapping[str, EcuInput]]:
+    """function -> input name -> where it lands in vecu's own messages (the registry's
+    functions, vecu.functions: each spec's `inputs`)."""
+    return {spec.name: spec.inputs for spec in functions.specs() if spec.inputs}
 
-    message: str
-    signal: str
-    unit: str
-    required: bool = True
-
-
-# function -> input name -> where it lands in vecu's own messages
-INPUTS: dict[str, dict[str, EcuInput]] = {
-    "throttle": {
-        "motor_voltage": EcuInput("ETB_Wattmeter", "ETB_Voltage", "V"),
-        "motor_power": EcuInput("ETB_Wattmeter", "ETB_Power", "W"),
-        "tps_voltage": EcuInput("TPS_Sensor", "TPS_Voltage", "V", required=False),
-    },
-    "speed": {
-        "wheel_speed": EcuInput("ESC_Motion", "ESC_WheelSpeed", "km/h"),
-        "long_accel": EcuInput("ESC_Motion", "ESC_LongAccel", "m/s^2"),
-    },
-    "steering": {
-        "yaw_rate": EcuInput("CHS_Lateral", "LAT_YawRate", "deg/s"),
-        "lat_accel": EcuInput("CHS_Lateral", "LAT_LatAccel", "m/s^2"),
-        "vehicle_speed": EcuInput("CHS_Lateral", "LAT_VehSpeed", "km/h"),
-        "steering_angle": EcuInput("SWA_Sensor", "SWA_Angle", "deg", required=False),
-    },
-    "manifold": {
-        "engine_speed": EcuInput("ENG_Event", "ENG_Speed", "rpm"),
-        "throttle_setpoint": EcuInput("ENG_Event", "ENG_ThrottleSetpoint", "deg"),
-        "throttle_angle": EcuInput("ENG_Event", "ENG_ThrottleAngle", "deg"),
-        "map": EcuInput("ENG_Event", "ENG_MAP", "kPa"),
-        "iat": EcuInput("ENG_Intake", "ENG_IAT", "degC", required=False),
-    },
-}
 
 # unit -> (family, factor, offset): value in the family's base unit = x * factor + offset
 _UNITS: dict[str, tuple[str, float, float]] = {
@@ -135,6 +106,7 @@ def load_signal_map(path: str | Path, db: DbcCodec) -> SignalMap:
 
 def build_signal_map(doc: dict, db: DbcCodec, path: str = "<map>") -> SignalMap:
     mapped: list[MappedInput] = []
+    INPUTS = function_inputs()
     for fn_name, table in doc.items():
         if fn_name not in INPUTS:
             raise SignalMapError(path, f"[{fn_name}]: unknown function "
@@ -153,7 +125,7 @@ def build_signal_map(doc: dict, db: DbcCodec, path: str = "<map>") -> SignalMap:
 def identity_map(db: DbcCodec) -> SignalMap:
     """vecu's own messages, where the trace's database has them (no --map needed)."""
     mapped = []
-    for fn_name, table in INPUTS.items():
+    for fn_name, table in function_inputs().items():
         for name, target in table.items():
             if target.message in db and target.signal in db[target.message].ranges:
                 mapped.append(MappedInput(fn_name, name, target.message, target.signal, target,
@@ -183,7 +155,7 @@ def _mapped_input(path: str, key: str, fn_name: str, name: str, spec: object,
     if sig_name not in fc.ranges:
         raise SignalMapError(path, f"{key}.signal: message {msg_name} has no signal "
                              f"{sig_name!r}")
-    target = INPUTS[fn_name][name]
+    target = function_inputs()[fn_name][name]
     dbc_unit = fc.signal(sig_name).unit
     unit = spec.get("unit", dbc_unit or target.unit)
     for opt in ("scale", "offset"):
@@ -205,7 +177,7 @@ def _mapped_input(path: str, key: str, fn_name: str, name: str, spec: object,
 def _with_coverage(path: str, mapped: list[MappedInput]) -> SignalMap:
     have = {(m.function, m.name) for m in mapped}
     disabled, notes = {}, []
-    for fn_name, table in INPUTS.items():
+    for fn_name, table in function_inputs().items():
         missing = [n for n, inp in table.items() if inp.required and (fn_name, n) not in have]
         if missing:
             disabled[fn_name] = (f"{fn_name} estimator disabled: no mapping for "

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from vecu import functions
 from vecu.faults import parse_site
 from vecu.runner import RunResult
 from vecu.scenario.loader import SENSORS, Scenario, SensorCriteria
@@ -67,22 +68,14 @@ def _first_after(history: list, t0: float, states: tuple[str, ...] | None = None
 
 def _series(result: RunResult, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                        np.ndarray | None] | None:
-    """(t, broadcast, truth, source or None) for the sensor's output."""
-    if sensor == "tps" and result.throttle_series is not None:
-        s = result.throttle_series
-        return s.t_s, s.theta_broadcast, s.theta_true, s.source
-    if sensor == "swa" and result.steering_series is not None:
-        s = result.steering_series
-        return s.t_s, s.swa_broadcast, s.swa_true, s.source
-    if sensor == "wheel" and result.speed_series is not None:
-        s = result.speed_series
-        return s.t_s, s.v_est, s.v_true, None
-    return None
+    """(t, broadcast, truth, source or None) for the sensor's output (its function's series)."""
+    series = result.series_of(functions.sensors()[sensor][0])
+    return None if series is None else series.output()
 
 
 def _sensor(scenario: Scenario, result: RunResult, c: SensorCriteria) -> list[CriterionResult]:
     out: list[CriterionResult] = []
-    diag = result.summary["diagnostics"].get(c.sensor)
+    diag = result.report.diagnostics.get(c.sensor)
     if diag is None:
         return [CriterionResult(f"{c.sensor}: monitored", "no monitor", "present", False)]
     t0 = c.fault_at_s if c.fault_at_s is not None else fault_start(scenario, c.sensor)
@@ -112,7 +105,7 @@ def _sensor(scenario: Scenario, result: RunResult, c: SensorCriteria) -> list[Cr
                                    ms is not None and ms <= c.fallback_within_ms + 1e-6))
     if c.max_error_after_fallback is not None or c.rms_error_after_fallback is not None:
         err = _error_after(result, c.sensor, fb)
-        unit = "km/h" if c.sensor == "wheel" else "deg"
+        unit = functions.sensors()[c.sensor][1].unit
         for label, limit, value in (("max", c.max_error_after_fallback,
                                      None if err is None else float(np.max(np.abs(err)))),
                                     ("RMS", c.rms_error_after_fallback,
@@ -153,21 +146,21 @@ def _error_after(result: RunResult, sensor: str, t_fb: float | None) -> np.ndarr
 def evaluate(scenario: Scenario, result: RunResult) -> list[CriterionResult]:
     """Every criterion of the scenario against one run."""
     crit = scenario.criteria
-    summary: dict[str, Any] = result.summary
+    summary = result.report
     out: list[CriterionResult] = []
     if crit.no_nan:
-        nan = summary["throttle"]["nan_outputs"]
-        for sensor in ("tps", "swa", "wheel"):
+        nan = summary.throttle.nan_outputs
+        for sensor in SENSORS:
             s = _series(result, sensor)
             if s is not None:
                 nan += int(np.count_nonzero(~np.isfinite(s[1])))
         out.append(CriterionResult("no NaN outputs", f"{nan} NaN", "0 NaN", nan == 0))
     if crit.no_overruns:
-        out.append(CriterionResult("no scheduler overruns", str(summary["overruns"]), "0",
-                                   summary["overruns"] == 0))
+        out.append(CriterionResult("no scheduler overruns", str(summary.overruns), "0",
+                                   summary.overruns == 0))
     if crit.no_false_dtc:
         false = []
-        for name, diag in summary["diagnostics"].items():
+        for name, diag in summary.diagnostics.items():
             if name == "bus":
                 kinds = {f.kind for f in scenario.config.faults}
                 if diag["confirmations"] and "error_frames" not in kinds:
@@ -181,17 +174,17 @@ def evaluate(scenario: Scenario, result: RunResult) -> list[CriterionResult]:
                                    ", ".join(false) or "none", "none", not false))
     for c in crit.sensors:
         out.extend(_sensor(scenario, result, c))
-    for i, step in enumerate(summary.get("uds_steps", [])):
+    for i, step in enumerate(summary.uds_steps or []):
         latency = "" if step["latency_ms"] is None else f" after {step['latency_ms']:g} ms"
         out.append(CriterionResult(
             f"uds[{i}] at {step['at_s']:g} s: {step['request']}",
             (step["response"] or "no response") + latency, step["expected"], step["passed"]))
-    for i, step in enumerate(summary.get("xcp_steps", [])):
+    for i, step in enumerate(summary.xcp_steps or []):
         latency = "" if step["latency_ms"] is None else f" after {step['latency_ms']:g} ms"
         out.append(CriterionResult(f"xcp[{i}] at {step['at_s']:g} s: {step['step']}",
                                    step["got"] + latency, step["expected"], step["passed"]))
     if crit.bus_dtc is not None:
-        state = summary["diagnostics"]["bus"]["dtc"]
+        state = summary.diagnostics["bus"]["dtc"]
         out.append(CriterionResult("bus: final DTC state", state, crit.bus_dtc,
                                    state == crit.bus_dtc))
     return out

@@ -14,12 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from vecu.argtypes import MANIFOLD_FILTERS
+from vecu import functions
 from vecu.codec import DbcCodec, shared_codec
 from vecu.config import ParamTree, RunConfig, shortcut_sets, validate_tree
 from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.errors import BadFileError, UserError
-from vecu.estimators.registry import THROTTLE_ESTIMATORS
+from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
 from vecu.params import ParamError, apply_sets, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
@@ -29,22 +29,25 @@ from vecu.tomlfile import read_toml
 from vecu.uds.config import UdsStep
 from vecu.xcp.config import XcpStep
 
-MONITOR_PATHS = {"tps": "ecu.throttle.tps_monitor", "swa": "ecu.steering.monitor",
-                 "wheel": "ecu.speed.wheel_monitor"}
-SENSORS = {"tps": "TPS_Sensor", "swa": "SWA_Sensor", "wheel": "ESC_Motion"}
-# which plant part sends a message (a fault on a message nobody sends would do nothing)
-MESSAGE_PART = {"ESC_Motion": "speed", "CHS_Lateral": "steering", "SWA_Sensor": "steering",
-                "ENG_Event": "manifold", "ENG_Intake": "manifold"}
-SENSOR_PART = {"swa": "steering", "wheel": "speed"}
+# the diagnosed sensors of the ECU's functions (vecu.functions): short name -> its monitor's
+# tree path, its frame, the function a run may leave out
+MONITOR_PATHS = {short: sensor.monitor for short, (_, sensor) in functions.sensors().items()}
+SENSORS = {short: sensor.message for short, (_, sensor) in functions.sensors().items()}
+SENSOR_PART = {short: fn for short, (fn, _) in functions.sensors().items()
+               if fn in functions.OPTIONAL}
+# which part sends a message (a fault on a message nobody sends would do nothing): the
+# messages the optional functions read
+MESSAGE_PART = {inp.message: name for name in functions.OPTIONAL
+                for inp in functions.spec(name).inputs.values()}
 MAX_SERIES_S = 600.0  # longer runs keep no per-tick series (memory): no plots, no error criteria
 NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
             "uds": list, "restbus": dict, "xcp": list}
-PLANT_KEYS = {"noise_scale": NUMBER, "speed": BOOL, "steering": BOOL, "manifold": BOOL,
+PLANT_KEYS = {"noise_scale": NUMBER, **dict.fromkeys(functions.OPTIONAL, BOOL),
               "speed_manoeuvres": list}
-ECU_KEYS = {"estimator": STR, "manifold_filter": STR, "tps": dict, "swa": dict, "wheel": dict}
+ECU_KEYS = {"estimator": STR, "manifold_filter": STR, **dict.fromkeys(SENSORS, dict)}
 FAULT_KEYS = {"target": STR, "kind": STR, "start_s": NUMBER, "end_s": NUMBER, "value": NUMBER}
 MONITOR_KEYS = {f.name: {float: NUMBER, int: INT, bool: BOOL}[type(f.default)]
                 for f in fields(SensorMonitorConfig) if f.name != "cycle_ms"}
@@ -145,8 +148,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         raise chk.fail("seed", f"must be >= 0, got {seed}")
     plant = chk.table(data.get("plant", {}), PLANT_KEYS, "plant.")
     ecu = chk.table(data.get("ecu", {}), ECU_KEYS, "ecu.")
-    parts = {"speed": plant.get("speed", False), "steering": plant.get("steering", False),
-             "manifold": plant.get("manifold", False)}
+    parts = {name: plant.get(name, False) for name in functions.OPTIONAL}
     noise = float(plant.get("noise_scale", 1.0))
     if noise < 0:
         raise chk.fail("plant.noise_scale", f"must be >= 0, got {noise}")
@@ -165,7 +167,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         raise chk.fail("ecu.manifold_filter", f"expected one of {', '.join(MANIFOLD_FILTERS)}, "
                                               f"got {filt!r}")
     monitors = {}
-    for sensor in ("tps", "swa", "wheel"):
+    for sensor in SENSORS:
         over = chk.table(ecu.get(sensor, {}), MONITOR_KEYS, f"ecu.{sensor}.")
         for key, value in over.items():
             if key != "enabled" and value < 0:
@@ -295,12 +297,12 @@ def _on_restbus(node: RestbusNode, target: str) -> bool:
 
 
 def _criteria(chk: _Checker, data: dict, duration: float, parts: dict[str, bool]) -> Criteria:
-    schema = {**GLOBAL_CRITERIA, "tps": dict, "swa": dict, "wheel": dict, "bus": dict}
+    schema = {**GLOBAL_CRITERIA, **dict.fromkeys(SENSORS, dict), "bus": dict}
     chk.table(data, schema, "criteria.")
     dtc_names = [s.name.lower() for s in DtcState]
     status_names = [s.name.lower() for s in SensorStatus if s != SensorStatus.OK]
     sensors = []
-    for sensor in ("tps", "swa", "wheel"):
+    for sensor in SENSORS:
         if sensor not in data:
             continue
         pre = f"criteria.{sensor}."

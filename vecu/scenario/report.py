@@ -15,13 +15,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from vecu import functions
 from vecu.faults import parse_site
 from vecu.runner import RunResult
 from vecu.scenario.criteria import ScenarioOutcome, fault_windows
 from vecu.scenario.loader import Scenario
 
-PANEL_MESSAGES = {"tps": ("TPS_Sensor", "ETB_Wattmeter"), "swa": ("SWA_Sensor", "CHS_Lateral"),
-                  "wheel": ("ESC_Motion",)}
 SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 
 
@@ -118,34 +117,21 @@ def write_html(outcomes: list[ScenarioOutcome], report_dir: str) -> str:
 
 
 def plot_scenario(scenario: Scenario, result: RunResult, path: str) -> None:
-    """Truth, sensor, estimate and broadcast per enabled part; fault windows shaded."""
-    panels: list[tuple[str, Any]] = [("tps", result.throttle_series)]
-    if result.steering_series is not None:
-        panels.append(("swa", result.steering_series))
-    if result.speed_series is not None:
-        panels.append(("wheel", result.speed_series))
+    """Truth, sensor, estimate and broadcast per diagnosed sensor of the run's functions (its
+    series' panel()); fault windows on the function's input frames shaded."""
+    panels: list[tuple[str, str, Any]] = [
+        (short, fn, series) for short, (fn, _) in functions.sensors().items()
+        if (series := result.series_of(fn)) is not None]
     fig, axes = plt.subplots(len(panels), 1, figsize=(11, 3.2 * len(panels) + 0.6), sharex=True,
                              squeeze=False)
-    diag = result.summary.get("diagnostics", {})
-    for ax, (name, s) in zip(axes[:, 0], panels):
-        if name == "tps":
-            lines = [(s.theta_true, "true θ", "black", "-"), (s.theta_sensor, "TPS sensor",
-                      "tab:blue", "-"), (s.theta_est, "estimate", "tab:orange", "-"),
-                     (s.theta_broadcast, "broadcast", "tab:red", "--")]
-            ax.set_ylabel("throttle (deg)")
-        elif name == "swa":
-            lines = [(s.swa_true, "true SWA", "black", "-"), (s.swa_sensor, "SWA sensor",
-                      "tab:blue", "-"), (s.swa_est, "UKF estimate", "tab:orange", "-"),
-                     (s.swa_broadcast, "broadcast", "tab:red", "--")]
-            ax.set_ylabel("steering wheel (deg)")
-        else:
-            lines = [(s.v_true, "true speed", "black", "-"), (s.v_wheel, "wheel sensor (plant)",
-                      "tab:blue", "-"), (s.v_est, "estimate", "tab:red", "--")]
-            ax.set_ylabel("speed (km/h)")
+    diag = result.report.diagnostics
+    for ax, (name, fn, s) in zip(axes[:, 0], panels):
+        ylabel, lines = s.panel()
+        ax.set_ylabel(ylabel)
         for y, label, color, ls in lines:
             ax.plot(s.t_s, y, color=color, lw=0.8, ls=ls, label=label,
                     alpha=0.6 if "sensor" in label else 1.0)
-        mine = PANEL_MESSAGES[name]
+        mine = {inp.message for inp in functions.spec(fn).inputs.values()}
         windows = [w for w, f in zip(fault_windows(scenario), scenario.config.faults)
                    if parse_site(f.target).message in mine]
         for k, (t0, t1, label) in enumerate(windows):

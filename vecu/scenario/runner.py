@@ -65,12 +65,12 @@ def run_scenario(scenario: Scenario, report_dir: str | None = None,
         return ScenarioOutcome(scenario.name, scenario.path, scenario.description, False, (),
                                scenario.config.duration_s, perf_s() - wall0, 0.0,
                                error=f"{type(exc).__name__}: {exc}")
-    s = result.summary
+    s = result.report
     return ScenarioOutcome(
         scenario.name, scenario.path, scenario.description, all(c.passed for c in criteria),
-        criteria, s["sim_time_s"], perf_s() - wall0, s["x_realtime"] or 0.0,
-        round(s["sim_time_s"] / cpu, 2) if cpu > 0 else 0.0, plot,
-        diagnostics=s["diagnostics"], fault_events=tuple(s["fault_events"]))
+        criteria, s.sim_time_s, perf_s() - wall0, s.x_realtime or 0.0,
+        round(s.sim_time_s / cpu, 2) if cpu > 0 else 0.0, plot,
+        diagnostics=s.diagnostics, fault_events=tuple(s.fault_events))
 
 
 def _worker(args: tuple[Scenario, str | None, bool, float]) -> ScenarioOutcome:

@@ -12,10 +12,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from vecu.ecu.diagnostics import FLOAT, UBYTE, ULONG
 from vecu.ecu.node import EcuNode
 from vecu.xcp.memory import MEAS_BASE, TYPES
 
-FLOAT, UBYTE, ULONG = "f", "B", "I"  # FLOAT32_IEEE: fits a DAQ entry on CAN
 SENSOR_UNITS = {"tps": "deg", "wheel": "km/h", "swa": "deg"}  # the monitors' physical units
 
 
@@ -51,54 +51,9 @@ def ecu_measurements(node: EcuNode) -> list[Measurement]:
             doc: str) -> None:
         out.append((name, unit, code, read, lo, hi, doc))
 
-    thr = node.function("throttle")
-    if thr is not None:
-        est = thr.estimator  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-        mon = thr.monitor  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-        add("throttle.estimate_deg", "deg", FLOAT, lambda: est.theta_deg, -10, 100,
-            "throttle angle estimate")
-        add("throttle.sigma_deg", "deg", FLOAT, lambda: est.theta_std_deg, 0, 100,
-            "throttle estimate standard deviation")
-        add("throttle.angle_deg", "deg", FLOAT, lambda: thr.angle, -10, 100,  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-            "throttle angle broadcast (sensor or estimate)")
-        add("throttle.tps_deg", "deg", FLOAT, lambda: mon.value, -10, 100,
-            "TPS angle as the ECU sees it (last valid frame)")
-        add("throttle.source", "1", UBYTE, lambda: thr.source, 0, 1,  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-            "0 sensor, 1 estimate")
-        add("throttle.estimator_resets", "1", ULONG, lambda: est.resets, 0, 4294967295,
-            "estimator resets")
-    spd = node.function("speed")
-    if spd is not None:
-        kf = spd.kf  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-        add("speed.speed_mps", "m/s", FLOAT, lambda: kf.speed_mps, -100, 100,
-            "vehicle speed estimate")
-        add("speed.speed_std_mps", "m/s", FLOAT, lambda: kf.speed_std_mps, 0, 100,
-            "vehicle speed standard deviation")
-        add("speed.accel_mps2", "m/s^2", FLOAT, lambda: kf.accel_mps2, -50, 50,
-            "longitudinal acceleration estimate")
-        add("speed.offset_mps2", "m/s^2", FLOAT, lambda: kf.offset_mps2, -50, 50,
-            "accelerometer offset state")
-        add("speed.mode", "1", UBYTE, lambda: spd.mode, 0, 3,  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-            "0 normal, 1 standstill, 2 ABS, 3 coast")
-    ste = node.function("steering")
-    if ste is not None:
-        add("steering.angle_deg", "deg", FLOAT, lambda: ste.angle, -1000, 1000,  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-            "steering-wheel angle broadcast (sensor or estimate)")
-        add("steering.source", "1", UBYTE, lambda: ste.source, 0, 1,  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-            "0 sensor, 1 estimate")
-    man = node.function("manifold")
-    if man is not None:
-        for i, (name, unit, lo, hi, doc) in enumerate((
-                ("p_im_kpa", "kPa", 0, 200, "manifold pressure estimate"),
-                ("t_im_k", "K", 200, 400, "manifold temperature estimate"),
-                ("cac_kg", "kg", 0, 0.002, "cylinder air charge"),
-                ("cac_pred6_kg", "kg", 0, 0.002, "cylinder air charge predicted 6 events ahead")),
-                start=1):
-            add(f"manifold.{name}", unit, FLOAT,
-                _element(man, i),
-                lo, hi, doc)
-        add("manifold.events", "1", ULONG, lambda: man.events, 0, 4294967295,  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
-            "engine events filtered")
+    for fn in node.functions:  # each function's own variables (its `variables()`)
+        for v in getattr(fn, "variables", list)():
+            add(v.name, v.unit, v.code, v.read, v.lo, v.hi, v.doc)
     for name, mon in node.monitors.items():
         unit = SENSOR_UNITS.get(name, "1")
         add(f"monitor.{name}.value", unit, FLOAT, _reader(mon, "value"), -1000, 1000,
@@ -128,8 +83,3 @@ def _reader(obj: Any, attr: str, conv: Callable[[Any], Any] | None = None) -> Ca
     if conv is None:
         return lambda: getattr(obj, attr)
     return lambda: conv(getattr(obj, attr))
-
-
-def _element(fn: Any, i: int) -> Callable[[], Any]:
-    """Element i of a function's last output tuple (None before its first)."""
-    return lambda: None if fn.last is None else fn.last[i]
