@@ -28,7 +28,7 @@ import math
 from bisect import bisect_right
 from typing import Any
 
-from vecu.kernels import kernel
+from vecu.kernels import kernel, using
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 P_FLOOR_KPA = 0.5  # lower guard for P_im inside eta and the integrator (never reached in use)
@@ -54,15 +54,20 @@ def _bisect_right_impl(a: Any, x: float) -> int:
     return lo
 
 
-def _interp_value(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> float:
-    """vecu.models.manifold._interp's value (same operations)."""
+@kernel
+def interp(x: float, xs: Any, ys: Any) -> tuple[float, float]:
+    """Piecewise-linear lookup with end clamping: (value, slope), slope 0 outside the table (the
+    C_d and eta_N maps of eq. 2-3 and 8). A NaN x fails with IndexError under both backends."""
+    last = len(xs) - 1
     if x <= xs[0]:
-        return ys[0]
-    if x >= xs[-1]:
-        return ys[-1]
+        return ys[0], 0.0
+    if x >= xs[last]:
+        return ys[len(ys) - 1], 0.0
     i = bisect_right(xs, x) - 1
+    if i + 1 >= len(ys) or i + 1 > last:
+        raise IndexError("table lookup out of range (NaN?)")
     s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])
-    return ys[i] + s * (x - xs[i])
+    return ys[i] + s * (x - xs[i]), s
 
 
 def _param_consts(prm: ManifoldParams) -> tuple[float, ...]:
@@ -170,33 +175,10 @@ def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: fl
     nrow = len(cd_table)
     if nrow < nseg + 2:
         raise IndexError("C_d table has fewer rows than cd_pr breakpoints")
-    cdv = [0.0] * nrow
-    last = len(cd_alpha) - 1
-    for jr in range(nrow):  # _interp_value(a_deg, cd_alpha, cd_table[jr])
-        ys = cd_table[jr]
-        if a_deg <= cd_alpha[0]:
-            cdv[jr] = ys[0]
-        elif a_deg >= cd_alpha[last]:
-            cdv[jr] = ys[len(ys) - 1]
-        else:
-            ia = bisect_right(cd_alpha, a_deg) - 1
-            if ia + 1 >= len(ys) or ia + 1 > last:
-                raise IndexError("C_d lookup out of range (alpha is NaN?)")
-            s = (ys[ia + 1] - ys[ia]) / (cd_alpha[ia + 1] - cd_alpha[ia])
-            cdv[jr] = ys[ia] + s * (a_deg - cd_alpha[ia])
+    cdv = [interp(a_deg, cd_alpha, cd_table[jr])[0] for jr in range(nrow)]
     cds = [(cdv[j + 1] - cdv[j]) / (prs[j + 1] - prs[j]) for j in range(nseg + 1)]
     prs0, prs_hi = prs[0], prs[nseg + 1]
-    last = len(eta_rpm) - 1
-    if n_rpm <= eta_rpm[0]:  # _interp_value(n_rpm, eta_rpm, eta_val)
-        eta_n = eta_val[0]
-    elif n_rpm >= eta_rpm[last]:
-        eta_n = eta_val[len(eta_val) - 1]
-    else:
-        ie = bisect_right(eta_rpm, n_rpm) - 1
-        if ie + 1 >= len(eta_val) or ie + 1 > last:
-            raise IndexError("eta_N lookup out of range (N is NaN?)")
-        s = (eta_val[ie + 1] - eta_val[ie]) / (eta_rpm[ie + 1] - eta_rpm[ie])
-        eta_n = eta_val[ie] + s * (n_rpm - eta_rpm[ie])
+    eta_n, _ = interp(n_rpm, eta_rpm, eta_val)
     scale = eta_n / (r_c - 1.0)
     k_pump = n_rpm * v_d / (120.0 * v)
     krta = k * r * t_a
@@ -318,9 +300,9 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
     run = _integrate_event.impl()
     if run is _PY_EVENT:
         cst, xs, tab, prs, er, ev = hit[1]
-    elif hit[2] is None:
-        run = _PY_EVENT
-        cst, xs, tab, prs, er, ev = hit[1]
+    elif hit[2] is None:  # a set numba cannot mirror: the Python function, its lookups too
+        with using("python"):
+            return _PY_EVENT(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt, *hit[1])
     else:
         if not _numba_sig_ready:
             _prepare_numba()

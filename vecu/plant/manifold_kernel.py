@@ -12,15 +12,9 @@ Python loop: tests/plant/test_manifold.py); the Python backend never does.
 # ruff: noqa: FURB136 (x if c else y mirrors Python's min()/max(), NaN included)
 from __future__ import annotations
 
-import math
-
 from vecu.kernels import kernel
+from vecu.models.manifold import air_charge_of, event_coefficients, port_flow_of, throttle_flow_of
 from vecu.models.manifold_integrator import _integrate_event
-from vecu.models.manifold_kernels import (
-    air_charge_value,
-    port_flow_value,
-    throttle_flow_value,
-)
 
 # plant constants vector (simulate_events' pc)
 (C_ZETA, C_OMEGA0, C_TAU, C_VCYL, C_NCYL, C_PA, C_TA, C_TCOOL, C_SQ0, C_SQ1, C_SQ2, C_SQ3,
@@ -48,18 +42,10 @@ def plant_step(st, sp, n, ts, w, pc, cst, cd_alpha, cd_table, prs, eta_rpm, eta_
     """ManifoldPlant.step in place on st = (u_prev, alpha, alpha_prev, P_im, T_im, T_meas):
     eq. 1 (actuator_coeffs), the event integrator of eq. 5-6, eq. 9 (iat_coeffs), Section IV's
     Q from noise row w and the physical clamps; returns the sub-steps used."""
-    zw = pc[C_ZETA] * pc[C_OMEGA0]
-    w_et = pc[C_OMEGA0] * math.sqrt(1.0 - pc[C_ZETA] * pc[C_ZETA])
     u_prev, alpha, alpha_prev, p, t, tm = st[0], st[1], st[2], st[3], st[4], st[5]
-    a = math.exp(-zw * ts)
-    b = math.cos(w_et * ts)
-    g = math.sin(w_et * ts)
-    a1, a2 = 2.0 * a * b, -a * a
-    b1, b2 = 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
+    a1, a2, b1, b2, a_t, b_t = event_coefficients(ts, pc[C_ZETA], pc[C_OMEGA0], pc[C_TAU])
     p_n, t_n, m = _integrate_event(p, t, alpha, pc[C_PA], pc[C_TA], pc[C_TCOOL], n, ts, cst,
                                    cd_alpha, cd_table, prs, eta_rpm, eta_val)
-    a_t = math.exp(-ts / pc[C_TAU])
-    b_t = 1.0 - a_t
     new_alpha = a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev + pc[C_SQ0] * w[0]
     v = p_n + pc[C_SQ1] * w[1]
     v = pc[C_PMIN] if pc[C_PMIN] > v else v
@@ -98,9 +84,9 @@ def simulate_events(x0, prof_n, prof_sp, noise, pc, cst, cd_alpha, cd_table, prs
         ys[k, 0] = (alpha + pc[C_SR0] * w[4]) * pc[C_G0]
         ys[k, 1] = (p + pc[C_SR1] * w[5]) * pc[C_G1]
         ys[k, 2] = (tm + pc[C_SR2] * w[6]) * pc[C_G2]
-        mdot_at = throttle_flow_value(alpha, p, p_a, t_a, cst, cd_alpha, cd_table, prs)
-        mdot_ac = port_flow_value(n, p, t, cst, eta_rpm, eta_val)
-        cac = air_charge_value(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
+        mdot_at, _ = throttle_flow_of(alpha, p, p_a, t_a, cst, cd_alpha, cd_table, prs)
+        mdot_ac = port_flow_of(n, p, t, cst, eta_rpm, eta_val)
+        cac = air_charge_of(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
         m = plant_step(st, sp, n, ts, w, pc, cst, cd_alpha, cd_table, prs, eta_rpm, eta_val)
         rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3] = time, ts, n, sp
         rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7] = mdot_at, mdot_ac, cac, float(m)
@@ -138,7 +124,7 @@ def advance_events(st, t_ns, t0_ns, prof_n, prof_sp, noise, pos, pc, cst, cd_alp
         out[k, E_P] = (p + pc[C_SR1] * w[5]) * pc[C_G1]
         out[k, E_TM] = (st[5] + pc[C_SR2] * w[6]) * pc[C_G2]
         out[k, E_P_TRUE], out[k, E_T_TRUE] = p, t
-        out[k, E_CAC_TRUE] = air_charge_value(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
+        out[k, E_CAC_TRUE] = air_charge_of(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
         dt = 120.0 / (ncyl * n)
         plant_step(st, sp, n, dt, w, pc, cst, cd_alpha, cd_table, prs, eta_rpm, eta_val)
         pos += 1

@@ -1,4 +1,4 @@
-"""Runs of manifold events in one compiled call (vecu.estimators.manifold.block_kernels) against
+"""Runs of manifold events in one compiled call (vecu.estimators.manifold.runs) against
 stepping event by event: ManifoldKF.run_events over a drive with bad readings, bad inputs, gated
 spikes and a forced divergence gives the same posteriors, final state and counters as step()
 (bit for bit), and hands the events it cannot decide alone back to the Python path; the

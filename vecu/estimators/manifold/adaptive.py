@@ -15,7 +15,7 @@ The CAC and its 6-event prediction use c_used = eta_scale_used(c, var c): the po
 of c under a spike-and-slab prior (the engine is the calibrated one, or eta differs by ~
 `eta_slab_sd`), so an engine that is the calibrated one is not charged c's noise.
 
-The whole event is one kernel (`adaptive_event`, compiled under numba; its Python function under
+The whole event is one kernel (`adaptive_event.adaptive_event`, compiled under numba; its Python function under
 the python backend). An event the kernel cannot decide (S not positive definite) or a divergence
 resets the filter (counted), the parameters back to 1 with their prior variances.
 """
@@ -27,15 +27,18 @@ from typing import Any
 
 import numpy as np
 
-from vecu.estimators.manifold.adaptive_kernel import N_XA, adaptive_event, prepare
-from vecu.estimators.manifold.filters import ManifoldFilterConfig, _ManifoldKF
-from vecu.estimators.manifold.kernels import (
+from vecu.estimators.manifold.adaptive_event import N_XA, adaptive_event, prepare
+from vecu.estimators.manifold.event import (
+    ALPHA_SDC_MIN,
     DIVERGED,
     FALLBACK,
+    FD_ALPHA,
+    FD_REL,
     filter_constants,
     numba_tables,
 )
-from vecu.estimators.manifold.model import ALPHA_SDC_MIN, FD_ALPHA, FD_REL, q_matrix
+from vecu.estimators.manifold.filters import ManifoldFilterConfig, _ManifoldKF
+from vecu.estimators.manifold.model import q_matrix
 from vecu.models.manifold_params import EngineInput
 
 ETA_FD = 1e-6  # finite-difference step in c
