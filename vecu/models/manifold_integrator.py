@@ -8,8 +8,10 @@ operations and order (bit-identical results, tests/estimators/manifold/test_fast
 - everything that is constant over one event is computed once per call: the throttle area and
   the C_d table column at the held angle alpha, Xi's factor, eta_N(N) and the pumping constant of
   the held input u, and the parameter set's constants (cached per ManifoldParams object);
-- the sub-step loop is inlined in plain local floats (no calls per right-hand side);
-- the second ROS2 stage skips the Jacobian terms it does not use.
+- the sub-step loop is inlined in plain local floats (no calls per right-hand side): the
+  right-hand side is written once and evaluated twice per sub-step, the second ROS2 stage
+  without the Jacobian terms it does not use;
+- the table lookups are `interp` (once per event), the kernel the model's functions use.
 
 The whole event is one compiled kernel (`_integrate_event`, vecu.kernels): numba when it is the
 active backend, the same Python function otherwise. Only scalar IEEE arithmetic, sqrt, cos and
@@ -188,100 +190,94 @@ def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: fl
     floor = P_FLOOR_KPA
     sqrt = math.sqrt
 
-    # --- M ROS2 sub-steps; M is fixed on the first pass from the rates at the start
+    # --- M ROS2 sub-steps; M is fixed on the first pass from the rates at the start. Each
+    # sub-step evaluates the right-hand side twice: stage 1 at (p, t) with its diagonal
+    # Jacobian, stage 2 at (p + h k1p, t + h k1t) rates only (first = True / False).
     p, t = p_im, t_im
+    ps, tsv = p, t  # the stage's point
+    first = True
     m = 0
-    h = gh = 0.0
+    h = gh = wp = wt = k1p = k1t = 0.0
     i = 0
     while True:
-        # stage 1 at (p, t): right-hand side and diagonal Jacobian (reference: manifold._rhs)
-        pr = p / p_a
+        # eq. 2-4 and 5-6 at (ps, tsv) (reference: manifold._rhs)
+        pr = ps / p_a
+        dpsi = 0.0
         if pr <= prc:
-            psi, dpsi = psic, 0.0
+            psi = psic
         elif pr < pr_reg:
             root = sqrt(c * (1.0 - pr ** e2))
             pe1 = pr ** e1
             psi = pe1 * root
-            dpsi = e1 * pr ** e1m1 * root - pe1 * c * e2 * pr ** e2m1 / (2.0 * root)
+            if first:
+                dpsi = e1 * pr ** e1m1 * root - pe1 * c * e2 * pr ** e2m1 / (2.0 * root)
         else:
             s = 1.0 - pr
             if s < ms0:
-                psi, dpsi = mpsi0, 0.0
+                psi = mpsi0
             else:
                 sa = abs(s)
-                psi, dpsi = qa * s + qb * s * sa, -(qa + 2.0 * qb * sa)
+                psi = qa * s + qb * s * sa
+                if first:
+                    dpsi = -(qa + 2.0 * qb * sa)
         pc = prs0 if prs0 > pr else pr
         pc = prs_hi if prs_hi < pc else pc
         j = bisect_right(prs, pc) - 1
         j = nseg if nseg < j else j
         cd = cdv[j] + cds[j] * (pc - prs[j])
-        dcd = cds[j] if prs0 < pr < prs_hi else 0.0
         mdot = xi0 * cd * psi
-        dmdot = xi0 * (dcd * psi + cd * dpsi) / p_a
-        pp = floor if floor > p else p
+        pp = floor if floor > ps else ps
         resid = (p_exh / pp) ** e_eta
-        deta = scale * e_eta * resid / pp if p > floor else 0.0
         eta = scale * (r_c - resid)
-        q = h1 * (t_cool - t) + h2 * (t_a - t)
+        q = h1 * (t_cool - tsv) + h2 * (t_a - tsv)
         pv = pp * v
-        dp = krta * mdot / v - kkp * eta * p + km1 * q / v
-        dtt = (r * t * mdot * (kta - t) + km1 * t * q) / pv - km1kp * eta * t
-        jpp = krta * dmdot / v - kkp * (eta + p * deta)
-        jtt = (r * mdot * (kta - 2.0 * t) + km1 * (q - hsum * t)) / pv - km1kp * eta
-        if i == 0:
-            # m = min(max(ceil(max(a, b, c)), 1), max_sub) with max()'s and ceil's semantics
-            mf = dt * (abs(jpp) + abs(jtt)) / lam_max
-            mb = dt * abs(dp) / dp_max
-            mf = mb if mb > mf else mf
-            mb = dt * abs(dtt) / dt_max
-            mf = mb if mb > mf else mf
-            if math.isnan(mf):
-                raise ValueError("cannot convert float NaN to integer")
-            if math.isinf(mf):
-                raise OverflowError("cannot convert float infinity to integer")
-            if mf <= 1.0:
-                m = 1
-            elif mf < max_sub:
-                m = math.ceil(mf)
-            else:
-                m = max_sub
-            m = max_sub if max_sub < m else m
-            h = dt / m
-            gh = ROS2_GAMMA * h
-        wp = 1.0 - gh * (0.0 if 0.0 < jpp else jpp)
-        wt = 1.0 - gh * (0.0 if 0.0 < jtt else jtt)
-        k1p = dp / wp
-        k1t = dtt / wt
-        # stage 2 at (p + h k1p, t + h k1t): rates only
-        p2 = p + h * k1p
-        p2 = floor if floor > p2 else p2
-        t2 = t + h * k1t
-        pr = p2 / p_a
-        if pr <= prc:
-            psi = psic
-        elif pr < pr_reg:
-            psi = pr ** e1 * sqrt(c * (1.0 - pr ** e2))
+        dp = krta * mdot / v - kkp * eta * ps + km1 * q / v
+        dtt = (r * tsv * mdot * (kta - tsv) + km1 * tsv * q) / pv - km1kp * eta * tsv
+        if first:
+            dcd = cds[j] if prs0 < pr < prs_hi else 0.0
+            dmdot = xi0 * (dcd * psi + cd * dpsi) / p_a
+            deta = scale * e_eta * resid / pp if ps > floor else 0.0
+            jpp = krta * dmdot / v - kkp * (eta + ps * deta)
+            jtt = (r * mdot * (kta - 2.0 * tsv) + km1 * (q - hsum * tsv)) / pv - km1kp * eta
+            if i == 0:
+                # m = min(max(ceil(max(a, b, c)), 1), max_sub) with max()'s and ceil's semantics
+                mf = dt * (abs(jpp) + abs(jtt)) / lam_max
+                mb = dt * abs(dp) / dp_max
+                mf = mb if mb > mf else mf
+                mb = dt * abs(dtt) / dt_max
+                mf = mb if mb > mf else mf
+                if math.isnan(mf):
+                    raise ValueError("cannot convert float NaN to integer")
+                if math.isinf(mf):
+                    raise OverflowError("cannot convert float infinity to integer")
+                if mf <= 1.0:
+                    m = 1
+                elif mf < max_sub:
+                    m = math.ceil(mf)
+                else:
+                    m = max_sub
+                m = max_sub if max_sub < m else m
+                h = dt / m
+                gh = ROS2_GAMMA * h
+            wp = 1.0 - gh * (0.0 if 0.0 < jpp else jpp)
+            wt = 1.0 - gh * (0.0 if 0.0 < jtt else jtt)
+            k1p = dp / wp
+            k1t = dtt / wt
+            ps = p + h * k1p
+            ps = floor if floor > ps else ps
+            tsv = t + h * k1t
+            first = False
         else:
-            s = 1.0 - pr
-            psi = mpsi0 if s < ms0 else qa * s + qb * s * abs(s)
-        pc = prs0 if prs0 > pr else pr
-        pc = prs_hi if prs_hi < pc else pc
-        j = bisect_right(prs, pc) - 1
-        j = nseg if nseg < j else j
-        mdot = xi0 * (cdv[j] + cds[j] * (pc - prs[j])) * psi
-        pp = p2  # already >= floor (or NaN, as max() leaves it)
-        eta = scale * (r_c - (p_exh / pp) ** e_eta)
-        q = h1 * (t_cool - t2) + h2 * (t_a - t2)
-        dp2 = krta * mdot / v - kkp * eta * p2 + km1 * q / v
-        dt2 = (r * t2 * mdot * (kta - t2) + km1 * t2 * q) / (pp * v) - km1kp * eta * t2
-        k2p = (dp2 - 2.0 * k1p) / wp
-        k2t = (dt2 - 2.0 * k1t) / wt
-        p += h * (1.5 * k1p + 0.5 * k2p)
-        t += h * (1.5 * k1t + 0.5 * k2t)
-        p = floor if floor > p else p
-        i += 1
-        if i >= m:
-            return p, t, m
+            k2p = (dp - 2.0 * k1p) / wp
+            k2t = (dtt - 2.0 * k1t) / wt
+            p += h * (1.5 * k1p + 0.5 * k2p)
+            t += h * (1.5 * k1t + 0.5 * k2t)
+            p = floor if floor > p else p
+            i += 1
+            if i >= m:
+                return p, t, m
+            ps, tsv = p, t
+            first = True
 
 
 _PY_EVENT = _integrate_event.py
