@@ -282,7 +282,7 @@ def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
              compiled: bool = True) -> ManifoldTrace:
     """Run the plant event by event over the profile, starting at rest at its first point.
     Under the numba backend (compiled) the whole loop is one call
-    (manifold_kernel.simulate_events, bit-identical); compiled=False steps ManifoldPlant."""
+    (simulate_events, bit-identical); compiled=False steps ManifoldPlant."""
     rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
     n0, sp0 = profile.at(0.0)
     x0 = steady_state_vector(nominal_input(sp0, n0, params), params)
@@ -315,7 +315,7 @@ def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
 
 def _simulate_compiled(profile: Profile, params: ManifoldParams, config: ManifoldPlantConfig,
                        rng: np.random.Generator, x0: np.ndarray) -> ManifoldTrace | None:
-    """simulate's loop as one compiled call (manifold_kernel.simulate_events) under the numba
+    """simulate's loop as one compiled call (simulate_events) under the numba
     backend for a DriveProfile; None: run the Python loop (python backend, another profile type,
     a parameter set the compiled integrator does not take)."""
     from vecu.kernels import backend
@@ -375,7 +375,7 @@ def compiled_tables(params: ManifoldParams) -> tuple | None:
 
 
 def _linked_integrator_is_current(params: ManifoldParams, tables: tuple) -> bool:
-    """One event through manifold_kernel.plant_step (what advance_events and simulate_events
+    """One event through plant_step (what advance_events and simulate_events
     run) against the stand-alone compiled integrator."""
     from vecu.models import manifold_integrator as mi
 
@@ -390,7 +390,7 @@ def _linked_integrator_is_current(params: ManifoldParams, tables: tuple) -> bool
 
 def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duration_s: float,
                     dt_s: float) -> np.ndarray:
-    """manifold_kernel's plant constants vector (pc) for a DriveProfile of that duration and
+    """The kernels' plant constants vector (pc) for a DriveProfile of that duration and
     grid."""
     s = config.noise_scale
     q, r = config.noise.q_diag(), config.noise.r_diag()
@@ -406,7 +406,7 @@ def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duratio
 
 class EventsAhead:
     """ManifoldPlant's events computed ahead in blocks by one compiled call
-    (manifold_kernel.advance_events), for vecu.plant.node.ManifoldPart under the numba backend:
+    (advance_events), for vecu.plant.node.ManifoldPart under the numba backend:
     the same noise rows from the same stream (blocks of config.block rows, as ManifoldPlant
     draws them), the same operations, so the same frames. The plant depends on nothing the ECU
     sends, so nothing can change its course between the events computed and their frames."""

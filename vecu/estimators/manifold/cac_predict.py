@@ -133,7 +133,7 @@ def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldPa
 
 def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
                   params: ManifoldParams = V8_5L7) -> np.ndarray:
-    """x_n+len(inputs) from x_n through the noise-free event map of eq. 10 (manifold_model.f;
+    """x_n+len(inputs) from x_n through the noise-free event map of eq. 10 (model.f;
     predict_events)."""
     if not inputs:
         return np.array(np.asarray(x, dtype=float)[:6])
@@ -180,7 +180,7 @@ def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For events n = 0, stride, 2 stride, ... with n + horizon in range:
     (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg. Under the numba backend (compiled)
-    all predictions in one call (block_kernels.predict_at_events: the same numbers). eta_scale:
+    all predictions in one call (predict_at_events: the same numbers). eta_scale:
     per event, the eta correction the state came with (the adaptive filter's c; None: 1)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))

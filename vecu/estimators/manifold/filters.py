@@ -8,9 +8,9 @@ step(y, u) at event n: update with y_n (the measurement of x_n), store the poste
 (returned), then predict x_n+1|n with the event's input u_n (setpoint TA_SP,n, N_n, P_a, T_a, T_cool).
 
 - `ManifoldEKF`: recursive EKF; mean through the plant's sub-stepped event map f, F = df/dx at the
-  posterior (manifold_model.f_and_jacobian), P = F P F^T + Q.
+  posterior (model.f_and_jacobian; event.ekf_event), P = F P F^T + Q.
 - `ManifoldSDKF`: eq. 12-14. Gain K_n = P_n C^T (C P_n C^T + R)^-1 with P_n from the Riccati
-  equation of the SDC matrix A_n = A(x_n|n-1) (manifold_model.sdc_matrices). `riccati` selects
+  equation of the SDC matrix A_n = A(x_n|n-1) (event.sdc_matrix). `riccati` selects
   how P_n is obtained:
     "iterate"  (default, live): ONE Riccati iteration per event, warm-started from the previous
                event: P_n = A_n (P_n-1 - K_n-1 S_n-1 K_n-1^T) A_n^T + Q. For a frozen A it

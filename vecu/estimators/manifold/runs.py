@@ -244,7 +244,7 @@ def kernel_kind(flt: Any) -> int | None:
         return KIND_SDKF
     return None
 
-KINDS = {"sdkf": 0, "ekf": 1, "adaptive": 2}  # block_kernels.filter_events' kind
+KINDS = {"sdkf": 0, "ekf": 1, "adaptive": 2}  # filter_events' kind
 _NO_AC = np.zeros(3)
 _ALL = [0, 1, 2]
 
@@ -280,7 +280,7 @@ class CompiledEvents:
                   ) -> tuple[float, float] | None:
         """step((y0, y1, y2), u), then (CAC at the posterior, cac_predict.predict_cac of the
         event map's output over horizon - 1 more events with u held), as one compiled call
-        (event_kernel.ecu_event) under the numba backend: the same state, counters and numbers
+        (ecu_event) under the numba backend: the same state, counters and numbers
         as those calls. None (nothing changed): make them instead (python backend, the adaptive
         filter, the first event, an input or reading the filter refuses, an event its kernel
         hands back or resets on)."""
@@ -311,7 +311,7 @@ class CompiledEvents:
         self._commit_event(xo, Po, u)
         return cac, cac6
 
-    _ecu_run: Any = None  # event_kernel.ecu_event's dispatcher once prepared
+    _ecu_run: Any = None  # ecu_event's dispatcher once prepared
     _ecu_kind: int | None = None
     _ecu_checked = False
     _ecu_consts: np.ndarray
@@ -361,7 +361,7 @@ class CompiledEvents:
         return self._kernel_args
 
     def _block_ready(self) -> bool:
-        """Whole runs of events may go through block_kernels.filter_events."""
+        """Whole runs of events may go through filter_events."""
         if getattr(self.config, "riccati", "iterate") != "iterate" or not self._initialised:
             return False
         if sdkf_event.impl() is sdkf_event.py:
