@@ -18,7 +18,7 @@ Four sources of x_n (the paper's Table 1 columns):
 - "direct": the readings: alpha = TA_n, alpha_prev = TA_n-1, u_prev = TA_SP,n-1, P_im = P_n,
   T_im = T_im.meas = T_im.out,n (the slow IAT sensor, tau 8 s);
 - "direct_ol": the same, but T_im from an open-loop observer: the manifold model (P, T) run
-  without feedback, driven by the measured throttle angle (`OpenLoopTemperature`);
+  without feedback, driven by the measured throttle angle (`open_loop_temperatures`);
 - "ekf", "sdkf": the filter posteriors x_n|n (vecu/estimators/manifold/filters.py).
 """
 
@@ -44,8 +44,7 @@ from vecu.estimators.manifold.event import (
 from vecu.estimators.manifold.event import prepare as prepare_events
 from vecu.kernels import kernel, using
 from vecu.models import manifold_integrator as mi
-from vecu.models.manifold import air_charge_of, sample_time
-from vecu.models.manifold_integrator import integrate_manifold
+from vecu.models.manifold import air_charge_of
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 HORIZON = 6
@@ -152,27 +151,6 @@ def direct_state(y: Sequence[float], y_prev: Sequence[float], sp_prev: float) ->
     return np.array([sp_prev, y[0], y_prev[0], y[1], y[2], y[2]], dtype=float)
 
 
-class OpenLoopTemperature:
-    """Open-loop manifold observer: (P, T) of eq. 5-6 driven by the measured throttle angle, no
-    feedback. step(TA_n, u_n) returns T_im,n and advances to n+1. Starts at the given state."""
-
-    def __init__(self, p0: float, t0: float, params: ManifoldParams = V8_5L7) -> None:
-        self.params = params
-        self.p = float(p0)
-        self.t = float(t0)
-        self._alpha = math.nan
-
-    def step(self, ta_meas: float, u: EngineInput) -> float:
-        t_now = self.t
-        a = ta_meas if math.isfinite(ta_meas) else self._alpha
-        if not math.isfinite(a):
-            return t_now
-        self._alpha = a
-        ts = sample_time(u.n_rpm, self.params.n_cyl)
-        self.p, self.t, _ = integrate_manifold(self.p, self.t, a, u, ts, self.params)
-        return t_now
-
-
 def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       cac_actual: np.ndarray, params: ManifoldParams = V8_5L7,
                       config: CacPredictionConfig = CacPredictionConfig(),
@@ -214,21 +192,29 @@ def _predict_block(states: np.ndarray, idx: np.ndarray, ta_sp: np.ndarray, n_rpm
 
 
 def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0: float,
-                           params: ManifoldParams = V8_5L7) -> np.ndarray:
-    """T_im,n of OpenLoopTemperature(p0, t0) stepped with (TA_n, nominal input at N_n) over the
-    events (open_loop_run: compiled under the numba backend, its Python function otherwise)."""
-    out = np.empty(len(ta_meas))
-    u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
+                           params: ManifoldParams = V8_5L7,
+                           inputs: Sequence[EngineInput] | None = None) -> np.ndarray:
+    """T_im,n of the open-loop manifold observer over the events: (P, T) of eq. 5-6 from (p0,
+    t0) driven by the measured throttle angle TA_n (the last finite one), no feedback, with
+    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n.
+    open_loop_run: compiled under the numba backend, its Python function otherwise."""
+    n_ev = len(ta_meas)
+    out = np.empty(n_ev)
+    if inputs is None:
+        amb = np.tile([params.p_a_kpa, params.t_a_k, params.t_cool_k], (n_ev, 1))
+    else:
+        amb = np.array([(u.p_a, u.t_a, u.t_cool) for u in inputs], dtype=np.float64)
+    amb = np.ascontiguousarray(amb, dtype=np.float64).reshape(n_ev, 3)
     ta = np.ascontiguousarray(ta_meas, dtype=np.float64)
     n = np.ascontiguousarray(n_rpm, dtype=np.float64)
     tables = mi._tables(params)[2]
     if open_loop_run.impl() is not open_loop_run.py and tables is not None:
         prepare()
-        open_loop_run.compiled(ta, n, float(p0), float(t0), u_amb, float(params.n_cyl),
-                               *tables, out)
+        open_loop_run.compiled(ta, n, float(p0), float(t0), amb, float(params.n_cyl), *tables,
+                               out)
         return out
     with using("python"):
-        open_loop_run.py(ta.tolist(), n.tolist(), float(p0), float(t0), u_amb.tolist(),
+        open_loop_run.py(ta.tolist(), n.tolist(), float(p0), float(t0), amb.tolist(),
                          float(params.n_cyl), *python_tables(params), out)
     return out
 
@@ -263,9 +249,10 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
 
 
 @kernel
-def open_loop_run(ta_meas, n_rpm, p0, t0, u_amb, ncyl, cst, cd_alpha, cd_table, prs,
-                           eta_rpm, eta_val, out):
-    """cac_predict.OpenLoopTemperature stepped over the events: out[n] = T_im,n."""
+def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, cst, cd_alpha, cd_table, prs, eta_rpm,
+                  eta_val, out):
+    """The open-loop observer over the events (open_loop_temperatures): out[n] = T_im,n; amb[n]
+    the event's (P_a, T_a, T_coolant)."""
     p, t = p0, t0
     alpha = math.nan
     for n in range(len(ta_meas)):
@@ -275,8 +262,8 @@ def open_loop_run(ta_meas, n_rpm, p0, t0, u_amb, ncyl, cst, cd_alpha, cd_table, 
             continue
         alpha = a
         ts = 120.0 / (ncyl * n_rpm[n])
-        p, t, _ = integrate_event(p, t, a, u_amb[0], u_amb[1], u_amb[2], n_rpm[n], ts, cst,
-                                   cd_alpha, cd_table, prs, eta_rpm, eta_val)
+        p, t, _ = integrate_event(p, t, a, amb[n][0], amb[n][1], amb[n][2], n_rpm[n], ts, cst,
+                                  cd_alpha, cd_table, prs, eta_rpm, eta_val)
 
 
 @kernel
