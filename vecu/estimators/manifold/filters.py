@@ -261,6 +261,9 @@ class _ManifoldKF(CompiledEvents):
     _KERNELS: tuple[Any, Any] = (None, None)  # (event kernel, finish kernel) of the subclass
     _count_gated_on_reset = True  # the gated counters of an event that diverged still count
     _py_args: tuple | None = None  # the kernels' constants for their Python functions
+    # what a failing event raises (the filter resets): non-finite or implausible numbers
+    _EVENT_ERRORS: tuple[type[Exception], ...] = (FloatingPointError, ValueError,
+                                                  np.linalg.LinAlgError)
 
     def _event_runner(self) -> tuple[Any, Any, tuple, bool]:
         """(event kernel, finish kernel, their constants, Python only?) for the active backend:
@@ -304,7 +307,7 @@ class _ManifoldKF(CompiledEvents):
                 code = self._call_event(run, args, xo, Po, u, ts, mask)
                 if code & FALLBACK:
                     code = self._fallback(finish, args, xo, Po, u, ts, mask, code)
-        except (FloatingPointError, ValueError, np.linalg.LinAlgError):
+        except self._EVENT_ERRORS:
             self._reset_in_step()
             return
         if self._count_gated_on_reset or not code & DIVERGED:
