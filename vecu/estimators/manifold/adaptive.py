@@ -118,13 +118,6 @@ class ManifoldAdaptive(_ManifoldKF):
             prepare()
         return run, None, self._args, False
 
-    def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
-                    u: EngineInput, ts: float, mask: int) -> int:
-        ly = self._last_y
-        gr = self._gated_run
-        return run(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, ly[0],
-                   ly[1], ly[2], mask, gr[0], gr[1], gr[2], *args)
-
     def _fallback(self, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                   u: EngineInput, ts: float, mask: int, code: int) -> int:
         return DIVERGED

@@ -283,8 +283,12 @@ class _ManifoldKF(CompiledEvents):
 
     def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                     u: EngineInput, ts: float, mask: int) -> int:
-        """The subclass's event kernel on the filter's state; its status word."""
-        raise NotImplementedError
+        """The event kernel on the filter's prior (x, P) (ekf_event's and adaptive_event's
+        arguments; the SDKF's differ); its status word."""
+        ly = self._last_y
+        gr = self._gated_run
+        return run(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, ly[0],
+                   ly[1], ly[2], mask, gr[0], gr[1], gr[2], *args)
 
     def _call_finish(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                      u: EngineInput, ts: float, gated: int) -> int:
@@ -375,13 +379,6 @@ class ManifoldEKF(_ManifoldKF):
 
     name = "ekf"
     _KERNELS = (ekf_event, ekf_finish)
-
-    def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
-                    u: EngineInput, ts: float, mask: int) -> int:
-        ly = self._last_y
-        gr = self._gated_run
-        return run(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, ly[0],
-                   ly[1], ly[2], mask, gr[0], gr[1], gr[2], *args)
 
     def _call_finish(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                      u: EngineInput, ts: float, gated: int) -> int:
