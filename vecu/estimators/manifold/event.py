@@ -54,6 +54,24 @@ FD_REL = 1e-6
 _ready = False
 
 
+# input_fault's answers
+INPUT_OK, INPUT_SPEED, INPUT_SETPOINT, INPUT_AMBIENT = range(4)
+
+
+@kernel
+def input_fault(sp, n_rpm, p_a, t_a, t_cool, n_lo, n_hi):
+    """Which part of an event's input is implausible (NaN fails): INPUT_SPEED (N outside
+    n_lo..n_hi rpm), INPUT_SETPOINT (TA_SP outside -0.2..1.9 rad), INPUT_AMBIENT (P_a outside
+    50..120 kPa, T_a or T_coolant outside 200..450 K), else INPUT_OK."""
+    if not n_lo <= n_rpm <= n_hi:
+        return INPUT_SPEED
+    if not -0.2 <= sp <= 1.9:
+        return INPUT_SETPOINT
+    if not (50.0 <= p_a <= 120.0 and 200.0 <= t_a <= 450.0 and 200.0 <= t_cool <= 450.0):
+        return INPUT_AMBIENT
+    return INPUT_OK
+
+
 @kernel
 def const_tuple(c):
     """The integrator's 29 per-parameter-set constants as the tuple it takes."""

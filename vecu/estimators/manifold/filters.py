@@ -57,10 +57,14 @@ from vecu.estimators.manifold.event import (
     FALLBACK,
     FD_ALPHA,
     FD_REL,
+    INPUT_OK,
+    INPUT_SETPOINT,
+    INPUT_SPEED,
     apply_gain,
     ekf_event,
     ekf_finish,
     filter_constants,
+    input_fault,
     python_tables,
     sdkf_event,
     sdkf_finish,
@@ -132,14 +136,15 @@ def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
     setpoint outside [-0.2, 1.9] rad, ambient or coolant conditions outside physical bounds.
     The filter holds its last plausible input instead; the ECU refuses the event (NaN fails)."""
     lo, hi = config.n_range
-    if not lo <= u.n_rpm <= hi:
+    fault = input_fault.py(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, lo, hi)
+    if fault == INPUT_OK:
+        return None
+    if fault == INPUT_SPEED:
         return f"engine speed {u.n_rpm:g} rpm outside {lo:g}..{hi:g} rpm"
-    if not -0.2 <= u.ta_sp <= 1.9:
+    if fault == INPUT_SETPOINT:
         return f"throttle setpoint {u.ta_sp:g} rad outside -0.2..1.9 rad"
-    if not (50.0 <= u.p_a <= 120.0 and 200.0 <= u.t_a <= 450.0 and 200.0 <= u.t_cool <= 450.0):
-        return (f"ambient {u.p_a:g} kPa / {u.t_a:g} K or coolant {u.t_cool:g} K outside "
-                "50..120 kPa / 200..450 K")
-    return None
+    return (f"ambient {u.p_a:g} kPa / {u.t_a:g} K or coolant {u.t_cool:g} K outside "
+            "50..120 kPa / 200..450 K")
 
 
 def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,

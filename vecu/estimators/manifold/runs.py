@@ -35,8 +35,10 @@ from vecu.estimators.manifold.event import (
     FALLBACK,
     FD_ALPHA,
     FD_REL,
+    INPUT_OK,
     ekf_event,
     filter_constants,
+    input_fault,
     numba_tables,
     sdkf_event,
     signature_types,
@@ -59,10 +61,9 @@ def limits(config: Any) -> np.ndarray:
 
 @kernel
 def plausible(sp, n_rpm, p_a, t_a, t_cool, y0, y1, y2, lim):
-    """An event the filter takes as it comes: its input is plausible (filters.input_problem
-    is None) and all three readings are inside their y_ranges (NaN fails)."""
-    return (lim[L_N_LO] <= n_rpm <= lim[L_N_HI] and -0.2 <= sp <= 1.9 and 50.0 <= p_a <= 120.0
-            and 200.0 <= t_a <= 450.0 and 200.0 <= t_cool <= 450.0
+    """An event the filter takes as it comes: its input is plausible (event.input_fault) and
+    all three readings are inside their y_ranges (NaN fails)."""
+    return (input_fault(sp, n_rpm, p_a, t_a, t_cool, lim[L_N_LO], lim[L_N_HI]) == INPUT_OK
             and lim[L_Y0_LO] <= y0 <= lim[L_Y0_HI] and lim[L_Y1_LO] <= y1 <= lim[L_Y1_HI]
             and lim[L_Y2_LO] <= y2 <= lim[L_Y2_HI])
 
