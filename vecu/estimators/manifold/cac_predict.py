@@ -103,8 +103,10 @@ def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldPa
     the numba backend, its Python function otherwise (or for a parameter set numba cannot
     mirror). eta_scale multiplies the eta_N table (the adaptive filter's c). x: the first six
     states are used."""
-    _, nb, py = _args(params)
-    compiled = predict_events.impl() is not predict_events.py and nb is not None
+    hit = _ARGS.get(id(params))
+    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
+    run = predict_events.impl()
+    compiled = run is not predict_events.py and nb is not None
     args: tuple = nb if compiled and nb is not None else py
     if eta_scale != 1.0:
         ev = args[-1]
@@ -120,10 +122,11 @@ def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldPa
     ua = np.array([(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool) for u in rows], dtype=np.float64)
     out = np.empty(6)
     if compiled:
-        prepare()
-        cac = predict_events.compiled(xa, ua, len(inputs), out, *args)
-    elif predict_events.impl() is predict_events.py:
-        cac = predict_events.py(xa, ua, len(inputs), out, *args)
+        if not _ready:
+            prepare()
+        cac = run(xa, ua, len(inputs), out, *args)
+    elif run is predict_events.py:
+        cac = run(xa, ua, len(inputs), out, *args)
     else:  # numba, a parameter set it cannot mirror: the Python functions throughout
         with using("python"):
             cac = predict_events.py(xa, ua, len(inputs), out, *args)

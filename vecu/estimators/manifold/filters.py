@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -78,7 +77,7 @@ from vecu.estimators.manifold.model import (
     sdc_matrices,
 )
 from vecu.estimators.manifold.runs import CompiledEvents
-from vecu.kernels import using
+from vecu.kernels import backend, using
 from vecu.models.manifold import nominal_input, steady_state_vector
 from vecu.models.manifold_params import (
     PAPER_NOISE,
@@ -270,10 +269,20 @@ class _ManifoldKF(CompiledEvents):
     _EVENT_ERRORS: tuple[type[Exception], ...] = (FloatingPointError, ValueError,
                                                   np.linalg.LinAlgError)
 
+    _runner_backend: str | None = None  # the backend _runner was made for
+    _runner: tuple[Any, Any, tuple, bool]
+
     def _event_runner(self) -> tuple[Any, Any, tuple, bool]:
         """(event kernel, finish kernel, their constants, Python only?) for the active backend:
         the compiled kernels under numba (event.prepare first), their Python functions with
         plain-float constants otherwise or for a parameter set numba cannot mirror."""
+        active = backend()
+        if active != self._runner_backend:
+            self._runner = self._make_runner()
+            self._runner_backend = active
+        return self._runner
+
+    def _make_runner(self) -> tuple[Any, Any, tuple, bool]:
         ev, fin = self._KERNELS
         if ev.impl() is not ev.py:
             args = self._kernel_args
@@ -312,10 +321,11 @@ class _ManifoldKF(CompiledEvents):
         xo = np.empty((3, n))
         Po = np.empty((2, n, n))
         try:
-            with using("python") if py_only else nullcontext():
-                code = self._call_event(run, args, xo, Po, u, ts, mask)
-                if code & FALLBACK:
-                    code = self._fallback(finish, args, xo, Po, u, ts, mask, code)
+            if py_only:
+                with using("python"):
+                    code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
+            else:
+                code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
         except self._EVENT_ERRORS:
             self._reset_in_step()
             return
@@ -325,6 +335,13 @@ class _ManifoldKF(CompiledEvents):
             self._reset_in_step()
             return
         self._commit_event(xo, Po, u)
+
+    def _run_event(self, run: Any, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                   u: EngineInput, ts: float, mask: int) -> int:
+        code = self._call_event(run, args, xo, Po, u, ts, mask)
+        if code & FALLBACK:
+            code = self._fallback(finish, args, xo, Po, u, ts, mask, code)
+        return code
 
     def _fallback(self, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                   u: EngineInput, ts: float, mask: int, code: int) -> int:
