@@ -454,12 +454,13 @@ def prepare() -> None:
 def _linked_integrator_is_current() -> bool:
     """sdkf_event's event map (P_n, T_n of its prediction) against the stand-alone compiled
     integrator."""
-    from vecu.estimators.manifold.filters import ManifoldFilterConfig
     from vecu.models.manifold_params import V8_5L7
 
     tabs = numba_tables(V8_5L7)
     assert tabs is not None
-    fc = filter_constants(ManifoldFilterConfig())
+    fc = model_constants(V8_5L7)  # no channel used; a box and bounds that hold the sample
+    fc[F_A_LO], fc[F_A_HI], fc[F_P_LO], fc[F_P_HI] = -10.0, 10.0, 0.0, 1e3
+    fc[F_T_LO], fc[F_T_HI], fc[F_MAX_TRACE], fc[F_MAX_ABS] = 0.0, 1e4, 1e9, 1e9
     x = np.array([0.31, 0.3, 0.29, 61.0, 321.0, 318.0])
     P = np.diag([1e-4, 1e-3, 1e-3, 4.0, 100.0, 1.0])
     xo, Po = np.empty((3, 6)), np.empty((2, 6, 6))
