@@ -354,7 +354,7 @@ def test_any_noise_scale_the_parameter_tree_admits_stays_finite():
 
 
 def test_compiled_simulation_is_the_python_loop(backend, per_backend):
-    """simulate's loop as one compiled call (plant.manifold_kernel) gives the event-by-event
+    """simulate's loop as one compiled call (plant.manifold.simulate_events) gives the event-by-event
     ManifoldPlant loop bit for bit, with a perturbed engine and sensor gain errors."""
     import dataclasses
 

@@ -15,6 +15,7 @@ first `scipy_events` events of the first run), the cheap-vs-full-DARE SDKF agree
 from __future__ import annotations
 
 import math
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,12 +23,12 @@ import numpy as np
 from vecu.clock import perf_s
 from vecu.estimators.manifold.cac_predict import (
     CacPredictionConfig,
-    OpenLoopTemperature,
     open_loop_temperatures,
     prediction_errors,
 )
 from vecu.estimators.manifold.factory import make_filter
 from vecu.estimators.manifold.filters import ManifoldFilterConfig
+from vecu.kernels import using
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile, us06_like
 from vecu.plant.manifold import ManifoldTrace, simulate
@@ -136,15 +137,9 @@ def direct_ol_states(trace: ManifoldTrace, inputs: list[EngineInput] | None,
     ambient and coolant conditions of `inputs`; None: the nominal ones of params, as
     trace_inputs(trace, params) gives; compiled: one call)."""
     out = direct_states(trace)
-    nominal = inputs is None or all(
-        (u.p_a, u.t_a, u.t_cool) == (params.p_a_kpa, params.t_a_k, params.t_cool_k) for u in inputs)
-    if inputs is None or (compiled and nominal):
+    with nullcontext() if compiled else using("python"):
         out[:, 4] = open_loop_temperatures(trace.y[:, 0], trace.n_rpm, trace.y[0, 1],
-                                           trace.y[0, 2], params)
-        return out
-    ol = OpenLoopTemperature(trace.y[0, 1], trace.y[0, 2], params)
-    for n in range(len(out)):
-        out[n, 4] = ol.step(float(trace.y[n, 0]), inputs[n])
+                                           trace.y[0, 2], params, inputs)
     return out
 
 

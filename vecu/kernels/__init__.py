@@ -195,6 +195,8 @@ class Kernel:
         return self.compiled if backend() == "numba" else self.py
 
     def __call__(self, *args: Any) -> Any:
+        if _active == "python":  # the common case first: a kernel calling kernels in Python
+            return self.py(*args)
         return self.impl()(*args)
 
 

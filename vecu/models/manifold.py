@@ -19,17 +19,28 @@ Layers:
 
 from __future__ import annotations
 
-import bisect
 import math
+from bisect import bisect_right
+from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq
 
-from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA  # noqa: F401 (re-exported)
+from vecu.kernels import Kernel, backend, kernel, using
+from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA, _tables, interp  # noqa: F401 (re-exported)
 from vecu.models.manifold_integrator import integrate_manifold as _integrate_fast
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 N_STATE = 6
+
+
+def _py(k: Kernel, *args: Any) -> Any:
+    """Kernel k's Python function with the Python functions of the kernels it calls (the
+    parameter set's tables are tuples here, which the compiled kernels do not take)."""
+    if backend() == "python":
+        return k.py(*args)
+    with using("python"):
+        return k.py(*args)
 
 
 def nominal_input(ta_sp: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> EngineInput:
@@ -46,6 +57,20 @@ def sample_time(n_rpm: float, n_cyl: int = 8) -> float:
 
 # ------------------------------------------------------------------------- actuator, eq. 1
 
+@kernel
+def event_coefficients(ts, zeta, omega0, tau):
+    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts: the corrected eq. 1 for the actuator
+    (zeta, omega0) and eq. 9 for the IAT sensor (tau); see actuator_coeffs and iat_coeffs."""
+    zw = zeta * omega0
+    w_et = omega0 * math.sqrt(1.0 - zeta * zeta)
+    a = math.exp(-zw * ts)
+    b = math.cos(w_et * ts)
+    g = math.sin(w_et * ts)
+    a_t = math.exp(-ts / tau)
+    return (2.0 * a * b, -a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b),
+            a_t, 1.0 - a_t)
+
+
 def actuator_coeffs(
     ts: float, params: ManifoldParams = V8_5L7,
 ) -> tuple[float, float, float, float]:
@@ -56,12 +81,9 @@ def actuator_coeffs(
     a1 = 2 a b, a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b),
     a = exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2).
     """
-    zw = params.zeta * params.omega0
-    w_et = params.omega0 * math.sqrt(1.0 - params.zeta * params.zeta)
-    a = math.exp(-zw * ts)
-    b = math.cos(w_et * ts)
-    g = math.sin(w_et * ts)
-    return 2.0 * a * b, -a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / w_et - b)
+    a1, a2, b1, b2, _, _ = _py(event_coefficients, ts, params.zeta, params.omega0,
+                                                 params.tau_temp_s)
+    return a1, a2, b1, b2
 
 
 def actuator_coeffs_printed(
@@ -87,6 +109,50 @@ def actuator_matrices(
 
 # ------------------------------------------------------------------------- throttle flow, eq. 2-4
 
+@kernel
+def flow_function_of(pr, c):
+    """psi(pr) with dpsi/dpr on the integrator's constants c (manifold_integrator._param_consts):
+    choked (eq. 3), subsonic (eq. 2), C1 quadratic near pr = 1 (see flow_function)."""
+    if pr <= c[4]:
+        return c[5], 0.0
+    if pr < c[11]:
+        root = math.sqrt(c[6] * (1.0 - pr ** c[8]))
+        pe1 = pr ** c[7]
+        return pe1 * root, c[7] * pr ** c[9] * root - pe1 * c[6] * c[8] * pr ** c[10] / (2.0 * root)
+    s = 1.0 - pr
+    if s < c[12]:
+        return c[13], 0.0
+    return c[14] * s + c[15] * s * abs(s), -(c[14] + 2.0 * c[15] * abs(s))
+
+
+@kernel
+def discharge_of(pr, alpha, c, cd_alpha, cd_table, prs):
+    """(C_d, dC_d/dpr) by bilinear lookup (see discharge_coefficient) on the tables."""
+    a = 0.0 if 0.0 > alpha else alpha  # noqa: FURB136 (min/max with Python's NaN behaviour)
+    a_deg = math.degrees(c[26] if c[26] < a else a)  # noqa: FURB136 (as above)
+    n = len(prs)
+    p = prs[0] if prs[0] > pr else pr  # noqa: FURB136 (as above)
+    p = prs[n - 1] if prs[n - 1] < p else p  # noqa: FURB136 (as above)
+    j = bisect_right(prs, p) - 1
+    j = n - 2 if n - 2 < j else j  # noqa: FURB136 (as above)
+    lo, _ = interp(a_deg, cd_alpha, cd_table[j])
+    hi, _ = interp(a_deg, cd_alpha, cd_table[j + 1])
+    s = (hi - lo) / (prs[j + 1] - prs[j])
+    return lo + s * (p - prs[j]), s if prs[0] < pr < prs[n - 1] else 0.0
+
+
+@kernel
+def throttle_flow_of(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs):
+    """Eq. 2-4 on the integrator's constants and tables: (mdot_at, d mdot_at / dP_im)."""
+    pr = p_im / p_a
+    psi, dpsi = flow_function_of(pr, c)
+    cd, dcd = discharge_of(pr, alpha, c, cd_alpha, cd_table, prs)
+    a = 0.0 if 0.0 > alpha else alpha  # noqa: FURB136 (min/max with Python's NaN behaviour)
+    a = c[26] if c[26] < a else a  # noqa: FURB136 (as above)
+    xi0 = math.pi * c[27] * c[27] * (1.0 - math.cos(a)) * (1000.0 * p_a) / math.sqrt(c[1] * t_a)
+    return xi0 * cd * psi, xi0 * (dcd * psi + cd * dpsi) / p_a
+
+
 def throttle_area(alpha: float, params: ManifoldParams = V8_5L7) -> float:
     """Eq. 4, A_th = pi R_th^2 (1 - cos alpha) in m^2, alpha clipped to the stops [0, alpha_max]."""
     a = min(max(alpha, 0.0), params.alpha_max_rad)
@@ -95,28 +161,15 @@ def throttle_area(alpha: float, params: ManifoldParams = V8_5L7) -> float:
 
 def _interp(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> tuple[float, float]:
     """Piecewise-linear lookup with end clamping: (value, slope) (slope 0 outside the table)."""
-    if x <= xs[0]:
-        return ys[0], 0.0
-    if x >= xs[-1]:
-        return ys[-1], 0.0
-    i = bisect.bisect_right(xs, x) - 1
-    s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])
-    return ys[i] + s * (x - xs[i]), s
+    return _py(interp, x, xs, ys)
 
 
 def discharge_coefficient(
     pr: float, alpha: float, params: ManifoldParams = V8_5L7,
 ) -> tuple[float, float]:
     """C_d(pr, alpha) by bilinear lookup (eq. 2-3 text): (C_d, dC_d/dpr); pr clamped to [0, 1]."""
-    a_deg = math.degrees(min(max(alpha, 0.0), params.alpha_max_rad))
-    prs = params.cd_pr
-    p = min(max(pr, prs[0]), prs[-1])
-    j = min(bisect.bisect_right(prs, p) - 1, len(prs) - 2)
-    lo, _ = _interp(a_deg, params.cd_alpha_deg, params.cd_table[j])
-    hi, _ = _interp(a_deg, params.cd_alpha_deg, params.cd_table[j + 1])
-    s = (hi - lo) / (prs[j + 1] - prs[j])
-    slope = s if prs[0] < pr < prs[-1] else 0.0
-    return lo + s * (p - prs[j]), slope
+    c, cd_alpha, cd_table, prs, _, _ = _tables(params)[1]
+    return _py(discharge_of, pr, alpha, c, cd_alpha, cd_table, prs)
 
 
 def critical_pressure_ratio(kappa: float) -> float:
@@ -132,39 +185,15 @@ def psi_choked(kappa: float) -> float:
     return math.sqrt(kappa) * (2.0 / (kappa + 1.0)) ** ((kappa + 1.0) / (2.0 * (kappa - 1.0)))
 
 
-def _psi_subsonic(pr: float, kappa: float) -> tuple[float, float]:
-    """Eq. 2 with the square root over the whole bracket: (psi, dpsi/dpr) for pr_c <= pr < 1."""
-    c = 2.0 * kappa / (kappa - 1.0)
-    e1 = 1.0 / kappa
-    e2 = (kappa - 1.0) / kappa
-    inner = c * (1.0 - pr ** e2)
-    root = math.sqrt(inner)
-    psi = pr ** e1 * root
-    dpsi = e1 * pr ** (e1 - 1.0) * root - pr ** e1 * c * e2 * pr ** (e2 - 1.0) / (2.0 * root)
-    return psi, dpsi
-
-
 def flow_function(pr: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """psi(pr) with dpsi/dpr: choked (eq. 3), subsonic (eq. 2), C1 quadratic near pr = 1.
+    """psi(pr) with dpsi/dpr: choked (eq. 3), subsonic (eq. 2 with the square root over the whole
+    bracket), C1 quadratic near pr = 1 (flow_function_of).
 
     For s = 1 - pr < s0 = 1 - pr_reg: psi = a s + b s|s| with psi and slope matched at s0, so the
     infinite slope of eq. 2 at pr -> 1 is removed; the odd extension gives a small reverse flow
     for pr > 1 (reached only through process noise at wide open throttle), saturated at -psi(s0).
     """
-    k = params.kappa
-    if pr <= critical_pressure_ratio(k):
-        return psi_choked(k), 0.0
-    if pr < params.pr_reg:
-        return _psi_subsonic(pr, k)
-    s0 = 1.0 - params.pr_reg
-    psi0, dpsi0 = _psi_subsonic(params.pr_reg, k)
-    d0 = -dpsi0  # dpsi/ds at s0
-    b = (d0 * s0 - psi0) / (s0 * s0)
-    a = d0 - 2.0 * b * s0
-    s = 1.0 - pr
-    if s < -s0:
-        return -psi0, 0.0
-    return a * s + b * s * abs(s), -(a + 2.0 * b * abs(s))
+    return _py(flow_function_of, pr, _tables(params)[1][0])
 
 
 def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
@@ -173,40 +202,57 @@ def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
 
     Xi = C_d A_th(alpha) P_a / sqrt(R_air T_a) with P_a converted to Pa (A_th in m^2).
     """
-    pr = p_im / p_a
-    psi, dpsi = flow_function(pr, params)
-    cd, dcd = discharge_coefficient(pr, alpha, params)
-    xi0 = throttle_area(alpha, params) * (1000.0 * p_a) / math.sqrt(params.r_air * t_a)
-    return xi0 * cd * psi, xi0 * (dcd * psi + cd * dpsi) / p_a
+    c, cd_alpha, cd_table, prs, _, _ = _tables(params)[1]
+    return _py(throttle_flow_of, alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs)
 
 
 # ------------------------------------------------------------------------- port flow, eq. 8
+
+@kernel
+def efficiency_of(n_rpm, p_im, c, eta_rpm, eta_val):
+    """volumetric_efficiency on the integrator's constants c and the eta_N table."""
+    eta_n, _ = interp(n_rpm, eta_rpm, eta_val)
+    floor = P_FLOOR_KPA
+    p = floor if floor > p_im else p_im  # noqa: FURB136 (max() with Python's NaN behaviour)
+    resid = (c[20] / p) ** c[21]
+    scale = eta_n / (c[19] - 1.0)
+    return scale * (c[19] - resid), scale * c[21] * resid / p if p_im > floor else 0.0
+
+
+@kernel
+def air_charge_of(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val):
+    """cylinder_air_charge (kg per cylinder event): eta P_im V_cyl / (R_air T_im)."""
+    eta, _ = efficiency_of(n_rpm, p_im, c, eta_rpm, eta_val)
+    return eta * p_im * v_cyl / (c[1] * t_im)
+
+
+@kernel
+def port_flow_of(n_rpm, p_im, t_im, c, eta_rpm, eta_val):
+    """port_flow, eq. 8 (kg/s): eta P_im N V_d / (120 R_air T_im)."""
+    eta, _ = efficiency_of(n_rpm, p_im, c, eta_rpm, eta_val)
+    return eta * p_im * n_rpm * c[28] / (120.0 * c[1] * t_im)
+
 
 def volumetric_efficiency(
     n_rpm: float, p_im: float, params: ManifoldParams = V8_5L7,
 ) -> tuple[float, float]:
     """eta(N, P) = eta_N(N) (r_c - (P_exh/P)^(1/kappa)) / (r_c - 1): (eta, d eta/dP_im per kPa)."""
-    eta_n, _ = _interp(n_rpm, params.eta_n_rpm, params.eta_n_val)
-    p = max(p_im, P_FLOOR_KPA)
-    e = 1.0 / params.kappa
-    resid = (params.p_exh_kpa / p) ** e
-    scale = eta_n / (params.r_c - 1.0)
-    deta = scale * e * resid / p if p_im > P_FLOOR_KPA else 0.0
-    return scale * (params.r_c - resid), deta
+    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
+    return _py(efficiency_of, n_rpm, p_im, c, eta_rpm, eta_val)
 
 
 def port_flow(p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> float:
     """Eq. 8: mdot_ac = eta P_im N V_d / (120 R_air T_im), kg/s (kPa dm^3 = J)."""
-    eta, _ = volumetric_efficiency(n_rpm, p_im, params)
-    return eta * p_im * n_rpm * params.v_d_dm3 / (120.0 * params.r_air * t_im)
+    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
+    return _py(port_flow_of, n_rpm, p_im, t_im, c, eta_rpm, eta_val)
 
 
 def cylinder_air_charge(
     p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7,
 ) -> float:
     """Air mass trapped per cylinder event, kg: mdot_ac T_s = eta P_im V_cyl / (R_air T_im)."""
-    eta, _ = volumetric_efficiency(n_rpm, p_im, params)
-    return eta * p_im * params.v_cyl_dm3 / (params.r_air * t_im)
+    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
+    return _py(air_charge_of, n_rpm, p_im, t_im, c, params.v_cyl_dm3, eta_rpm, eta_val)
 
 
 def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V8_5L7) -> float:
@@ -322,8 +368,7 @@ def steady_state(
 
 def iat_coeffs(ts: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
     """(a_T, 1 - a_T) of eq. 9, a_T = exp(-T_s / tau_Temp)."""
-    a = math.exp(-ts / params.tau_temp_s)
-    return a, 1.0 - a
+    return _py(event_coefficients, ts, params.zeta, params.omega0, params.tau_temp_s)[4:]
 
 
 # ------------------------------------------------------------------------- augmented model

@@ -8,8 +8,10 @@ operations and order (bit-identical results, tests/estimators/manifold/test_fast
 - everything that is constant over one event is computed once per call: the throttle area and
   the C_d table column at the held angle alpha, Xi's factor, eta_N(N) and the pumping constant of
   the held input u, and the parameter set's constants (cached per ManifoldParams object);
-- the sub-step loop is inlined in plain local floats (no calls per right-hand side);
-- the second ROS2 stage skips the Jacobian terms it does not use.
+- the sub-step loop is inlined in plain local floats (no calls per right-hand side): the
+  right-hand side is written once and evaluated twice per sub-step, the second ROS2 stage
+  without the Jacobian terms it does not use;
+- the table lookups are `interp` (once per event), the kernel the model's functions use.
 
 The whole event is one compiled kernel (`_integrate_event`, vecu.kernels): numba when it is the
 active backend, the same Python function otherwise. Only scalar IEEE arithmetic, sqrt, cos and
@@ -28,7 +30,7 @@ import math
 from bisect import bisect_right
 from typing import Any
 
-from vecu.kernels import kernel
+from vecu.kernels import kernel, using
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 P_FLOOR_KPA = 0.5  # lower guard for P_im inside eta and the integrator (never reached in use)
@@ -54,15 +56,20 @@ def _bisect_right_impl(a: Any, x: float) -> int:
     return lo
 
 
-def _interp_value(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> float:
-    """vecu.models.manifold._interp's value (same operations)."""
+@kernel
+def interp(x: float, xs: Any, ys: Any) -> tuple[float, float]:
+    """Piecewise-linear lookup with end clamping: (value, slope), slope 0 outside the table (the
+    C_d and eta_N maps of eq. 2-3 and 8). A NaN x fails with IndexError under both backends."""
+    last = len(xs) - 1
     if x <= xs[0]:
-        return ys[0]
-    if x >= xs[-1]:
-        return ys[-1]
+        return ys[0], 0.0
+    if x >= xs[last]:
+        return ys[len(ys) - 1], 0.0
     i = bisect_right(xs, x) - 1
+    if i + 1 >= len(ys) or i + 1 > last:
+        raise IndexError("table lookup out of range (NaN?)")
     s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])
-    return ys[i] + s * (x - xs[i])
+    return ys[i] + s * (x - xs[i]), s
 
 
 def _param_consts(prm: ManifoldParams) -> tuple[float, ...]:
@@ -170,33 +177,10 @@ def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: fl
     nrow = len(cd_table)
     if nrow < nseg + 2:
         raise IndexError("C_d table has fewer rows than cd_pr breakpoints")
-    cdv = [0.0] * nrow
-    last = len(cd_alpha) - 1
-    for jr in range(nrow):  # _interp_value(a_deg, cd_alpha, cd_table[jr])
-        ys = cd_table[jr]
-        if a_deg <= cd_alpha[0]:
-            cdv[jr] = ys[0]
-        elif a_deg >= cd_alpha[last]:
-            cdv[jr] = ys[len(ys) - 1]
-        else:
-            ia = bisect_right(cd_alpha, a_deg) - 1
-            if ia + 1 >= len(ys) or ia + 1 > last:
-                raise IndexError("C_d lookup out of range (alpha is NaN?)")
-            s = (ys[ia + 1] - ys[ia]) / (cd_alpha[ia + 1] - cd_alpha[ia])
-            cdv[jr] = ys[ia] + s * (a_deg - cd_alpha[ia])
+    cdv = [interp(a_deg, cd_alpha, cd_table[jr])[0] for jr in range(nrow)]
     cds = [(cdv[j + 1] - cdv[j]) / (prs[j + 1] - prs[j]) for j in range(nseg + 1)]
     prs0, prs_hi = prs[0], prs[nseg + 1]
-    last = len(eta_rpm) - 1
-    if n_rpm <= eta_rpm[0]:  # _interp_value(n_rpm, eta_rpm, eta_val)
-        eta_n = eta_val[0]
-    elif n_rpm >= eta_rpm[last]:
-        eta_n = eta_val[len(eta_val) - 1]
-    else:
-        ie = bisect_right(eta_rpm, n_rpm) - 1
-        if ie + 1 >= len(eta_val) or ie + 1 > last:
-            raise IndexError("eta_N lookup out of range (N is NaN?)")
-        s = (eta_val[ie + 1] - eta_val[ie]) / (eta_rpm[ie + 1] - eta_rpm[ie])
-        eta_n = eta_val[ie] + s * (n_rpm - eta_rpm[ie])
+    eta_n, _ = interp(n_rpm, eta_rpm, eta_val)
     scale = eta_n / (r_c - 1.0)
     k_pump = n_rpm * v_d / (120.0 * v)
     krta = k * r * t_a
@@ -206,100 +190,94 @@ def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: fl
     floor = P_FLOOR_KPA
     sqrt = math.sqrt
 
-    # --- M ROS2 sub-steps; M is fixed on the first pass from the rates at the start
+    # --- M ROS2 sub-steps; M is fixed on the first pass from the rates at the start. Each
+    # sub-step evaluates the right-hand side twice: stage 1 at (p, t) with its diagonal
+    # Jacobian, stage 2 at (p + h k1p, t + h k1t) rates only (first = True / False).
     p, t = p_im, t_im
+    ps, tsv = p, t  # the stage's point
+    first = True
     m = 0
-    h = gh = 0.0
+    h = gh = wp = wt = k1p = k1t = 0.0
     i = 0
     while True:
-        # stage 1 at (p, t): right-hand side and diagonal Jacobian (reference: manifold._rhs)
-        pr = p / p_a
+        # eq. 2-4 and 5-6 at (ps, tsv) (reference: manifold._rhs)
+        pr = ps / p_a
+        dpsi = 0.0
         if pr <= prc:
-            psi, dpsi = psic, 0.0
+            psi = psic
         elif pr < pr_reg:
             root = sqrt(c * (1.0 - pr ** e2))
             pe1 = pr ** e1
             psi = pe1 * root
-            dpsi = e1 * pr ** e1m1 * root - pe1 * c * e2 * pr ** e2m1 / (2.0 * root)
+            if first:
+                dpsi = e1 * pr ** e1m1 * root - pe1 * c * e2 * pr ** e2m1 / (2.0 * root)
         else:
             s = 1.0 - pr
             if s < ms0:
-                psi, dpsi = mpsi0, 0.0
+                psi = mpsi0
             else:
                 sa = abs(s)
-                psi, dpsi = qa * s + qb * s * sa, -(qa + 2.0 * qb * sa)
+                psi = qa * s + qb * s * sa
+                if first:
+                    dpsi = -(qa + 2.0 * qb * sa)
         pc = prs0 if prs0 > pr else pr
         pc = prs_hi if prs_hi < pc else pc
         j = bisect_right(prs, pc) - 1
         j = nseg if nseg < j else j
         cd = cdv[j] + cds[j] * (pc - prs[j])
-        dcd = cds[j] if prs0 < pr < prs_hi else 0.0
         mdot = xi0 * cd * psi
-        dmdot = xi0 * (dcd * psi + cd * dpsi) / p_a
-        pp = floor if floor > p else p
+        pp = floor if floor > ps else ps
         resid = (p_exh / pp) ** e_eta
-        deta = scale * e_eta * resid / pp if p > floor else 0.0
         eta = scale * (r_c - resid)
-        q = h1 * (t_cool - t) + h2 * (t_a - t)
+        q = h1 * (t_cool - tsv) + h2 * (t_a - tsv)
         pv = pp * v
-        dp = krta * mdot / v - kkp * eta * p + km1 * q / v
-        dtt = (r * t * mdot * (kta - t) + km1 * t * q) / pv - km1kp * eta * t
-        jpp = krta * dmdot / v - kkp * (eta + p * deta)
-        jtt = (r * mdot * (kta - 2.0 * t) + km1 * (q - hsum * t)) / pv - km1kp * eta
-        if i == 0:
-            # m = min(max(ceil(max(a, b, c)), 1), max_sub) with max()'s and ceil's semantics
-            mf = dt * (abs(jpp) + abs(jtt)) / lam_max
-            mb = dt * abs(dp) / dp_max
-            mf = mb if mb > mf else mf
-            mb = dt * abs(dtt) / dt_max
-            mf = mb if mb > mf else mf
-            if math.isnan(mf):
-                raise ValueError("cannot convert float NaN to integer")
-            if math.isinf(mf):
-                raise OverflowError("cannot convert float infinity to integer")
-            if mf <= 1.0:
-                m = 1
-            elif mf < max_sub:
-                m = math.ceil(mf)
-            else:
-                m = max_sub
-            m = max_sub if max_sub < m else m
-            h = dt / m
-            gh = ROS2_GAMMA * h
-        wp = 1.0 - gh * (0.0 if 0.0 < jpp else jpp)
-        wt = 1.0 - gh * (0.0 if 0.0 < jtt else jtt)
-        k1p = dp / wp
-        k1t = dtt / wt
-        # stage 2 at (p + h k1p, t + h k1t): rates only
-        p2 = p + h * k1p
-        p2 = floor if floor > p2 else p2
-        t2 = t + h * k1t
-        pr = p2 / p_a
-        if pr <= prc:
-            psi = psic
-        elif pr < pr_reg:
-            psi = pr ** e1 * sqrt(c * (1.0 - pr ** e2))
+        dp = krta * mdot / v - kkp * eta * ps + km1 * q / v
+        dtt = (r * tsv * mdot * (kta - tsv) + km1 * tsv * q) / pv - km1kp * eta * tsv
+        if first:
+            dcd = cds[j] if prs0 < pr < prs_hi else 0.0
+            dmdot = xi0 * (dcd * psi + cd * dpsi) / p_a
+            deta = scale * e_eta * resid / pp if ps > floor else 0.0
+            jpp = krta * dmdot / v - kkp * (eta + ps * deta)
+            jtt = (r * mdot * (kta - 2.0 * tsv) + km1 * (q - hsum * tsv)) / pv - km1kp * eta
+            if i == 0:
+                # m = min(max(ceil(max(a, b, c)), 1), max_sub) with max()'s and ceil's semantics
+                mf = dt * (abs(jpp) + abs(jtt)) / lam_max
+                mb = dt * abs(dp) / dp_max
+                mf = mb if mb > mf else mf
+                mb = dt * abs(dtt) / dt_max
+                mf = mb if mb > mf else mf
+                if math.isnan(mf):
+                    raise ValueError("cannot convert float NaN to integer")
+                if math.isinf(mf):
+                    raise OverflowError("cannot convert float infinity to integer")
+                if mf <= 1.0:
+                    m = 1
+                elif mf < max_sub:
+                    m = math.ceil(mf)
+                else:
+                    m = max_sub
+                m = max_sub if max_sub < m else m
+                h = dt / m
+                gh = ROS2_GAMMA * h
+            wp = 1.0 - gh * (0.0 if 0.0 < jpp else jpp)
+            wt = 1.0 - gh * (0.0 if 0.0 < jtt else jtt)
+            k1p = dp / wp
+            k1t = dtt / wt
+            ps = p + h * k1p
+            ps = floor if floor > ps else ps
+            tsv = t + h * k1t
+            first = False
         else:
-            s = 1.0 - pr
-            psi = mpsi0 if s < ms0 else qa * s + qb * s * abs(s)
-        pc = prs0 if prs0 > pr else pr
-        pc = prs_hi if prs_hi < pc else pc
-        j = bisect_right(prs, pc) - 1
-        j = nseg if nseg < j else j
-        mdot = xi0 * (cdv[j] + cds[j] * (pc - prs[j])) * psi
-        pp = p2  # already >= floor (or NaN, as max() leaves it)
-        eta = scale * (r_c - (p_exh / pp) ** e_eta)
-        q = h1 * (t_cool - t2) + h2 * (t_a - t2)
-        dp2 = krta * mdot / v - kkp * eta * p2 + km1 * q / v
-        dt2 = (r * t2 * mdot * (kta - t2) + km1 * t2 * q) / (pp * v) - km1kp * eta * t2
-        k2p = (dp2 - 2.0 * k1p) / wp
-        k2t = (dt2 - 2.0 * k1t) / wt
-        p += h * (1.5 * k1p + 0.5 * k2p)
-        t += h * (1.5 * k1t + 0.5 * k2t)
-        p = floor if floor > p else p
-        i += 1
-        if i >= m:
-            return p, t, m
+            k2p = (dp - 2.0 * k1p) / wp
+            k2t = (dtt - 2.0 * k1t) / wt
+            p += h * (1.5 * k1p + 0.5 * k2p)
+            t += h * (1.5 * k1t + 0.5 * k2t)
+            p = floor if floor > p else p
+            i += 1
+            if i >= m:
+                return p, t, m
+            ps, tsv = p, t
+            first = True
 
 
 _PY_EVENT = _integrate_event.py
@@ -318,9 +296,9 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
     run = _integrate_event.impl()
     if run is _PY_EVENT:
         cst, xs, tab, prs, er, ev = hit[1]
-    elif hit[2] is None:
-        run = _PY_EVENT
-        cst, xs, tab, prs, er, ev = hit[1]
+    elif hit[2] is None:  # a set numba cannot mirror: the Python function, its lookups too
+        with using("python"):
+            return _PY_EVENT(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt, *hit[1])
     else:
         if not _numba_sig_ready:
             _prepare_numba()

@@ -1,29 +1,39 @@
 """Intake manifold simulator: the stochastic truth of Dutka et al. 2006 (eq. 10, Section IV noise).
 
 The model (eq. 1-9, the event integrator) is vecu.models.manifold; this module adds state, noise
-and the event-by-event simulation over a drive profile.
+and the event-by-event simulation over a drive profile. The truth's event (`plant_step`: eq. 1,
+the integrator of eq. 5-6, eq. 9, Section IV's Q, the physical clamps) and its measurement
+(`measure`: Section IV's R, the sensor gains) are written once as kernels (vecu.kernels):
+ManifoldPlant calls their Python functions; under the numba backend `simulate_events` (simulate's
+whole loop, bit-identical to it: the noise rows are drawn beforehand from the same stream, which
+Generator.standard_normal fills in order) and `advance_events` (vecu.plant.node.ManifoldPart's
+events ahead) call them compiled.
 """
 
+# ruff: noqa: FURB136 (x if c else y in the kernels mirrors Python's min()/max(), NaN included)
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
-from vecu.kernels import rebuild_if_stale
+from vecu.kernels import backend, kernel, rebuild_if_stale, using
 from vecu.models.manifold import (
-    actuator_coeffs,
+    air_charge_of,
     cylinder_air_charge,
-    iat_coeffs,
-    integrate_manifold,
+    event_coefficients,
     nominal_input,
     port_flow,
+    port_flow_of,
     sample_time,
     steady_state_vector,
     throttle_flow,
+    throttle_flow_of,
 )
+from vecu.models.manifold_integrator import _integrate_event as integrate_event
+from vecu.models.manifold_integrator import _tables
 from vecu.models.manifold_params import (
     PAPER_NOISE,
     V8_5L7,
@@ -56,6 +66,139 @@ class ManifoldPlantConfig:
     block: int = field(default=1024, metadata={"param": False})
 
 
+# plant constants vector (simulate_events' pc)
+(C_ZETA, C_OMEGA0, C_TAU, C_VCYL, C_NCYL, C_PA, C_TA, C_TCOOL, C_SQ0, C_SQ1, C_SQ2, C_SQ3,
+ C_SR0, C_SR1, C_SR2, C_G0, C_G1, C_G2, C_PMIN, C_PMAX, C_TMIN, C_TMAX, C_DURATION,
+ C_DT) = range(24)
+N_PLANT_CONSTS = 24
+
+
+@kernel
+def profile_at(prof_n, prof_sp, dt_p, time):
+    """DriveProfile.at(time): (N interpolated linearly, the setpoint held)."""
+    last = len(prof_n) - 1
+    fx = time / dt_p
+    fx = 0.0 if 0.0 > fx else fx
+    fx = float(last) if float(last) < fx else fx
+    i = int(fx)
+    i = last - 1 if last - 1 < i else i
+    frac = fx - i
+    n = prof_n[i] + frac * (prof_n[i + 1] - prof_n[i])
+    return n, prof_sp[i if frac < 1.0 else i + 1]
+
+
+@kernel
+def measure(st, w, pc):
+    """y_n = G (x_n + v_n): (TA rad, P_im kPa, T_im.out K) with the paper's R (Section IV; the
+    noise row's entries 4-6) and the sensor gains G."""
+    return ((st[1] + pc[C_SR0] * w[4]) * pc[C_G0], (st[3] + pc[C_SR1] * w[5]) * pc[C_G1],
+            (st[5] + pc[C_SR2] * w[6]) * pc[C_G2])
+
+
+@kernel
+def plant_step(st, sp, n, p_a, t_a, t_cool, ts, w, pc, cst, cd_alpha, cd_table, prs, eta_rpm,
+               eta_val):
+    """One event of the truth in place on st = (u_prev, alpha, alpha_prev, P_im, T_im, T_meas):
+    eq. 1, the event integrator of eq. 5-6, eq. 9, Section IV's Q from noise row w (entries 0-3)
+    and the physical clamps; returns the sub-steps used."""
+    u_prev, alpha, alpha_prev, p, t, tm = st[0], st[1], st[2], st[3], st[4], st[5]
+    a1, a2, b1, b2, a_t, b_t = event_coefficients(ts, pc[C_ZETA], pc[C_OMEGA0], pc[C_TAU])
+    p_n, t_n, m = integrate_event(p, t, alpha, p_a, t_a, t_cool, n, ts, cst, cd_alpha, cd_table,
+                                  prs, eta_rpm, eta_val)
+    new_alpha = a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev + pc[C_SQ0] * w[0]
+    v = p_n + pc[C_SQ1] * w[1]
+    v = pc[C_PMIN] if pc[C_PMIN] > v else v
+    new_p = pc[C_PMAX] if pc[C_PMAX] < v else v
+    v = t_n + pc[C_SQ2] * w[2]
+    v = pc[C_TMIN] if pc[C_TMIN] > v else v
+    new_t = pc[C_TMAX] if pc[C_TMAX] < v else v
+    v = a_t * tm + b_t * t + pc[C_SQ3] * w[3]
+    v = pc[C_TMIN] if pc[C_TMIN] > v else v
+    new_tm = pc[C_TMAX] if pc[C_TMAX] < v else v
+    st[0], st[1], st[2], st[3], st[4], st[5] = sp, new_alpha, alpha, new_p, new_t, new_tm
+    return m
+
+
+@kernel
+def simulate_events(x0, prof_n, prof_sp, noise, pc, cst, cd_alpha, cd_table, prs, eta_rpm,
+                    eta_val, rows, xs, ys):
+    """Events of the drive into rows (t, ts, N, TA_SP, mdot_at, mdot_ac, CAC, sub-steps), xs
+    (state before the step) and ys (measurement); returns the number of events, or -1 when the
+    output arrays (or noise rows) are too short."""
+    ncyl = pc[C_NCYL]
+    p_a, t_a = pc[C_PA], pc[C_TA]
+    st = x0.copy()
+    time = 0.0
+    k = 0
+    cap = min(len(xs), len(noise))
+    while time < pc[C_DURATION]:
+        if k >= cap:
+            return -1
+        n, sp = profile_at(prof_n, prof_sp, pc[C_DT], time)
+        ts = 120.0 / (ncyl * n)
+        w = noise[k]
+        alpha, p, t = st[1], st[3], st[4]
+        for j in range(6):
+            xs[k, j] = st[j]
+        ys[k, 0], ys[k, 1], ys[k, 2] = measure(st, w, pc)
+        mdot_at, _ = throttle_flow_of(alpha, p, p_a, t_a, cst, cd_alpha, cd_table, prs)
+        mdot_ac = port_flow_of(n, p, t, cst, eta_rpm, eta_val)
+        cac = air_charge_of(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
+        m = plant_step(st, sp, n, p_a, t_a, pc[C_TCOOL], ts, w, pc, cst, cd_alpha, cd_table, prs,
+                       eta_rpm, eta_val)
+        rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3] = time, ts, n, sp
+        rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7] = mdot_at, mdot_ac, cac, float(m)
+        time += ts
+        k += 1
+    return k
+
+
+# advance_events' out columns
+(E_N, E_SP, E_TA, E_P, E_TM, E_P_TRUE, E_T_TRUE, E_CAC_TRUE) = range(8)
+
+
+@kernel
+def advance_events(st, t_ns, t0_ns, prof_n, prof_sp, noise, pos, pc, cst, cd_alpha, cd_table,
+                   prs, eta_rpm, eta_val, times, out):
+    """vecu.plant.node.ManifoldPart's events ahead, from the event at t_ns (ns, int) of the
+    profile that started at t0_ns: per event k its time times[k] and out[k] = (N, TA_SP, the
+    TA, P_im and T_im.out readings, the truth's P_im, T_im and CAC); st (the plant state) is
+    advanced in place and noise rows are taken from pos on, one per event. The times are
+    ManifoldPart's: t_{k+1} = t_k + max(1, round(T_s * 1e9)) ns. Stops before an event past the
+    profile's end, when the noise rows run out or out is full; returns (events, the next event's
+    time, the next noise row)."""
+    ncyl = pc[C_NCYL]
+    k = 0
+    while k < len(out) and pos < len(noise):
+        t_s = float(t_ns - t0_ns) / 1e9
+        if t_s >= pc[C_DURATION]:
+            break
+        n, sp = profile_at(prof_n, prof_sp, pc[C_DT], t_s)
+        w = noise[pos]
+        p, t = st[3], st[4]
+        times[k] = t_ns
+        out[k, E_N], out[k, E_SP] = n, sp
+        out[k, E_TA], out[k, E_P], out[k, E_TM] = measure(st, w, pc)
+        out[k, E_P_TRUE], out[k, E_T_TRUE] = p, t
+        out[k, E_CAC_TRUE] = air_charge_of(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
+        dt = 120.0 / (ncyl * n)
+        plant_step(st, sp, n, pc[C_PA], pc[C_TA], pc[C_TCOOL], dt, w, pc, cst, cd_alpha, cd_table,
+                   prs, eta_rpm, eta_val)
+        pos += 1
+        step_ns = round(dt * 1e9)
+        t_ns += step_ns if step_ns > 1 else 1
+        k += 1
+    return k, t_ns, pos
+
+
+def _python(k: Any, *args: Any) -> Any:
+    """Kernel k's Python function, the kernels it calls too (the tables here are tuples)."""
+    if backend() == "python":
+        return k.py(*args)
+    with using("python"):
+        return k.py(*args)
+
+
 class ManifoldPlant:
     """Truth: eq. 10 with the corrected eq. 1, sub-stepped eq. 5-6, eq. 9 and Section IV noise."""
 
@@ -66,11 +209,7 @@ class ManifoldPlant:
         self._rng = rng
         self.x = [float(v) for v in x0]
         self.last_substeps = 0
-        s = config.noise_scale
-        q = config.noise.q_diag()
-        r = config.noise.r_diag()
-        self._sig_q = tuple(s * math.sqrt(q[i]) for i in (1, 3, 4, 5))  # alpha, P, T, T_meas
-        self._sig_r = tuple(s * math.sqrt(v) for v in r)
+        self._pc = tuple(plant_constants(params, config, 0.0, 0.0).tolist())
         self._noise: list[list[float]] = []
         self._pos = 0
 
@@ -98,10 +237,7 @@ class ManifoldPlant:
 
     def measure(self) -> tuple[float, float, float]:
         """y_n = (TA rad, P_im kPa, T_im.out K) with the paper's R (eq. 1, 7, 9)."""
-        w = self._row()
-        g = self.config.sensor_gains
-        return ((self.x[1] + self._sig_r[0] * w[4]) * g[0], (self.x[3] + self._sig_r[1] * w[5]) * g[1],
-                (self.x[5] + self._sig_r[2] * w[6]) * g[2])
+        return _python(measure, self.x, self._row(), self._pc)
 
     def step(self, u: EngineInput, dt: float | None = None) -> int:
         """Advance one engine event (dt defaults to T_s = 120/(8N)); returns the sub-steps used."""
@@ -109,19 +245,8 @@ class ManifoldPlant:
         ts = sample_time(u.n_rpm, prm.n_cyl) if dt is None else dt
         w = self._row()
         self._pos += 1
-        u_prev, alpha, alpha_prev, p, t, tm = self.x
-        a1, a2, b1, b2 = actuator_coeffs(ts, prm)
-        p_n, t_n, m = integrate_manifold(p, t, alpha, u, ts, prm)
-        a_t, b_t = iat_coeffs(ts, prm)
-        sq = self._sig_q
-        self.x = [
-            u.ta_sp,
-            a1 * alpha + a2 * alpha_prev + b1 * u.ta_sp + b2 * u_prev + sq[0] * w[0],
-            alpha,
-            min(max(p_n + sq[1] * w[1], P_MIN_KPA), P_MAX_KPA),
-            min(max(t_n + sq[2] * w[2], T_MIN_K), T_MAX_K),
-            min(max(a_t * tm + b_t * t + sq[3] * w[3], T_MIN_K), T_MAX_K),
-        ]
+        m = _python(plant_step, self.x, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, w, self._pc,
+                    *_tables(prm)[1])
         self.last_substeps = m
         return m
 
@@ -157,7 +282,7 @@ def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
              compiled: bool = True) -> ManifoldTrace:
     """Run the plant event by event over the profile, starting at rest at its first point.
     Under the numba backend (compiled) the whole loop is one call
-    (manifold_kernel.simulate_events, bit-identical); compiled=False steps ManifoldPlant."""
+    (simulate_events, bit-identical); compiled=False steps ManifoldPlant."""
     rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
     n0, sp0 = profile.at(0.0)
     x0 = steady_state_vector(nominal_input(sp0, n0, params), params)
@@ -190,13 +315,11 @@ def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
 
 def _simulate_compiled(profile: Profile, params: ManifoldParams, config: ManifoldPlantConfig,
                        rng: np.random.Generator, x0: np.ndarray) -> ManifoldTrace | None:
-    """simulate's loop as one compiled call (manifold_kernel.simulate_events) under the numba
+    """simulate's loop as one compiled call (simulate_events) under the numba
     backend for a DriveProfile; None: run the Python loop (python backend, another profile type,
     a parameter set the compiled integrator does not take)."""
     from vecu.kernels import backend
     from vecu.plant.drive_profile import DriveProfile
-    from vecu.plant.manifold_kernel import simulate_events
-
     if backend() != "numba" or not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
         return None
     tables = compiled_tables(params)
@@ -237,7 +360,6 @@ def compiled_tables(params: ManifoldParams) -> tuple | None:
     .kernels explains) and rebuilds them from source when it is not."""
     global _kernels_checked
     from vecu.models import manifold_integrator as mi
-    from vecu.plant import manifold_kernel as mk
 
     tables = mi._tables(params)[2]
     if tables is None:
@@ -245,7 +367,7 @@ def compiled_tables(params: ManifoldParams) -> tuple | None:
     if not mi._numba_sig_ready:
         mi._prepare_numba()
     if not _kernels_checked:
-        rebuild_if_stale((mk.advance_events, mk.simulate_events, mk.plant_step, mk.profile_at),
+        rebuild_if_stale((advance_events, simulate_events, plant_step, profile_at, measure),
                          lambda: _linked_integrator_is_current(params, tables),
                          lambda: None, "manifold plant kernels")  # they compile on first call
         _kernels_checked = True
@@ -253,14 +375,13 @@ def compiled_tables(params: ManifoldParams) -> tuple | None:
 
 
 def _linked_integrator_is_current(params: ManifoldParams, tables: tuple) -> bool:
-    """One event through manifold_kernel.plant_step (what advance_events and simulate_events
+    """One event through plant_step (what advance_events and simulate_events
     run) against the stand-alone compiled integrator."""
     from vecu.models import manifold_integrator as mi
-    from vecu.plant.manifold_kernel import plant_step
 
     n, ts = 2345.0, 120.0 / (params.n_cyl * 2345.0)
     st = np.array([0.35, 0.3, 0.29, 61.0, 321.0, 318.0])
-    plant_step.compiled(st, 0.35, n, ts, np.zeros(7),
+    plant_step.compiled(st, 0.35, n, params.p_a_kpa, params.t_a_k, params.t_cool_k, ts, np.zeros(7),
                         plant_constants(params, ManifoldPlantConfig(), 1.0, 1.0), *tables)
     ref = mi._integrate_event.compiled(61.0, 321.0, 0.3, params.p_a_kpa, params.t_a_k,
                                        params.t_cool_k, n, ts, *tables)
@@ -269,10 +390,8 @@ def _linked_integrator_is_current(params: ManifoldParams, tables: tuple) -> bool
 
 def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duration_s: float,
                     dt_s: float) -> np.ndarray:
-    """manifold_kernel's plant constants vector (pc) for a DriveProfile of that duration and
+    """The kernels' plant constants vector (pc) for a DriveProfile of that duration and
     grid."""
-    from vecu.plant.manifold_kernel import N_PLANT_CONSTS
-
     s = config.noise_scale
     q, r = config.noise.q_diag(), config.noise.r_diag()
     g = config.sensor_gains
@@ -287,7 +406,7 @@ def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duratio
 
 class EventsAhead:
     """ManifoldPlant's events computed ahead in blocks by one compiled call
-    (manifold_kernel.advance_events), for vecu.plant.node.ManifoldPart under the numba backend:
+    (advance_events), for vecu.plant.node.ManifoldPart under the numba backend:
     the same noise rows from the same stream (blocks of config.block rows, as ManifoldPlant
     draws them), the same operations, so the same frames. The plant depends on nothing the ECU
     sends, so nothing can change its course between the events computed and their frames."""
@@ -326,8 +445,6 @@ class EventsAhead:
     def fill(self, t_ns: int, t0_ns: int) -> int:
         """Compute the events from t_ns (the profile started at t0_ns) into times / out; returns
         how many (0: the profile ends before t_ns, start the next one)."""
-        from vecu.plant.manifold_kernel import advance_events
-
         assert self._prof is not None
         prof_n, prof_sp, pc = self._prof
         while True:

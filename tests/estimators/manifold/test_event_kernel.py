@@ -1,4 +1,4 @@
-"""The ECU manifold function's event in one compiled call (event_kernel.ecu_event, through
+"""The ECU manifold function's event in one compiled call (runs.ecu_event, through
 CompiledEvents.event_cac) against the separate calls it replaces (filter.step,
 cylinder_air_charge, predict_cac, as ManifoldFunction.run makes them when event_cac declines):
 over a short drive with missing IAT readings, rejected readings, implausible inputs, a gated

@@ -55,24 +55,29 @@ def test_other_parameter_sets_are_not_served_from_the_cache():
 
 
 def test_filter_gain_shortcut_matches_the_general_update():
-    """_gain_all (unrolled 3x3 Cholesky) vs cholesky_lower + inv: same posterior to 1e-12."""
+    """event.innovation_inverse: the unrolled 3x3 Cholesky (three channels) and LAPACK's (the
+    same three as a general set) give S^-1 to 1e-12, along a filtered drive."""
+    from vecu.estimators.manifold.event import filter_constants, innovation_inverse
     from vecu.estimators.manifold.factory import make_filter
     from vecu.models.manifold import nominal_input
 
     rng = np.random.default_rng(5)
     for name in ("sdkf", "ekf"):
         flt = make_filter(name)
+        fc = filter_constants(flt.config)
         u = nominal_input(0.3, 2000.0)
         for k in range(200):
             y = (0.3 + rng.normal(0, 0.01), 50.0 + 20 * math.sin(k / 9) + rng.normal(0, 0.1),
                  310.0 + rng.normal(0, 0.05))
             flt.step(y, u)
             P = flt.P
-            K, PCt = flt._gain_all(P)
+            ok, s_inv = innovation_inverse.py(P, np.array([0, 1, 2]), 3, fc)
             S = P[np.ix_((1, 3, 5), (1, 3, 5))] + flt.R
-            K_ref = P[:, (1, 3, 5)] @ np.linalg.inv(S)
-            assert np.array_equal(PCt, P[:, (1, 3, 5)])
-            assert np.allclose(K, K_ref, rtol=1e-11, atol=1e-13 * np.abs(K_ref).max())
+            ref = np.linalg.inv(S)
+            assert ok
+            assert np.allclose(s_inv, ref, rtol=1e-11, atol=1e-13 * np.abs(ref).max())
+            ok2, two = innovation_inverse.py(P, np.array([0, 2, 0]), 2, fc)
+            assert ok2 and np.allclose(two, np.linalg.inv(S[np.ix_((0, 2), (0, 2))]), rtol=1e-11)
         assert flt.resets == 0 and flt.events == 200
 
 

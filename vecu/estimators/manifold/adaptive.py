@@ -15,7 +15,7 @@ The CAC and its 6-event prediction use c_used = eta_scale_used(c, var c): the po
 of c under a spike-and-slab prior (the engine is the calibrated one, or eta differs by ~
 `eta_slab_sd`), so an engine that is the calibrated one is not charged c's noise.
 
-The whole event is one kernel (`adaptive_event`, compiled under numba; its Python function under
+The whole event is one kernel (`adaptive_event.adaptive_event`, compiled under numba; its Python function under
 the python backend). An event the kernel cannot decide (S not positive definite) or a divergence
 resets the filter (counted), the parameters back to 1 with their prior variances.
 """
@@ -27,15 +27,17 @@ from typing import Any
 
 import numpy as np
 
-from vecu.estimators.manifold.adaptive_kernel import N_XA, adaptive_event, prepare
-from vecu.estimators.manifold.filters import ManifoldFilterConfig, _ManifoldKF
-from vecu.estimators.manifold.kernels import (
+from vecu.estimators.manifold.adaptive_event import N_XA, adaptive_event, prepare
+from vecu.estimators.manifold.event import (
+    ALPHA_SDC_MIN,
     DIVERGED,
-    FALLBACK,
+    FD_ALPHA,
+    FD_REL,
     filter_constants,
     numba_tables,
 )
-from vecu.estimators.manifold.model import ALPHA_SDC_MIN, FD_ALPHA, FD_REL, q_matrix
+from vecu.estimators.manifold.filters import ManifoldFilterConfig, _ManifoldKF
+from vecu.estimators.manifold.model import q_matrix
 from vecu.models.manifold_params import EngineInput
 
 ETA_FD = 1e-6  # finite-difference step in c
@@ -104,30 +106,21 @@ class ManifoldAdaptive(_ManifoldKF):
         """eta_scale_used with this filter's eta_drift_prior and eta_slab_sd."""
         return eta_scale_used(c, var, self.config.eta_drift_prior, self.config.eta_slab_sd)
 
-    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
+    # the event: filters._ManifoldKF._event around adaptive_event; no jittered fallback (an
+    # event the kernel cannot decide resets the filter) and no gated counts on a reset
+    _count_gated_on_reset = False
+    _EVENT_ERRORS = (FloatingPointError, ValueError, ZeroDivisionError, IndexError, OverflowError,
+                     np.linalg.LinAlgError)
+
+    def _event_runner(self) -> tuple[Any, Any, tuple, bool]:
         run = adaptive_event.impl()
         if run is not adaptive_event.py:
             prepare()
-        mask = 0
-        for i in chans:
-            mask |= 1 << i
-        ly = self._last_y
-        gr = self._gated_run
-        xo = np.empty((3, N_XA))
-        Po = np.empty((2, N_XA, N_XA))
-        a = self._args
-        try:
-            code = run(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts,
-                       ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2], a[0], a[1], a[2], a[3],
-                       *a[4:])
-        except (FloatingPointError, ValueError, ZeroDivisionError, IndexError, OverflowError,
-                np.linalg.LinAlgError):
-            code = DIVERGED
-        if code & (FALLBACK | DIVERGED):
-            self._reset_in_step()
-            return
-        self._count_gated(code, chans)
-        self._commit_event(xo, Po, u)
+        return run, None, self._args, False
+
+    def _fallback(self, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                  u: EngineInput, ts: float, mask: int, code: int) -> int:
+        return DIVERGED
 
     def _block_ready(self) -> bool:
         if not self._initialised or adaptive_event.impl() is adaptive_event.py:

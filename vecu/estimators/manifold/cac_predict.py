@@ -18,8 +18,8 @@ Four sources of x_n (the paper's Table 1 columns):
 - "direct": the readings: alpha = TA_n, alpha_prev = TA_n-1, u_prev = TA_SP,n-1, P_im = P_n,
   T_im = T_im.meas = T_im.out,n (the slow IAT sensor, tau 8 s);
 - "direct_ol": the same, but T_im from an open-loop observer: the manifold model (P, T) run
-  without feedback, driven by the measured throttle angle (`OpenLoopTemperature`);
-- "ekf", "sdkf": the filter posteriors x_n|n (vecu/estimators/manifold_filters.py).
+  without feedback, driven by the measured throttle angle (`open_loop_temperatures`);
+- "ekf", "sdkf": the filter posteriors x_n|n (vecu/estimators/manifold/filters.py).
 """
 
 from __future__ import annotations
@@ -30,27 +30,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vecu.estimators.manifold.block_kernels import (
-    open_loop_temperatures as open_loop_temperatures_kernel,
-)
-from vecu.estimators.manifold.block_kernels import predict_at_events
-from vecu.estimators.manifold.kernels import (
+from vecu.estimators.manifold.event import (
+    F_NCYL,
+    F_VCYL,
+    coefficients,
+    const_tuple,
+    integrate_event,
     model_constants,
     numba_tables,
-    predict_events,
+    python_tables,
+    signature_types,
 )
-from vecu.estimators.manifold.kernels import prepare as prepare_kernels
-from vecu.models.manifold import (
-    actuator_coeffs,
-    cylinder_air_charge,
-    iat_coeffs,
-    integrate_manifold,
-    sample_time,
-)
+from vecu.estimators.manifold.event import prepare as prepare_events
+from vecu.kernels import kernel, using
+from vecu.models import manifold_integrator as mi
+from vecu.models.manifold import air_charge_of
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 HORIZON = 6
-_PREDICT_EVENTS_PY = predict_events.py
 METHODS = ("direct", "direct_ol", "ekf", "sdkf")
 
 
@@ -72,32 +69,49 @@ def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: Manifol
     return out
 
 
-# id(params) -> (params, kernel constants and tables or None)
-_KERNEL_ARGS: dict[int, tuple[ManifoldParams, tuple | None]] = {}
+# id(params) -> (params, (constants, tables) for the compiled kernels or None, ... for Python)
+_ARGS: dict[int, tuple[ManifoldParams, tuple | None, tuple]] = {}
+_ready = False
 
 
-def _compiled_prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams,
-                         eta_scale: float = 1.0) -> tuple[np.ndarray, float] | None:
-    """(x after the inputs, CAC there) by the kernel manifold_kernels.predict_events (numba),
-    or None when the Python path runs (python backend, no inputs, odd x or parameter set).
-    eta_scale != 1 (the adaptive filter's c: the eta_N table scaled) always runs the kernel,
-    its Python function under the python backend. x: the first six states are used."""
-    run = predict_events.impl()
-    if (run is _PREDICT_EVENTS_PY and eta_scale == 1.0) or not inputs:
-        return None
-    hit = _KERNEL_ARGS.get(id(params))
+def _args(params: ManifoldParams) -> tuple[ManifoldParams, tuple | None, tuple]:
+    hit = _ARGS.get(id(params))
     if hit is None or hit[0] is not params:
+        fc = model_constants(params)
         tables = numba_tables(params)
-        hit = (params, None if tables is None else (model_constants(params), *tables))
-        _KERNEL_ARGS[id(params)] = hit
-    args = hit[1]
-    xa = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:6])
-    if args is None or xa.shape != (6,):
-        return None
+        hit = (params, None if tables is None else (fc, *tables),
+               (tuple(fc.tolist()), *python_tables(params)))
+        _ARGS[id(params)] = hit
+    return hit
+
+
+def prepare() -> None:
+    """Before the first numba call (idempotent): event.prepare, then predict_events' one
+    signature (compilation off)."""
+    global _ready
+    if _ready:
+        return
+    prepare_events()
+    _, _, i8, v, m, tables = signature_types()
+    predict_events.fix_signature((v, m, i8, v, v) + tables)
+    _ready = True
+
+
+def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams,
+                eta_scale: float = 1.0) -> tuple[np.ndarray, float]:
+    """(x after the inputs, CAC there at the last input's speed): predict_events, compiled under
+    the numba backend, its Python function otherwise (or for a parameter set numba cannot
+    mirror). eta_scale multiplies the eta_N table (the adaptive filter's c). x: the first six
+    states are used."""
+    hit = _ARGS.get(id(params))
+    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
+    run = predict_events.impl()
+    compiled = run is not predict_events.py and nb is not None
+    args: tuple = nb if compiled and nb is not None else py
     if eta_scale != 1.0:
-        args = (*args[:-1], args[-1] * eta_scale)
-    if run is not _PREDICT_EVENTS_PY:
-        prepare_kernels()
+        ev = args[-1]
+        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
+    xa = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:6])
     u0 = inputs[0]
     held = True
     for u in inputs:
@@ -107,69 +121,37 @@ def _compiled_prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: M
     rows = inputs[:1] if held else inputs
     ua = np.array([(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool) for u in rows], dtype=np.float64)
     out = np.empty(6)
-    cac = run(xa, ua, len(inputs), out, *args)
+    if compiled:
+        if not _ready:
+            prepare()
+        cac = run(xa, ua, len(inputs), out, *args)
+    elif run is predict_events.py:
+        cac = run(xa, ua, len(inputs), out, *args)
+    else:  # numba, a parameter set it cannot mirror: the Python functions throughout
+        with using("python"):
+            cac = predict_events.py(xa, ua, len(inputs), out, *args)
     return out, cac
 
 
 def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
                   params: ManifoldParams = V8_5L7) -> np.ndarray:
-    """x_n+len(inputs) from x_n through the noise-free event map (manifold_model.f, written out
-    on plain floats with the event coefficients computed once per event period: same result).
-    Under the numba backend one kernel call (bit-identical)."""
-    fast = _compiled_prediction(x, inputs, params)
-    if fast is not None:
-        return fast[0]
-    vals = [float(v) for v in np.asarray(x, dtype=float)[:6]]
-    ts_prev = math.nan
-    for u in inputs:
-        ts = sample_time(u.n_rpm, params.n_cyl)
-        if ts != ts_prev:
-            a1, a2, b1, b2 = actuator_coeffs(ts, params)
-            a_t, b_t = iat_coeffs(ts, params)
-            ts_prev = ts
-        u_prev, alpha, alpha_prev, p, t, tm = vals
-        p_n, t_n, _ = integrate_manifold(p, t, alpha, u, ts, params)
-        sp = u.ta_sp
-        vals = [sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha, p_n, t_n,
-                a_t * tm + b_t * t]
-    return np.array(vals)
+    """x_n+len(inputs) from x_n through the noise-free event map of eq. 10 (model.f;
+    predict_events)."""
+    if not inputs:
+        return np.array(np.asarray(x, dtype=float)[:6])
+    return _prediction(x, inputs, params)[0]
 
 
 def predict_cac(x: np.ndarray, inputs: Sequence[EngineInput],
                 params: ManifoldParams = V8_5L7, eta_scale: float = 1.0) -> float:
     """Predicted CAC (kg per cylinder event) after the inputs, at the last input's speed;
     eta_scale multiplies the calibrated eta (the adaptive filter's correction)."""
-    fast = _compiled_prediction(x, inputs, params, eta_scale)
-    if fast is not None:
-        return fast[1]
-    xe = predict_state(x, inputs, params)
-    return cylinder_air_charge(float(xe[3]), float(xe[4]), inputs[-1].n_rpm, params)
+    return _prediction(x, inputs, params, eta_scale)[1]
 
 
 def direct_state(y: Sequence[float], y_prev: Sequence[float], sp_prev: float) -> np.ndarray:
     """x_n from the readings alone: (TA_SP,n-1, TA_n, TA_n-1, P_n, T_out,n, T_out,n)."""
     return np.array([sp_prev, y[0], y_prev[0], y[1], y[2], y[2]], dtype=float)
-
-
-class OpenLoopTemperature:
-    """Open-loop manifold observer: (P, T) of eq. 5-6 driven by the measured throttle angle, no
-    feedback. step(TA_n, u_n) returns T_im,n and advances to n+1. Starts at the given state."""
-
-    def __init__(self, p0: float, t0: float, params: ManifoldParams = V8_5L7) -> None:
-        self.params = params
-        self.p = float(p0)
-        self.t = float(t0)
-        self._alpha = math.nan
-
-    def step(self, ta_meas: float, u: EngineInput) -> float:
-        t_now = self.t
-        a = ta_meas if math.isfinite(ta_meas) else self._alpha
-        if not math.isfinite(a):
-            return t_now
-        self._alpha = a
-        ts = sample_time(u.n_rpm, self.params.n_cyl)
-        self.p, self.t, _ = integrate_manifold(self.p, self.t, a, u, ts, self.params)
-        return t_now
 
 
 def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
@@ -179,7 +161,7 @@ def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For events n = 0, stride, 2 stride, ... with n + horizon in range:
     (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg. Under the numba backend (compiled)
-    all predictions in one call (block_kernels.predict_at_events: the same numbers). eta_scale:
+    all predictions in one call (predict_at_events: the same numbers). eta_scale:
     per event, the eta correction the state came with (the adaptive filter's c; None: 1)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
@@ -198,40 +180,111 @@ def _predict_block(states: np.ndarray, idx: np.ndarray, ta_sp: np.ndarray, n_rpm
                    params: ManifoldParams, config: CacPredictionConfig, pred: np.ndarray,
                    eta_scale: np.ndarray) -> bool:
     """prediction_errors' predictions into pred by one compiled call; False: not available."""
-    if predict_events.impl() is _PREDICT_EVENTS_PY or config.horizon < 1 or not len(idx):
+    nb = _args(params)[1]
+    if (predict_events.impl() is predict_events.py or config.horizon < 1 or not len(idx)
+            or nb is None):
         return False
-    tables = numba_tables(params)
-    if tables is None:
-        return False
-    prepare_kernels()
+    prepare()
     u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
     predict_at_events.compiled(np.ascontiguousarray(states[:, :6], dtype=np.float64), idx,
                                np.ascontiguousarray(ta_sp, dtype=np.float64),
                                np.ascontiguousarray(n_rpm, dtype=np.float64), config.horizon,
                                config.known_setpoint, u_amb, np.ascontiguousarray(eta_scale),
-                               pred, model_constants(params), *tables)
+                               pred, *nb)
     return True
 
 
 def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0: float,
-                           params: ManifoldParams = V8_5L7) -> np.ndarray:
-    """T_im,n of OpenLoopTemperature(p0, t0) stepped with (TA_n, nominal input at N_n) over the
-    events; under the numba backend one compiled call (block_kernels.open_loop_temperatures)."""
-    from vecu.models import manifold_integrator as mi
-
+                           params: ManifoldParams = V8_5L7,
+                           inputs: Sequence[EngineInput] | None = None) -> np.ndarray:
+    """T_im,n of the open-loop manifold observer over the events: (P, T) of eq. 5-6 from (p0,
+    t0) driven by the measured throttle angle TA_n (the last finite one), no feedback, with
+    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n.
+    open_loop_run: compiled under the numba backend, its Python function otherwise."""
     n_ev = len(ta_meas)
     out = np.empty(n_ev)
+    if inputs is None:
+        amb = np.tile([params.p_a_kpa, params.t_a_k, params.t_cool_k], (n_ev, 1))
+    else:
+        amb = np.array([(u.p_a, u.t_a, u.t_cool) for u in inputs], dtype=np.float64)
+    amb = np.ascontiguousarray(amb, dtype=np.float64).reshape(n_ev, 3)
+    ta = np.ascontiguousarray(ta_meas, dtype=np.float64)
+    n = np.ascontiguousarray(n_rpm, dtype=np.float64)
     tables = mi._tables(params)[2]
-    if predict_events.impl() is not _PREDICT_EVENTS_PY and tables is not None:
-        prepare_kernels()
-        u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
-        open_loop_temperatures_kernel.compiled(
-            np.ascontiguousarray(ta_meas, dtype=np.float64),
-            np.ascontiguousarray(n_rpm, dtype=np.float64), float(p0), float(t0), u_amb,
-            float(params.n_cyl), *tables, out)
+    if open_loop_run.impl() is not open_loop_run.py and tables is not None:
+        prepare()
+        open_loop_run.compiled(ta, n, float(p0), float(t0), amb, float(params.n_cyl), *tables,
+                               out)
         return out
-    ol = OpenLoopTemperature(p0, t0, params)
-    for n in range(n_ev):
-        out[n] = ol.step(float(ta_meas[n]), EngineInput(0.0, float(n_rpm[n]), params.p_a_kpa,
-                                                         params.t_a_k, params.t_cool_k))
+    with using("python"):
+        open_loop_run.py(ta.tolist(), n.tolist(), float(p0), float(t0), amb.tolist(),
+                         float(params.n_cyl), *python_tables(params), out)
     return out
+
+
+@kernel
+def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
+    """x after `count` events through the event map (cac_predict.predict_state) into out;
+    returns the CAC (kg) there at the last input's speed (predict_cac). u: rows (TA_SP, N, P_a,
+    T_a, T_cool); event i uses row min(i, len(u) - 1) (one row: input held)."""
+    cst = const_tuple(c)
+    u_prev, alpha, alpha_prev = float(x[0]), float(x[1]), float(x[2])  # plain floats in Python
+    p, t, tm = float(x[3]), float(x[4]), float(x[5])
+    ts_prev = math.nan
+    a1 = a2 = b1 = b2 = a_t = b_t = 0.0
+    n_rpm = 0.0
+    last = u.shape[0] - 1
+    for i in range(count):
+        r = min(last, i)
+        sp, n_rpm, p_a = float(u[r, 0]), float(u[r, 1]), float(u[r, 2])
+        t_a, t_cool = float(u[r, 3]), float(u[r, 4])
+        ts = 120.0 / (fc[F_NCYL] * n_rpm)
+        if ts != ts_prev:
+            a1, a2, b1, b2, a_t, b_t = coefficients(ts, fc)
+            ts_prev = ts
+        p_n, t_n, _ = integrate_event(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+                                      cd_table, prs, eta_rpm, eta_val)
+        u_prev, alpha, alpha_prev, p, t, tm = (
+            sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha, p_n, t_n,
+            a_t * tm + b_t * t)
+    out[0], out[1], out[2], out[3], out[4], out[5] = u_prev, alpha, alpha_prev, p, t, tm
+    return air_charge_of(n_rpm, p, t, c, fc[F_VCYL], eta_rpm, eta_val)
+
+
+@kernel
+def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, cst, cd_alpha, cd_table, prs, eta_rpm,
+                  eta_val, out):
+    """The open-loop observer over the events (open_loop_temperatures): out[n] = T_im,n; amb[n]
+    the event's (P_a, T_a, T_coolant)."""
+    p, t = p0, t0
+    alpha = math.nan
+    for n in range(len(ta_meas)):
+        out[n] = t
+        a = ta_meas[n] if math.isfinite(ta_meas[n]) else alpha
+        if not math.isfinite(a):
+            continue
+        alpha = a
+        ts = 120.0 / (ncyl * n_rpm[n])
+        p, t, _ = integrate_event(p, t, a, amb[n][0], amb[n][1], amb[n][2], n_rpm[n], ts, cst,
+                                  cd_alpha, cd_table, prs, eta_rpm, eta_val)
+
+
+@kernel
+def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb, eta_scale,
+                      pred, fc, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
+    """cac_predict.prediction_errors' predictions: pred[j] = CAC_pred(idx[j]) (kg) from
+    states[idx[j]] over the horizon (horizon_inputs: known or held setpoints, N held), the
+    eta_N table scaled by eta_scale[idx[j]] (1: the calibration as it is)."""
+    last = len(ta_sp) - 1
+    u = np.empty((horizon, 5))
+    out = np.empty(6)
+    for j in range(len(idx)):
+        n = idx[j]
+        for k in range(horizon):
+            m = min(last, n + k)
+            u[k, 0] = ta_sp[m] if known_setpoint else ta_sp[n]
+            u[k, 1] = n_rpm[n]
+            u[k, 2], u[k, 3], u[k, 4] = u_amb[0], u_amb[1], u_amb[2]
+        ev = eta_val if eta_scale[n] == 1.0 else eta_val * eta_scale[n]
+        pred[j] = predict_events(states[n], u, horizon, out, fc, c, cd_alpha, cd_table, prs,
+                                 eta_rpm, ev)

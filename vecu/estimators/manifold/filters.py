@@ -1,16 +1,16 @@
 """Event-rate intake-manifold filters (Dutka 2006): EKF and the state-dependent Kalman filter.
 
 Both run once per engine event (T_s = 120/(8N)) on the augmented model of eq. 10
-(vecu/estimators/manifold_model.py): x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas),
+(vecu/estimators/manifold/model.py): x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas),
 y = (TA, P_im, T_im.out), Q and R of Section IV.
 
 step(y, u) at event n: update with y_n (the measurement of x_n), store the posterior x_n|n
 (returned), then predict x_n+1|n with the event's input u_n (setpoint TA_SP,n, N_n, P_a, T_a, T_cool).
 
 - `ManifoldEKF`: recursive EKF; mean through the plant's sub-stepped event map f, F = df/dx at the
-  posterior (manifold_model.f_and_jacobian), P = F P F^T + Q.
+  posterior (model.f_and_jacobian; event.ekf_event), P = F P F^T + Q.
 - `ManifoldSDKF`: eq. 12-14. Gain K_n = P_n C^T (C P_n C^T + R)^-1 with P_n from the Riccati
-  equation of the SDC matrix A_n = A(x_n|n-1) (manifold_model.sdc_matrices). `riccati` selects
+  equation of the SDC matrix A_n = A(x_n|n-1) (event.sdc_matrix). `riccati` selects
   how P_n is obtained:
     "iterate"  (default, live): ONE Riccati iteration per event, warm-started from the previous
                event: P_n = A_n (P_n-1 - K_n-1 S_n-1 K_n-1^T) A_n^T + Q. For a frozen A it
@@ -30,8 +30,10 @@ symmetrised and S = C P C^T + R factored with vecu.estimators.common.covariance.
 non-finite or exploding state/covariance (covariance.diverged) resets the filter and is counted.
 No input can make the outputs NaN.
 
-Under the numba backend (vecu.kernels) an "iterate" SDKF event after the input checks is one
-compiled call (vecu.estimators.manifold.kernels.sdkf_event, bit-identical to this code here).
+The event after the input checks is one call of a kernel written once in
+vecu.estimators.manifold.event (sdkf_event, ekf_event): compiled under the numba backend, its
+Python function under the python backend; the classes here keep the orchestration (input checks,
+counters, resets, the DARE of the "doubling" / "scipy" modes, the jittered fallback update).
 """
 
 from __future__ import annotations
@@ -47,22 +49,35 @@ import scipy.linalg
 from vecu.estimators.common.covariance import (
     DivergenceBounds,
     cholesky_lower,
-    diverged_floats,
     symmetrise,
 )
-from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
-from vecu.estimators.manifold.compiled import CompiledEvents
-from vecu.estimators.manifold.kernels import ekf_event, sdkf_event
+from vecu.estimators.manifold.event import (
+    DIVERGED,
+    FALLBACK,
+    FD_ALPHA,
+    FD_REL,
+    INPUT_OK,
+    INPUT_SETPOINT,
+    INPUT_SPEED,
+    apply_gain,
+    ekf_event,
+    ekf_finish,
+    filter_constants,
+    input_fault,
+    python_tables,
+    sdkf_event,
+    sdkf_finish,
+)
 from vecu.estimators.manifold.model import (
-    N_X,
+    C_MATRIX,
     Y_INDEX,
     event_dt,
-    f,
-    f_and_jacobian,
     q_matrix,
     r_matrix,
     sdc_matrices,
 )
+from vecu.estimators.manifold.runs import CompiledEvents
+from vecu.kernels import backend, using
 from vecu.models.manifold import nominal_input, steady_state_vector
 from vecu.models.manifold_params import (
     PAPER_NOISE,
@@ -120,14 +135,15 @@ def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
     setpoint outside [-0.2, 1.9] rad, ambient or coolant conditions outside physical bounds.
     The filter holds its last plausible input instead; the ECU refuses the event (NaN fails)."""
     lo, hi = config.n_range
-    if not lo <= u.n_rpm <= hi:
+    fault = input_fault.py(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, lo, hi)
+    if fault == INPUT_OK:
+        return None
+    if fault == INPUT_SPEED:
         return f"engine speed {u.n_rpm:g} rpm outside {lo:g}..{hi:g} rpm"
-    if not -0.2 <= u.ta_sp <= 1.9:
+    if fault == INPUT_SETPOINT:
         return f"throttle setpoint {u.ta_sp:g} rad outside -0.2..1.9 rad"
-    if not (50.0 <= u.p_a <= 120.0 and 200.0 <= u.t_a <= 450.0 and 200.0 <= u.t_cool <= 450.0):
-        return (f"ambient {u.p_a:g} kPa / {u.t_a:g} K or coolant {u.t_cool:g} K outside "
-                "50..120 kPa / 200..450 K")
-    return None
+    return (f"ambient {u.p_a:g} kPa / {u.t_a:g} K or coolant {u.t_cool:g} K outside "
+            "50..120 kPa / 200..450 K")
 
 
 def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
@@ -156,7 +172,7 @@ def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
 
 
 class _ManifoldKF(CompiledEvents):
-    """Shared measurement update, guards and counters (subclasses: prior covariance, predict);
+    """Shared guards, counters and the event's orchestration (subclasses: their event kernel);
     a manifold.base.ManifoldEstimator."""
 
     name = "base"
@@ -168,11 +184,7 @@ class _ManifoldKF(CompiledEvents):
         self.params = c.params
         self.Q = q_matrix(c.noise)
         self.R = r_matrix(c.noise)
-        self._r_diag = np.diag(self.R).copy()
-        self._r_diag_l = self._r_diag.tolist()
         self._P0 = np.diag(np.array(c.p0_diag, dtype=float))
-        self._y_idx = np.array(Y_INDEX)
-        self._full = np.array([0, 1, 2])
         if x0 is None:
             u0 = nominal_input(self.params.throttle_floor_rad(self.params.n_idle_rpm),
                                self.params.n_idle_rpm, self.params)
@@ -207,14 +219,6 @@ class _ManifoldKF(CompiledEvents):
         self.x_post = x.copy()
         self.P_post = self._P0.copy()
         self._initialised = self._x_given
-
-    def _clamp(self, x: np.ndarray) -> None:
-        c = self.config
-        for i in (0, 1, 2):
-            x[i] = min(max(x[i], c.alpha_box[0]), c.alpha_box[1])
-        x[3] = min(max(x[3], c.p_box[0]), c.p_box[1])
-        for i in (4, 5):
-            x[i] = min(max(x[i], c.t_box[0]), c.t_box[1])
 
     def _check_input(self, u: EngineInput) -> EngineInput:
         if input_problem(u, self.config) is None:
@@ -257,74 +261,107 @@ class _ManifoldKF(CompiledEvents):
         self.P = self._P0.copy()
         self._initialised = True
 
-    def _update(self, P: np.ndarray, y, chans: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        """Measurement update of the prior (self.x, P): (x_post, P_post). Gated channels dropped."""
-        x = self.x.copy()
-        if not chans:
-            return x, P.copy()
-        c = self.config
-        yi = Y_INDEX
-        xl = x.tolist()
-        yl = [float(y[i]) for i in range(3)]
-        gate2 = c.gate_sigma * c.gate_sigma
-        use = []
-        for i in chans:
-            j = yi[i]
-            e = yl[i] - xl[j]
-            s = float(P[j, j]) + self._r_diag_l[i]
-            if e * e > gate2 * s and self._gated_run[i] < c.max_gated_in_row:
-                self.gated[i] += 1
-                self._gated_run[i] += 1
-            else:
-                self._gated_run[i] = 0
-                use.append(i)
-        if not use:
-            return x, P.copy()
-        if len(use) == 3 and yi == (1, 3, 5):
-            gain = self._gain_all(P)
-            if gain is not None:  # the usual case: all three channels, S positive definite
-                K, PCt = gain
-                e3 = np.array([yl[0] - xl[1], yl[1] - xl[3], yl[2] - xl[5]])
-                P_post = P - K @ PCt.T
-                return x + K @ e3, 0.5 * (P_post + P_post.T)
-        ch = self._full if len(use) == 3 else np.array(use)
-        idx = self._y_idx[ch]
-        PCt = P[:, idx]
-        S = PCt[idx] + self.R[np.ix_(ch, ch)]
-        L = cholesky_lower(S)
-        Linv = np.linalg.inv(L)
-        K = PCt @ (Linv.T @ Linv)
-        e = np.array([yl[i] for i in ch]) - x[idx]
-        x = x + K @ e
-        P_post = symmetrise(P - K @ PCt.T)
-        return x, P_post
+    # ---------------------------------------------------------------- the event
+    _KERNELS: tuple[Any, Any] = (None, None)  # (event kernel, finish kernel) of the subclass
+    _count_gated_on_reset = True  # the gated counters of an event that diverged still count
+    _py_args: tuple | None = None  # the kernels' constants for their Python functions
+    # what a failing event raises (the filter resets): non-finite or implausible numbers
+    _EVENT_ERRORS: tuple[type[Exception], ...] = (FloatingPointError, ValueError,
+                                                  np.linalg.LinAlgError)
 
-    def _gain_all(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """(K, P C^T) for all three channels with S^-1 = L^-T L^-1 from an unrolled 3x3 Cholesky
-        in plain floats (common.small_linalg: what cholesky_lower + inv do, without their per-call
-        overhead); None when S is not finite or not positive definite (the general path then
-        decides)."""
-        PCt = P[:, 1::2]  # columns (1, 3, 5) = Y_INDEX
-        (s00, _, _), (s10, s11, _), (s20, s21, s22) = (PCt[1::2] + self.R).tolist()
-        if not math.isfinite(s00 + s10 + s11 + s20 + s21 + s22):
-            return None
-        ok, low = chol3.py((s00, s10, s20, s11, s21, s22))
-        if not ok:
-            return None
-        i00, i01, i02, i11, i12, i22 = inverse_from_chol3.py(low)
-        s_inv = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
-        return PCt @ s_inv, PCt
+    _runner_backend: str | None = None  # the backend _runner was made for
+    _runner: tuple[Any, Any, tuple, bool]
 
-    def _diverged(self, x: np.ndarray, P: np.ndarray) -> bool:
-        """covariance.diverged's criterion, via diverged_floats (cheaper on a 6x6)."""
-        return diverged_floats(x.tolist(), float(P.trace()), float(P.sum()), self.config.bounds)
+    def _event_runner(self) -> tuple[Any, Any, tuple, bool]:
+        """(event kernel, finish kernel, their constants, Python only?) for the active backend:
+        the compiled kernels under numba (event.prepare first), their Python functions with
+        plain-float constants otherwise or for a parameter set numba cannot mirror."""
+        active = backend()
+        if active != self._runner_backend:
+            self._runner = self._make_runner()
+            self._runner_backend = active
+        return self._runner
 
-    # ---------------------------------------------------------------- subclass hooks
-    def _prior_cov(self, u: EngineInput, ts: float) -> np.ndarray:
-        return self.P
+    def _make_runner(self) -> tuple[Any, Any, tuple, bool]:
+        ev, fin = self._KERNELS
+        if ev.impl() is not ev.py:
+            args = self._kernel_args
+            if args is None and not self._kernel_args_ready:
+                args = self._prepare_kernel()
+            if args is not None:
+                return ev.compiled, fin.compiled, args, False
+        if self._py_args is None:
+            self._py_args = (tuple(filter_constants(self.config).tolist()), self.Q,
+                             (FD_ALPHA, FD_REL), *python_tables(self.params))
+        return ev.py, fin.py, self._py_args, ev.impl() is not ev.py
 
-    def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
+    def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                    u: EngineInput, ts: float, mask: int) -> int:
+        """The event kernel on the filter's prior (x, P) (ekf_event's and adaptive_event's
+        arguments; the SDKF's differ); its status word."""
+        ly = self._last_y
+        gr = self._gated_run
+        return run(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, ly[0],
+                   ly[1], ly[2], mask, gr[0], gr[1], gr[2], *args)
+
+    def _call_finish(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                     u: EngineInput, ts: float, gated: int) -> int:
+        """The subclass's finish kernel (after a fallback update); its status word."""
         raise NotImplementedError
+
+    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
+        """The event after the input checks: one call of the subclass's event kernel (prior
+        covariance, update, guards, prediction), a fallback update when S needs jitter, then
+        the counters, a reset or the new state."""
+        run, finish, args, py_only = self._event_runner()
+        mask = 0
+        for i in chans:
+            mask |= 1 << i
+        n = len(self.x)
+        xo = np.empty((3, n))
+        Po = np.empty((2, n, n))
+        try:
+            if py_only:
+                with using("python"):
+                    code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
+            else:
+                code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
+        except self._EVENT_ERRORS:
+            self._reset_in_step()
+            return
+        if self._count_gated_on_reset or not code & DIVERGED:
+            self._count_gated(code, chans)
+        if code & DIVERGED:
+            self._reset_in_step()
+            return
+        self._commit_event(xo, Po, u)
+
+    def _run_event(self, run: Any, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                   u: EngineInput, ts: float, mask: int) -> int:
+        code = self._call_event(run, args, xo, Po, u, ts, mask)
+        if code & FALLBACK:
+            code = self._fallback(finish, args, xo, Po, u, ts, mask, code)
+        return code
+
+    def _fallback(self, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                  u: EngineInput, ts: float, mask: int, code: int) -> int:
+        """S = C P C^T + R of the channels used was not positive definite (or not finite) for
+        the kernel: factor it with covariance.cholesky_lower (jitter, then eigenvalue clipping;
+        ValueError when not finite), then the same gain and the rest of the event."""
+        gated = code & 7
+        ch = [i for i in range(3) if mask >> i & 1 and not gated >> i & 1]
+        prior = self._prior_of(Po)
+        idx = [Y_INDEX[i] for i in ch]
+        L = cholesky_lower(prior[np.ix_(idx, idx)] + self.R[np.ix_(ch, ch)])
+        Linv = np.linalg.inv(L)
+        ly = self._last_y
+        apply_gain.impl()(self.x, prior, xo[1], Po[1], (ly[0], ly[1], ly[2]),
+                          np.array(ch, dtype=np.int64), len(ch), Linv.T @ Linv)
+        return self._call_finish(finish, args, xo, Po, u, ts, gated)
+
+    def _prior_of(self, Po: np.ndarray) -> np.ndarray:
+        """The prior covariance the event's update used."""
+        return self.P
 
     # ---------------------------------------------------------------- public
     def step(self, y: Sequence[Any] | None, u: EngineInput) -> np.ndarray:
@@ -340,21 +377,6 @@ class _ManifoldKF(CompiledEvents):
         self._initialise(y, chans)
         self._event(y, u, ts, chans)
         return self.x_post.copy()
-
-    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
-        """The event after the input checks: prior covariance, update, guards, prediction."""
-        try:
-            P = self._prior_cov(u, ts)
-            x_post, P_post = self._update(P, y, chans)
-            self._clamp(x_post)
-            if self._diverged(x_post, P_post):
-                raise FloatingPointError("diverged")
-            self.x_post, self.P_post = x_post, P_post
-            self._predict(x_post, P_post, u, ts)
-            if self._diverged(self.x, self.P):
-                raise FloatingPointError("diverged")
-        except (FloatingPointError, ValueError, np.linalg.LinAlgError):
-            self._reset_in_step()
 
     def _reset_in_step(self) -> None:
         self.reset(count=True)
@@ -375,35 +397,22 @@ class _ManifoldKF(CompiledEvents):
 
 
 class ManifoldEKF(_ManifoldKF):
-    """Recursive EKF on eq. 10 (see module docstring)."""
+    """Recursive EKF on eq. 10 (see module docstring): event.ekf_event."""
 
     name = "ekf"
+    _KERNELS = (ekf_event, ekf_finish)
 
-    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
-        """Under the numba backend one compiled call (kernels.ekf_event), see _compiled_event."""
-        if not self._compiled_event(u, ts, chans):
-            super()._event(y, u, ts, chans)
-
-    def _call_kernel(self, args: tuple, xo: np.ndarray, Po: np.ndarray, u: EngineInput,
-                     ts: float, mask: int) -> int:
-        ly = self._last_y
-        gr = self._gated_run
-        return ekf_event.compiled(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a,
-                                  u.t_cool, ts, ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2],
-                                  args[0], args[1], args[2], *args[3:])
-
-    def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
-        x_n, F = f_and_jacobian(x_post, u, self.params, ts)
-        self.last_prediction = (u, x_n.copy())
-        self._clamp(x_n)
-        self.x = x_n
-        self.P = symmetrise(F @ P_post @ F.T + self.Q)
+    def _call_finish(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                     u: EngineInput, ts: float, gated: int) -> int:
+        return run(xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, gated, *args)
 
 
 class ManifoldSDKF(_ManifoldKF):
-    """State-dependent Kalman filter, eq. 12-14 (see module docstring for `riccati`)."""
+    """State-dependent Kalman filter, eq. 12-14 (see module docstring for `riccati`):
+    event.sdkf_event, the prior covariance of the DARE modes solved here."""
 
     name = "sdkf"
+    _KERNELS = (sdkf_event, sdkf_finish)
 
     def __init__(self, config: ManifoldFilterConfig = ManifoldFilterConfig(),
                  x0: np.ndarray | None = None) -> None:
@@ -412,49 +421,38 @@ class ManifoldSDKF(_ManifoldKF):
         self.dare_failures = 0
         self.doublings = 0
         super().__init__(config, x0)
-        self._C = np.zeros((3, N_X))
-        for i, j in enumerate(Y_INDEX):
-            self._C[i, j] = 1.0
 
-    def _prior_cov(self, u: EngineInput, ts: float) -> np.ndarray:
+    def _dare_prior(self, u: EngineInput, ts: float) -> None:
+        """self.P = the DARE solution of eq. 14 for A(x_n|n-1) ("doubling" or "scipy")."""
         A, _ = sdc_matrices(self.x, u, self.params, ts)
-        mode = self.config.riccati
-        if mode == "iterate":
-            if self.events > 1:  # one Riccati iteration from the previous event's posterior P
-                self.P = symmetrise(A @ self.P_post @ A.T + self.Q)
-            return self.P
-        if mode == "scipy":
+        if self.config.riccati == "scipy":
             try:
-                P = scipy.linalg.solve_discrete_are(A.T, self._C.T, self.Q, self.R)
+                P = scipy.linalg.solve_discrete_are(A.T, C_MATRIX.T, self.Q, self.R)
                 if np.all(np.isfinite(P)):
                     self.P = symmetrise(P)
-                    return self.P
+                    return
             except (np.linalg.LinAlgError, ValueError):
                 pass
             self.dare_failures += 1
-        P, k = dare_doubling(A, self._C, self.Q, self.R, self.config.doubling_tol,
-                             self.config.doubling_max_iter)
+        self.P, k = dare_doubling(A, C_MATRIX, self.Q, self.R, self.config.doubling_tol,
+                                  self.config.doubling_max_iter)
         self.doublings += k
-        self.P = P
-        return P
 
-    def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
-        """Under the numba backend ("iterate" only) the whole event is one compiled call
-        (vecu.estimators.manifold.kernels.sdkf_event), see _ManifoldKF._compiled_event."""
-        if self.config.riccati != "iterate" or not self._compiled_event(u, ts, chans):
-            super()._event(y, u, ts, chans)
-
-    def _call_kernel(self, args: tuple, xo: np.ndarray, Po: np.ndarray, u: EngineInput,
-                     ts: float, mask: int) -> int:
+    def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                    u: EngineInput, ts: float, mask: int) -> int:
+        iterate = self.config.riccati == "iterate"
+        if not iterate:
+            self._dare_prior(u, ts)
         ly = self._last_y
         gr = self._gated_run
-        return sdkf_event.compiled(
-            self.x, self.P, self.P_post, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts,
-            ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2], self.events > 1, args[0], args[1],
-            *args[3:])
+        return run(self.x, self.P, self.P_post, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a,
+                   u.t_cool, ts, ly[0], ly[1], ly[2], mask, gr[0], gr[1], gr[2],
+                   iterate and self.events > 1, args[0], args[1], *args[3:])
 
-    def _predict(self, x_post: np.ndarray, P_post: np.ndarray, u: EngineInput, ts: float) -> None:
-        x_n = f(x_post, u, self.params, ts)
-        self.last_prediction = (u, x_n.copy())
-        self._clamp(x_n)
-        self.x = x_n
+    def _call_finish(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
+                     u: EngineInput, ts: float, gated: int) -> int:
+        return run(xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, gated, args[0],
+                   *args[3:])
+
+    def _prior_of(self, Po: np.ndarray) -> np.ndarray:
+        return Po[0]

@@ -1,7 +1,8 @@
 """Filter-side augmented intake-manifold model (Dutka 2006, eq. 10-14 notation).
 
-Built on the model's pure functions (vecu/models/manifold.py); no equation is restated here except
-the paper's own state-dependent-coefficient (SDC) factorisation of eq. 7/10, which the SDKF needs.
+Built on the model's functions (vecu/models/manifold.py) and the filters' event pieces
+(vecu/estimators/manifold/event.py: the SDC factorisation of eq. 7/10 and the Jacobian are
+written there once, for the kernels); no equation is restated here.
 
 State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) (eq. 10), output y = C x =
 (TA, P_im, T_im.out) with C a row selection (indices 1, 3, 5). Units as the plant: rad, kPa, K.
@@ -23,16 +24,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from vecu.models.manifold import (
-    N_STATE,
-    actuator_coeffs,
-    heat_flow,
-    iat_coeffs,
-    integrate_manifold,
-    sample_time,
-    throttle_flow,
-    volumetric_efficiency,
+from vecu.estimators.manifold.event import (
+    ALPHA_SDC_MIN,  # noqa: F401 (re-exported)
+    F_ALPHA_MIN,
+    FD_ALPHA,
+    FD_REL,
+    coefficients,
+    integrate_event,
+    jacobian,
+    model_constants,
+    python_tables,
+    sdc_matrix,
 )
+from vecu.kernels import using
+from vecu.models.manifold import N_STATE, sample_time
 from vecu.models.manifold import f as plant_f
 from vecu.models.manifold import h as plant_h
 from vecu.models.manifold_params import (
@@ -50,12 +55,6 @@ C_MATRIX = np.zeros((N_Y, N_X))
 for _i, _j in enumerate(Y_INDEX):
     C_MATRIX[_i, _j] = 1.0
 C_MATRIX.setflags(write=False)
-
-ALPHA_SDC_MIN = 1e-3  # rad: B_IM divides by alpha (eq. 7); below this the flow term is ~0 anyway
-
-# Finite-difference steps for the manifold block of F (relative for P and T).
-FD_ALPHA = 1e-6  # rad
-FD_REL = 1e-6
 
 
 def q_matrix(noise: ManifoldNoise = PAPER_NOISE) -> np.ndarray:
@@ -84,39 +83,22 @@ def h(x: np.ndarray) -> np.ndarray:
     return plant_h(x)
 
 
-def _manifold(p: float, t: float, alpha: float, u: EngineInput, ts: float,
-              params: ManifoldParams) -> tuple[float, float, int]:
-    return integrate_manifold(p, t, alpha, u, ts, params)
-
-
 def f_and_jacobian(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
                    dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(f(x), df/dx): analytic actuator/IAT rows, finite-difference manifold block (see module)."""
+    """(f(x), df/dx) as the EKF's event computes them (event.jacobian: analytic actuator/IAT
+    rows, finite-difference manifold block, see module)."""
     ts = event_dt(u, params) if dt is None else dt
-    u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
-    a1, a2, b1, b2 = actuator_coeffs(ts, params)
-    a_t, b_t = iat_coeffs(ts, params)
-    p_n, t_n, m = _manifold(p, t, alpha, u, ts, params)
+    xp = np.array([float(v) for v in x])
+    fc = model_constants(params)
+    c, cd_alpha, cd_table, prs, eta_rpm, eta_val = python_tables(params)
     F = np.zeros((N_X, N_X))
-    F[1, 0], F[1, 1], F[1, 2] = b2, a1, a2
-    F[2, 1] = 1.0
-    F[5, 4], F[5, 5] = b_t, a_t
-    steps = (FD_ALPHA, FD_REL * max(abs(p), 1.0), FD_REL * max(abs(t), 1.0))
-    for col, j in ((1, 0), (3, 1), (4, 2)):
-        d = steps[j]
-        for sign in (1.0, -1.0):
-            args = [alpha, p, t]
-            args[j] += sign * d
-            pp, tt, mm = _manifold(args[1], args[2], args[0], u, ts, params)
-            if mm == m:
-                break
-        F[3, col] = (pp - p_n) / (sign * d)
-        F[4, col] = (tt - t_n) / (sign * d)
-    x_n = np.array([
-        u.ta_sp, a1 * alpha + a2 * alpha_prev + b1 * u.ta_sp + b2 * u_prev, alpha,
-        p_n, t_n, a_t * tm + b_t * t,
-    ])
-    return x_n, F
+    with using("python"):  # the Python functions throughout (the tables are tuples)
+        p_n, t_n, m = integrate_event(xp[3], xp[4], xp[1], u.p_a, u.t_a, u.t_cool, u.n_rpm, ts,
+                                      c, cd_alpha, cd_table, prs, eta_rpm, eta_val)
+        jacobian(F, xp, p_n, t_n, m, coefficients(ts, fc), (FD_ALPHA, FD_REL), 0.0, 3, u.p_a,
+                 u.t_a, u.t_cool, u.n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm, eta_val,
+                 cd_table, eta_val)
+    return f(x, u, params, ts), F
 
 
 def numerical_jacobian(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
@@ -144,27 +126,11 @@ def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
     pi = kappa eta N V_d T_s / (120 V_im) (= kappa V_cyl eta / V_im at T_s = 120/(8N)).
     B_IM C_ET goes into the alpha column of A (eq. 10); alpha >= ALPHA_SDC_MIN in the division.
     """
-    prm = params
-    ts = event_dt(u, prm) if dt is None else dt
-    _, alpha, _, p, t, _ = (float(v) for v in x)
-    k, r, v = prm.kappa, prm.r_air, prm.v_im_dm3
-    a1, a2, b1, b2 = actuator_coeffs(ts, prm)
-    a_t, b_t = iat_coeffs(ts, prm)
-    eta, _ = volumetric_efficiency(u.n_rpm, p, prm)
-    mdot, _ = throttle_flow(alpha, p, u.p_a, u.t_a, prm)
-    q = heat_flow(t, u.t_a, u.t_cool, prm)
-    ps = max(p, 1e-3)
-    ts_ = max(t, 1.0)
-    pump = k * eta * u.n_rpm * prm.v_d_dm3 * ts / (120.0 * v)
-    flow = ts * mdot / max(alpha, ALPHA_SDC_MIN)
+    ts = event_dt(u, params) if dt is None else dt
+    fc = model_constants(params)
     A = np.zeros((N_X, N_X))
-    A[1, 0], A[1, 1], A[1, 2] = b2, a1, a2
-    A[2, 1] = 1.0
-    A[3, 1] = k * r * u.t_a * flow / v
-    A[4, 1] = ts_ * (k * r * u.t_a - r * ts_) * flow / (v * ps)
-    A[3, 3] = 1.0 - pump
-    A[3, 4] = (k - 1.0) * ts * q / (ts_ * v)
-    A[4, 4] = 1.0 - (k - 1.0) / k * pump + (k - 1.0) * ts * q / (v * ps)
-    A[5, 4], A[5, 5] = b_t, a_t
-    B = np.array([1.0, b1, 0.0, 0.0, 0.0, 0.0])
-    return A, B
+    co = coefficients.py(ts, fc)
+    with using("python"):  # the Python functions throughout (the tables are tuples)
+        sdc_matrix(A, [float(v) for v in x], u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, co,
+                   fc[F_ALPHA_MIN], *python_tables(params))
+    return A, np.array([1.0, co[2], 0.0, 0.0, 0.0, 0.0])

@@ -1,5 +1,5 @@
 """The adaptive manifold EKF's event as one kernel (vecu.estimators.manifold.adaptive has the
-filter and the model it implements): kernels.ekf_event with five more states: the volumetric-
+filter and the model it implements): event.ekf_event with five more states: the volumetric-
 efficiency correction c and the throttle-flow correction c_th (scaling the eta_N and C_d tables
 of the event integrator), the angle sensor's gain g (TA = g alpha) and the actuator's damping
 and natural-frequency corrections k_zeta, k_omega (zeta = k_zeta zeta_cal, omega0 = k_omega
@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from vecu.estimators.manifold import kernels as K
-from vecu.estimators.manifold.kernels import (
+from vecu.estimators.manifold import event as K
+from vecu.estimators.manifold.event import (
     DIVERGED,
     F_GATE2,
     F_MAX_ABS,
@@ -26,6 +26,7 @@ from vecu.estimators.manifold.kernels import (
     FALLBACK,
 )
 from vecu.kernels import kernel
+from vecu.models.manifold import event_coefficients
 
 # states: the EKF's six, c, c_th, g, k_zeta, k_omega
 N_XA = 11
@@ -49,7 +50,7 @@ def _consider_py(x, P, xp, Pp, lo, hi):
 
 def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
     """The TA channel's EKF update with the measurement TA = g alpha (H: g in the alpha
-    column, alpha in g's), gated as kernels._update. Returns 1 (gated), 0 or FALLBACK."""
+    column, alpha in g's), gated as event.update. Returns 1 (gated), 0 or FALLBACK."""
     n = x.shape[0]
     g, alpha = x[I_G], x[1]
     e = y0 - g * alpha
@@ -74,10 +75,10 @@ def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
 
 
 def _actuator_coeffs_py(ts, fc, kz, kw):
-    """kernels._event_coeffs with zeta and omega0 scaled by k_zeta, k_omega (zeta kept below
+    """event.coefficients with zeta and omega0 scaled by k_zeta, k_omega (zeta kept below
     ZETA_MAX: eq. 1's discretisation is the underdamped one)."""
     z = fc[F_ZETA] * kz
-    return K._coeffs(ts, z if z < ZETA_MAX else ZETA_MAX, fc[F_OMEGA0] * kw, fc[F_TAU])
+    return event_coefficients(ts, z if z < ZETA_MAX else ZETA_MAX, fc[F_OMEGA0] * kw, fc[F_TAU])
 
 
 _consider = kernel(_consider_py)
@@ -88,12 +89,12 @@ _actuator_coeffs = kernel(_actuator_coeffs_py)
 @kernel
 def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans, run0,
                    run1, run2, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """One event of the adaptive EKF from the prior (x, P) (as kernels.ekf_event, 11 states):
+    """One event of the adaptive EKF from the prior (x, P) (as event.ekf_event, 11 states):
     update (below), clamping (the corrections to their boxes), divergence check, then the event
     map with eta scaled by c, the throttle flow by c_th and the actuator's (zeta, omega0) by
     (k_zeta, k_omega), its Jacobian (one-sided differences) and P = sym(F P F^T + Q). Writes
     xo (3 x 11), Po (2 x 11 x 11); returns the gated channels | DIVERGED | FALLBACK."""
-    cst = K._const_tuple(c)
+    cst = K.const_tuple(c)
     n = x.shape[0]
     xp = xo[1]
     Pp = Po[1]
@@ -122,12 +123,12 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
         Pa[:, :] = P
     xm = np.empty(n)
     Pm = np.empty((n, n))
-    g1 = K._update(xa, Pa, xm, Pm, (y0, y1, y2), (run0, run1, run2), chans & 4, fc)
+    g1 = K.update(xa, Pa, xm, Pm, (y0, y1, y2), (run0, run1, run2), chans & 4, fc)
     if g1 & FALLBACK:
         return FALLBACK
     gated |= g1
     _consider(xa, Pa, xm, Pm, I_C, n)
-    g2 = K._update(xm, Pm, xp, Pp, (y0, y1, y2), (run0, run1, run2), chans & 2, fc)
+    g2 = K.update(xm, Pm, xp, Pp, (y0, y1, y2), (run0, run1, run2), chans & 2, fc)
     if g2 & FALLBACK:
         return FALLBACK
     gated |= g2
@@ -135,22 +136,22 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
         _consider(xm, Pm, xp, Pp, I_C, n)
     else:
         _consider(xm, Pm, xp, Pp, I_G, n)
-    K._clamp(xp, fc)  # the first six states
+    K.clamp(xp, fc)  # the first six states
     for i in range(I_C, n):
         lo = ac[A_C_LO] if i < I_G else (ac[A_G_LO] if i == I_G else ac[A_K_LO])
         hi = ac[A_C_HI] if i < I_G else (ac[A_G_HI] if i == I_G else ac[A_K_HI])
         xp[i] = lo if lo > xp[i] else xp[i]
         xp[i] = hi if hi < xp[i] else xp[i]
-    if not K._in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
+    if not K.in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
     kz, kw = xp[I_KZ], xp[I_KW]
     co = _actuator_coeffs(ts, fc, kz, kw)
     ev = eta_val * xp[I_C]
     cdt = cd_table * xp[I_CTH]
-    p_n, t_n, m = K._integrate(xp[3], xp[4], xp[1], p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
-                               cdt, prs, eta_rpm, ev)
+    p_n, t_n, m = K.integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), p_a, t_a, t_cool,
+                                    n_rpm, ts, cst, cd_alpha, cdt, prs, eta_rpm, ev)
     F = np.zeros((n, n))
-    K._jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, cst,
+    K.jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, cst,
                 cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val)
     # the actuator row's columns k_zeta, k_omega (eq. 1 is linear in alpha, not in them)
     alpha_n = co[0] * xp[1] + co[1] * xp[2] + co[2] * sp + co[3] * xp[0]
@@ -159,8 +160,8 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     cw = _actuator_coeffs(ts, fc, kz, kw + d)
     F[1, I_KZ] = (cz[0] * xp[1] + cz[1] * xp[2] + cz[2] * sp + cz[3] * xp[0] - alpha_n) / d
     F[1, I_KW] = (cw[0] * xp[1] + cw[1] * xp[2] + cw[2] * sp + cw[3] * xp[0] - alpha_n) / d
-    K._map_out(xo, xp, sp, p_n, t_n, co, fc)
-    if not K._propagate(F, Pp, Q, xo, Po, fc):
+    K.map_out(xo, xp, sp, p_n, t_n, co, fc)
+    if not K.propagate(F, Pp, Q, xo, Po, fc):
         return gated | DIVERGED
     return gated
 
@@ -169,7 +170,7 @@ _ready = False
 
 
 def prepare() -> None:
-    """kernels.prepare (the helpers this kernel calls), then its one signature."""
+    """event.prepare (the kernels this one calls), then its one signature."""
     global _ready
     if _ready:
         return
