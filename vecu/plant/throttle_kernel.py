@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from vecu.kernels import kernel
+from vecu.models.sensors import tps_law
 from vecu.models.throttle import clip_theta, eq3_step, wattmeter_reading
 
 # advance_ticks' constants vector
@@ -39,7 +40,7 @@ def advance_ticks(st, u, noise, pos, modes, cst, out):
         w = noise[pos]
         out[k, 0] = theta
         out[k, 1] = wattmeter_reading(i, cst[K_H], w[2])
-        out[k, 2] = cst[K_V0] + (cst[K_V90] - cst[K_V0]) * theta / 90.0 + cst[K_TPS_NOISE] * w[3]
+        out[k, 2] = tps_law(cst[K_V0], cst[K_V90], theta) + cst[K_TPS_NOISE] * w[3]
         theta, rho, i = plant_step(modes, cst[K_BOUND1], cst[K_BOUND2], cst[K_SIG_THETA],
                                    cst[K_SIG_I], theta, rho, i, u[k], w[0], w[1])
         pos += 1
