@@ -1,10 +1,12 @@
-"""Compiled loops of the throttle identification (vecu.kernels: numba with vecu[fast])."""
+"""Compiled loops of the throttle identification (vecu.kernels: numba with vecu[fast]); eq. (3)
+is vecu.models.throttle.eq3_step."""
 
 from __future__ import annotations
 
 import math
 
 from vecu.kernels import kernel
+from vecu.models.throttle import clip_theta, eq3_step
 
 
 @kernel
@@ -21,16 +23,10 @@ def one_step_predict(P, b1, b2, u, th, ci, out_th, out_i, out_rho):
     out_th[0] = th[0]
     out_i[0] = ci[0]
     for k in range(n - 1):
-        t = th[k]
-        c = ci[k]
-        s = 0 if t <= b1 else (1 if t <= b2 else 2)
-        sr = 1.0 if r > 0.0 else (-1.0 if r < 0.0 else 0.0)
-        st = 1.0 if t > 1.0 else (-1.0 if t < 1.0 else 0.0)
         out_rho[k] = r
-        tn = t + P[s, 0] * r
-        out_th[k + 1] = 0.0 if tn < 0.0 else (min(tn, 90.0))
-        out_i[k + 1] = P[s, 4] * r + P[s, 5] * c + P[s, 6] * u[k]
-        r = (P[s, 1] * t + P[s, 2] * r + P[s, 3] * c + P[s, 7] * sr + P[s, 8] * st + P[s, 9])
+        tn, r, cn = eq3_step(P, b1, b2, th[k], r, ci[k], u[k])
+        out_th[k + 1] = clip_theta(tn)
+        out_i[k + 1] = cn
         if not math.isfinite(r) or abs(r) > 1e9:  # a trial parameter set that blows up
             r = 1e9 if r > 0.0 else -1e9
     out_rho[n - 1] = r
@@ -46,11 +42,5 @@ def free_run(P, b1, b2, u, th0, i0, out_th, out_i):
     for k in range(n):
         out_th[k] = t
         out_i[k] = c
-        s = 0 if t <= b1 else (1 if t <= b2 else 2)
-        sr = 1.0 if r > 0.0 else (-1.0 if r < 0.0 else 0.0)
-        st = 1.0 if t > 1.0 else (-1.0 if t < 1.0 else 0.0)
-        tn = t + P[s, 0] * r
-        rn = P[s, 1] * t + P[s, 2] * r + P[s, 3] * c + P[s, 7] * sr + P[s, 8] * st + P[s, 9]
-        c = P[s, 4] * r + P[s, 5] * c + P[s, 6] * u[k]
-        t = 0.0 if tn < 0.0 else (min(tn, 90.0))
-        r = rn
+        tn, r, c = eq3_step(P, b1, b2, t, r, c, u[k])
+        t = clip_theta(tn)

@@ -1,6 +1,11 @@
 """Electronic throttle body model: piecewise-affine, 3 modes (Vargas et al. 2015, eq. 3-4, Table I).
 
 Pure equations and constants, shared by the plant simulator and the estimators.
+Eq. (3) is written once, as two kernels (vecu.kernels: compiled under numba, plain Python
+otherwise): `mode_step`, one mode's affine map with the sign terms given, and `eq3_step`, the
+switched system (mode by theta, sgn(rho), sgn(theta - 1)) built on it. The plant, the paper's
+UKFs, the particle filter's class matrices (read off mode_step) and Kalman stretches, and the
+identification all call them; plain-Python callers call `.py`.
 
 State x = [theta, rho, i]: valve angle theta in degrees (the paper's 0.1 factor dropped, see
 docs/models.md), angular velocity rho in the model's own units, motor current i in A.
@@ -11,11 +16,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+from vecu.kernels import kernel
 
 THETA_MIN_DEG = 0.0
 THETA_MAX_DEG = 90.0
 MODE_BOUNDS_DEG = (8.0, 16.0)  # Theta_1 = [0, 8], Theta_2 = (8, 16], Theta_3 = (16, 90]
 DT_S = 1e-3  # the paper's sampling period
+
+# A mode's row of Table I, as mode_step reads it (ModeParams' fields in this order)
+(A12, A21, A22, A23, A32, A33, B, C1, C2, C3) = range(10)
+ModeRow = tuple[float, float, float, float, float, float, float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -32,6 +45,13 @@ class ModeParams:
     c1: float
     c2: float
     c3: float
+
+    @property
+    def row(self) -> ModeRow:
+        """(a12, a21, a22, a23, a32, a33, b, c1, c2, c3) as floats: mode_step's `p`."""
+        return (float(self.a12), float(self.a21), float(self.a22), float(self.a23),
+                float(self.a32), float(self.a33), float(self.b), float(self.c1), float(self.c2),
+                float(self.c3))
 
 
 TABLE_I: tuple[ModeParams, ModeParams, ModeParams] = (
@@ -62,25 +82,19 @@ class ThrottleModel:
     def modes(self) -> tuple[ModeParams, ModeParams, ModeParams]:
         return (self.mode1, self.mode2, self.mode3)
 
+    @cached_property
+    def rows(self) -> tuple[ModeRow, ModeRow, ModeRow]:
+        """The three modes' rows (ModeParams.row): eq3_step's `rows` (computed once)."""
+        return (self.mode1.row, self.mode2.row, self.mode3.row)
+
 
 PAPER_THROTTLE = ThrottleModel()
 
 
-def mode_index(theta: float, bounds: tuple[float, float] = MODE_BOUNDS_DEG) -> int:
-    """Return 0, 1 or 2 for Theta_1, Theta_2, Theta_3 (negative theta counts as Theta_1)."""
-    if theta <= bounds[0]:
-        return 0
-    if theta <= bounds[1]:
-        return 1
-    return 2
-
-
-def _sgn(v: float) -> float:
-    return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-
-
+@kernel
 def clip_theta(theta: float) -> float:
-    """Mechanical stops: theta in [0, 90] deg (see docs/models.md, 'clip after every step')."""
+    """Mechanical stops: theta in [0, 90] deg (see docs/models.md, 'clip after every step');
+    NaN passes."""
     if theta < THETA_MIN_DEG:
         return THETA_MIN_DEG
     if theta > THETA_MAX_DEG:
@@ -88,20 +102,41 @@ def clip_theta(theta: float) -> float:
     return theta
 
 
+@kernel
+def mode_step(p: Any, theta: Any, rho: Any, i: Any, u: Any, s_rho: Any, s_theta: Any
+              ) -> tuple[Any, Any, Any]:
+    """Eq. (3) inside one mode, noise-free, before the clip: x_{k+1} = A_s x_k + B_s u_k + c_s
+    with c_s = (0, c1 s_rho + c2 s_theta + c3, 0); p is the mode's row (A12 .. C3). The paper
+    has s_rho = sgn(rho), s_theta = sgn(theta - 1) (eq3_step); the particle filter passes the
+    sign of its theta class and reads its class matrices off this function, its Kalman stretch
+    E[sgn rho]. Plain arithmetic: floats, or numpy arrays elementwise."""
+    return (theta + p[A12] * rho,
+            p[A21] * theta + p[A22] * rho + p[A23] * i + p[C1] * s_rho + p[C2] * s_theta + p[C3],
+            p[A32] * rho + p[A33] * i + p[B] * u)
+
+
+@kernel
+def eq3_step(rows: Any, b1: float, b2: float, theta: float, rho: float, i: float, u: float
+             ) -> tuple[float, float, float]:
+    """Noise-free eq. (3), before the clip: the mode by theta (Theta_1 = theta <= b1, Theta_2 =
+    (b1, b2], Theta_3 above; NaN counts as Theta_3), then mode_step with sgn(rho) and
+    sgn(theta - 1). rows: the three modes' rows (ThrottleModel.rows, or a 3x10 array)."""
+    p = rows[0] if theta <= b1 else (rows[1] if theta <= b2 else rows[2])
+    return mode_step(p, theta, rho, i, u, 1.0 if rho > 0.0 else (-1.0 if rho < 0.0 else 0.0),
+                     1.0 if theta > 1.0 else (-1.0 if theta < 1.0 else 0.0))
+
+
 def step_mean(theta: float, rho: float, i: float, u: float,
               modes: tuple[ModeParams, ...] = TABLE_I,
               bounds: tuple[float, float] = MODE_BOUNDS_DEG) -> tuple[float, float, float]:
-    """Noise-free part of eq. (3): x_{k+1} = A_s x_k + B_s u_k + c_s(x_k), before the clip."""
-    p = modes[mode_index(theta, bounds)]
-    theta_n = theta + p.a12 * rho
-    rho_n = (
-        p.a21 * theta + p.a22 * rho + p.a23 * i
-        + p.c1 * _sgn(rho) + p.c2 * _sgn(theta - 1.0) + p.c3
-    )
-    i_n = p.a32 * rho + p.a33 * i + p.b * u
-    return theta_n, rho_n, i_n
+    """Noise-free part of eq. (3): x_{k+1} = A_s x_k + B_s u_k + c_s(x_k), before the clip
+    (eq3_step for the given modes; callers in a loop call eq3_step.py with the rows)."""
+    rows = PAPER_THROTTLE.rows if modes is TABLE_I else tuple(m.row for m in modes)
+    return eq3_step.py(rows, bounds[0], bounds[1], theta, rho, i, u)
 
 
-def wattmeter_mean(i: float) -> float:
-    """h(x) of eq. (4): the power reading without noise, i**2."""
-    return i * i
+@kernel
+def wattmeter_reading(i: float, h: float, v: float) -> float:
+    """y = i**2 + H v (eq. 4) for the standard Gaussian draw v."""
+    return i * i + h * v
+

@@ -1,7 +1,8 @@
 """Electronic throttle body simulator: stochastic eq. (3) and the Section III-B excitation.
 
-The model itself (Table I, eq. 3-4) is vecu.models.throttle; this module adds state, noise,
-the TPS sensor and the input generator.
+The model itself (Table I, eq. 3-4) is vecu.models.throttle and one step with noise
+vecu.plant.throttle_kernel.plant_step; this module adds state, the noise stream, the TPS sensor
+and the input generator.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ import numpy as np
 from scipy import signal
 
 from vecu.models.sensors import TpsCalibration
-from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel, clip_theta, step_mean
+from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel, wattmeter_reading
 from vecu.plant.input_file import BufferedInput
+from vecu.plant.throttle_kernel import advance_ticks, plant_step
 from vecu.rng import rng_streams
 
 INPUT_CHUNK = 1000  # input samples generated at a time
@@ -44,8 +46,8 @@ class ThrottlePlant:
         self._pos = 0
         self._sig_theta = config.noise_scale * config.model.f_diag[0]
         self._sig_i = config.noise_scale * config.model.f_diag[2]
-        self._modes = config.model.modes
-        self._bounds = config.model.mode_bounds_deg
+        self._rows = config.model.rows
+        self._b1, self._b2 = (float(b) for b in config.model.mode_bounds_deg)
         self._h = config.model.h_wattmeter
 
     def _refill(self) -> None:
@@ -59,16 +61,15 @@ class ThrottlePlant:
             self._refill()
         w = self._noise[self._pos]
         self._pos += 1
-        theta_n, rho_n, i_n = step_mean(self.theta, self.rho, self.i, u, self._modes, self._bounds)
-        self.theta = clip_theta(theta_n + self._sig_theta * w[0])
-        self.rho = rho_n
-        self.i = i_n + self._sig_i * w[1]
+        self.theta, self.rho, self.i = plant_step.py(
+            self._rows, self._b1, self._b2, self._sig_theta, self._sig_i, self.theta, self.rho,
+            self.i, u, w[0], w[1])
 
     def wattmeter(self) -> float:
         """y_k = i_k**2 + v_k (eq. 4), in W (model units)."""
         if self._pos >= len(self._noise):
             self._refill()
-        return self.i * self.i + self._h * self._noise[self._pos][2]
+        return wattmeter_reading.py(self.i, self._h, self._noise[self._pos][2])
 
     def tps_voltage(self, calibration: TpsCalibration) -> float:
         """Position-sensor output for the current angle, with small electrical noise."""
@@ -180,8 +181,7 @@ class TicksAhead:
         model = cfg.model
         self._plant = plant
         self.state = np.array([plant.theta, plant.rho, plant.i], dtype=np.float64)
-        self._modes = np.array([[p.a12, p.a21, p.a22, p.a23, p.a32, p.a33, p.b, p.c1, p.c2, p.c3]
-                                for p in model.modes], dtype=np.float64)
+        self._modes = np.array(model.rows, dtype=np.float64)
         self._cst = np.array([plant._sig_theta, plant._sig_i, model.h_wattmeter, cfg.tps_noise_v,
                               calibration.v_at_0, calibration.v_at_90, *model.mode_bounds_deg],
                              dtype=np.float64)
@@ -192,8 +192,6 @@ class TicksAhead:
     def fill(self, u: list[float]) -> np.ndarray:
         """(len(u), 3) rows (theta, y, TPS voltage) of the next len(u) <= AHEAD ticks with
         inputs u (a view, valid until the next fill)."""
-        from vecu.plant.throttle_kernel import advance_ticks
-
         ua = np.array(u, dtype=np.float64)
         done = 0
         while done < len(ua):

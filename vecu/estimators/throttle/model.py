@@ -1,6 +1,6 @@
 """Filter-side throttle model (Vargas et al. 2015, eqs. 3-4) and the numpy UKF built on it.
 
-f(x, u): the noise-free eq. (3) step (vecu.models.throttle.step_mean) with theta clipped to the
+f(x, u): the noise-free eq. (3) step (vecu.models.throttle.eq3_step) with theta clipped to the
 mechanical stops [0, 90] deg, as in the plant (rho and i untouched).
 h(x) = i^2 (eq. 4). Q = FF^T = diag((alpha F_ii)^2), R = HH^T = 1. x0 = 0, P0 = I (Section III-C).
 Every filter takes its calibration, a ThrottleModel (the ECU's `ecu.throttle.model`; default
@@ -20,7 +20,7 @@ from vecu.models.throttle import (
     PAPER_THROTTLE,
     ThrottleModel,
     clip_theta,
-    step_mean,
+    eq3_step,
 )
 
 N_STATE = 3
@@ -31,10 +31,10 @@ THROTTLE_BOUNDS = DivergenceBounds(max_trace=1e6, max_abs_state=1e6)
 
 
 def f(x: np.ndarray, u: float, model: ThrottleModel = PAPER_THROTTLE) -> np.ndarray:
-    """x_{k+1} = step_mean(x_k, u_k) with theta clipped to [0, 90] (eq. 3 without w)."""
-    th, rho, i = step_mean(float(x[0]), float(x[1]), float(x[2]), u, model.modes,
-                           model.mode_bounds_deg)
-    return np.array([clip_theta(th), rho, i])
+    """x_{k+1} = eq3_step(x_k, u_k) with theta clipped to [0, 90] (eq. 3 without w)."""
+    b1, b2 = model.mode_bounds_deg
+    th, rho, i = eq3_step.py(model.rows, b1, b2, float(x[0]), float(x[1]), float(x[2]), u)
+    return np.array([clip_theta.py(th), rho, i])
 
 
 def h(x: np.ndarray) -> np.ndarray:

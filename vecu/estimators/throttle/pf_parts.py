@@ -1,9 +1,11 @@
 """Parts of the production throttle estimator (vecu.estimators.throttle.production).
 
-Eq. (3) coefficient tables (Vargas et al. 2015, Table I, or the calibration the filter is given,
-a ThrottleModel) laid out for the particle filter, and its particle buffers. The filter splits
+Eq. (3) (Vargas et al. 2015, Table I, or the calibration the filter is given, a ThrottleModel)
+laid out for the particle filter as class matrices, and its particle buffers. The filter splits
 theta into four classes, inside each of which eq. (3) is linear in [theta, rho, i, 1, sgn(rho)]
-(b1, b2: the mode switching angles, 8 and 16 deg in Table I):
+(b1, b2: the mode switching angles, 8 and 16 deg in Table I); the matrices are read off the
+one source, vecu.models.throttle.mode_step, and both particle drivers (numpy, compiled loops)
+and the Kalman stretches evaluate them:
   class 0: theta <= 1        mode 1, sgn(theta - 1) = -1
   class 1: 1 < theta <= b1   mode 1, sgn(theta - 1) = +1
   class 2: b1 < theta <= b2  mode 2
@@ -20,10 +22,12 @@ import numpy as np
 
 from vecu.estimators.common.small_linalg import chol3_floored
 from vecu.models.throttle import (
+    C3,
     MODE_BOUNDS_DEG,
     PAPER_THROTTLE,
     THETA_MAX_DEG,
     ThrottleModel,
+    mode_step,
 )
 
 CLASS_BOUNDS_DEG: tuple[float, float, float] = (1.0, MODE_BOUNDS_DEG[0], MODE_BOUNDS_DEG[1])
@@ -49,14 +53,19 @@ def class_bounds(model: ThrottleModel = PAPER_THROTTLE) -> tuple[float, float, f
 
 
 def _class_rows(c: int, model: ThrottleModel) -> list[list[float]]:
-    """3x5: [theta, rho, i, 1, sgn(rho)] -> [theta', rho', E i'] for class c (eq. 3)."""
-    p = model.modes[_CLASS_MODE[c]]
-    k = p.c2 * _CLASS_SGN_THETA[c] + p.c3
-    return [
-        [1.0, p.a12, 0.0, 0.0, 0.0],
-        [p.a21, p.a22, p.a23, k, p.c1],
-        [0.0, p.a32, p.a33, 0.0, 0.0],  # [2, U_COL] <- b u
-    ]
+    """3x5: [theta, rho, i, 1, sgn(rho)] -> [theta', rho', E i'] for class c, read off eq. (3)
+    (mode_step, affine in those inputs within a class): column j is mode_step at the unit
+    vector e_j with the constant terms off (c3 = 0, u = 0, sgn(theta - 1) = 0), so the
+    coefficients come out exactly; the constant column is mode_step at 0 with the class's
+    sgn(theta - 1). The input column (b u) is class_b. `+ 0.0` turns -0.0 into 0.0."""
+    p = model.rows[_CLASS_MODE[c]]
+    lin = p[:C3] + (0.0,)
+    cols = (mode_step.py(lin, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0),  # theta
+            mode_step.py(lin, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0),  # rho
+            mode_step.py(lin, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0),  # i
+            mode_step.py(p, 0.0, 0.0, 0.0, 0.0, 0.0, _CLASS_SGN_THETA[c]),  # 1
+            mode_step.py(lin, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0))  # sgn(rho)
+    return [[col[r] + 0.0 for col in cols] for r in range(3)]  # [2, U_COL] <- b u
 
 
 def class_matrix_stack(model: ThrottleModel = PAPER_THROTTLE) -> np.ndarray:
@@ -65,8 +74,9 @@ def class_matrix_stack(model: ThrottleModel = PAPER_THROTTLE) -> np.ndarray:
 
 
 def class_b(model: ThrottleModel = PAPER_THROTTLE) -> tuple[float, ...]:
-    """b of each class's mode (the input gain of the current row)."""
-    return tuple(model.modes[_CLASS_MODE[c]].b for c in range(4))
+    """b of each class's mode (the input gain of the current row): mode_step's i' at u = 1."""
+    return tuple(float(mode_step.py(model.rows[_CLASS_MODE[c]], 0.0, 0.0, 0.0, 1.0, 0.0,
+                                    0.0)[2]) + 0.0 for c in range(4))
 
 
 CLASS_B: tuple[float, ...] = class_b()
@@ -122,9 +132,9 @@ class Bank:
 class ModeThreeKalman:
     """Moment-matched Kalman filter for the stretches where the posterior is well inside mode 3.
 
-    There eq. (3) is linear (class-3 matrix; the tiny friction c1 sgn(rho), |c1| = 0.0055, uses
-    E[sgn rho] = erf(rho / (sqrt 2 sigma_rho))), and eq. (4) is handled with the exact Gaussian
-    moments of i^2: E = m^2 + P_ii, Var = 4 m^2 P_ii + 2 P_ii^2 + 1, Cov(x, i^2) = 2 m P[:, i].
+    There eq. (3) is linear (the class-3 matrix, read off mode_step; the tiny friction
+    c1 sgn(rho), |c1| = 0.0055, uses E[sgn rho] = erf(rho / (sqrt 2 sigma_rho))), and eq. (4)
+    is handled with the exact Gaussian moments of i^2: E = m^2 + P_ii, Var = 4 m^2 P_ii + 2 P_ii^2 + 1, Cov(x, i^2) = 2 m P[:, i].
     Plain floats, unrolled 3x3 symmetric algebra (a numpy call costs as much as ~20 float ops).
     The stop at 90 deg is handled by censored-Gaussian moments after each prediction.
     `leave()` says when the particle filter must take over again (a mode switch or a current
@@ -148,8 +158,9 @@ class ModeThreeKalman:
     )
 
     def __init__(self, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE) -> None:
-        p = model.modes[2]
-        self.coef = (p.a12, p.a21, p.a22, p.a23, p.c2 + p.c3, p.c1, p.a32, p.a33, p.b)
+        rows = _class_rows(HIGH_CLASS, model)  # eq. (3) in mode 3, sgn(theta - 1) = 1
+        rows[2][U_COL] = class_b(model)[HIGH_CLASS]  # this row's constant is b u
+        self.coef = tuple(v for row in rows for v in row)
         self.q_th, self.q_i = q_th, q_i
         self.r = model.h_wattmeter * model.h_wattmeter
         self.th = self.rh = self.ci = 0.0
@@ -161,26 +172,32 @@ class ModeThreeKalman:
         self.p11, self.p12, self.p22 = float(cov[1, 1]), float(cov[1, 2]), float(cov[2, 2])
 
     def predict(self, u: float) -> None:
-        """x' = A x + B u + c (mode 3 of eq. 3), P' = A P A^T + Q."""
-        a12, a21, a22, a23, k, c1, a32, a33, b = self.coef
+        """x' = M [x, 1, E sgn rho] with the class-3 matrix M (its constant b u in the i row),
+        P' = A P A^T + Q with A = M's first three columns."""
+        (a00, a01, a02, k0, s0, a10, a11, a12, k1, s1, a20, a21, a22, b, s2) = self.coef
         th, rh, ci = self.th, self.rh, self.ci
         p00, p01, p02, p11, p12, p22 = self.p00, self.p01, self.p02, self.p11, self.p12, self.p22
         sr = math.sqrt(p11) if p11 > 1e-12 else 1e-6
-        self.th = th + a12 * rh
-        self.rh = a21 * th + a22 * rh + a23 * ci + k + c1 * math.erf(rh / (sr * 1.4142135623730951))
-        self.ci = a32 * rh + a33 * ci + b * u
-        # columns P r_j^T for the rows r0 = (1, a12, 0), r1 = (a21, a22, a23), r2 = (0, a32, a33)
-        u0, u1 = p00 + a12 * p01, p01 + a12 * p11
-        v0 = a21 * p00 + a22 * p01 + a23 * p02
-        v1 = a21 * p01 + a22 * p11 + a23 * p12
-        v2 = a21 * p02 + a22 * p12 + a23 * p22
-        w0, w1, w2 = a32 * p01 + a33 * p02, a32 * p11 + a33 * p12, a32 * p12 + a33 * p22
-        self.p00 = u0 + a12 * u1 + self.q_th
-        self.p01 = v0 + a12 * v1
-        self.p02 = w0 + a12 * w1
-        self.p11 = a21 * v0 + a22 * v1 + a23 * v2
-        self.p12 = a21 * w0 + a22 * w1 + a23 * w2
-        self.p22 = a32 * w1 + a33 * w2 + self.q_i
+        e = math.erf(rh / (sr * 1.4142135623730951))  # E[sgn rho] under N(rh, p11)
+        self.th = a00 * th + a01 * rh + a02 * ci + k0 + s0 * e
+        self.rh = a10 * th + a11 * rh + a12 * ci + k1 + s1 * e
+        self.ci = a20 * th + a21 * rh + a22 * ci + b * u + s2 * e
+        # columns P r_j^T of the rows r_j of A
+        u0 = a00 * p00 + a01 * p01 + a02 * p02
+        u1 = a00 * p01 + a01 * p11 + a02 * p12
+        u2 = a00 * p02 + a01 * p12 + a02 * p22
+        v0 = a10 * p00 + a11 * p01 + a12 * p02
+        v1 = a10 * p01 + a11 * p11 + a12 * p12
+        v2 = a10 * p02 + a11 * p12 + a12 * p22
+        w0 = a20 * p00 + a21 * p01 + a22 * p02
+        w1 = a20 * p01 + a21 * p11 + a22 * p12
+        w2 = a20 * p02 + a21 * p12 + a22 * p22
+        self.p00 = a00 * u0 + a01 * u1 + a02 * u2 + self.q_th
+        self.p01 = a00 * v0 + a01 * v1 + a02 * v2
+        self.p02 = a00 * w0 + a01 * w1 + a02 * w2
+        self.p11 = a10 * v0 + a11 * v1 + a12 * v2
+        self.p12 = a10 * w0 + a11 * w1 + a12 * w2
+        self.p22 = a20 * w0 + a21 * w1 + a22 * w2 + self.q_i
         if self.th + 4.0 * math.sqrt(self.p00) > THETA_MAX_DEG:
             self._censor_at_stop()
 

@@ -2,8 +2,10 @@
 
 Same algorithm, guards and reset semantics as ukf.UnscentedFilter + throttle_model, written for
 n = 3 and a scalar wattmeter reading in plain Python floats: unrolled 3x3 Cholesky
-(common.small_linalg.chol3_or_fallback), the sigma pattern pre-extracted into tuples, Table I
-(or the calibration given) pre-extracted per mode, eq. (3) inlined, and the Step-3 sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated point.
+(common.small_linalg.chol3_or_fallback), the sigma pattern pre-extracted into tuples, eq. (3)
+from its one source (vecu.models.throttle.eq3_step, Table I or the calibration given), and the
+Step-3 sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated
+point.
 No numpy in the normal step; the (rare) Cholesky fallback reuses covariance.cholesky_lower so both
 implementations fall back identically. From the same (x, P) one step matches the numpy reference
 to < 1e-9 relative (tests/estimators/common/test_ukf.py; on free runs see docs/models.md for ARM/AGM at alpha = 1).
@@ -12,6 +14,7 @@ to < 1e-9 relative (tests/estimators/common/test_ukf.py; on free runs see docs/m
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -24,20 +27,8 @@ from vecu.estimators.throttle.model import (
     measurement_noise_var,
     process_noise_diag,
 )
-from vecu.models.throttle import (
-    PAPER_THROTTLE,
-    THETA_MAX_DEG,
-    THETA_MIN_DEG,
-    ThrottleModel,
-)
-
-_LO, _HI = THETA_MIN_DEG, THETA_MAX_DEG
-
-
-def mode_tuples(model: ThrottleModel) -> tuple[tuple[float, ...], ...]:
-    """Each mode's eq. (3) coefficients as (a12, a21, a22, a23, a32, a33, b, c1, c2, c3)."""
-    return tuple((p.a12, p.a21, p.a22, p.a23, p.a32, p.a33, p.b, p.c1, p.c2, p.c3)
-                 for p in model.modes)
+from vecu.kernels import kernel
+from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel, clip_theta, eq3_step
 
 
 class FastThrottleUKF:
@@ -59,7 +50,9 @@ class FastThrottleUKF:
             for j in range(s.points)
         )
         self.model = model
-        self._modes = mode_tuples(model)
+        self._rows = model.rows
+        self._pattern_arr = np.array(self._pattern, dtype=np.float64)  # the compiled step's
+        self._rows_arr = np.array(self._rows, dtype=np.float64)
         self._b1, self._b2 = (float(b) for b in model.mode_bounds_deg)
         self._q = process_noise_diag(noise_scale, model.f_diag)
         self._r = measurement_noise_var(model.h_wattmeter)
@@ -120,65 +113,17 @@ class FastThrottleUKF:
 
     def step(self, u_prev: float, y: float | None) -> None:
         """Step 2 (draw) + Step 3 (predict with u_prev; update with y unless None / non-finite)."""
-        l00, l10, l11, l20, l21, l22 = chol3_or_fallback(self.p)
-        x0, x1, x2 = self.x
-        m0, m1, m2 = self._modes
-        b1, b2, lo, hi = self._b1, self._b2, _LO, _HI
-        u = u_prev
-        first = True
-        r0 = r1 = r2 = ry = 0.0
-        s0 = s1 = s2 = sy = 0.0
-        p00 = p01 = p02 = p11 = p12 = p22 = c0 = c1 = c2 = pyy = 0.0
-        for z0, z1, z2, w in self._pattern:
-            t = x0 + l00 * z0
-            r = x1 + (l10 * z0 + l11 * z1)
-            c = x2 + ((l20 * z0 + l21 * z1) + l22 * z2)
-            a12, a21, a22, a23, a32, a33, b, k1, k2, k3 = m0 if t <= b1 else (m1 if t <= b2 else m2)
-            sr = 1.0 if r > 0.0 else (-1.0 if r < 0.0 else 0.0)
-            st = 1.0 if t > 1.0 else (-1.0 if t < 1.0 else 0.0)
-            tn = t + a12 * r
-            if tn < lo:
-                tn = lo
-            elif tn > hi:
-                tn = hi
-            rn = a21 * t + a22 * r + a23 * c + k1 * sr + k2 * st + k3
-            cn = a32 * r + a33 * c + b * u
-            if first:
-                # Moments are accumulated about the first propagated point (shifted one-pass).
-                r0, r1, r2, ry = tn, rn, cn, cn * cn
-                first = False
-                continue
-            d0 = tn - r0
-            d1 = rn - r1
-            d2 = cn - r2
-            dy = cn * cn - ry
-            e0 = d0 * w
-            e1 = d1 * w
-            e2 = d2 * w
-            ey = dy * w
-            s0 += e0
-            s1 += e1
-            s2 += e2
-            sy += ey
-            p00 += e0 * d0
-            p01 += e0 * d1
-            p02 += e0 * d2
-            p11 += e1 * d1
-            p12 += e1 * d2
-            p22 += e2 * d2
-            c0 += d0 * ey
-            c1 += d1 * ey
-            c2 += d2 * ey
-            pyy += dy * ey
-        q0, q1, q2 = self._q
-        self.x = (r0 + s0, r1 + s1, r2 + s2)
-        self.p = (p00 - s0 * s0 + q0, p01 - s0 * s1, p02 - s0 * s2,
-                  p11 - s1 * s1 + q1, p12 - s1 * s2, p22 - s2 * s2 + q2)
-        yp = ry + sy
-        c0 -= s0 * sy
-        c1 -= s1 * sy
-        c2 -= s2 * sy
-        pyy -= sy * sy
+        low = chol3_or_fallback(self.p)
+        run = predict_moments.impl()
+        if run is _PREDICT_PY:
+            out = run(low, self.x, self._pattern, self._rows, self._b1, self._b2, float(u_prev),
+                      self._q)
+        else:
+            out = run(low, self.x, self._pattern_arr, self._rows_arr, self._b1, self._b2,
+                      float(u_prev), self._q)
+        x0, x1, x2, p00, p01, p02, p11, p12, p22, yp, c0, c1, c2, pyy = out
+        self.x = (x0, x1, x2)
+        self.p = (p00, p01, p02, p11, p12, p22)
         if self._diverged():
             self.resets += 1
             yp, c0, c1, c2, pyy = self._prior_moments()
@@ -204,3 +149,60 @@ class FastThrottleUKF:
         if self._diverged():
             self.resets += 1
             self.reset()
+
+
+@kernel
+def predict_moments(low: Any, x: Any, pattern: Any, rows: Any, b1: float, b2: float, u: float,
+                    q: Any) -> tuple[float, ...]:
+    """Step 3's prediction: the sigma points x + L z of `pattern` (rows z0, z1, z2, w), each
+    through eq. (3) (eq3_step, theta clipped), their mean, covariance + Q, y_pred = E[i^2], Pxy
+    and Pyy (without HH^T), accumulated in one pass about the first propagated point. Returns
+    (x0, x1, x2, p00, p01, p02, p11, p12, p22, y_pred, pxy0, pxy1, pxy2, pyy)."""
+    l00, l10, l11, l20, l21, l22 = low
+    x0, x1, x2 = x
+    first = True
+    r0 = r1 = r2 = ry = 0.0
+    s0 = s1 = s2 = sy = 0.0
+    p00 = p01 = p02 = p11 = p12 = p22 = c0 = c1 = c2 = pyy = 0.0
+    for pt in pattern:
+        z0, z1, z2, w = pt[0], pt[1], pt[2], pt[3]
+        t = x0 + l00 * z0
+        r = x1 + (l10 * z0 + l11 * z1)
+        c = x2 + ((l20 * z0 + l21 * z1) + l22 * z2)
+        tn, rn, cn = eq3_step(rows, b1, b2, t, r, c, u)
+        tn = clip_theta(tn)
+        if first:
+            # Moments are accumulated about the first propagated point (shifted one-pass).
+            r0, r1, r2, ry = tn, rn, cn, cn * cn
+            first = False
+            continue
+        d0 = tn - r0
+        d1 = rn - r1
+        d2 = cn - r2
+        dy = cn * cn - ry
+        e0 = d0 * w
+        e1 = d1 * w
+        e2 = d2 * w
+        ey = dy * w
+        s0 += e0
+        s1 += e1
+        s2 += e2
+        sy += ey
+        p00 += e0 * d0
+        p01 += e0 * d1
+        p02 += e0 * d2
+        p11 += e1 * d1
+        p12 += e1 * d2
+        p22 += e2 * d2
+        c0 += d0 * ey
+        c1 += d1 * ey
+        c2 += d2 * ey
+        pyy += dy * ey
+    q0, q1, q2 = q
+    return (r0 + s0, r1 + s1, r2 + s2,
+            p00 - s0 * s0 + q0, p01 - s0 * s1, p02 - s0 * s2,
+            p11 - s1 * s1 + q1, p12 - s1 * s2, p22 - s2 * s2 + q2,
+            ry + sy, c0 - s0 * sy, c1 - s1 * sy, c2 - s2 * sy, pyy - sy * sy)
+
+
+_PREDICT_PY = predict_moments.py
