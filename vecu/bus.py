@@ -26,9 +26,9 @@ from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.virtual import VirtualBus
 from can.typechecking import CanFilter
 
+from vecu.can_message import message
 from vecu.clock import wall_time
 from vecu.errors import UnavailableError
-from vecu.frames import message
 
 DEFAULT_INTERFACE = "virtual"
 DEFAULT_CHANNEL = "vecu"

@@ -42,10 +42,10 @@ from vecu.block_codec import (
     BlockLayout,
     encode_rows,
 )
+from vecu.can_message import message
 from vecu.e2e import E2EProtection, own_protection
 from vecu.errors import BadFileError
-from vecu.framer import EncodeParts, Framer, compile_range_check, make_framer
-from vecu.frames import message
+from vecu.frame_builders import EncodeParts, Framer, compile_range_check, make_framer
 
 DEFAULT_DBC = "vecu.dbc"
 TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
@@ -149,7 +149,7 @@ class FrameCodec:
         self._framers: dict[tuple[str, ...], Framer] = {}
         # crc_ok(payload): its E2E CRC byte is right (True without E2E); bad_values(values): the
         # names of signals NaN / inf or outside the DBC's [minimum, maximum]. Generated code
-        # (autosar-e2e's check, vecu.framer.compile_range_check): called for every frame received
+        # (autosar-e2e's check, vecu.frame_builders.compile_range_check): called for every frame received
         self.crc_ok: Callable[[bytes | bytearray], bool] = (
             _no_crc if self.e2e is None else self.e2e.protection.checker())
         self._protect = None if self.e2e is None else self.e2e.protection.protector()
@@ -239,13 +239,13 @@ class FrameCodec:
         return bytes(data)
 
     def frame(self, values: Mapping[str, float], timestamp: float) -> can.Message:
-        """encode(values) as a can.Message (vecu.frames.message: the fields can.Message gives)."""
+        """encode(values) as a can.Message (vecu.can_message.message: the fields can.Message gives)."""
         return message(timestamp, self.frame_id, self.is_extended, self.encode(values),
                        self.is_fd)
 
     def framer(self, names: Sequence[str]) -> Framer:
         """make(timestamp, *values): frame(dict(zip(names, values)), timestamp) in one generated
-        call (vecu.framer); names are all the message's signals, in the order the caller gives.
+        call (vecu.frame_builders); names are all the message's signals, in the order the caller gives.
         Built once per names (runs share a codec: shared_codec)."""
         names = tuple(names)
         made = self._framers.get(names)

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 
 from vecu.codec import DbcCodec, builtin_dbc_path
 from vecu.fault_kinds import E2E_KINDS, FRAME_KINDS, FRAME_VALUE_LIMITS, FaultKind
+from vecu.scenario.batch import run_scenario
 from vecu.scenario.loader import load_scenario
-from vecu.scenario.runner import run_scenario
 
 CODEC = DbcCodec([builtin_dbc_path()])
 MESSAGES = sorted(fc.name for fc in CODEC.by_id.values()

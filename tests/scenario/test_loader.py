@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
+from vecu.scenario.batch import run_scenario
 from vecu.scenario.loader import ScenarioError, load_scenario
-from vecu.scenario.runner import run_scenario
 
 
 @pytest.mark.parametrize("text,key,needle", [

@@ -10,9 +10,9 @@ import pytest
 
 from vecu.cli import main as cli_main
 from vecu.runner import RunConfig, run
+from vecu.scenario.batch import run_scenario, run_scenarios
 from vecu.scenario.loader import ScenarioError, load_scenario
 from vecu.scenario.report import write_html, write_junit
-from vecu.scenario.runner import run_scenario, run_scenarios
 
 REPO = Path(__file__).resolve().parents[2]
 SHIPPED = sorted((REPO / "vecu" / "data" / "scenarios").glob("*.toml"))

@@ -151,8 +151,8 @@ def bench_scenarios(limit: int | None = None) -> dict[str, Any]:
     """The shipped scenarios one after another in this process (as `vecu scenario run
     $(vecu scenario list --names)`): total wall time and verdicts; `limit` runs only the first ones."""
     from vecu import kernels
+    from vecu.scenario.batch import run_scenarios
     from vecu.scenario.loader import load_scenario
-    from vecu.scenario.runner import run_scenarios
 
     files = shipped_scenarios()[:limit]
     if not files:

@@ -34,9 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from vecu.scenario.batch import run_scenarios
     from vecu.scenario.loader import load_scenario
     from vecu.scenario.report import write_html, write_junit
-    from vecu.scenario.runner import run_scenarios
     from vecu.shipped import resolve
 
     configure_logging(quiet=True)  # errors only: the scenario lines are the output

@@ -14,10 +14,10 @@ import can
 import numpy as np
 
 from vecu.bus import BusNode
+from vecu.can_message import message
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
-from vecu.frames import message
 from vecu.kernels import backend
 from vecu.models.lateral import VehicleParams
 from vecu.models.manifold import (

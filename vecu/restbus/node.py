@@ -21,11 +21,11 @@ from typing import Any, Protocol
 import can
 import numpy as np
 
+from vecu.can_message import message
 from vecu.codec import FrameCodec
 from vecu.e2e import E2EProtection
 from vecu.errors import BadArgumentError
 from vecu.faults import FAULT_SOURCES, ScheduledFault
-from vecu.frames import message
 from vecu.restbus import disturb
 from vecu.restbus.values import Source
 

@@ -23,7 +23,7 @@ class CriterionResult:
 
 @dataclass(frozen=True)
 class ScenarioOutcome:
-    """One scenario's verdict: criteria, timing, plot, error (vecu.scenario.runner)."""
+    """One scenario's verdict: criteria, timing, plot, error (vecu.scenario.batch)."""
 
     name: str
     path: str

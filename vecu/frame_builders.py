@@ -4,7 +4,7 @@ without the dict, the encode / CRC / Message call chain) and the receive range c
 
 The code is put together from the lines the codec's generated encoder uses for each signal
 (vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E protection
-(autosar-e2e's protect, in place) and vecu.frames.message. A value the generated encoder would
+(autosar-e2e's protect, in place) and vecu.can_message.message. A value the generated encoder would
 refuse (not a number, a raw value that does not fit) makes the builder return
 `slow(ts, values)`, which is FrameCodec.frame with the dict: the same frame either way.
 """
@@ -18,7 +18,7 @@ from typing import Any
 
 import can
 
-from vecu.frames import message
+from vecu.can_message import message
 
 Framer = Callable[..., can.Message]  # make(timestamp, *values in the names' order)
 FrameCodecLike = Any  # vecu.codec.FrameCodec (which imports this module)

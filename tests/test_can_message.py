@@ -1,4 +1,4 @@
-"""vecu.frames.message: the can.Message python-can itself would build, field for field."""
+"""vecu.can_message.message: the can.Message python-can itself would build, field for field."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import random
 
 import can
 
-from vecu import frames
+from vecu import can_message as frames
 from vecu.codec import DbcCodec
 
 

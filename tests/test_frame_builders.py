@@ -1,4 +1,4 @@
-"""FrameCodec.framer (vecu.framer): make(ts, *values) gives exactly FrameCodec.frame's Message,
+"""FrameCodec.framer (vecu.frame_builders): make(ts, *values) gives exactly FrameCodec.frame's Message,
 or raises what frame() raises, on every message of vecu's DBCs and the third-party ones."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from tests.dbc_sets import every_message
+from vecu.can_message import same_message
 from vecu.codec import DbcCodec
-from vecu.framer import compile_range_check
-from vecu.frames import same_message
+from vecu.frame_builders import compile_range_check
 
 RUNS = 120  # value sets per message
 

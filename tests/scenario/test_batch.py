@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import io
 
+from vecu.scenario.batch import Progress, run_scenarios
 from vecu.scenario.loader import load_scenario
-from vecu.scenario.runner import Progress, run_scenarios
 
 
 def test_progress_of_a_day_long_scenario_comes_every_interval_of_wall_time():
