@@ -3,7 +3,7 @@
 - `filter_events`: the filters' event loop over many events (ManifoldKF.run_events): the "iterate"
   SDKF, the EKF or the adaptive EKF, each event the one-event kernel the per-event path calls
   (event.sdkf_event, event.ekf_event, adaptive_event.adaptive_event), so a block gives bit for bit
-  what stepping gives (tests/estimators/manifold/test_block_kernels.py). It runs only the events
+  what stepping gives (tests/estimators/manifold/test_runs.py). It runs only the events
   the kernels decide alone: it stops at the first event with an implausible input, a rejected
   reading, a fallback or a divergence, the filter's step() takes that event, the next block starts.
 - `ecu_event`: what ManifoldFunction.run asks of the filter and the CAC prediction for an event,
