@@ -86,7 +86,6 @@ class _SteeringFilter:
     def __init__(self, model: SteeringModel, record: bool, history_maxlen: int | None) -> None:
         self.model = model
         self._cst = sm.constants(model)
-        self.i_s = self._cst[sm.IS]
         self._gate2 = model.gate_sigma ** 2
         self._x0 = tuple(float(v) for v in model.x0())
         self._p0 = p10_from_matrix(model.P0())
@@ -123,15 +122,15 @@ class _SteeringFilter:
     @property
     def swa_rad(self) -> float:
         """Steering-wheel angle estimate i_s * delta."""
-        return self.i_s * self._x[2]
+        return sm.swa(self._x, self._cst)
 
     @property
     def swa_std_rad(self) -> float:
-        return self.i_s * math.sqrt(max(self._p[7], 0.0))
+        return self._cst[sm.IS] * math.sqrt(max(self._p[7], 0.0))
 
     @property
     def side_slip_rad(self) -> float:
-        return math.atan2(self._x[0], self.v_x)
+        return sm.side_slip(self._x, self.v_x)
 
     @property
     def rejected(self) -> int:

@@ -21,6 +21,7 @@ Python. Only scalar IEEE arithmetic and libm calls: both backends give the same 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -144,12 +145,12 @@ def h(x: State, vx: float, cst: Any) -> tuple[float, float]:
     return x[1], _accel(x[0], x[1], x[2], vx, cst)[0]
 
 
-def swa(x: State | np.ndarray, cst: Any) -> float:
+def swa(x: Sequence[float] | np.ndarray, cst: Any) -> float:
     """Steering-wheel angle i_s * delta (rad)."""
     return cst[IS] * float(x[2])
 
 
-def side_slip(x: State | np.ndarray, vx: float) -> float:
+def side_slip(x: Sequence[float] | np.ndarray, vx: float) -> float:
     """beta = atan(v_y / v_x) (rad)."""
     return math.atan2(float(x[0]), vx)
 

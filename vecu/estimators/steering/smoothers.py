@@ -15,7 +15,6 @@ code is the extended RTS smoother.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,7 +24,7 @@ from vecu.estimators.steering import rts
 from vecu.estimators.steering.base import FilterRun, LaggedEstimate
 from vecu.estimators.steering.filters import SteeringUKF, _SteeringFilter
 from vecu.estimators.steering.history import COL_G, rows_from_run
-from vecu.estimators.steering.model import SteeringModel
+from vecu.estimators.steering.model import SteeringModel, side_slip, swa
 from vecu.kernels import Kernel, backend
 
 
@@ -131,10 +130,9 @@ class FixedLagSmoother:
         x = np.array(xt, dtype=float)
         ring = self.filter._ring
         vx = ring.oldest_vx() if ring is not None and ring.count else self.filter.v_x
-        i_s = self.filter.i_s
+        cst = self.filter._cst
         return LaggedEstimate(step=step, t_s=step * self._dt, lag_steps=self.lag, x=x,
-                              swa_rad=i_s * float(x[2]),
-                              side_slip_rad=math.atan2(float(x[0]), vx))
+                              swa_rad=swa(x, cst), side_slip_rad=side_slip(x, vx))
 
     def flush(self) -> list[LaggedEstimate]:
         """Smoothed estimates of the steps not yet returned (end of a run), oldest first."""
@@ -148,9 +146,8 @@ class FixedLagSmoother:
         _impl(rts.smooth_window)(ring.hist, ring.newest(), n_buf, out)
         ms = out.tolist()
         vxs = ring.vx()
-        i_s = f.i_s
         skip = 1 if f.steps - 1 >= self.lag else 0  # the oldest one was already returned
         return [LaggedEstimate(step=first + j, t_s=(first + j) * self._dt, lag_steps=self.lag,
-                               x=np.array(ms[j]), swa_rad=i_s * float(ms[j][2]),
-                               side_slip_rad=math.atan2(float(ms[j][0]), vxs[j]))
+                               x=np.array(ms[j]), swa_rad=swa(ms[j], f._cst),
+                               side_slip_rad=side_slip(ms[j], vxs[j]))
                 for j in range(skip, n_buf)]
