@@ -56,19 +56,16 @@ def arguments(cst: tuple[float, ...], pts: tuple[tuple[float, ...], ...], compil
 
 
 @kernel
-def sigma_offsets(low: Any, pts: Any) -> np.ndarray:
-    """eq. 16: rows S z_j for each pattern row, S the lower factor `low` (10 entries)."""
+def sigma_offsets(low: Any, pts: Any) -> list:
+    """eq. 16: S z_j for each pattern row, S the lower factor `low` (10 entries, row by row)."""
     l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = low
-    n = len(pts)
-    dz = np.empty((n, 4))
-    for j in range(n):
+    out = []
+    for j in range(len(pts)):
         z = pts[j]
         z0, z1, z2, z3 = z[0], z[1], z[2], z[3]
-        dz[j, 0] = l00 * z0
-        dz[j, 1] = l10 * z0 + l11 * z1
-        dz[j, 2] = l20 * z0 + l21 * z1 + l22 * z2
-        dz[j, 3] = l30 * z0 + l31 * z1 + l32 * z2 + l33 * z3
-    return dz
+        out.append((l00 * z0, l10 * z0 + l11 * z1, l20 * z0 + l21 * z1 + l22 * z2,
+                    l30 * z0 + l31 * z1 + l32 * z2 + l33 * z3))
+    return out
 
 
 @kernel
@@ -79,25 +76,24 @@ def predict_with_factor(low: Any, x: Any, vx: float, cst: Any, pts: Any, hist: A
     x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
     dz = sigma_offsets(low, pts)
     n = len(dz)
-    pr = np.empty((n, 4))
+    props = []
     for j in range(n):
-        c0, c1, c2, c3 = transition(x0 + dz[j, 0], x1 + dz[j, 1], x2 + dz[j, 2],
-                                    x3 + dz[j, 3], vx, cst)
-        pr[j, 0], pr[j, 1], pr[j, 2], pr[j, 3] = c0, c1, c2, c3
+        d0, d1, d2, d3 = dz[j]
+        props.append(transition(x0 + d0, x1 + d1, x2 + d2, x3 + d3, vx, cst))
     m0 = m1 = m2 = m3 = 0.0
     for j in range(n):
         w = pts[j][4]
-        c0, c1, c2, c3 = pr[j, 0], pr[j, 1], pr[j, 2], pr[j, 3]
+        c0, c1, c2, c3 = props[j]
         m0 += w * c0
         m1 += w * c1
         m2 += w * c2
         m3 += w * c3
     p00, p01, p02, p03, p11 = cst[Q0], cst[Q0 + 1], cst[Q0 + 2], cst[Q0 + 3], cst[Q0 + 4]
     p12, p13, p22, p23, p33 = cst[Q0 + 5], cst[Q0 + 6], cst[Q0 + 7], cst[Q0 + 8], cst[Q0 + 9]
-    cr = np.zeros(16)
+    cr = [0.0] * 16
     for j in range(n):
         w = pts[j][4]
-        c0, c1, c2, c3 = pr[j, 0], pr[j, 1], pr[j, 2], pr[j, 3]
+        c0, c1, c2, c3 = props[j]
         e0, e1, e2, e3 = c0 - m0, c1 - m1, c2 - m2, c3 - m3
         a0, a1, a2, a3 = w * e0, w * e1, w * e2, w * e3
         p00 += a0 * e0
@@ -111,16 +107,15 @@ def predict_with_factor(low: Any, x: Any, vx: float, cst: Any, pts: Any, hist: A
         p23 += a2 * e3
         p33 += a3 * e3
         if rec:  # C = sum w (chi - x)(chi' - x_pred)^T
+            dj = dz[j]
             for i in range(4):
-                di = dz[j, i]
+                di = dj[i]
                 cr[4 * i] += di * a0
                 cr[4 * i + 1] += di * a1
                 cr[4 * i + 2] += di * a2
                 cr[4 * i + 3] += di * a3
-    # float(): plain Python read numpy scalars above; the state stays Python floats
-    xp = (float(m0), float(m1), float(m2), float(m3))
-    pp = (float(p00), float(p01), float(p02), float(p03), float(p11), float(p12), float(p13),
-          float(p22), float(p23), float(p33))
+    xp = (m0, m1, m2, m3)
+    pp = (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
     if rec:
         for i in range(4):
             hist[slot, COL_XP + i] = xp[i]
@@ -149,9 +144,10 @@ def ay_moments_with_factor(low: Any, x: Any, vx: float, cst: Any, pts: Any
     x0, x1, x2 = x[0], x[1], x[2]
     dz = sigma_offsets(low, pts)
     n = len(dz)
-    gam = np.empty(n)
+    gam = []
     for j in range(n):
-        gam[j] = accelerations(x0 + dz[j, 0], x1 + dz[j, 1], x2 + dz[j, 2], vx, cst)[0]
+        d0, d1, d2, _ = dz[j]
+        gam.append(accelerations(x0 + d0, x1 + d1, x2 + d2, vx, cst)[0])
     ym = 0.0
     for j in range(n):
         ym += pts[j][4] * gam[j]
@@ -161,11 +157,12 @@ def ay_moments_with_factor(low: Any, x: Any, vx: float, cst: Any, pts: Any
         g = gam[j]
         a = pts[j][4] * (g - ym)
         s += a * (g - ym)
-        c0 += a * dz[j, 0]
-        c1 += a * dz[j, 1]
-        c2 += a * dz[j, 2]
-        c3 += a * dz[j, 3]
-    return True, float(ym), float(s), float(c0), float(c1), float(c2), float(c3)
+        d0, d1, d2, d3 = dz[j]
+        c0 += a * d0
+        c1 += a * d1
+        c2 += a * d2
+        c3 += a * d3
+    return True, ym, s, c0, c1, c2, c3
 
 
 @kernel
