@@ -1,6 +1,6 @@
 """vecu.models.lateral's tyre curve, the one copy of D sin(C atan(B alpha)): its value, its slope
 against finite differences, the axle forces built on it, and the same bits under every kernel
-backend (called directly and from inside the steering kernels)."""
+backend (called directly and from inside the steering model's kernels)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from vecu.estimators.steering import kernels as sk
 from vecu.estimators.steering import model as sm
-from vecu.estimators.steering.filters import SteeringUKF
 from vecu.models import lateral as lat
 
 
@@ -53,18 +51,19 @@ def test_every_backend_gives_the_reference_bits(backend):
             lat.tyre_force_slope.py(t.d_r, t.c, t.b_r, a)
 
 
-def test_plant_filter_model_and_kernels_share_the_curve(backend):
-    """axle_forces (plant), steering_model.h_ay / f (filters) and the steering kernels'
-    lateral_accel / transition (which call tyre_force as a kernel) agree bit for bit."""
+def test_plant_and_filter_model_share_the_curve(backend):
+    """axle_forces (plant) and the steering model's accelerations kernel (which calls
+    tyre_force as a kernel; compiled under numba) give the same a_y bit for bit."""
     p = lat.VehicleParams()
     t = lat.tyre_consts(p)
-    f = SteeringUKF()
-    k, cst = f.k, f._cst
+    cst = sm.constants(sm.SteeringModel(params=p))
     rng = np.random.default_rng(9)
     for _ in range(200):
         x = tuple(float(v) for v in rng.normal(0.0, [0.5, 0.3, 0.1, 0.5]))
         vx = float(rng.uniform(3.0, 40.0))
         ff, fr = lat.axle_forces(x[0], x[1], x[2], vx, p, t)
-        assert sm.h_ay(x, vx, k) == (ff * math.cos(x[2]) + fr) / p.mass_kg
-        assert sk.lateral_accel(x[0], x[1], x[2], vx, cst) == sm.h_ay(x, vx, k)
-        assert sk.transition(*x, vx, cst) == sm.f(x, vx, k)
+        assert sm.accelerations(x[0], x[1], x[2], vx, cst)[0] == \
+            (ff * math.cos(x[2]) + fr) / p.mass_kg
+        assert sm.accelerations(x[0], x[1], x[2], vx, cst) == \
+            sm.accelerations.py(x[0], x[1], x[2], vx, cst)
+        assert sm.transition(*x, vx, cst) == sm.transition.py(*x, vx, cst)

@@ -10,18 +10,25 @@ y = [r, a_y] (gyro, accelerometer; the paper's eq. 2 with a nonlinear h).
 Discretisation (dt = 10 ms): Heun (explicit trapezoid) on the continuous dynamics, the input held:
   k1 = g(x), x1 = x + dt k1, k2 = g(x1), x+ = x + dt/2 (k1 + k2).
 `jacobian_f` is the exact Jacobian of that map, I + dt/2 (A(x) + A(x1) (I + dt A(x))), and
-`jacobian_h` that of h; both are tested against finite differences.
-Pure functions on tuples of floats (the filters' hot path) with numpy wrappers for the matrices.
+`jacobian_h` that of h; both are tested against finite differences (the EKF's).
+
+`accelerations` and `transition` are the one copy of the model's equations: vecu.kernels kernels
+on a constants vector (`constants`), which the UKF (vecu.estimators.steering.unscented) runs
+compiled under the numba backend and as plain Python otherwise, and the EKF calls as plain
+Python. Only scalar IEEE arithmetic and libm calls: both backends give the same bits.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from vecu.estimators.common.covariance import DivergenceBounds
+from vecu.kernels import kernel
 from vecu.models.lateral import (
     DT_S,
     TyreConsts,
@@ -37,8 +44,7 @@ V_X_MIN = 3.0  # m/s: the single-track model is singular at standstill; v_x is c
 STEERING_BOUNDS = DivergenceBounds(max_trace=1e3, max_abs_state=1e2)
 
 State = tuple[float, float, float, float]
-_tyre = tyre_force.py  # the plain-Python reference (hot path: no backend dispatch)
-_tyre_slope = tyre_force_slope.py
+_tyre_slope = tyre_force_slope.py  # plain Python (the EKF's Jacobians)
 
 
 @dataclass(frozen=True)
@@ -85,137 +91,119 @@ class SteeringModel:
         return np.diag(np.square(self.p0_std))
 
 
-@dataclass(frozen=True)
-class Consts:
-    """Everything the hot path needs, as plain floats (built once per filter)."""
-
-    dt: float
-    m: float
-    iz: float
-    lf: float
-    lr: float
-    d_f: float
-    b_f: float
-    d_r: float
-    b_r: float
-    c: float
-    i_s: float
+# constants vector (`constants`): what the filters' equations read, as plain floats (a tuple for
+# plain Python, a float64 array for compiled callers; the same indices)
+DT, M, IZ, LF, LR, DF, BF, DR, BR, C, IS, R_R, R_AY, Q0 = range(14)  # Q: 10 entries from Q0
+N_CONSTS = Q0 + 10
 
 
-def consts(model: SteeringModel) -> Consts:
+def constants(model: SteeringModel) -> tuple[float, ...]:
+    """(dt, M, I_z, l_f, l_r, D_f, B_f, D_r, B_r, C, i_s, sigma_r^2, sigma_ay^2, Q's upper
+    triangle row by row), indexed by the names above."""
     p, t = model.params, model.tyres
-    return Consts(model.dt_s, p.mass_kg, p.yaw_inertia_kgm2, p.l_f_m, p.l_r_m,
-                  t.d_f, t.b_f, t.d_r, t.b_r, t.c, p.steering_ratio)
+    Q = process_noise(model)
+    return tuple(float(v) for v in (
+        model.dt_s, p.mass_kg, p.yaw_inertia_kgm2, p.l_f_m, p.l_r_m, t.d_f, t.b_f, t.d_r, t.b_r,
+        t.c, p.steering_ratio, model.sigma_r ** 2, model.sigma_ay ** 2,
+        *(Q[i, j] for i in range(4) for j in range(i, 4))))
 
 
-def _forces(vy: float, r: float, d: float, vx: float, k: Consts) -> tuple[float, float]:
-    """(F_yf cos delta, F_yr) from the slip angles (vecu.models.lateral.tyre_force)."""
-    ff = _tyre(k.d_f, k.c, k.b_f, d - (vy + k.lf * r) / vx)
-    fr = _tyre(k.d_r, k.c, k.b_r, (k.lr * r - vy) / vx)
-    return ff * math.cos(d), fr
+@kernel
+def accelerations(vy: float, r: float, d: float, vx: float, cst: Any) -> tuple[float, float]:
+    """(a_y, r') = ((F_yf cos delta + F_yr) / M, (l_f F_yf cos delta - l_r F_yr) / I_z): the
+    paper's lateral (4) and yaw (11) motion per axle, the tyre forces from the slip angles by
+    vecu.models.lateral.tyre_force. a_y is also the accelerometer's quantity (eq. 2's nonlinear
+    h) and v_y' = a_y - v_x r."""
+    ffc = tyre_force(cst[DF], cst[C], cst[BF], d - (vy + cst[LF] * r) / vx) * math.cos(d)
+    fr = tyre_force(cst[DR], cst[C], cst[BR], (cst[LR] * r - vy) / vx)
+    return (ffc + fr) / cst[M], (cst[LF] * ffc - cst[LR] * fr) / cst[IZ]
 
 
-def deriv(x: State, vx: float, k: Consts) -> State:
+@kernel
+def transition(vy: float, r: float, d: float, dd: float, vx: float, cst: Any
+               ) -> tuple[float, float, float, float]:
+    """x_{k+1} = f(x_k, v_x): one Heun step of `deriv` (module docstring), dt = cst[DT];
+    x + dt/2 (g(x) + g(x + dt g(x))) with the sums in this order (the golden logs' bits)."""
+    dt = cst[DT]
+    ay1, rd1 = accelerations(vy, r, d, vx, cst)
+    a1 = ay1 - vx * r
+    vy2, r2, d2 = vy + dt * a1, r + dt * rd1, d + dt * dd
+    ay2, rd2 = accelerations(vy2, r2, d2, vx, cst)
+    h2 = 0.5 * dt
+    return vy + h2 * (a1 + ay2 - vx * r2), r + h2 * (rd1 + rd2), d2, dd
+
+
+def deriv(x: State, vx: float, cst: Any) -> State:
     """Continuous dynamics g(x) = (v_y', r', delta', delta_dot') (eqs. 4, 11; delta_ddot = 0)."""
     vy, r, d, dd = x
-    ffc, fr = _forces(vy, r, d, vx, k)
-    return ((ffc + fr) / k.m - vx * r, (k.lf * ffc - k.lr * fr) / k.iz, dd, 0.0)
+    ay, rd = _accel(vy, r, d, vx, cst)
+    return (ay - vx * r, rd, dd, 0.0)
 
 
-def f(x: State, vx: float, k: Consts) -> State:
-    """Discrete transition x_{k+1} = f(x_k, v_x) (Heun, dt = k.dt). `deriv` inlined twice (this
-    is the UKF's hot path); equal to x + dt/2 (g(x) + g(x + dt g(x))) (tested)."""
-    dt = k.dt
-    vy, r, d, dd = x
-    lf, lr, m, iz, c = k.lf, k.lr, k.m, k.iz, k.c
-    tyre, cos = _tyre, math.cos
-    ffc = tyre(k.d_f, c, k.b_f, d - (vy + lf * r) / vx) * cos(d)
-    fr = tyre(k.d_r, c, k.b_r, (lr * r - vy) / vx)
-    a1 = (ffc + fr) / m - vx * r
-    b1 = (lf * ffc - lr * fr) / iz
-    vy2, r2, d2 = vy + dt * a1, r + dt * b1, d + dt * dd
-    ffc = tyre(k.d_f, c, k.b_f, d2 - (vy2 + lf * r2) / vx) * cos(d2)
-    fr = tyre(k.d_r, c, k.b_r, (lr * r2 - vy2) / vx)
-    h2 = 0.5 * dt
-    return (vy + h2 * (a1 + (ffc + fr) / m - vx * r2),
-            r + h2 * (b1 + (lf * ffc - lr * fr) / iz), d2, dd)
+def h(x: State, vx: float, cst: Any) -> tuple[float, float]:
+    """Measurement (r, a_y) (eq. 2 with a nonlinear h)."""
+    return x[1], _accel(x[0], x[1], x[2], vx, cst)[0]
 
 
-def f_reference(x: State, vx: float, k: Consts) -> State:
-    """`f` written plainly with `deriv` (for tests)."""
-    dt = k.dt
-    g1 = deriv(x, vx, k)
-    x1 = tuple(x[i] + dt * g1[i] for i in range(4))
-    g2 = deriv(x1, vx, k)  # type: ignore[arg-type]  # a 4-tuple built by a generator
-    return tuple(x[i] + 0.5 * dt * (g1[i] + g2[i]) for i in range(4))  # type: ignore[return-value]  # a 4-tuple built by a generator
-
-
-def h(x: State, vx: float, k: Consts) -> tuple[float, float]:
-    """Measurement (r, a_y) with a_y = (F_yf cos delta + F_yr) / M."""
-    ffc, fr = _forces(x[0], x[1], x[2], vx, k)
-    return x[1], (ffc + fr) / k.m
-
-
-def h_ay(x: State, vx: float, k: Consts) -> float:
-    """The nonlinear row of h: a_y."""
-    ffc, fr = _forces(x[0], x[1], x[2], vx, k)
-    return (ffc + fr) / k.m
-
-
-def swa(x: State | np.ndarray, k: Consts) -> float:
+def swa(x: Sequence[float] | np.ndarray, cst: Any) -> float:
     """Steering-wheel angle i_s * delta (rad)."""
-    return k.i_s * float(x[2])
+    return cst[IS] * float(x[2])
 
 
-def side_slip(x: State | np.ndarray, vx: float) -> float:
+def side_slip(x: Sequence[float] | np.ndarray, vx: float) -> float:
     """beta = atan(v_y / v_x) (rad)."""
     return math.atan2(float(x[0]), vx)
 
 
+_accel = accelerations.py  # plain-Python callers (the EKF, the Jacobians): no backend dispatch
+
+
 # --------------------------------------------------------------------------- Jacobians
-def _force_grads(vy: float, r: float, d: float, vx: float, k: Consts
+def _force_grads(vy: float, r: float, d: float, vx: float, k: Any
                  ) -> tuple[float, float, tuple[float, float, float], tuple[float, float]]:
     """(F_yf cos d, F_yr, d(F_yf cos d)/d(vy, r, d), dF_yr/d(vy, r))."""
-    af = d - (vy + k.lf * r) / vx
-    ar = (k.lr * r - vy) / vx
-    ff, dff = _tyre_slope(k.d_f, k.c, k.b_f, af)  # F_f, dF_f/d alpha_f
-    fr, dfr = _tyre_slope(k.d_r, k.c, k.b_r, ar)
+    af = d - (vy + k[LF] * r) / vx
+    ar = (k[LR] * r - vy) / vx
+    ff, dff = _tyre_slope(k[DF], k[C], k[BF], af)  # F_f, dF_f/d alpha_f
+    fr, dfr = _tyre_slope(k[DR], k[C], k[BR], ar)
     cd, sd = math.cos(d), math.sin(d)
-    g_f = (-dff * cd / vx, -dff * cd * k.lf / vx, dff * cd - ff * sd)
-    g_r = (-dfr / vx, dfr * k.lr / vx)
+    g_f = (-dff * cd / vx, -dff * cd * k[LF] / vx, dff * cd - ff * sd)
+    g_r = (-dfr / vx, dfr * k[LR] / vx)
     return ff * cd, fr, g_f, g_r
 
 
-def jacobian_g(x: State, vx: float, k: Consts) -> np.ndarray:
+def jacobian_g(x: State, vx: float, k: Any) -> np.ndarray:
     """A(x) = dg/dx of the continuous dynamics."""
     _, _, gf, gr = _force_grads(x[0], x[1], x[2], vx, k)
+    m, iz, lf, lr = k[M], k[IZ], k[LF], k[LR]
     A = np.zeros((4, 4))
-    A[0, 0] = (gf[0] + gr[0]) / k.m
-    A[0, 1] = (gf[1] + gr[1]) / k.m - vx
-    A[0, 2] = gf[2] / k.m
-    A[1, 0] = (k.lf * gf[0] - k.lr * gr[0]) / k.iz
-    A[1, 1] = (k.lf * gf[1] - k.lr * gr[1]) / k.iz
-    A[1, 2] = k.lf * gf[2] / k.iz
+    A[0, 0] = (gf[0] + gr[0]) / m
+    A[0, 1] = (gf[1] + gr[1]) / m - vx
+    A[0, 2] = gf[2] / m
+    A[1, 0] = (lf * gf[0] - lr * gr[0]) / iz
+    A[1, 1] = (lf * gf[1] - lr * gr[1]) / iz
+    A[1, 2] = lf * gf[2] / iz
     A[2, 3] = 1.0
     return A
 
 
-def jacobian_f(x: State, vx: float, k: Consts) -> np.ndarray:
-    """Exact Jacobian of the Heun step `f`: I + dt/2 (A(x) + A(x1) (I + dt A(x)))."""
-    dt = k.dt
+def jacobian_f(x: State, vx: float, k: Any) -> np.ndarray:
+    """Exact Jacobian of the Heun step `transition`: I + dt/2 (A(x) + A(x1) (I + dt A(x)))."""
+    dt = k[DT]
     A0 = jacobian_g(x, vx, k)
     g0 = deriv(x, vx, k)
-    x1 = tuple(x[i] + dt * g0[i] for i in range(4))
-    A1 = jacobian_g(x1, vx, k)  # type: ignore[arg-type]  # a 4-tuple built by a generator
+    x1 = (x[0] + dt * g0[0], x[1] + dt * g0[1], x[2] + dt * g0[2], x[3] + dt * g0[3])
+    A1 = jacobian_g(x1, vx, k)
     eye = np.eye(4)
     return eye + 0.5 * dt * (A0 + A1 @ (eye + dt * A0))
 
 
-def jacobian_h(x: State, vx: float, k: Consts) -> np.ndarray:
+def jacobian_h(x: State, vx: float, k: Any) -> np.ndarray:
     """H = dh/dx (2 x 4): [0, 1, 0, 0] and d a_y / dx."""
     _, _, gf, gr = _force_grads(x[0], x[1], x[2], vx, k)
+    m = k[M]
     return np.array([[0.0, 1.0, 0.0, 0.0],
-                     [(gf[0] + gr[0]) / k.m, (gf[1] + gr[1]) / k.m, gf[2] / k.m, 0.0]])
+                     [(gf[0] + gr[0]) / m, (gf[1] + gr[1]) / m, gf[2] / m, 0.0]])
 
 
 # --------------------------------------------------------------------------- noise

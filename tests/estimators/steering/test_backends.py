@@ -1,10 +1,10 @@
-"""The steering UKF + fixed-lag smoother under every kernel backend (numba:
-vecu.estimators.steering.kernels) give exactly (==, measured max |difference| 0) what the Python
-backend gives, and the same again on a second run: filter outputs, smoothed outputs, the recorded
-history and every counter, on a long manoeuvre and on a run with bad readings, resets, gating and
-clipping; with the Cholesky fallback; across a backend switch in the middle of a run. The
-kernels' model functions equal steering_model's. Each property is one test over the backends
-(tests/conftest.py `backend`; the python reference is computed once per module)."""
+"""The steering UKF + fixed-lag smoother under every kernel backend (the kernels of
+vecu.estimators.steering.model / unscented / rts compiled by numba, or run as plain Python) give
+exactly (==, measured max |difference| 0) what the Python backend gives, and the same again on a
+second run: filter outputs, smoothed outputs, the recorded history and every counter, on a long
+manoeuvre and on a run with bad readings, resets, gating and clipping; with the Cholesky
+fallback; across a backend switch in the middle of a run. Each property is one test over the
+backends (tests/conftest.py `backend`; the python reference is computed once per module)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from vecu import kernels
-from vecu.estimators.common.small_linalg import chol4, chol4_or_fallback
-from vecu.estimators.steering import kernels as sk
-from vecu.estimators.steering import model as sm
+from vecu.estimators.common.small_linalg import chol4
+from vecu.estimators.steering import rts
+from vecu.estimators.steering import unscented as uk
 from vecu.estimators.steering.filters import SteeringUKF
+from vecu.estimators.steering.history import COL_C, COL_G, COL_PP, N_COLS
 from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
 
@@ -129,7 +130,7 @@ def _non_pd_filter() -> SteeringUKF:
     p[0] = p[4] = 0.04  # p00 = p11
     p[1] = 0.0401  # p01
     p[2] = p[3] = p[5] = p[6] = 0.0
-    f._set(f._x, tuple(p))
+    f._p = tuple(p)
     return f
 
 
@@ -140,54 +141,64 @@ def test_cholesky_fallback_gives_the_python_reference(backend, per_backend) -> N
     def run():
         f = _non_pd_filter()
         f.step(20.0, 0.05, 0.8)
-        # the a_y moments from the same non-PD P (the update's own fallback)
+        # the a_y update from the same non-PD P (the update's own fallback)
         g = SteeringUKF()
-        x_ay, p_ay = (g._update_ay_compiled if kernels.backend() == "numba" else g._update_ay)(
-            f._x, p_bad, 0.7, 20.0)
+        x_ay, p_ay = g._update_ay(f._x, p_bad, 0.7, 20.0, kernels.backend() == "numba")
         return f.x, f.P, f.history().C, x_ay, p_ay, f.resets
 
     ref = per_backend.reference("fallback", run)
     got = run()
     if backend == "numba":
-        assert sk.predict_chol.compiled.signatures and sk.ay_moments_chol.compiled.signatures
+        assert (uk.predict_with_factor.compiled.signatures
+                and uk.ay_moments_with_factor.compiled.signatures)
     assert ref[5] == got[5] == 0 and np.all(np.isfinite(ref[1]))
+    assert not np.array_equal(ref[4], p_bad)  # the update was applied
     for a, b in zip(ref, got):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     g = SteeringUKF()
-    assert not sk.ay_moments(g._x, p_bad, 20.0, g._cst, g._ptab)[0]
-    assert not sk.predict(g._x, p_bad, 20.0, g._cst, g._ptab, g._scratch, 0, False)[0]
+    cst, pts = g._args[kernels.backend() == "numba"]
+    assert not uk.ay_moments(g._x, p_bad, 20.0, cst, pts)[0]
+    assert not uk.predict(g._x, p_bad, 20.0, cst, pts, g._scratch, 0, False)[0]
 
 
-def test_kernel_model_functions_equal_the_reference(backend) -> None:
-    """transition / lateral_accel (run as Python, the kernels they call under the backend) and
-    chol4 compute steering_model.f / h_ay / small_linalg.chol4_or_fallback operation for
-    operation (==; the kernels compiled whole: the tests above)."""
-    f = SteeringUKF()
-    cst, k = f._cst, f.k
-    rng = np.random.default_rng(11)
-    for _ in range(300):
-        x = tuple(float(v) for v in rng.normal(0.0, [0.5, 0.3, 0.1, 0.5]))
-        vx = float(rng.uniform(3.0, 40.0))
-        assert sk.transition(*x, vx, cst) == sm.f(x, vx, k)
-        assert sk.lateral_accel(x[0], x[1], x[2], vx, cst) == sm.h_ay(x, vx, k)
+def test_scalar_update_is_the_kalman_update(backend) -> None:
+    """scalar_update (plain Python in the filters; compiled here to hold it kernel-compatible)
+    is x + K e, P - K s K^T with K = P h^T / s (numpy matrix form, to 1e-12), the same bits on
+    every backend."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
         M = rng.normal(size=(4, 4))
-        p = tuple(float(v) for v in (M @ M.T + 1e-3 * np.eye(4))[np.triu_indices(4)])
-        ok, l = chol4(p)
-        assert ok and l == chol4_or_fallback(p)
-    assert not chol4((1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0))[0]
+        P = M @ M.T + 0.1 * np.eye(4)
+        hv = rng.normal(size=4)
+        x, e, s = tuple(rng.normal(size=4).tolist()), float(rng.normal()), float(hv @ P @ hv + 0.3)
+        c = P @ hv
+        p10 = tuple(float(P[i, j]) for i in range(4) for j in range(i, 4))
+        xn, pn = uk.scalar_update(x, p10, e, s, *c.tolist())
+        assert (xn, pn) == uk.scalar_update.py(x, p10, e, s, *c.tolist())
+        K = c / s
+        np.testing.assert_allclose(xn, np.array(x) + K * e, rtol=1e-12, atol=1e-14)
+        Pn = P - np.outer(K, K) * s
+        np.testing.assert_allclose(pn, Pn[np.triu_indices(4)], rtol=1e-10, atol=1e-13)
 
 
-def test_gain_as_python_equals_the_smoother_gain() -> None:
-    """gain_into (as Python: solve4 = np.linalg.solve) reads P_pred and C from a ring row and
-    writes G = C P_pred^-1 row-major, as FixedLagSmoother.step computes it (==)."""
+def test_smoother_gain_solves_the_rts_equation(backend) -> None:
+    """smoother_gain reads P_pred and C from a ring row and writes G with G P_pred = C
+    (row-major, to 1e-12) into the previous row, and nothing else; the same bits on every
+    backend (compiled: LAPACK dgesv called directly, plain Python: np.linalg.solve)."""
+    if backend == "numba":
+        rts.prepare()
     rng = np.random.default_rng(5)
     for _ in range(50):
         M = rng.normal(size=(4, 4))
         Pp = M @ M.T + 0.1 * np.eye(4)
         C = rng.normal(size=(4, 4))
-        hist = np.zeros((3, sk.N_COLS))
-        hist[2, sk.COL_PP:sk.COL_C] = Pp[np.triu_indices(4)]
-        hist[2, sk.COL_C:sk.COL_VX] = C.ravel()
-        sk.gain_into(hist, 2, 0)
-        np.testing.assert_array_equal(hist[0, sk.COL_G:], np.linalg.solve(Pp, C.T).T.ravel())
-        assert not hist[1].any()
+        hist = np.zeros((3, N_COLS))
+        hist[2, COL_PP:COL_C] = Pp[np.triu_indices(4)]
+        hist[2, COL_C:COL_C + 16] = C.ravel()
+        ref = hist.copy()
+        rts.smoother_gain(hist, 2, 0)
+        rts.smoother_gain.py(ref, 2, 0)
+        np.testing.assert_array_equal(hist, ref)
+        G = hist[0, COL_G:].reshape(4, 4)
+        np.testing.assert_allclose(G @ Pp, C, rtol=1e-12, atol=1e-12)
+        assert not hist[1].any() and not hist[0, :COL_G].any()
