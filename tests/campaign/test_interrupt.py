@@ -34,10 +34,16 @@ def _alive_in_session(sid: int) -> list[str]:
 def test_an_interrupted_campaign_says_one_line_and_resumes(small, reference, tmp_path,  # noqa: F811 (fixtures)
                                                           sig, whole_group, code):
     out = tmp_path / "cut"
-    proc = subprocess.Popen([sys.executable, "-m", "vecu", "campaign", "run", small.path,
-                             "--workers", "2", "--out", str(out), "--runs", "6"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, env=ENV)
+    # a test run started in the background inherits SIGINT ignored, and so would vecu (Python then
+    # installs no KeyboardInterrupt): a handled SIGINT here is reset to the default at exec
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "vecu", "campaign", "run", small.path,
+                                 "--workers", "2", "--out", str(out), "--runs", "6"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True, env=ENV)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
