@@ -146,7 +146,10 @@ def _fit(prob: Problem, P: np.ndarray, free: np.ndarray, max_nfev: int
         return prob.residuals(Q)
 
     scale = np.maximum(np.abs(x0), 1e-3)
-    sol = least_squares(resid, x0, x_scale=scale, method="trf", max_nfev=max_nfev)
+    # ftol / xtol 1e-6: the cost is ~1e5 (a sum of squared unit innovations), so the last steps
+    # move it by < 0.1, far below one parameter's chi-square scale
+    sol = least_squares(resid, x0, x_scale=scale, method="trf", max_nfev=max_nfev,
+                        ftol=1e-6, xtol=1e-6)
     Q = P.copy()
     Q[free] = sol.x
     try:
