@@ -45,6 +45,8 @@ def fit_json(fit: ThrottleFit) -> dict[str, Any]:
     """Everything printed, as JSON-ready data."""
     return {
         "n_samples": fit.n_samples,
+        "method": fit.method,
+        "interval": {"kind": fit.interval, "level": 0.95, "hac_window": fit.hac_window},
         "mode_samples": list(fit.mode_samples),
         "parameters": [{"name": e.name, "value": e.value, "ci95": e.ci95, "start": e.start,
                         "status": e.status} for e in fit.estimates],
@@ -53,6 +55,7 @@ def fit_json(fit: ThrottleFit) -> dict[str, Any]:
         "f_diag": list(fit.model.f_diag),
         "h_wattmeter": fit.model.h_wattmeter,
         "one_step_cost": {"start": fit.cost_start, "fit": fit.cost_fit},
+        "tps_noise_deg": fit.tps_noise_deg,
         "free_run_mse": {"start": {"theta_deg2": fit.free_run_mse_start[0],
                                    "current_a2": fit.free_run_mse_start[1]},
                          "fit": {"theta_deg2": fit.free_run_mse_fit[0],
@@ -68,6 +71,9 @@ def format_fit(fit: ThrottleFit) -> str:
     """The human-readable report."""
     out = [(f"throttle identification: {fit.n_samples} samples "
            f"({fit.n_samples / 1000:g} s at 1 kHz), per mode {', '.join(map(str, fit.mode_samples))}"),
+           f"method: {fit.method}",
+           (f"95 % CI: {fit.interval} (Bartlett window {fit.hac_window} samples), valid for correlated "
+            "residuals"),
            "", f"{'parameter':<11} {'value':>10} {'95 % CI':>18} {'start':>10}  status"]
     for e in fit.estimates:
         ci = (f"+-{e.ci95:.3g}" if e.ci95 is not None and math.isfinite(e.ci95) else "-")
@@ -76,9 +82,10 @@ def format_fit(fit: ThrottleFit) -> str:
     f = fit.model.f_diag
     out += ["", f"switching angles  {b[0]:g}, {b[1]:g} deg: {fit.bounds_status}",
             (f"noise per 1 ms    F = diag({f[0]:.4g}, 0, {f[2]:.4g}) (Table I sqrt 0.35 = 0.592, "
-            f"sqrt 0.18 = 0.424), H = {fit.model.h_wattmeter:.4g} W (1)"),
+            f"sqrt 0.18 = 0.424), H = {fit.model.h_wattmeter:.4g} W (1), maximum likelihood; "
+            f"TPS {fit.tps_noise_deg:g} deg"),
             (f"one-step cost     {fit.cost_start:.4g} (start) -> {fit.cost_fit:.4g} (fit), "
-            "scaled mean square residual"),
+            "mean square weighted innovation (1 when the model fits)"),
             ("free-run error    (paper's criterion, w = 0, 3 blocks) theta "
             f"{math.sqrt(fit.free_run_mse_start[0]):.3g} -> {math.sqrt(fit.free_run_mse_fit[0]):.3g}"
             f" deg rms, |i| {math.sqrt(fit.free_run_mse_start[1]):.3g} -> "

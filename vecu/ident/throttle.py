@@ -3,26 +3,30 @@
 Data: u_k, the wattmeter y_k = i_k^2 + v_k and the angle theta_k (TPS). The current is seen only
 through y (|i| ~ sqrt(y)); the velocity rho is not measured at all.
 
-Method (docs/reproduction.md, "Identification"):
-1. Start: the current calibration (Table I by default). Per mode, one-step least squares for the
-   rows that are linear given rho: theta_{k+1} - theta_k = a12 rho_k and
-   i_{k+1} = a32 rho_k + a33 i_k + b u_k, with rho_k from the start model's predictor.
-2. Prediction-error fit (scipy.optimize.least_squares): eq. (3) one step ahead from the measured
-   angle and current (rho run on the model, kernels.one_step_predict); residuals theta_{k+1} -
-   theta_{k+1|k} and y_{k+1} - (i_{k+1|k}^2 + s_i^2), each scaled to unit variance.
-   The paper's own criterion, the free-run (w = 0) simulation error over three blocks, is
-   reported for the start and the fit, but not minimised: with the paper's per-step noise the
-   free-run error is dominated by the noise, and its minimum lies far from the true parameters.
-3. 95 % intervals from the Jacobian (s^2 (J^T J)^-1, residuals taken as white). A parameter
-   whose interval is wider than its own size, or whose mode the trace hardly visits, is not
-   identifiable from this trace: it keeps its start value and is reported as such. mode3.a12 is
-   never fitted: rho is not measured, so its scale (and a12, a21, a23, c, a32 with it) is free;
-   mode 3's a12 fixes it (the gauge). c2 in modes 2 and 3 multiplies sgn(theta - 1) = +1 only
-   (c3 carries c2 + c3). The friction / offset terms c1..c3 are kept by default (DEFAULT_FIXED).
+Method (docs/reproduction.md, "Identification"; the statistics in vecu.ident.prediction_error):
+1. Start: the current calibration (Table I by default).
+2. Prediction-error fit (scipy.optimize.least_squares) through an extended Kalman filter of
+   eq. (3)-(4) with rho and i as states (kernels.innovations): the residuals are the filter's
+   innovations of the angle and the wattmeter, weighted by 1 / sqrt(S) frozen at the previous
+   estimate; the wattmeter is used only where the predicted current is clear of 0 (i^2 has no
+   sign). Alternated with the noise (F11, F33, H) by maximum likelihood. Feeding the noisy
+   |i| ~ sqrt(y) into eq. (3) as if it were the state (the former one-step fit) is an
+   errors-in-variables regression: biased. The paper's own criterion, the free-run (w = 0)
+   simulation error over three blocks, is reported for the start and the fit, but not
+   minimised: with the paper's per-step noise the free-run error is dominated by the noise, and
+   its minimum lies far from the true parameters.
+3. 95 % intervals: sandwich covariance with a Newey-West (HAC) long-run covariance of the
+   per-sample scores, valid for correlated residuals. A parameter whose interval is wider than
+   its own size, or whose mode the trace hardly visits, is not identifiable from this trace: it
+   keeps its start value and is reported as such. mode3.a12 is never fitted: rho is not
+   measured, so its scale (and a12, a21, a23, c, a32 with it) is free; mode 3's a12 fixes it (the
+   gauge). c2 in modes 2 and 3 multiplies sgn(theta - 1) = +1 only (c3 carries c2 + c3). The
+   friction / offset terms c1..c3 are kept by default (DEFAULT_FIXED).
 4. Switching angles: profile of the cost over a 0.5 deg grid around the start; kept at the
-   start unless the best one lowers 2 x cost by more than 3.84 (chi-square, 1 dof).
-5. Noise: F11 = std of the angle residual; F33 and H from the wattmeter residual,
-   Var = 4 i^2 F33^2 + 2 F33^4 + H^2 regressed on i^2; F22 = 0 (eq. 3).
+   start unless the best one lowers the cost (2 x negative log-likelihood) by more than 3.84
+   (chi-square, 1 dof).
+5. Noise: F11, F33 and H are the filter's, by maximum likelihood; F22 = 0 (eq. 3); the TPS noise
+   is the sensor's (TPS_NOISE_DEG).
 """
 
 from __future__ import annotations
@@ -34,14 +38,24 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from vecu.ident.kernels import free_run, one_step_predict
+from vecu.ident.kernels import E_TH, I_PRED, free_run
+from vecu.ident.prediction_error import (
+    Problem,
+    hac_window,
+    half_widths,
+    noise_ml,
+    sandwich,
+)
 from vecu.ident.trace import ThrottleData
 from vecu.models.throttle import PAPER_THROTTLE, ModeParams, ThrottleModel
 
 NAMES = ("a12", "a21", "a22", "a23", "a32", "a33", "b", "c1", "c2", "c3")
 GAUGE = (2, 0)  # mode3.a12: the scale of the unmeasured rho
 MIN_MODE_SAMPLES = 300  # a mode visited less than this is not identifiable from the trace
-MIN_CURRENT_A = 1.0  # one-step LS of the current row: samples with |i| clearly above 0
+FIRST_ROUNDS = 2  # noise ML / weights / prediction-error fit, alternated (the 2nd moves little)
+# the TPS electrical noise (1 sigma): vecu's sensor, 0.002 V on 0.5-4.5 V for 0-90 deg; small
+# against F11 (0.59 deg), so the fit hardly depends on it
+TPS_NOISE_DEG = 0.045
 CHI2_1DOF_95 = 3.84
 BOUND_GRID_DEG = 0.5
 BOUND_SPAN_DEG = 3.0
@@ -49,6 +63,8 @@ BOUND_SPAN_DEG = 3.0
 # state): on simulated traces the cost is flat along that direction (within 0.3 %) while the
 # estimator's error triples, so they keep their start values unless asked (--free)
 DEFAULT_FIXED = ("c1", "c2", "c3")
+METHOD = "prediction error through an extended Kalman filter (rho and i as states)"
+INTERVAL = "sandwich, Newey-West HAC"
 FREE_RUN_BLOCKS = 3  # the paper's three blocks
 FREE_RUN_BLOCK = 10_000  # of 10 000 points each
 
@@ -81,10 +97,14 @@ class ThrottleFit:
     bounds_status: str
     n_samples: int
     mode_samples: tuple[int, int, int]
-    cost_start: float  # mean squared scaled one-step residual
+    cost_start: float  # mean squared weighted innovation, fitted noise (1 for a model that fits)
     cost_fit: float
     free_run_mse_start: tuple[float, float]  # (theta deg^2, |i| A^2), the paper's criterion
     free_run_mse_fit: tuple[float, float]
+    tps_noise_deg: float = TPS_NOISE_DEG
+    hac_window: int = 0  # the Bartlett window of the intervals (samples)
+    method: str = METHOD
+    interval: str = INTERVAL
     residuals: dict[str, dict[str, StateResiduals]] = field(default_factory=dict)
     theta_residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
     current_residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -108,74 +128,14 @@ def with_matrix(model: ThrottleModel, P: np.ndarray, bounds: tuple[float, float]
         h_wattmeter=model.h_wattmeter if h is None else h)
 
 
-class _Problem:
-    """The prediction-error residuals for one trace; free parameters selected by a mask."""
-
-    def __init__(self, data: ThrottleData, P0: np.ndarray, bounds: tuple[float, float],
-                 var_i: float) -> None:
-        self.u = np.ascontiguousarray(data.u, dtype=float)
-        self.th = np.ascontiguousarray(data.theta, dtype=float)
-        self.y = np.ascontiguousarray(data.y, dtype=float)
-        self.ci = np.sqrt(np.maximum(self.y, 0.0))
-        self.P0 = P0
-        self.bounds = bounds
-        self.var_i = var_i
-        n = self.u.size
-        self.p_th, self.p_i, self.rho = np.empty(n), np.empty(n), np.empty(n)
-        self.s_th = self.s_y = 1.0
-
-    def predict(self, P: np.ndarray, bounds: tuple[float, float] | None = None) -> None:
-        b1, b2 = self.bounds if bounds is None else bounds
-        one_step_predict(P, float(b1), float(b2), self.u, self.th, self.ci, self.p_th, self.p_i,
-                         self.rho)
-
-    def raw(self, P: np.ndarray, bounds: tuple[float, float] | None = None
-            ) -> tuple[np.ndarray, np.ndarray]:
-        self.predict(P, bounds)
-        r_th = self.th[1:] - self.p_th[1:]
-        r_y = self.y[1:] - (self.p_i[1:] ** 2 + self.var_i)
-        return r_th, r_y
-
-    def scaled(self, P: np.ndarray, bounds: tuple[float, float] | None = None) -> np.ndarray:
-        r_th, r_y = self.raw(P, bounds)
-        return np.concatenate([r_th / self.s_th, r_y / self.s_y])
-
-    def cost(self, P: np.ndarray, bounds: tuple[float, float] | None = None) -> float:
-        r = self.scaled(P, bounds)
-        return float(r @ r) / r.size
-
-
 def _modes_of(theta: np.ndarray, bounds: tuple[float, float]) -> np.ndarray:
     return np.searchsorted(np.array(bounds, dtype=float), theta, side="left")
 
 
-def _one_step_ls(prob: _Problem, P: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """Per-mode least squares of the theta row (a12) and the current row (a32, a33, b) given
-    the start model's rho; other entries unchanged."""
-    P = P.copy()
-    prob.predict(P)
-    th, ci, u, rho = prob.th, prob.ci, prob.u, prob.rho
-    mode = _modes_of(th[:-1], prob.bounds)
-    dth = np.diff(th)
-    inner = (th[:-1] > 0.5) & (th[:-1] < 89.5) & (th[1:] > 0.5) & (th[1:] < 89.5)
-    for s in range(3):
-        sel = (mode == s) & inner
-        if free[s, 0] and sel.sum() > MIN_MODE_SAMPLES:
-            r = rho[:-1][sel]
-            if float(r @ r) > 0.0:
-                P[s, 0] = float(r @ dth[sel]) / float(r @ r)
-        cur = (mode == s) & (ci[:-1] > MIN_CURRENT_A) & (ci[1:] > MIN_CURRENT_A)
-        if free[s, 4:7].all() and cur.sum() > MIN_MODE_SAMPLES:
-            A = np.column_stack([rho[:-1][cur], ci[:-1][cur], u[:-1][cur]])
-            sol, *_ = np.linalg.lstsq(A, ci[1:][cur], rcond=None)
-            if np.all(np.isfinite(sol)) and 0.0 < sol[1] < 1.0 and sol[2] > 0.0:
-                P[s, 4:7] = sol
-    return P
-
-
-def _fit(prob: _Problem, P: np.ndarray, free: np.ndarray, max_nfev: int
+def _fit(prob: Problem, P: np.ndarray, free: np.ndarray, max_nfev: int
          ) -> tuple[np.ndarray, np.ndarray | None]:
-    """least_squares over the free entries; returns (P, 95 % half-widths of the free ones)."""
+    """Weighted prediction-error least squares over the free entries (weights frozen at the
+    start of the call); returns (P, 95 % half-widths of the free ones, HAC sandwich)."""
     x0 = P[free]
     if x0.size == 0:
         return P, None
@@ -183,39 +143,31 @@ def _fit(prob: _Problem, P: np.ndarray, free: np.ndarray, max_nfev: int
     def resid(x: np.ndarray) -> np.ndarray:
         Q = P.copy()
         Q[free] = x
-        return prob.scaled(Q)
+        return prob.residuals(Q)
 
     scale = np.maximum(np.abs(x0), 1e-3)
-    sol = least_squares(resid, x0, x_scale=scale, method="trf", max_nfev=max_nfev)
+    # ftol / xtol 1e-6: the cost is ~1e5 (a sum of squared unit innovations), so the last steps
+    # move it by < 0.1, far below one parameter's chi-square scale
+    sol = least_squares(resid, x0, x_scale=scale, method="trf", max_nfev=max_nfev,
+                        ftol=1e-6, xtol=1e-6)
     Q = P.copy()
     Q[free] = sol.x
-    J = sol.jac
-    m, p = J.shape
-    s2 = 2.0 * float(sol.cost) / max(m - p, 1)
     try:
-        cov = np.linalg.pinv(J.T @ J) * s2
-        half = CHI2_HALF * np.sqrt(np.maximum(np.diag(cov), 0.0))
+        half = half_widths(sandwich(sol.jac, sol.fun))
     except np.linalg.LinAlgError:
-        half = np.full(p, np.inf)
+        half = np.full(x0.size, np.inf)
     return Q, half
 
 
-CHI2_HALF = 1.959964  # 95 % two-sided normal quantile
-
-
-def _noise(prob: _Problem, P: np.ndarray) -> tuple[float, float, float]:
-    """(F11, F33, H) per 1 ms step from the one-step residuals (module docstring, step 5)."""
-    r_th, _ = prob.raw(P)
-    inner = (prob.th[1:] > 0.5) & (prob.th[1:] < 89.5)
-    f11 = float(np.std(r_th[inner])) if inner.any() else float(np.std(r_th))
-    m2 = prob.p_i[1:] ** 2
-    r = prob.y[1:] - m2
-    r = r - r.mean()
-    A = np.column_stack([4.0 * m2, np.ones_like(m2)])
-    (var_w, c), *_ = np.linalg.lstsq(A, r * r, rcond=None)
-    var_w = max(float(var_w), 1e-8)
-    h2 = max(float(c) - 2.0 * var_w * var_w, 1e-4)
-    return f11, math.sqrt(var_w), math.sqrt(h2)
+def _refit(prob: Problem, P: np.ndarray, free: np.ndarray, max_nfev: int, rounds: int
+           ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Alternate: noise by ML, weights frozen, eq. (3) by prediction error (rounds times)."""
+    half = None
+    for _ in range(rounds):
+        noise_ml(prob, P)
+        prob.freeze(P)
+        P, half = _fit(prob, P, free, max_nfev)
+    return P, half
 
 
 def _free_run_errors(data: ThrottleData, model: ThrottleModel) -> tuple[np.ndarray, np.ndarray]:
@@ -239,12 +191,15 @@ def _free_run_errors(data: ThrottleData, model: ThrottleModel) -> tuple[np.ndarr
 
 def identify_throttle(data: ThrottleData, start: ThrottleModel = PAPER_THROTTLE,
                       max_nfev: int = 60, fit_bounds: bool = True,
-                      fixed: tuple[str, ...] = DEFAULT_FIXED) -> ThrottleFit:
+                      fixed: tuple[str, ...] = DEFAULT_FIXED,
+                      tps_noise_deg: float = TPS_NOISE_DEG) -> ThrottleFit:
     """Fit eq. (3), the switching angles, F and H to the trace (module docstring); `fixed`
     names parameters ("mode3.c1", or "c1" for every mode) kept at their start values."""
     P0 = model_matrix(start)
     bounds = tuple(float(b) for b in start.mode_bounds_deg)
-    prob = _Problem(data, P0, bounds, var_i=start.f_diag[2] ** 2)
+    f = start.f_diag
+    prob = Problem(data, bounds,  # type: ignore[arg-type]  # two switching angles
+                   (f[0], f[2], start.h_wattmeter, tps_noise_deg))
     counts = np.bincount(_modes_of(data.theta, bounds), minlength=3)[:3]
     free = np.ones((3, 10), dtype=bool)
     why = np.full((3, 10), "", dtype=object)
@@ -266,17 +221,7 @@ def identify_throttle(data: ThrottleData, start: ThrottleModel = PAPER_THROTTLE,
                 why[s, j] = ("kept: trades off against a21 / a23 (flat cost), --free to fit"
                              if name in DEFAULT_FIXED else "kept (--fix)")
     free[GAUGE] = False
-    # scale the two residual kinds to unit variance at the start
-    r_th, r_y = prob.raw(P0)
-    prob.s_th, prob.s_y = max(float(np.std(r_th)), 1e-6), max(float(np.std(r_y)), 1e-6)
-    cost_start = prob.cost(P0)
-    P = _one_step_ls(prob, P0, free)
-    if prob.cost(P) > cost_start:  # the LS start is worse than the calibration: drop it
-        P = P0.copy()
-    P, half = _fit(prob, P, free, max_nfev)
-    # noise first estimate -> bias term s_i^2 of the wattmeter residual, then refit
-    _, f33, _ = _noise(prob, P)
-    prob.var_i = f33 * f33
+    P, half = _refit(prob, P0.copy(), free, max_nfev, FIRST_ROUNDS)
     # parameters the trace cannot pin down go back to their start values
     if half is not None:
         vals = P[free]
@@ -287,18 +232,15 @@ def identify_throttle(data: ThrottleData, start: ThrottleModel = PAPER_THROTTLE,
                 free[s, j] = False
                 P[s, j] = P0[s, j]
                 why[s, j] = f"not identifiable: 95 % interval +-{hw:.3g} wider than the value"
-    r_th, r_y = prob.raw(P)
-    prob.s_th, prob.s_y = max(float(np.std(r_th)), 1e-6), max(float(np.std(r_y)), 1e-6)
-    cost_start = prob.cost(P0)
-    P, half = _fit(prob, P, free, max_nfev)
+        if loose.any():
+            P, half = _refit(prob, P, free, max_nfev, 1)
     bounds_status = "kept (no fit asked)"
     if fit_bounds:
         bounds, bounds_status = _profile_bounds(prob, P, bounds, counts)
         if bounds != prob.bounds:
             prob.bounds = bounds
-            P, half = _fit(prob, P, free, max_nfev)
-    f11, f33, h = _noise(prob, P)
-    prob.var_i = f33 * f33
+            P, half = _refit(prob, P, free, max_nfev, 1)
+    f11, f33, h = (float(v) for v in prob.noise[:3])
     model = with_matrix(start, P, bounds, (f11, 0.0, f33), h)
     estimates = []
     k = 0
@@ -310,12 +252,16 @@ def identify_throttle(data: ThrottleData, start: ThrottleModel = PAPER_THROTTLE,
                 k += 1
             estimates.append(Estimate(f"mode{s + 1}.{name}", float(P[s, j]), ci95,
                                       float(P0[s, j]), "fitted" if free[s, j] else str(why[s, j])))
+    prob.freeze(P0)  # both costs under the fitted noise
+    cost_start = prob.cost(P0) / prob.scored()
+    prob.freeze(P)
     fit = ThrottleFit(
         model=model, start=start, estimates=estimates, bounds_status=bounds_status,
         n_samples=data.n, mode_samples=tuple(int(c) for c in counts),  # type: ignore[arg-type]  # one count per mode (3), not a fixed-size literal
-        cost_start=cost_start, cost_fit=prob.cost(P),
+        cost_start=cost_start, cost_fit=prob.cost(P) / prob.scored(),
         free_run_mse_start=_mse(*_free_run_errors(data, start)),
-        free_run_mse_fit=_mse(*_free_run_errors(data, model)))
+        free_run_mse_fit=_mse(*_free_run_errors(data, model)),
+        tps_noise_deg=tps_noise_deg, hac_window=hac_window(data.n))
     _residual_stats(fit, prob, P, data)
     return fit
 
@@ -324,13 +270,12 @@ def _mse(e_th: np.ndarray, e_i: np.ndarray) -> tuple[float, float]:
     return float(np.mean(e_th ** 2)), float(np.mean(e_i ** 2))
 
 
-def _profile_bounds(prob: _Problem, P: np.ndarray, bounds: tuple[float, float],
+def _profile_bounds(prob: Problem, P: np.ndarray, bounds: tuple[float, float],
                     counts: np.ndarray) -> tuple[tuple[float, float], str]:
     """Grid search of the two switching angles around the start (module docstring, step 4)."""
     if min(counts) < MIN_MODE_SAMPLES:
         return bounds, "not identifiable: a mode is hardly visited, switching angles kept"
-    m = 2 * (prob.th.size - 1)
-    base = prob.cost(P, bounds) * m
+    base = prob.cost(P, bounds)
     steps = np.arange(-BOUND_SPAN_DEG, BOUND_SPAN_DEG + 1e-9, BOUND_GRID_DEG)
     best, best_b = base, bounds
     for d1 in steps:
@@ -338,7 +283,7 @@ def _profile_bounds(prob: _Problem, P: np.ndarray, bounds: tuple[float, float],
             b = (bounds[0] + float(d1), bounds[1] + float(d2))
             if not 1.0 < b[0] < b[1] < 90.0:
                 continue
-            c = prob.cost(P, b) * m
+            c = prob.cost(P, b)
             if c < best:
                 best, best_b = c, b
     if base - best > CHI2_1DOF_95:
@@ -346,15 +291,17 @@ def _profile_bounds(prob: _Problem, P: np.ndarray, bounds: tuple[float, float],
     return bounds, "not identifiable from this trace: the cost is flat around the start, kept"
 
 
-def _residual_stats(fit: ThrottleFit, prob: _Problem, P: np.ndarray, data: ThrottleData) -> None:
-    r_th, _ = prob.raw(P)
-    r_i = prob.ci[1:] - np.abs(prob.p_i[1:])
-    mode = _modes_of(data.theta[:-1], prob.bounds)
+def _residual_stats(fit: ThrottleFit, prob: Problem, P: np.ndarray, data: ThrottleData) -> None:
+    out = prob.run(P)
+    sel = prob.scored_y & (prob.gate[:, 1] > 0.5)
+    r_th = out[:, E_TH][sel]
+    r_i = np.sqrt(np.maximum(prob.y, 0.0))[sel] - np.abs(out[:, I_PRED][sel])
+    mode = _modes_of(data.theta[sel], prob.bounds)
     for s in range(3):
-        sel = mode == s
+        in_mode = mode == s
         stats = {}
         for label, r in (("theta_deg", r_th), ("current_a", r_i)):
-            v = r[sel]
+            v = r[in_mode]
             stats[label] = StateResiduals(float(v.mean()) if v.size else math.nan,
                                           float(v.std()) if v.size else math.nan, int(v.size))
         fit.residuals[f"mode{s + 1}"] = stats

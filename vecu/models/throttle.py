@@ -116,12 +116,19 @@ def mode_step(p: Any, theta: Any, rho: Any, i: Any, u: Any, s_rho: Any, s_theta:
 
 
 @kernel
+def mode_of(b1: float, b2: float, theta: float) -> int:
+    """The active mode s - 1 of eq. (3): 0 for Theta_1 = theta <= b1, 1 for Theta_2 = (b1, b2],
+    2 above (NaN counts as Theta_3)."""
+    return 0 if theta <= b1 else (1 if theta <= b2 else 2)
+
+
+@kernel
 def eq3_step(rows: Any, b1: float, b2: float, theta: float, rho: float, i: float, u: float
              ) -> tuple[float, float, float]:
-    """Noise-free eq. (3), before the clip: the mode by theta (Theta_1 = theta <= b1, Theta_2 =
-    (b1, b2], Theta_3 above; NaN counts as Theta_3), then mode_step with sgn(rho) and
-    sgn(theta - 1). rows: the three modes' rows (ThrottleModel.rows, or a 3x10 array)."""
-    p = rows[0] if theta <= b1 else (rows[1] if theta <= b2 else rows[2])
+    """Noise-free eq. (3), before the clip: the mode by theta (mode_of), then mode_step with
+    sgn(rho) and sgn(theta - 1). rows: the three modes' rows (ThrottleModel.rows, or a 3x10
+    array)."""
+    p = rows[mode_of(b1, b2, theta)]
     return mode_step(p, theta, rho, i, u, 1.0 if rho > 0.0 else (-1.0 if rho < 0.0 else 0.0),
                      1.0 if theta > 1.0 else (-1.0 if theta < 1.0 else 0.0))
 

@@ -1,0 +1,107 @@
+"""Identification intervals that cover (issue 30 item 4): over 20 simulated 60 s excitations of a
+throttle whose mode-3 b is 15 % above Table I, each fitted mode-3 parameter's 95 % interval holds
+the true value in >= 17 of the traces (modes 1 and 2 not yet: a strict xfail), and the 15 %
+change of mode3.b is recovered within 3 %.
+
+The traces are the plant's own compiled ticks (vecu.plant.throttle_kernel.advance_ticks, as
+`vecu excite throttle` records them, without the CAN round trip) at the paper's noise (alpha = 1);
+each fit is the full `identify_throttle` without the switching-angle profile (flat on these
+traces: the start's 8, 16 deg are the truth). Needs the numba kernels: under plain Python a fit
+takes minutes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from vecu import kernels
+from vecu.ident.throttle import NAMES, identify_throttle
+from vecu.ident.trace import ThrottleData
+from vecu.models.sensors import TpsCalibration
+from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel
+from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlantConfig
+from vecu.plant.throttle_kernel import advance_ticks
+from vecu.rng import rng_streams
+
+SECONDS = 60
+SEEDS = range(20)
+B_CHANGE = 1.15
+TRUE = dataclasses.replace(PAPER_THROTTLE, mode3=dataclasses.replace(
+    PAPER_THROTTLE.mode3, b=PAPER_THROTTLE.mode3.b * B_CHANGE))
+
+pytestmark = pytest.mark.skipif(not kernels.numba_available(),
+                                reason="20 identifications need the numba kernels")
+
+
+def excitation(model: ThrottleModel, seconds: float, seed: int) -> ThrottleData:
+    """u, wattmeter and TPS angle at 1 kHz from the plant driven by the Section III-B input."""
+    n = int(seconds * 1000)
+    rngs = rng_streams(seed, ("throttle.input", "throttle.plant"))
+    u = np.asarray(InputGenerator(InputConfig(), rngs["throttle.input"]).take(n), dtype=float)
+    noise = rngs["throttle.plant"].standard_normal((n, 4))
+    cal, cfg = TpsCalibration(), ThrottlePlantConfig(model=model)
+    cst = np.array([model.f_diag[0], model.f_diag[2], model.h_wattmeter, cfg.tps_noise_v,
+                    cal.v_at_0, cal.v_at_90, *model.mode_bounds_deg])
+    out, state = np.empty((n, 3)), np.zeros(3)
+    with kernels.using("numba"):
+        advance_ticks(state, u, noise, 0, np.array(model.rows), cst, out)
+    theta = np.array([cal.angle(v) for v in out[:, 2]])
+    return ThrottleData(f"seed {seed}", u, out[:, 1].copy(), theta)
+
+
+def truth(name: str) -> float:
+    mode, param = name.split(".")
+    return float(getattr(TRUE.modes[int(mode[-1]) - 1], param))
+
+
+@pytest.fixture(scope="module")
+def fits():
+    with kernels.using("numba"):
+        return [identify_throttle(excitation(TRUE, SECONDS, seed), fit_bounds=False)
+                for seed in SEEDS]
+
+
+def _coverage(fits) -> dict[str, tuple[int, int]]:
+    """Per parameter over the traces: (fitted intervals that missed the truth, fitted). A trace
+    where the parameter was not identifiable gives no interval, so no miss."""
+    out: dict[str, tuple[int, int]] = {}
+    for fit in fits:
+        for e in fit.estimates:
+            if e.ci95 is not None:
+                missed, fitted = out.get(e.name, (0, 0))
+                out[e.name] = (missed + (abs(e.value - truth(e.name)) > e.ci95), fitted + 1)
+    return out
+
+
+def test_each_fitted_mode3_parameter_is_covered_in_17_of_20(fits) -> None:
+    """Mode 3 (the valve above 16 deg, 80 % of the samples, where b was changed): at most 3 of
+    20 fitted intervals miss, for every parameter; mode3.b and a33 fitted on every trace. Modes 1
+    and 2 at least 13 of 20 (their shortfall: the next test)."""
+    cov = _coverage(fits)
+    assert cov["mode3.b"][1] == len(SEEDS) and cov["mode3.a33"][1] == len(SEEDS)
+    assert {n.split(".")[1] for n in cov} <= set(NAMES)
+    report = {n: f"{f - m}/{f} covered" for n, (m, f) in cov.items()}
+    for name, (missed, _) in cov.items():
+        assert missed <= (3 if name.startswith("mode3.") else 7), report
+
+
+@pytest.mark.xfail(strict=True, reason="modes 1 and 2 (low current, the closed stop): mode2.a22 "
+                   "13/20, mode2.a23 14/20 (docs/reproduction.md, 'Identification')")
+def test_each_fitted_mode1_mode2_parameter_is_covered_in_17_of_20(fits) -> None:
+    """The issue's bound for the valve below 16 deg: not met yet (strict: passing flags it)."""
+    for name, (missed, _) in _coverage(fits).items():
+        assert missed <= 3, name
+
+
+def test_a_15_percent_change_of_mode3_b_is_recovered_within_3_percent(fits) -> None:
+    """From 60 s: the estimate of the raised mode3.b within 3 % of the truth on seed 2 (the
+    issue's case) and in the median over the 20 traces, and every estimate far from Table I's
+    value (the change is seen, not the start kept)."""
+    b = [next(e for e in fit.estimates if e.name == "mode3.b") for fit in fits]
+    err = np.array([e.value / truth("mode3.b") - 1.0 for e in b])
+    assert abs(err[2]) < 0.03
+    assert np.median(np.abs(err)) < 0.03
+    assert all(e.value > PAPER_THROTTLE.mode3.b * 1.07 for e in b)
