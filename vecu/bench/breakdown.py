@@ -27,7 +27,7 @@ COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
     ("vecu.plant.throttle", "ThrottlePlant", "step", "plant: throttle model step"),
     ("vecu.plant.throttle", "InputGenerator", "next", "plant: throttle input generator"),
     ("vecu.plant.node", "LongitudinalPart", "tick", "plant: longitudinal part"),
-    ("vecu.plant.node", "LateralPart", "tick", "plant: lateral part"),
+    ("vecu.plant.lateral", "LateralPart", "tick", "plant: lateral part"),
     ("vecu.plant.node", "ManifoldPart", "event", "plant: manifold part (event)"),
     ("vecu.plant.manifold", "ManifoldPlant", "step", "plant: manifold model step"),
     ("vecu.codec", "FrameCodec", "frame", "codec: encode + can.Message"),

@@ -57,10 +57,10 @@ def main(args: argparse.Namespace) -> int:
     check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
 
     from vecu.assembly import build_functions, schedule_ecu
-    from vecu.codec import DbcCodec
     from vecu.config import RunConfig
     from vecu.ecu.node import EcuNode
     from vecu.ecu.sensor_monitor import SOURCE_SENSOR, SensorStatus
+    from vecu.functions import function_codec
     from vecu.live.process import LiveProcess
     from vecu.live.sync import PhaseSync, sync_to_trigger
     from vecu.runner import attach_xcp_server, warm_up
@@ -74,7 +74,7 @@ def main(args: argparse.Namespace) -> int:
                        **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
                        ).with_params(sets, noise_scale=args.noise_scale, estimator=args.estimator,
                                      manifold_filter=args.manifold_filter)
-    codec = DbcCodec()
+    codec = function_codec()  # vecu's DBCs and the plug-in functions' own (as run, replay)
     config.validate()
     fns = build_functions(config, codec)
     proc = LiveProcess(live_options(args, "ecu"), codec, "VECU",

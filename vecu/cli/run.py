@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fault-value", type=argtypes.finite, metavar="X",
                    help="offset in V (default 0.5), gain G in [0,1] (0.5), noise sigma in V (0.3)")
     p.add_argument("--kill-swa-at", type=argtypes.kill_time, default=None, metavar="T",
-                   help="inject a steering-wheel-angle sensor fault at T s (default: none)")
+                   help="inject an SWA sensor fault at T s (default: none)")
     p.add_argument("--swa-fault", default="dead", metavar="KIND",
                    help="SWA fault kind, as --fault (offset/noise in deg, default dead)")
     p.add_argument("--swa-fault-value", type=argtypes.finite, metavar="X", help="SWA fault value")

@@ -146,4 +146,5 @@ SPEC = EcuFunctionSpec(
     ), describe=lambda e: (
         f"MAP RMS {e['map_error_kpa'].rms:.3f} kPa, IMT {e['imt_error_k'].rms:.2f} K, "
         f"CAC {e['cac_error_mg'].rms:.2f} mg")),
-    plot=_plot, report_rank=2, estimators=ESTIMATORS["manifold"].names)
+    plot=_plot, report_rank=2, label="manifold pressure [kPa]",
+    estimators=ESTIMATORS["manifold"].names)

@@ -186,4 +186,5 @@ SPEC = EcuFunctionSpec(
         TruthPair("accel_error_mps2", "SPD_VehAccel", "TRU_VehAccel"),
     ), burn_in_ns=SPEED_BURN_IN_NS, describe=lambda e: (
         f"RMS {e['speed_error_kmh'].rms:.3f} km/h, accel {e['accel_error_mps2'].rms:.3f} m/s^2")),
-    plot=_plot, report_rank=1, estimators=ESTIMATORS["speed"].names)
+    plot=_plot, report_rank=1, label="vehicle speed [km/h]",
+    estimators=ESTIMATORS["speed"].names)

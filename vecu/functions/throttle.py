@@ -184,4 +184,5 @@ SPEC = EcuFunctionSpec(
         f"broadcast RMS {e['broadcast_error_deg'].rms:.2f} deg, estimator "
         f"{e['estimate_error_deg'].rms:.2f} deg, after fallback "
         f"{e['fallback_error_deg'].rms:.2f} deg ({e['fallback_error_deg'].n} ticks)")),
-    report_rank=0, estimators=ESTIMATORS["throttle"].names)
+    report_rank=0, label="throttle angle [deg]",
+    estimators=ESTIMATORS["throttle"].names)
