@@ -19,7 +19,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from vecu.kernels import backend, kernel, rebuild_if_stale, using
+from vecu.kernels import backend, kernel, using
 from vecu.models.manifold import (
     air_charge_of,
     cylinder_air_charge,
@@ -349,16 +349,9 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     )
 
 
-_kernels_checked = False
-
-
 def compiled_tables(params: ManifoldParams) -> tuple | None:
     """The event integrator's float64 tables for the compiled kernels (its one signature
-    prepared), or None when they do not take this parameter set. The first call in a process
-    also checks that the integrator linked into the plant's cached kernels is the current one
-    (numba's cache does not notice manifold_integrator.py changing, as vecu.estimators.manifold
-    .kernels explains) and rebuilds them from source when it is not."""
-    global _kernels_checked
+    prepared), or None when they do not take this parameter set."""
     from vecu.models import manifold_integrator as mi
 
     tables = mi._tables(params)[2]
@@ -366,26 +359,7 @@ def compiled_tables(params: ManifoldParams) -> tuple | None:
         return None
     if not mi._numba_sig_ready:
         mi._prepare_numba()
-    if not _kernels_checked:
-        rebuild_if_stale((advance_events, simulate_events, plant_step, profile_at, measure),
-                         lambda: _linked_integrator_is_current(params, tables),
-                         lambda: None, "manifold plant kernels")  # they compile on first call
-        _kernels_checked = True
     return tables
-
-
-def _linked_integrator_is_current(params: ManifoldParams, tables: tuple) -> bool:
-    """One event through plant_step (what advance_events and simulate_events
-    run) against the stand-alone compiled integrator."""
-    from vecu.models import manifold_integrator as mi
-
-    n, ts = 2345.0, 120.0 / (params.n_cyl * 2345.0)
-    st = np.array([0.35, 0.3, 0.29, 61.0, 321.0, 318.0])
-    plant_step.compiled(st, 0.35, n, params.p_a_kpa, params.t_a_k, params.t_cool_k, ts, np.zeros(7),
-                        plant_constants(params, ManifoldPlantConfig(), 1.0, 1.0), *tables)
-    ref = mi._integrate_event.compiled(61.0, 321.0, 0.3, params.p_a_kpa, params.t_a_k,
-                                       params.t_cool_k, n, ts, *tables)
-    return (float(st[3]), float(st[4])) == (ref[0], ref[1])
 
 
 def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duration_s: float,
