@@ -13,6 +13,7 @@ from vecu.cli import (
     configure_logging,
     param_sets,
 )
+from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 from vecu.live.args import add_live_arguments, function_switches, live_options
 
 MAX_STATUS_CHANGES = 64
@@ -31,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_live_arguments(p)
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.*")
-    p.add_argument("--manifold-filter", default=None, choices=argtypes.MANIFOLD_FILTERS,
+    p.add_argument("--manifold-filter", default=None, choices=ESTIMATORS["manifold"].names,
                    help="manifold filter (default sdkf)")
     p.add_argument("--sync-timeout", type=argtypes.bounded(0.0, 3600.0), default=10.0, metavar="S",
                    help="wait up to S s for the plant's ETB_Wattmeter frames to put the 1 ms grid "

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from vecu import argtypes
 from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 
 if TYPE_CHECKING:
     from vecu.summary import RunSummary
@@ -40,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="process-noise scale alpha of the throttle model, plant and ECU (1 = paper; "
                         f"0..{argtypes.NOISE_SCALE_MAX:g})")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production; = --set ecu.throttle.estimator=NAME)")
-    p.add_argument("--manifold-filter", default=None, choices=argtypes.MANIFOLD_FILTERS,
+    p.add_argument("--manifold-filter", default=None, choices=ESTIMATORS["manifold"].names,
                    help="manifold filter (default sdkf; = --set ecu.manifold.filter=NAME)")
     add_set_option(p, "plant.* and ecu.*", params_file=True)
     p.add_argument("--set-at", dest="sets_at", action="append", default=[],
