@@ -24,6 +24,7 @@ from vecu.models.manifold import (
     air_charge_of,
     cylinder_air_charge,
     event_coefficients,
+    event_map,
     nominal_input,
     port_flow,
     port_flow_of,
@@ -102,17 +103,18 @@ def plant_step(st, sp, n, p_a, t_a, t_cool, ts, w, pc, cst, cd_alpha, cd_table, 
     eq. 1, the event integrator of eq. 5-6, eq. 9, Section IV's Q from noise row w (entries 0-3)
     and the physical clamps; returns the sub-steps used."""
     u_prev, alpha, alpha_prev, p, t, tm = st[0], st[1], st[2], st[3], st[4], st[5]
-    a1, a2, b1, b2, a_t, b_t = event_coefficients(ts, pc[C_ZETA], pc[C_OMEGA0], pc[C_TAU])
+    co = event_coefficients(ts, pc[C_ZETA], pc[C_OMEGA0], pc[C_TAU])
     p_n, t_n, m = integrate_event(p, t, alpha, p_a, t_a, t_cool, n, ts, cst, cd_alpha, cd_table,
                                   prs, eta_rpm, eta_val)
-    new_alpha = a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev + pc[C_SQ0] * w[0]
+    alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, sp, t, tm)
+    new_alpha = alpha_n + pc[C_SQ0] * w[0]
     v = p_n + pc[C_SQ1] * w[1]
     v = pc[C_PMIN] if pc[C_PMIN] > v else v
     new_p = pc[C_PMAX] if pc[C_PMAX] < v else v
     v = t_n + pc[C_SQ2] * w[2]
     v = pc[C_TMIN] if pc[C_TMIN] > v else v
     new_t = pc[C_TMAX] if pc[C_TMAX] < v else v
-    v = a_t * tm + b_t * t + pc[C_SQ3] * w[3]
+    v = tm_n + pc[C_SQ3] * w[3]
     v = pc[C_TMIN] if pc[C_TMIN] > v else v
     new_tm = pc[C_TMAX] if pc[C_TMAX] < v else v
     st[0], st[1], st[2], st[3], st[4], st[5] = sp, new_alpha, alpha, new_p, new_t, new_tm

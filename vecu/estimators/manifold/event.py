@@ -32,7 +32,7 @@ import numpy as np
 from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
 from vecu.kernels import kernel
 from vecu.models import manifold_integrator as mi
-from vecu.models.manifold import efficiency_of, event_coefficients, throttle_flow_of
+from vecu.models.manifold import efficiency_of, event_coefficients, event_map, throttle_flow_of
 
 integrate_event = mi._integrate_event
 
@@ -278,11 +278,11 @@ def map_out(xo, xp, sp, p_n, t_n, co, fc):
     """xo[2] = the event map of eq. 10 from the posterior xp (eq. 1 with the coefficients co,
     the integrator's P_n, T_n, eq. 9; parameter states beyond the sixth held), xo[0] = it
     clamped (the next prior)."""
-    a1, a2, b1, b2, a_t, b_t = co
     u_prev, alpha, alpha_prev, t, tm = xp[0], xp[1], xp[2], xp[4], xp[5]
+    alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, sp, t, tm)
     xf = xo[2]
-    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
-    xf[3], xf[4], xf[5] = p_n, t_n, a_t * tm + b_t * t
+    xf[0], xf[1], xf[2] = sp, alpha_n, alpha
+    xf[3], xf[4], xf[5] = p_n, t_n, tm_n
     n = xp.shape[0]
     for i in range(6, n):
         xf[i] = xp[i]
