@@ -118,3 +118,6 @@ class EcuFunctionSpec:
     estimators: tuple[str, ...] = ()
     dbc: tuple[str, ...] = ()
     label: str = ""  # its broadcast value with unit, a replay plot's axis (default: its name)
+    # its hot paths, rows of `vecu bench --only breakdown`: (module, class or None, attribute,
+    # row label)
+    profile: tuple[tuple[str, str | None, str, str], ...] = ()

@@ -211,4 +211,12 @@ SPEC = EcuFunctionSpec(
         f"{e['swa_estimate_error_deg'].rms:.2f} deg, side-slip "
         f"{e['side_slip_error_deg'].rms:.3f} deg")),
     plot=_plot, report_rank=3, label="steering-wheel angle [deg]",
+    profile=(
+        ("vecu.plant.lateral", "LateralPart", "tick", "plant: lateral part"),
+        ("vecu.ecu.steering_function", "SteeringFunction", "run", "ecu: steering function"),
+        ("vecu.estimators.steering.smoothers", "FixedLagSmoother", "step",
+         "estimator: steering smoother (w/o UKF)"),
+        ("vecu.estimators.steering.filters", "_SteeringFilter", "step", "estimator: steering UKF"),
+        ("vecu.functions.steering", "SteeringProbe", "tick", "probes"),
+    ),
     estimators=ESTIMATORS["steering"].names)
