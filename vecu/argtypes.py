@@ -51,9 +51,6 @@ def bounded(lo: float | None = None, hi: float | None = None, *, integer: bool =
     return parse
 
 
-MANIFOLD_FILTERS = ("sdkf", "ekf", "adaptive")  # ecu.manifold.filter (--manifold-filter)
-
-
 def name_list(choices: tuple[str, ...], what: str = "group") -> Callable[[str], frozenset[str]]:
     """An argparse type: one name of `choices` or several, comma-separated (pipeline,replay)."""
 

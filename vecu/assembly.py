@@ -71,9 +71,7 @@ def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
             on_events = part
         else:
             parts.append(part)
-    plant = PlantNode(bus, codec, injector, parts, drive)
-    if on_events is not None:  # the engine-event chain's part
-        plant.manifold = on_events  # type: ignore[assignment]  # the event part (ManifoldPart's interface)
+    plant = PlantNode(bus, codec, injector, parts, drive, manifold=on_events)
     if truth:
         plant.enable_truth(codec)
     return plant

@@ -64,11 +64,8 @@ class RunResult:
         """Function name's series (None: not kept, or the run had no such function)."""
         return self.series.get(name)
 
-    # the built-in functions' series (vecu.functions.<name>)
+    # the first function's series (the throttle's: `vecu run --plot`, scenario reports)
     throttle_series = property(lambda self: self.series_of("throttle"))
-    speed_series = property(lambda self: self.series_of("speed"))
-    steering_series = property(lambda self: self.series_of("steering"))
-    manifold_series = property(lambda self: self.series_of("manifold"))
 
     @cached_property
     def summary(self) -> dict[str, Any]:

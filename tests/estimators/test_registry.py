@@ -60,13 +60,11 @@ def test_production_with_fractional_switching_angles_agrees_across_backends() ->
 
 def test_every_family_has_one_name_to_estimator_registry():
     """ESTIMATORS: each family's names each make a fresh estimator, an unknown name is a user
-    error; the command line's manifold filter list is the registry's."""
-    from vecu import argtypes
+    error."""
     from vecu.errors import BadArgumentError
-    from vecu.estimators.registry import ESTIMATORS, MANIFOLD_FILTERS
+    from vecu.estimators.registry import ESTIMATORS
 
     assert set(ESTIMATORS) == {"throttle", "speed", "steering", "manifold"}
-    assert argtypes.MANIFOLD_FILTERS == MANIFOLD_FILTERS
     for family in ESTIMATORS.values():
         for name in family.names:
             first, second = family.make(name), family.make(name)

@@ -5,6 +5,7 @@ outside its folder: the harness iterates the registry (vecu.functions)."""
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -95,3 +96,31 @@ def test_the_xcp_slave_measures_the_toy(with_toy):
     names = [m.name for m in ecu_measurements(node)]
     assert names[0] == "toy.level_v"
     node.bus.shutdown()
+
+
+def test_vecu_a2l_and_ecu_carry_the_toy(with_toy, tmp_path):
+    """`vecu a2l` and `vecu ecu` build their codec from the registry, as run and replay do: the
+    toy's own DBC reaches them (with vecu's codec alone, building the toy would fail)."""
+    a2l = tmp_path / "toy.a2l"
+    assert cli_main(["a2l", "--out", str(a2l)]) == 0
+    assert '/begin MEASUREMENT toy.level_v' in a2l.read_text()
+    # `vecu ecu` live on a virtual bus: a thread plays the toy's sensor, the toy's ECU side answers
+    codec, seen, stop = functions.function_codec(), [], threading.Event()
+    sensor = codec["TOY_Sensor"]
+
+    def play() -> None:
+        with can.Bus(interface="virtual", channel="toy-ecu") as bus:
+            while not stop.wait(0.01):
+                bus.send(sensor.frame({"TOY_Level": 3.0}, 0.0))
+                while (msg := bus.recv(0)) is not None:
+                    seen.append(msg.arbitration_id)
+
+    player = threading.Thread(target=play)
+    player.start()
+    try:
+        assert cli_main(["ecu", "--interface", "virtual", "--channel", "toy-ecu", "--duration",
+                         "0.5", "--sync-timeout", "0", "--quiet"]) == 0
+    finally:
+        stop.set()
+        player.join()
+    assert seen.count(1409) > 10  # TOY_Estimate every 10 ms once the sensor came

@@ -80,38 +80,6 @@ def test_discard_compiled_recompiles(fresh_backend, monkeypatch):
     assert _weighted_sum(10, 1.0) == 45.0
 
 
-@pytest.mark.parametrize("stale_after_rebuild", [False, True])
-def test_rebuild_if_stale_drops_and_rebuilds_only_what_disagrees(fresh_backend, monkeypatch,
-                                                                  stale_after_rebuild):
-    pytest.importorskip("numba")
-    monkeypatch.setenv(kernels.ENV_VAR, "numba")
-    calls: list[str] = []
-    kernels.rebuild_if_stale((_weighted_sum,), lambda: calls.append("check") or True,
-                             lambda: calls.append("rebuild"), "sums")
-    assert calls == ["check"]  # current: nothing dropped, nothing rebuilt
-    first = _weighted_sum.compiled
-    verdicts = iter([False, not stale_after_rebuild])
-
-    def current() -> bool:
-        calls.append("check")
-        return next(verdicts)
-
-    def rebuild() -> None:
-        calls.append("rebuild")
-        _weighted_sum.fix_signature((numba_types().int64, numba_types().float64))
-
-    calls.clear()
-    if stale_after_rebuild:
-        with pytest.raises(RuntimeError, match="compiled sums disagree"):
-            kernels.rebuild_if_stale((_weighted_sum,), current, rebuild, "sums")
-    else:
-        kernels.rebuild_if_stale((_weighted_sum,), current, rebuild, "sums")
-    assert calls == ["check", "rebuild", "check"]
-    assert _weighted_sum.compiled is not first  # dropped, then built again
-    assert _weighted_sum(10, 1.0) == 45.0
-    _weighted_sum.discard_compiled()  # leave a dispatcher that may compile for other tests
-
-
 def numba_types():
     from numba import types
 
@@ -165,9 +133,11 @@ def outer(x):
 """
 
 
-def test_a_changed_callee_file_drops_its_callers_disk_cache(tmp_path, monkeypatch):
-    """numba's cache only watches a kernel's own file; a kernel calling into another file is
-    recompiled when that file is newer than its cache (vecu.kernels._drop_stale_cache)."""
+def test_a_changed_callee_drops_its_callers_disk_cache(tmp_path, monkeypatch):
+    """numba's cache only watches a kernel's own file; vecu.kernels keys each entry by the code
+    it reaches (vecu.kernels._code_key), so a kernel calling into another file is recompiled
+    when that file's code changed, even when the file looks older than the cache (a process
+    that loaded the old source wrote the cache after the edit), and loaded when nothing did."""
     pytest.importorskip("numba")
     import importlib
     import os
@@ -179,6 +149,9 @@ def test_a_changed_callee_file_drops_its_callers_disk_cache(tmp_path, monkeypatc
     (root / "__init__.py").write_text("")
     (root / "caller.py").write_text(_CALLER.format(pkg=pkg))
     monkeypatch.syspath_prepend(str(tmp_path))
+
+    def caller_outer():
+        return sys.modules[f"{pkg}.caller"].outer.compiled
 
     def outer_of(value: float, stamp: float) -> float:
         callee = root / "callee.py"
@@ -193,9 +166,12 @@ def test_a_changed_callee_file_drops_its_callers_disk_cache(tmp_path, monkeypatc
 
     now = (root / "caller.py").stat().st_mtime
     assert outer_of(1.0, now - 100.0) == 4.0  # compiled and cached
-    assert list(root.glob("__pycache__/caller.outer-*.nbi"))
-    assert outer_of(1.0, now - 100.0) == 4.0  # loaded from the cache
-    assert outer_of(5.0, now + 100.0) == 12.0  # callee changed: not the stale 4.0
+    assert list(root.glob("__pycache__/caller.outer-*.nbi.key"))
+    assert outer_of(1.0, now - 100.0) == 4.0
+    assert caller_outer().stats.cache_hits  # loaded from the cache: same code, same key
+    assert outer_of(5.0, now - 100.0) == 12.0  # callee changed, its file older: not the stale 4.0
+    assert not caller_outer().stats.cache_hits  # compiled again
+    assert outer_of(5.0, now - 100.0) == 12.0 and caller_outer().stats.cache_hits
 
 
 COLD_THEN_WARM = """

@@ -52,8 +52,9 @@ def test_every_backend_gives_the_reference_bits(backend):
 
 
 def test_plant_and_filter_model_share_the_curve(backend):
-    """axle_forces (plant) and the steering model's accelerations kernel (which calls
-    tyre_force as a kernel; compiled under numba) give the same a_y bit for bit."""
+    """The plant's f / h and the steering model's accelerations kernel (both lateral_motion:
+    compiled under numba for the filter) give the same a_y and r' bit for bit from the filter's
+    packed constants (its indices match the vehicle's parameters)."""
     p = lat.VehicleParams()
     t = lat.tyre_consts(p)
     cst = sm.constants(sm.SteeringModel(params=p))
@@ -61,9 +62,9 @@ def test_plant_and_filter_model_share_the_curve(backend):
     for _ in range(200):
         x = tuple(float(v) for v in rng.normal(0.0, [0.5, 0.3, 0.1, 0.5]))
         vx = float(rng.uniform(3.0, 40.0))
-        ff, fr = lat.axle_forces(x[0], x[1], x[2], vx, p, t)
-        assert sm.accelerations(x[0], x[1], x[2], vx, cst)[0] == \
-            (ff * math.cos(x[2]) + fr) / p.mass_kg
+        a_y, r_dot = sm.accelerations(x[0], x[1], x[2], vx, cst)
+        assert a_y == lat.h((x[0], x[1]), (x[2], vx), p, t)[1]
+        assert (a_y - vx * x[1], r_dot) == lat.f((x[0], x[1]), (x[2], vx), p, t)
         assert sm.accelerations(x[0], x[1], x[2], vx, cst) == \
             sm.accelerations.py(x[0], x[1], x[2], vx, cst)
         assert sm.transition(*x, vx, cst) == sm.transition.py(*x, vx, cst)

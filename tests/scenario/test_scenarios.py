@@ -137,7 +137,7 @@ def test_wheel_dropout_coasts_on_the_accelerometer_and_heals():
     assert wheel["first_fault_status"] == "timeout" and 1.0 <= wheel["first_fault_s"] < 1.1
     assert wheel["status"] == "ok" and wheel["dtc"] == "confirmed"  # healed status, DTC stored
     assert res.summary["speed"]["coast_steps"] > 250  # >= 0.5 s without the wheel
-    s = res.speed_series
+    s = res.series_of("speed")
     sel = (s.t_s >= 1.0) & (s.t_s < 2.5)
     assert abs(s.v_est[sel] - s.v_true[sel]).max() < 5.0  # km/h while coasting through braking
 

@@ -1,12 +1,16 @@
-"""J2012 display codes of the DTC table; the documented security key algorithm."""
+"""J2012 display codes of the functions' DTCs; the documented security key algorithm."""
 
 from __future__ import annotations
 
-from vecu.uds.dtcs import DTC_TABLE
+from vecu.ecu.speed_function import DTCS as SPEED_DTCS
+from vecu.ecu.steering_function import DTCS as STEERING_DTCS
+from vecu.ecu.throttle_function import DTCS as THROTTLE_DTCS
+from vecu.uds.dtcs import BUS_DTC
 from vecu.uds.security import key_from_seed
 
 
 def test_dtc_numbers_read_as_their_j2012_codes():
+    DTC_TABLE = (*THROTTLE_DTCS, *SPEED_DTCS, *STEERING_DTCS, BUS_DTC)
     codes = {d.code for d in DTC_TABLE}
     assert {"P0122-00", "P0123-00", "P0121-00", "P0120-87", "C0035-87", "C0460-83",
             "U0001-00"} <= codes

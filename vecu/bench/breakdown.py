@@ -1,6 +1,6 @@
 """Where a simulated `vecu run` spends its time: microseconds per 1 ms tick by component.
 
-`python -m vecu.bench.breakdown [seconds]` runs the default configuration (all four estimators,
+`python -m vecu.bench.breakdown [seconds]` runs the default configuration (every function,
 all plant parts, TPS killed half way) on the simulated clock twice: once plain (the real
 x-real-time) and once under cProfile (nothing is patched). A component's row is its exclusive
 time: its cumulative time less the time of the components it calls, directly or through other
@@ -20,16 +20,10 @@ from typing import Any
 
 from vecu.clock import Stopwatch
 
-# (module, class or None for a module function, attribute, row label)
+# (module, class or None for a module function, attribute, row label): the harness's own; each
+# ECU function brings its parts' rows (EcuFunctionSpec.profile)
 COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
     ("vecu.plant.node", "PlantNode", "tick", "plant: node tick (FI poll, part dispatch)"),
-    ("vecu.plant.node", "ThrottlePart", "tick", "plant: throttle part"),
-    ("vecu.plant.throttle", "ThrottlePlant", "step", "plant: throttle model step"),
-    ("vecu.plant.throttle", "InputGenerator", "next", "plant: throttle input generator"),
-    ("vecu.plant.node", "LongitudinalPart", "tick", "plant: longitudinal part"),
-    ("vecu.plant.node", "LateralPart", "tick", "plant: lateral part"),
-    ("vecu.plant.node", "ManifoldPart", "event", "plant: manifold part (event)"),
-    ("vecu.plant.manifold", "ManifoldPlant", "step", "plant: manifold model step"),
     ("vecu.codec", "FrameCodec", "frame", "codec: encode + can.Message"),
     ("vecu.codec", "FrameCodec", "decode", "codec: decode"),
     ("vecu.bus", "BusNode", "send", "bus: send"),
@@ -37,23 +31,7 @@ COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
     ("vecu.bus", "LaneBus", "recv", "bus: recv (poll)"),  # simulated runs: the in-process lane
     ("vecu.ecu.node", "EcuNode", "tick", "ecu: node tick (dispatch, status)"),
     ("vecu.ecu.node", "EcuNode", "receive", "ecu: receive + validate"),
-    ("vecu.ecu.throttle_function", "ThrottleFunction", "run", "ecu: throttle function"),
-    ("vecu.estimators.throttle.production", "ThrottleParticleFilter", "step",
-     "estimator: throttle production PF/KF"),
-    ("vecu.ecu.speed_function", "SpeedFunction", "run", "ecu: speed function"),
-    ("vecu.estimators.speed.kf", "SpeedKalmanFilter", "step", "estimator: speed KF"),
-    ("vecu.ecu.steering_function", "SteeringFunction", "run", "ecu: steering function"),
-    ("vecu.estimators.steering.smoothers", "FixedLagSmoother", "step",
-     "estimator: steering smoother (w/o UKF)"),
-    ("vecu.estimators.steering.filters", "_SteeringFilter", "step", "estimator: steering UKF"),
-    ("vecu.ecu.manifold_function", "ManifoldFunction", "run", "ecu: manifold function"),
-    ("vecu.estimators.manifold.filters", "_ManifoldKF", "step", "estimator: manifold SDKF"),
-    ("vecu.ecu.manifold_function", None, "predict_cac", "estimator: manifold CAC prediction"),
     ("vecu.ecu.sensor_monitor", "SensorMonitor", "select", "ecu: sensor monitors"),
-    ("vecu.functions.throttle", "ThrottleProbe", "tick", "probes"),
-    ("vecu.functions.speed", "SpeedProbe", "tick", "probes"),
-    ("vecu.functions.steering", "SteeringProbe", "tick", "probes"),
-    ("vecu.functions.manifold", "ManifoldProbe", "tick", "probes"),
 )
 
 
@@ -69,8 +47,11 @@ FuncKey = tuple[str, int, str]  # pstats' (file, first line, name)
 
 def _component_keys() -> dict[FuncKey, str]:
     """The profiler's key of each component's function -> its row label."""
+    from vecu import functions
+
     keys: dict[FuncKey, str] = {}
-    for mod_name, cls_name, attr, label in COMPONENTS:
+    for mod_name, cls_name, attr, label in (*COMPONENTS,
+                                            *(row for s in functions.specs() for row in s.profile)):
         owner = importlib.import_module(mod_name)
         if cls_name is not None:
             owner = getattr(owner, cls_name)

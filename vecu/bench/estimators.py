@@ -256,7 +256,7 @@ def integrate_manifold_reference(p: float, t: float, alpha: float, u: Any, dt: f
                                  prm: Any = None) -> tuple[float, float, int]:
     """vecu.models.manifold.integrate_manifold written plainly on the model's own functions
     (`_rhs` per stage: throttle_flow, volumetric_efficiency, heat_flow): the baseline of the
-    hoisted, inlined implementation (and its bit-for-bit reference in the tests)."""
+    hoisted, inlined implementation (the tests hold their own oracle)."""
     from vecu.models import manifold
     from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA
     from vecu.models.manifold_params import V8_5L7

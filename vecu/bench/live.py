@@ -113,7 +113,7 @@ def bench_throughput_virtual(seconds: float, load_per_s: float = 8000.0) -> dict
         ecu_bus = LiveBus(raw_ecu, sent_ids(codec, "VECU"), "virtual")
         plant = build_plant(config, codec, plant_bus)
         ecu = EcuNode(ecu_bus, codec, build_functions(config, codec).enabled())
-        base_per_s = 2000 + 500 + 200 + 2 * 100  # throttle, speed, steering, ~engine events
+        base_per_s = 2000 + 500 + 200 + 2 * 100  # throttle, speed, SWA, ~engine events
         extra = ExtraLoad(codec, plant, max(load_per_s - base_per_s, 0.0))
         clock = WallClock(spin_ns=DEFAULT_SPIN_US * 1000)
         sched = Scheduler(clock)

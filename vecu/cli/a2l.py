@@ -26,10 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     from vecu.assembly import build_functions
     from vecu.bus import SinkBus
-    from vecu.codec import DbcCodec
     from vecu.config import RunConfig
     from vecu.ecu.node import EcuNode
     from vecu.errors import BadArgumentError
+    from vecu.functions import function_codec
     from vecu.runner import attach_xcp_server
 
     if args.out is not None and not args.out.endswith((".a2l", ".A2L")):
@@ -39,7 +39,7 @@ def main(args: argparse.Namespace) -> int:
     config.validate()
     if not config.params.ecu.xcp.enabled:
         raise BadArgumentError("ecu.xcp.enabled is false: the ECU serves no XCP, so no A2L")
-    codec = DbcCodec()
+    codec = function_codec()  # vecu's DBCs and the plug-in functions' own (as run, replay)
     bus = SinkBus()
     try:
         node = EcuNode(bus, codec, build_functions(config, codec).enabled())

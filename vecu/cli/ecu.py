@@ -13,6 +13,7 @@ from vecu.cli import (
     configure_logging,
     param_sets,
 )
+from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 from vecu.live.args import add_live_arguments, function_switches, live_options
 
 MAX_STATUS_CHANGES = 64
@@ -31,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_live_arguments(p)
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.*")
-    p.add_argument("--manifold-filter", default=None, choices=argtypes.MANIFOLD_FILTERS,
+    p.add_argument("--manifold-filter", default=None, choices=ESTIMATORS["manifold"].names,
                    help="manifold filter (default sdkf)")
     p.add_argument("--sync-timeout", type=argtypes.bounded(0.0, 3600.0), default=10.0, metavar="S",
                    help="wait up to S s for the plant's ETB_Wattmeter frames to put the 1 ms grid "
@@ -57,10 +58,10 @@ def main(args: argparse.Namespace) -> int:
     check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
 
     from vecu.assembly import build_functions, schedule_ecu
-    from vecu.codec import DbcCodec
     from vecu.config import RunConfig
     from vecu.ecu.node import EcuNode
     from vecu.ecu.sensor_monitor import SOURCE_SENSOR, SensorStatus
+    from vecu.functions import function_codec
     from vecu.live.process import LiveProcess
     from vecu.live.sync import PhaseSync, sync_to_trigger
     from vecu.runner import attach_xcp_server, warm_up
@@ -74,7 +75,7 @@ def main(args: argparse.Namespace) -> int:
                        **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
                        ).with_params(sets, noise_scale=args.noise_scale, estimator=args.estimator,
                                      manifold_filter=args.manifold_filter)
-    codec = DbcCodec()
+    codec = function_codec()  # vecu's DBCs and the plug-in functions' own (as run, replay)
     config.validate()
     fns = build_functions(config, codec)
     proc = LiveProcess(live_options(args, "ecu"), codec, "VECU",

@@ -46,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
     check_outputs(log=args.log)
+    from vecu.functions import OPTIONAL
     from vecu.runner import RunConfig, run
 
     duration = args.duration
@@ -57,8 +58,9 @@ def main(args: argparse.Namespace) -> int:
             duration = max(round(series.end_s, 3), 0.001)
     duration = DEFAULT_DURATION_S if duration is None else duration
     config = RunConfig(duration_s=duration, seed=args.seed, kill_tps_at_s=None,
-                       log_path=args.log, truth=args.truth, speed=False, steering=False,
-                       manifold=False, throttle_input=args.input).with_params(param_sets(args))
+                       log_path=args.log, truth=args.truth, throttle_input=args.input,
+                       **{name: False for name in OPTIONAL},  # type: ignore[arg-type]  # the throttle function alone: every optional one off
+                       ).with_params(param_sets(args))
     config.validate()
     result = run(config)
     if not args.quiet:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-FAMILIES = ("throttle", "manifold", "steering", "speed")
+from vecu.figures import FAMILIES
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -51,8 +51,8 @@ def main(args: argparse.Namespace) -> int:
     check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
 
     from vecu.assembly import build_plant, schedule_plant
-    from vecu.codec import DbcCodec
     from vecu.config import RunConfig
+    from vecu.functions import function_codec
     from vecu.live.load import ExtraLoad
     from vecu.live.process import LiveProcess
     from vecu.runner import warm_up
@@ -64,7 +64,7 @@ def main(args: argparse.Namespace) -> int:
                        kill_tps_at_s=None,
                        **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
                        ).with_params(param_sets(args, only="plant."), noise_scale=args.noise_scale)
-    codec = DbcCodec()
+    codec = function_codec()  # vecu's DBCs and the plug-in functions' own (as run, replay)
     config.validate()
     proc = LiveProcess(live_options(args, "plant"), codec, "PLANT")
     summary: dict[str, Any] | None = None

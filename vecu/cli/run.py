@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from vecu import argtypes
 from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 
 if TYPE_CHECKING:
     from vecu.summary import RunSummary
@@ -32,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fault-value", type=argtypes.finite, metavar="X",
                    help="offset in V (default 0.5), gain G in [0,1] (0.5), noise sigma in V (0.3)")
     p.add_argument("--kill-swa-at", type=argtypes.kill_time, default=None, metavar="T",
-                   help="inject a steering-wheel-angle sensor fault at T s (default: none)")
+                   help="inject an SWA sensor fault at T s (default: none)")
     p.add_argument("--swa-fault", default="dead", metavar="KIND",
                    help="SWA fault kind, as --fault (offset/noise in deg, default dead)")
     p.add_argument("--swa-fault-value", type=argtypes.finite, metavar="X", help="SWA fault value")
@@ -40,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="process-noise scale alpha of the throttle model, plant and ECU (1 = paper; "
                         f"0..{argtypes.NOISE_SCALE_MAX:g})")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production; = --set ecu.throttle.estimator=NAME)")
-    p.add_argument("--manifold-filter", default=None, choices=argtypes.MANIFOLD_FILTERS,
+    p.add_argument("--manifold-filter", default=None, choices=ESTIMATORS["manifold"].names,
                    help="manifold filter (default sdkf; = --set ecu.manifold.filter=NAME)")
     add_set_option(p, "plant.* and ecu.*", params_file=True)
     p.add_argument("--set-at", dest="sets_at", action="append", default=[],

@@ -1,6 +1,8 @@
 """What an ECU function shows its diagnostic servers: UDS data identifiers (Did, read / written /
-IO-controlled by vecu.uds) and measurement variables (Variable, sampled by vecu.xcp). Each
-function lists its own (`dids()`, `variables()`); the servers iterate the node's functions.
+IO-controlled by vecu.uds), the DTCs of the sensors it diagnoses (DtcSpec, vecu.uds.dtcs),
+measurement variables (Variable, sampled by vecu.xcp) and the calibration subtrees it takes
+mid-run (vecu.xcp.calibration). Each function lists its own (`dids()`, `dtcs()`,
+`variables()`, `calibrations()`); the servers iterate the node's functions.
 
 A DID's number is an integer on the wire, big-endian: physical = raw * scale. "Not available"
 (no frame yet) is all ones for an unsigned DID and the most negative value for a signed one.
@@ -14,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from vecu.ecu.sensor_monitor import SensorMonitor
+from vecu.ecu.sensor_monitor import SensorMonitor, SensorStatus
 
 Reader = Callable[[], "float | None | bytes"]
 FLOAT, UBYTE, ULONG = "f", "B", "I"  # a Variable's struct code; FLOAT32_IEEE fits a DAQ entry
@@ -60,6 +62,29 @@ class Did:
 
     def value(self) -> bytes:
         return self.encode(self.read())
+
+
+@dataclass(frozen=True)
+class DtcSpec:
+    """One DTC: its SAE J2012 number, the monitor it reports ("tps", ... or "bus") and the
+    monitor findings (SensorStatus) that set it."""
+
+    number: int          # 3 bytes: J2012 code (2 bytes) and failure type byte
+    source: str          # monitor name (a function's monitors() key) or "bus"
+    findings: tuple[SensorStatus, ...]
+    text: str
+
+    @property
+    def code(self) -> str:
+        """The J2012 display form, e.g. P0122-00."""
+        hi = self.number >> 16
+        letter = "PCBU"[hi >> 6]
+        mid, low = (self.number >> 8) & 0xFF, self.number & 0xFF
+        return f"{letter}{(hi >> 4) & 3}{hi & 0xF:X}{mid:02X}-{low:02X}"
+
+
+# a function's calibrations(): subtree path under ecu. -> how the function takes its new value
+Calibrations = dict[str, Callable[[Any], None]]
 
 
 @dataclass(frozen=True)

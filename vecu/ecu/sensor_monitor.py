@@ -1,6 +1,6 @@
 """Sensor diagnosis: timeout, range, E2E, stuck, plausibility against an estimator; DTCs.
 
-One monitor per safety-relevant sensor (TPS, steering-wheel angle, wheel speed). Each check is
+One monitor per safety-relevant sensor (a function's monitors(): TPS, SWA, wheel speed). Each check is
 debounced; the first to confirm sets the status (codes = THR_TpsStatus / STE_SwaStatus /
 DIAG_*Status in the DBC) and the ECU substitutes the estimate. The status heals after `heal_ms` of
 clean samples. The DTC follows its own lifecycle (Dtc): none -> pending (a check failing, not yet

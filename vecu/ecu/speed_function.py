@@ -15,9 +15,10 @@ from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
-from vecu.ecu.diagnostics import FLOAT, UBYTE, Did, Variable, status_reader
+from vecu.ecu.diagnostics import FLOAT, UBYTE, Calibrations, Did, DtcSpec, Variable, status_reader
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
+from vecu.ecu.sensor_monitor import SensorStatus as S
 from vecu.estimators.speed.kf import SpeedFilterConfig, SpeedKalmanFilter
 from vecu.units import MPS_PER_KMH
 
@@ -27,6 +28,17 @@ WHEEL_MAX_KMH = 280.0  # above: a short to supply / garbage (the car cannot go f
 
 _OK, _TIMEOUT = SensorStatus.OK, SensorStatus.TIMEOUT  # bound once (per-tick code)
 
+
+# failure type bytes (SAE J2012-DA): 0x21/0x22 signal amplitude < min / > max, 0x64 signal
+# plausibility failure, 0x83 value of signal protection calculation incorrect (CRC / alive
+# counter), 0x87 missing message
+DTCS: tuple[DtcSpec, ...] = (
+    DtcSpec(0x403587, "wheel", (S.TIMEOUT,), "wheel speed sensor: missing message (ESC_Motion)"),
+    DtcSpec(0x403521, "wheel", (S.RANGE_LOW,), "wheel speed sensor: signal below minimum"),
+    DtcSpec(0x403522, "wheel", (S.RANGE_HIGH,), "wheel speed sensor: signal above maximum"),
+    DtcSpec(0x403564, "wheel", (S.IMPLAUSIBLE, S.STUCK),
+            "wheel speed sensor: implausible against the speed filter"),
+)
 
 @dataclass(frozen=True)
 class SpeedFunctionConfig:
@@ -114,6 +126,14 @@ class SpeedFunction:
             Did(0x0304, "speed filter mode (0 normal, 1 standstill, 2 ABS, 3 coast)", "B", 1,
                 "", lambda: float(self.mode)),
         ]
+
+    def dtcs(self) -> tuple[DtcSpec, ...]:
+        """UDS: the WHEEL sensor's DTCs."""
+        return DTCS
+
+    def calibrations(self) -> Calibrations:
+        """Taken mid-run (XCP, timed sets): the WHEEL monitor's settings."""
+        return {"speed.wheel_monitor": self.monitor.recalibrate}
 
     def variables(self) -> list[Variable]:
         """XCP measurements: the filter's speed, sigma, acceleration, offset and mode."""

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
-from vecu.ecu.diagnostics import FLOAT, UBYTE, Did, Variable, status_reader
+from vecu.ecu.diagnostics import FLOAT, UBYTE, Calibrations, Did, DtcSpec, Variable, status_reader
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import (
     SOURCE_SENSOR,
@@ -21,6 +21,7 @@ from vecu.ecu.sensor_monitor import (
     SensorMonitorConfig,
     SensorStatus,
 )
+from vecu.ecu.sensor_monitor import SensorStatus as S
 from vecu.estimators.steering.filters import SteeringUKF
 from vecu.estimators.steering.model import SteeringModel
 from vecu.estimators.steering.smoothers import FixedLagSmoother
@@ -28,6 +29,18 @@ from vecu.units import DEG_PER_RAD, MPS_PER_KMH
 
 SWA_LIMIT_DEG = 780.0  # lock to lock of a passenger car, about 2.2 turns each way
 
+
+# failure type bytes (SAE J2012-DA): 0x21/0x22 signal amplitude < min / > max, 0x64 signal
+# plausibility failure, 0x83 value of signal protection calculation incorrect (CRC / alive
+# counter), 0x87 missing message
+DTCS: tuple[DtcSpec, ...] = (
+    DtcSpec(0x446087, "swa", (S.TIMEOUT,), "steering angle sensor: missing message"),
+    DtcSpec(0x446083, "swa", (S.E2E_ERROR,), "steering angle sensor: signal protection (E2E)"),
+    DtcSpec(0x446021, "swa", (S.RANGE_LOW,), "steering angle sensor: signal below minimum"),
+    DtcSpec(0x446022, "swa", (S.RANGE_HIGH,), "steering angle sensor: signal above maximum"),
+    DtcSpec(0x446064, "swa", (S.IMPLAUSIBLE, S.STUCK),
+            "steering angle sensor: implausible against the estimate, or stuck"),
+)
 
 @dataclass(frozen=True)
 class SteeringFunctionConfig:
@@ -128,6 +141,14 @@ class SteeringFunction:
                 lambda: smon.value, io=("SWA_Sensor", "SWA_Angle")),
             Did(0x0404, "steering-wheel angle sensor status", "B", 1, "", status_reader(smon)),
         ]
+
+    def dtcs(self) -> tuple[DtcSpec, ...]:
+        """UDS: the SWA sensor's DTCs."""
+        return DTCS
+
+    def calibrations(self) -> Calibrations:
+        """Taken mid-run (XCP, timed sets): the SWA monitor's settings."""
+        return {"steering.monitor": self.monitor.recalibrate}
 
     def variables(self) -> list[Variable]:
         """XCP measurements: the SWA broadcast and its source."""

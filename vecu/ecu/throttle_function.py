@@ -13,7 +13,16 @@ from dataclasses import asdict, dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
-from vecu.ecu.diagnostics import FLOAT, UBYTE, ULONG, Did, Variable, status_reader
+from vecu.ecu.diagnostics import (
+    FLOAT,
+    UBYTE,
+    ULONG,
+    Calibrations,
+    Did,
+    DtcSpec,
+    Variable,
+    status_reader,
+)
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import (
     SOURCE_SENSOR,
@@ -21,12 +30,25 @@ from vecu.ecu.sensor_monitor import (
     SensorMonitorConfig,
     SensorStatus,
 )
+from vecu.ecu.sensor_monitor import SensorStatus as S
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.models.sensors import TpsCalibration
 from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel
 
 MAX_BACKLOG = 20  # wattmeter samples the estimator catches up on in one run (20 ms of stall)
 
+
+# failure type bytes (SAE J2012-DA): 0x21/0x22 signal amplitude < min / > max, 0x64 signal
+# plausibility failure, 0x83 value of signal protection calculation incorrect (CRC / alive
+# counter), 0x87 missing message
+DTCS: tuple[DtcSpec, ...] = (
+    DtcSpec(0x012200, "tps", (S.RANGE_LOW,), "TPS A circuit low (open / short to ground)"),
+    DtcSpec(0x012300, "tps", (S.RANGE_HIGH,), "TPS A circuit high (short to supply)"),
+    DtcSpec(0x012100, "tps", (S.IMPLAUSIBLE, S.STUCK),
+            "TPS A circuit range/performance (implausible against the estimate, or stuck)"),
+    DtcSpec(0x012087, "tps", (S.TIMEOUT,), "TPS A: missing message (TPS_Sensor timeout)"),
+    DtcSpec(0x012083, "tps", (S.E2E_ERROR,), "TPS A: signal protection (E2E CRC / alive counter)"),
+)
 
 @dataclass(frozen=True)
 class ThrottleFunctionConfig:
@@ -144,6 +166,14 @@ class ThrottleFunction:
             Did(0x0110, "TPS plausibility margin (ecu.throttle.tps_monitor.plaus_margin)",
                 "H", 0.01, "deg", lambda: mon.cfg.plaus_margin, write=set_margin),
         ]
+
+    def dtcs(self) -> tuple[DtcSpec, ...]:
+        """UDS: the TPS sensor's DTCs."""
+        return DTCS
+
+    def calibrations(self) -> Calibrations:
+        """Taken mid-run (XCP, timed sets): the TPS monitor's settings."""
+        return {"throttle.tps_monitor": self.monitor.recalibrate}
 
     def variables(self) -> list[Variable]:
         """XCP measurements: estimate, sigma, broadcast, TPS angle, source, resets."""

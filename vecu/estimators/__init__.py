@@ -1,1 +1,1 @@
-"""State estimators by family (throttle, speed, steering, manifold) on shared sigma-point and covariance math (common)."""
+"""State estimators by family (estimators.registry ESTIMATORS) on shared sigma-point and covariance math (common)."""

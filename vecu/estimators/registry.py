@@ -1,17 +1,20 @@
 """Estimators by name, one table entry per family (ESTIMATORS: names and a make(name, ...)):
 what `vecu run` / `vecu eval` and the parameter tree (ecu.throttle.estimator,
 ecu.manifold.filter) accept. The throttle family's filters are listed here; the other
-families' makers import their modules on first use."""
+families' makers import their modules on first use: reading the names imports nothing heavy
+(the command line's choices come from here)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from vecu.errors import BadArgumentError, UnavailableError
-from vecu.estimators.throttle.base import ThrottleEstimator
-from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel
+
+if TYPE_CHECKING:
+    from vecu.estimators.throttle.base import ThrottleEstimator
+    from vecu.models.throttle import ThrottleModel
 
 _PAPER = ("ahsm", "arm", "agm")
 # Fast (plain-float) paper filters, their numpy reference versions, the model-only baseline and
@@ -19,37 +22,6 @@ _PAPER = ("ahsm", "arm", "agm")
 THROTTLE_ESTIMATORS: tuple[str, ...] = (
     *_PAPER, *(f"{s}-numpy" for s in _PAPER), "open-loop", "production",
 )
-
-
-class OpenLoopThrottle:
-    """Baseline: the AHSM filter's prediction only, y ignored (what the model alone knows).
-
-    Its error is what an estimator must beat for the wattmeter to be worth anything.
-    """
-
-    def __init__(self, noise_scale: float = 1.0, model: ThrottleModel = PAPER_THROTTLE) -> None:
-        from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
-
-        self._ukf = FastThrottleUKF("ahsm", noise_scale, model=model)
-        self.name = "open-loop"
-
-    @property
-    def resets(self) -> int:
-        return self._ukf.resets
-
-    def step(self, u_prev: float, y: float | None) -> None:
-        self._ukf.step(u_prev, None)
-
-    @property
-    def theta_deg(self) -> float:
-        return self._ukf.theta_deg
-
-    @property
-    def theta_std_deg(self) -> float:
-        return self._ukf.theta_std_deg
-
-    def reset(self) -> None:
-        self._ukf.reset()
 
 
 class EstimatorUnavailableError(UnavailableError, ValueError):
@@ -65,6 +37,8 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0,
     Raises BadArgumentError (a ValueError) for an unknown name, EstimatorUnavailableError if
     "production" cannot be imported (the other names never depend on it).
     """
+    from vecu.models.throttle import PAPER_THROTTLE
+
     if name in _PAPER:
         from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 
@@ -74,6 +48,8 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0,
 
         return NumpyThrottleUKF(name[: -len("-numpy")], noise_scale, model or PAPER_THROTTLE)
     if name == "open-loop":
+        from vecu.estimators.throttle.open_loop import OpenLoopThrottle
+
         return OpenLoopThrottle(noise_scale, model or PAPER_THROTTLE)
     if name == "production":
         try:
@@ -91,8 +67,7 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0,
     )
 
 
-# ecu.manifold.filter: Dutka 2006's EKF and SDKF, the adaptive EKF (vecu.argtypes holds the
-# command line's copy of these names; tests/estimators/test_registry.py keeps the two equal)
+# ecu.manifold.filter: Dutka 2006's EKF and SDKF, the adaptive EKF
 MANIFOLD_FILTERS: tuple[str, ...] = ("sdkf", "ekf", "adaptive")
 
 

@@ -99,7 +99,7 @@ class EcuFunctionSpec:
     kill of the run's options. sensors: the sensors it diagnoses by short name (its probe's
     series then has output() -> (t, output, truth, source or None)). inputs: the messages it reads (a replay's signal map), truth:
     its replay scoring, estimators: the estimator names its calibration accepts, dbc: DBC files
-    with its own messages (beside vecu's)."""
+    with its own messages (beside vecu's), label: what it broadcasts (a replay plot's axis)."""
 
     name: str
     enabled: Callable[[RunConfig], bool]
@@ -117,3 +117,7 @@ class EcuFunctionSpec:
     plot: Callable[[Any, Any], None] | None = None  # (its series, a matplotlib axes): a panel
     estimators: tuple[str, ...] = ()
     dbc: tuple[str, ...] = ()
+    label: str = ""  # its broadcast value with unit, a replay plot's axis (default: its name)
+    # its hot paths, rows of `vecu bench --only breakdown`: (module, class or None, attribute,
+    # row label)
+    profile: tuple[tuple[str, str | None, str, str], ...] = ()

@@ -146,4 +146,13 @@ SPEC = EcuFunctionSpec(
     ), describe=lambda e: (
         f"MAP RMS {e['map_error_kpa'].rms:.3f} kPa, IMT {e['imt_error_k'].rms:.2f} K, "
         f"CAC {e['cac_error_mg'].rms:.2f} mg")),
-    plot=_plot, report_rank=2, estimators=ESTIMATORS["manifold"].names)
+    plot=_plot, report_rank=2, label="manifold pressure [kPa]",
+    profile=(
+        ("vecu.plant.node", "ManifoldPart", "event", "plant: manifold part (event)"),
+        ("vecu.plant.manifold", "ManifoldPlant", "step", "plant: manifold model step"),
+        ("vecu.ecu.manifold_function", "ManifoldFunction", "run", "ecu: manifold function"),
+        ("vecu.estimators.manifold.filters", "_ManifoldKF", "step", "estimator: manifold SDKF"),
+        ("vecu.ecu.manifold_function", None, "predict_cac", "estimator: manifold CAC prediction"),
+        ("vecu.functions.manifold", "ManifoldProbe", "tick", "probes"),
+    ),
+    estimators=ESTIMATORS["manifold"].names)

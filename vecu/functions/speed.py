@@ -186,4 +186,11 @@ SPEC = EcuFunctionSpec(
         TruthPair("accel_error_mps2", "SPD_VehAccel", "TRU_VehAccel"),
     ), burn_in_ns=SPEED_BURN_IN_NS, describe=lambda e: (
         f"RMS {e['speed_error_kmh'].rms:.3f} km/h, accel {e['accel_error_mps2'].rms:.3f} m/s^2")),
-    plot=_plot, report_rank=1, estimators=ESTIMATORS["speed"].names)
+    plot=_plot, report_rank=1, label="vehicle speed [km/h]",
+    profile=(
+        ("vecu.plant.node", "LongitudinalPart", "tick", "plant: longitudinal part"),
+        ("vecu.ecu.speed_function", "SpeedFunction", "run", "ecu: speed function"),
+        ("vecu.estimators.speed.kf", "SpeedKalmanFilter", "step", "estimator: speed KF"),
+        ("vecu.functions.speed", "SpeedProbe", "tick", "probes"),
+    ),
+    estimators=ESTIMATORS["speed"].names)

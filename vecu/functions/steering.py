@@ -21,7 +21,7 @@ from vecu.estimators.registry import ESTIMATORS
 from vecu.faults import FaultInjector, FaultTarget
 from vecu.functions.base import EcuFunctionSpec, EcuInput, Kill, Sensor, TruthChannel, TruthPair
 from vecu.plant.drive import Drive
-from vecu.plant.node import LateralPart
+from vecu.plant.lateral import LateralPart
 from vecu.probes import SeriesBuffer, source_name
 from vecu.stats import ErrorStats, RunningStats
 from vecu.summary import FLATTEN, Detection, KillSplit
@@ -210,4 +210,13 @@ SPEC = EcuFunctionSpec(
         f"SWA broadcast RMS {e['swa_broadcast_error_deg'].rms:.2f} deg, UKF "
         f"{e['swa_estimate_error_deg'].rms:.2f} deg, side-slip "
         f"{e['side_slip_error_deg'].rms:.3f} deg")),
-    plot=_plot, report_rank=3, estimators=ESTIMATORS["steering"].names)
+    plot=_plot, report_rank=3, label="steering-wheel angle [deg]",
+    profile=(
+        ("vecu.plant.lateral", "LateralPart", "tick", "plant: lateral part"),
+        ("vecu.ecu.steering_function", "SteeringFunction", "run", "ecu: steering function"),
+        ("vecu.estimators.steering.smoothers", "FixedLagSmoother", "step",
+         "estimator: steering smoother (w/o UKF)"),
+        ("vecu.estimators.steering.filters", "_SteeringFilter", "step", "estimator: steering UKF"),
+        ("vecu.functions.steering", "SteeringProbe", "tick", "probes"),
+    ),
+    estimators=ESTIMATORS["steering"].names)

@@ -184,4 +184,14 @@ SPEC = EcuFunctionSpec(
         f"broadcast RMS {e['broadcast_error_deg'].rms:.2f} deg, estimator "
         f"{e['estimate_error_deg'].rms:.2f} deg, after fallback "
         f"{e['fallback_error_deg'].rms:.2f} deg ({e['fallback_error_deg'].n} ticks)")),
-    report_rank=0, estimators=ESTIMATORS["throttle"].names)
+    report_rank=0, label="throttle angle [deg]",
+    profile=(
+        ("vecu.plant.node", "ThrottlePart", "tick", "plant: throttle part"),
+        ("vecu.plant.throttle", "ThrottlePlant", "step", "plant: throttle model step"),
+        ("vecu.plant.throttle", "InputGenerator", "next", "plant: throttle input generator"),
+        ("vecu.ecu.throttle_function", "ThrottleFunction", "run", "ecu: throttle function"),
+        ("vecu.estimators.throttle.production", "ThrottleParticleFilter", "step",
+         "estimator: throttle production PF/KF"),
+        ("vecu.functions.throttle", "ThrottleProbe", "tick", "probes"),
+    ),
+    estimators=ESTIMATORS["throttle"].names)

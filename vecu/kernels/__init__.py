@@ -16,8 +16,13 @@ so only the first process on a machine pays the compile time (~1-3 s per kernel)
 
 A kernel may call other kernels (small shared pieces such as vecu.estimators.common.small_linalg
 or vecu.models.lateral.tyre_force): under numba a Kernel object used inside compiled code is
-its compiled dispatcher, and a kernel's disk cache is dropped when a file it calls into (other
-kernels, helpers) is newer than that cache (numba itself only watches the kernel's own file).
+its compiled dispatcher. numba links the kernels a kernel calls into its cache entry but only
+watches the kernel's own file; so each cache entry is keyed by the code this process loaded:
+a hash of the byte code and module constants of every module the kernel reaches through its
+globals (the kernel's, its callees', transitively), kept beside numba's index (`<index>.key`).
+A cache written from other code (a callee edited, also by a process that loaded the old source
+before the edit) is dropped and compiled again (`_code_key`, `_drop_stale_cache`): one
+mechanism for every kernel, no module keeps a guard of its own.
 Plain-Python hot paths call `k.py` directly: a compiled call from Python costs more than a tiny
 kernel.
 
@@ -28,10 +33,13 @@ only do scalar IEEE arithmetic and libm calls the outputs are bit-identical (tes
 
 from __future__ import annotations
 
+import hashlib
 import os
-from collections.abc import Callable, Iterator, Sequence
+import sys
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import CodeType, ModuleType
 from typing import Any
 
 from vecu.errors import ConfigError
@@ -127,8 +135,6 @@ def kernel_cache_dirs() -> list[Path]:
     (numba.core.caching's locators, in order): NUMBA_CACHE_DIR when set; else __pycache__
     beside the sources when that is writable (a checkout, an editable install); else the
     user-wide cache directory (a package installed where the user cannot write)."""
-    import hashlib
-
     from numba.core import config as numba_config
     from numba.misc.appdirs import AppDirs
 
@@ -174,8 +180,7 @@ class Kernel:
         return self._compiled
 
     def discard_compiled(self) -> None:
-        """Forget the compiled code, on disk too (numba's cache does not see changes to other
-        kernels a kernel calls: a caller that detects such staleness recompiles with this)."""
+        """Forget the compiled code, on disk too (the next use compiles it again)."""
         if self._compiled is not None:
             cache = getattr(self._compiled, "_cache", None)
             if cache is not None:
@@ -200,61 +205,118 @@ class Kernel:
         return self.impl()(*args)
 
 
-def rebuild_if_stale(kernels: Sequence[Kernel], current: Callable[[], bool],
-                     compile_again: Callable[[], None], what: str) -> None:
-    """numba links the kernels a kernel calls into its cache entry and does not see them
-    change; vecu's file-time check (_drop_stale_cache) misses an entry written by a process that
-    had loaded the old source before the file changed. `current()` compares a sample call of
-    the cached kernels with their parts called one by one; when it fails, the kernels are
-    dropped (their disk cache too), `compile_again()` builds them from the sources, and
-    current() must then hold (RuntimeError otherwise: a real disagreement, a bug)."""
-    if current():
-        return
-    for k in kernels:
-        k.discard_compiled()
-    compile_again()
-    if not current():
-        raise RuntimeError(f"compiled {what} disagree with the kernels they call")
+_SIMPLE = (bool, int, float, complex, str, bytes, type(None))
+_module_keys: dict[str, tuple[ModuleType, bytes]] = {}  # name -> (module, digest of its code)
 
 
-def _called_files(fn: Callable[..., Any]) -> set[str]:
-    """Source files of fn and of every function it calls by a global name, transitively (Kernel
-    objects, plain helpers, numba dispatchers)."""
-    files: set[str] = set()
+def _code_bytes(code: CodeType) -> bytes:
+    """A code object's byte code, names and constants, nested code included (marshal's output
+    depends on reference counts: not stable across processes)."""
+    parts = [code.co_code, repr((code.co_names, code.co_varnames, code.co_freevars,
+                                 code.co_cellvars, code.co_argcount)).encode()]
+    for const in code.co_consts:
+        if isinstance(const, CodeType):
+            parts.append(_code_bytes(const))
+        elif isinstance(const, frozenset):  # `x in {...}`: its repr's order follows str hashing
+            parts.append(repr(sorted(repr(e) for e in const)).encode())
+        else:
+            parts.append(repr(const).encode())
+    return b"\x00".join(parts)
+
+
+def _module_key(module: ModuleType) -> bytes:
+    """Digest of a module's functions' byte code (nested ones included) and its constants by
+    the UPPER_CASE convention (numbers, strings, tuples of them, arrays: numba freezes the
+    globals it reads), as loaded in this process. Lower-case globals are module state (flags
+    that change in a run), not hashed."""
+    hit = _module_keys.get(module.__name__)
+    if hit is not None and hit[0] is module:  # not a module imported again under its name
+        return hit[1]
+    h = hashlib.sha256(module.__name__.encode())
+    for name, v in sorted(vars(module).items()):
+        fn = v.py if isinstance(v, Kernel) else getattr(v, "py_func", v)
+        code = getattr(fn, "__code__", None)
+        if code is not None and getattr(fn, "__module__", None) == module.__name__:
+            h.update(name.encode() + _code_bytes(code))
+        elif not name.isupper():
+            continue
+        elif isinstance(v, _SIMPLE) or (isinstance(v, tuple)
+                                        and all(isinstance(e, _SIMPLE) for e in v)):
+            h.update(name.encode() + repr(v).encode())
+        elif type(v).__name__ == "ndarray":
+            h.update(name.encode() + str((v.dtype, v.shape)).encode() + v.tobytes())
+    key = h.digest()
+    _module_keys[module.__name__] = (module, key)
+    return key
+
+
+def _reached_modules(fn: Callable[..., Any]) -> set[str]:
+    """The modules of fn and of every function of its package (vecu) it reaches by a global
+    name (directly, or as an attribute of an imported module), transitively: Kernel objects,
+    plain helpers, numba dispatchers. Third-party code is numba's to watch (its index holds
+    numba's version)."""
+    package = fn.__module__.split(".")[0] + "."
+    modules: set[str] = set()
     seen: set[int] = set()
     todo = [fn]
     while todo:
         f = todo.pop()
         code = getattr(f, "__code__", None)
-        if code is None or id(f) in seen:
+        if code is None or id(f) in seen or not f"{f.__module__}.".startswith(package):
             continue
         seen.add(id(f))
-        files.add(code.co_filename)
+        modules.add(f.__module__)
         names = set(code.co_names)
-        for const in code.co_consts:  # nested functions and lambdas
+        stack = list(code.co_consts)
+        while stack:  # nested functions and lambdas
+            const = stack.pop()
             if hasattr(const, "co_names"):
                 names.update(const.co_names)
+                stack.extend(const.co_consts)
         glb = getattr(f, "__globals__", {})
-        for name in names:
-            v = glb.get(name)
+        values: list[Any] = [glb.get(name) for name in names]
+        for mod in [v for v in values if isinstance(v, ModuleType)]:  # mi._integrate_event
+            values += [getattr(mod, name, None) for name in names]
+        for v in values:
             if isinstance(v, Kernel):
                 todo.append(v.py)
             elif hasattr(v, "py_func"):  # a numba dispatcher
                 todo.append(v.py_func)
             elif callable(v) and hasattr(v, "__code__"):
                 todo.append(v)
-    return files
+    return modules
+
+
+def _code_key(fn: Callable[..., Any]) -> str:
+    """Hex digest of the code fn's compiled version is made of (see the module)."""
+    h = hashlib.sha256()
+    for name in sorted(_reached_modules(fn)):
+        module = sys.modules.get(name)
+        h.update(_module_key(module) if module is not None else name.encode())
+    return h.hexdigest()
 
 
 def _drop_stale_cache(compiled: Any, fn: Callable[..., Any]) -> None:
-    """Flush compiled's disk cache when a file fn calls into changed after it was written."""
+    """Flush compiled's disk cache when it was written from other code than this process's (its
+    key file differs), and key it by this process's code."""
     cache = getattr(compiled, "_cache", None)
     index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
-    if index is None or not os.path.exists(index):
+    if index is None:
         return
-    written = os.path.getmtime(index)
-    if any(os.path.exists(f) and os.path.getmtime(f) > written for f in _called_files(fn)):
-        cache.flush()
+    key_path = Path(f"{index}.key")
+    key = _code_key(fn)
+    try:
+        if key_path.read_text() == key:
+            return
+    except OSError:  # no key yet (a cold cache, or written before keys existed)
+        pass
+    cache.flush()
+    try:  # atomically: a process reading it sees the old key or the new one
+        tmp = key_path.with_name(f"{key_path.name}.{os.getpid()}")
+        tmp.write_text(key)
+        os.replace(tmp, key_path)
+    except OSError:  # a read-only cache: numba will not write entries there either
+        pass
 
 
 def kernel(fn: Callable[..., Any] | None = None, **options: Any) -> Any:

@@ -115,7 +115,6 @@ def run_scenario(out: Path, plant_seconds: float, inject_at: float | None, injec
             res["error"] = "ECU did not get ready"
         plant_cmd = [*vecu, "plant", *bus, "--summary", str(out / "plant.json"),
                      "--ready-file", str(out / "plant.ready"), "--duration", f"{plant_limit_s:g}",
-                     "--steering-horizon", str(max(plant_seconds + start_timeout_s, 20.0)),
                      *(["--extra-load", str(extra_load)] if extra_load else []), *plant_args]
         plant = procs["plant"] = _spawn(plant_cmd, out / "plant.err")
         clock = WallClock(spin_ns=0)

@@ -95,34 +95,38 @@ def tyre_force_slope(d: float, c: float, b: float, alpha: float) -> tuple[float,
     return d * math.sin(u), d * math.cos(u) * c * b / (1.0 + (b * alpha) ** 2)
 
 
-def axle_forces(v_y: float, r: float, delta: float, v_x: float, p: VehicleParams,
-                t: TyreConsts) -> tuple[float, float]:
-    """(F_yf, F_yr) in N from the slip angles (module docstring)."""
-    a_f = delta - (v_y + p.l_f_m * r) / v_x
-    a_r = (p.l_r_m * r - v_y) / v_x
-    return tyre_force.py(t.d_f, t.c, t.b_f, a_f), tyre_force.py(t.d_r, t.c, t.b_r, a_r)
+@kernel
+def lateral_motion(v_y: float, r: float, delta: float, v_x: float, d_f: float, b_f: float,
+                   d_r: float, b_r: float, c: float, l_f: float, l_r: float, mass: float,
+                   i_z: float) -> tuple[float, float]:
+    """(a_y, r') = ((F_yf cos delta + F_yr) / M, (l_f F_yf cos delta - l_r F_yr) / I_z): the
+    paper's lateral (4) and yaw (11) motion per axle, the tyre forces at the slip angles
+    (module docstring). a_y is also the accelerometer's quantity and v_y' = a_y - v_x r. The
+    one copy: the plant (`f`, `h`) and the filters' model (vecu.estimators.steering.model
+    .accelerations) call it."""
+    ffc = tyre_force(d_f, c, b_f, delta - (v_y + l_f * r) / v_x) * math.cos(delta)
+    fr = tyre_force(d_r, c, b_r, (l_r * r - v_y) / v_x)
+    return (ffc + fr) / mass, (l_f * ffc - l_r * fr) / i_z
+
+
+def _motion(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,
+            t: TyreConsts | None) -> tuple[float, float]:
+    t = t if t is not None else tyre_consts(p)
+    return lateral_motion.py(x[0], x[1], u[0], u[1], t.d_f, t.b_f, t.d_r, t.b_r, t.c, p.l_f_m,
+                             p.l_r_m, p.mass_kg, p.yaw_inertia_kgm2)
 
 
 def f(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,
       t: TyreConsts | None = None) -> tuple[float, float]:
     """Continuous dynamics (v_y', r') of eqs. (4), (11) for x = (v_y, r), u = (delta, v_x)."""
-    t = t if t is not None else tyre_consts(p)
-    v_y, r = x
-    delta, v_x = u
-    ff, fr = axle_forces(v_y, r, delta, v_x, p, t)
-    ffc = ff * math.cos(delta)
-    return ((ffc + fr) / p.mass_kg - v_x * r,
-            (p.l_f_m * ffc - p.l_r_m * fr) / p.yaw_inertia_kgm2)
+    a_y, r_dot = _motion(x, u, p, t)
+    return a_y - u[1] * x[1], r_dot
 
 
 def h(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,
       t: TyreConsts | None = None) -> tuple[float, float]:
     """True sensor quantities (r, a_y) for x = (v_y, r), u = (delta, v_x)."""
-    t = t if t is not None else tyre_consts(p)
-    v_y, r = x
-    delta, v_x = u
-    ff, fr = axle_forces(v_y, r, delta, v_x, p, t)
-    return r, (ff * math.cos(delta) + fr) / p.mass_kg
+    return x[1], _motion(x, u, p, t)[0]
 
 
 def rk4_step(x: tuple[float, float], u0: tuple[float, float], u1: tuple[float, float], dt: float,

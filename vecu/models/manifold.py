@@ -71,6 +71,15 @@ def event_coefficients(ts, zeta, omega0, tau):
             a_t, 1.0 - a_t)
 
 
+@kernel
+def event_map(co, u_prev, alpha, alpha_prev, sp, t, tm):
+    """(alpha_{n+1}, T_meas,n+1): the corrected eq. 1 and eq. 9 of one event with the
+    coefficients co = event_coefficients(...), input sp now and u_prev before, T_im,n = t. The
+    one copy: the plant, the filters' event map and the CAC prediction call it."""
+    a1, a2, b1, b2, a_t, b_t = co
+    return a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, a_t * tm + b_t * t
+
+
 def actuator_coeffs(
     ts: float, params: ManifoldParams = V8_5L7,
 ) -> tuple[float, float, float, float]:
@@ -383,13 +392,10 @@ def f(
     """
     ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
-    a1, a2, b1, b2 = actuator_coeffs(ts, params)
+    co = _py(event_coefficients, ts, params.zeta, params.omega0, params.tau_temp_s)
     p_n, t_n, _ = integrate_manifold(p, t, alpha, u, ts, params)
-    a_t, b_t = iat_coeffs(ts, params)
-    return np.array([
-        u.ta_sp, a1 * alpha + a2 * alpha_prev + b1 * u.ta_sp + b2 * u_prev, alpha,
-        p_n, t_n, a_t * tm + b_t * t,
-    ])
+    alpha_n, tm_n = _py(event_map, co, u_prev, alpha, alpha_prev, u.ta_sp, t, tm)
+    return np.array([u.ta_sp, alpha_n, alpha, p_n, t_n, tm_n])
 
 
 def h(x: np.ndarray) -> np.ndarray:

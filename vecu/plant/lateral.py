@@ -3,17 +3,23 @@
 The model (after Khalid, a sane single-track vehicle) is vecu.models.lateral; this module adds
 the manoeuvre, RK4 stepping and the eq. (3) sensors: `simulate_lateral`, a 300 s run at its own
 20-30 m/s (the offline evaluations), and `DrivenLateral`, the plant's vehicle sample by sample
-at the drive's speed (vecu.plant.drive: one car on the bus).
+at the drive's speed (vecu.plant.drive: one car on the bus), and `LateralPart`, the plant node's
+part that sends its sensor frames.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import can
 import numpy as np
 
+from vecu.clock import NS_PER_MS, NS_PER_S
+from vecu.codec import DbcCodec
+from vecu.faults import FaultInjector, FaultTarget
 from vecu.models.lateral import (
     DT_S,
     TyreConsts,
@@ -25,10 +31,11 @@ from vecu.models.lateral import (
 )
 from vecu.plant.drive import Drive
 from vecu.rng import rng_streams
-from vecu.units import RAD_PER_DEG
+from vecu.units import DEG_PER_RAD, MPS_PER_KMH, RAD_PER_DEG
 
 SIM_SUBSTEPS = 2  # RK4 substeps per sample (5 ms)
 STREAMS = ("steer.manoeuvre", "steer.sensors")
+Send = Callable[[can.Message], bool]
 SEGMENTS = ("sine", "lane_change", "steady_turn", "sweep")
 
 
@@ -363,3 +370,55 @@ class DrivenLateral:
             swa, math.atan2(x[0], v), v, s.yaw_rate.reading(x[1], z[0]),
             s.lat_accel.reading(ay, z[1]), max(s.speed.reading(v, z[2]), 0.0),
             s.steering_wheel.reading(swa, z[3]))
+
+
+# --------------------------------------------------------------------------- on the bus
+_SWA = FaultTarget.SWA  # bound once (per-tick code)
+
+
+class LateralPart:
+    """Single-track vehicle (Khalid) on the drive's speed: CHS_Lateral (gyro, lateral
+    accelerometer, speed) and the E2E-protected SWA_Sensor every 10 ms (sample t_ns / 10 ms of
+    DrivenLateral). The fault injector acts on the SWA sensor (deg)."""
+
+    truth_message = "TRUTH_Steering"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
+    name = "lateral"
+    period_ns = 10 * NS_PER_MS
+
+    def __init__(self, codec: DbcCodec, drive: Drive, seed: int, injector: FaultInjector,
+                 vehicle: VehicleParams = VehicleParams(),
+                 sensors: LateralSensors = LateralSensors()) -> None:
+        self._lat = codec["CHS_Lateral"]
+        self._swa = codec["SWA_Sensor"]
+        self._lat_frame = self._lat.framer(("LAT_YawRate", "LAT_LatAccel", "LAT_VehSpeed"))
+        self._swa_frame = self._swa.framer(("SWA_CRC", "SWA_AliveCounter", "SWA_Angle"))
+        e2e = self._swa.e2e
+        assert e2e is not None, "SWA_Sensor is E2E-protected in vecu.dbc"
+        self._modulo = e2e.protection.counter_modulo  # P11: 0..14
+        self.injector = injector
+        self.vehicle = DrivenLateral(drive, seed, ManoeuvreConfig(), vehicle, sensors)
+        self._j = 0  # the next sample of the vehicle
+        self._counter = 0
+        self.truth_msg = None  # TRUTH_Steering codec when recording truth
+        # truth and sensor of the last tick (deg), read by probes
+        self.swa = self.beta = 0.0
+        self.swa_sensor: float | None = None
+
+    def tick(self, t_ns: int, send: Send) -> None:
+        j = t_ns // self.period_ns
+        s = self.vehicle.sample()
+        self._j += 1
+        while self._j <= j:  # ticks the scheduler left out (live): the car drove on meanwhile
+            s = self.vehicle.sample()
+            self._j += 1
+        swa, beta = s.swa * DEG_PER_RAD, s.beta * DEG_PER_RAD
+        self.swa, self.beta = swa, beta
+        ts = t_ns / NS_PER_S
+        send(self._lat_frame(ts, s.meas_r * DEG_PER_RAD, s.meas_ay, s.meas_vx / MPS_PER_KMH))
+        if self.truth_msg is not None:
+            send(self.truth_msg.frame({"TRU_SwAngle": swa, "TRU_SideSlip": beta}, ts))
+        v = self.injector.apply(_SWA, s.meas_swa * DEG_PER_RAD)
+        self.swa_sensor = v
+        if v is not None:
+            send(self._swa_frame(ts, 0, self._counter, v))
+            self._counter = (self._counter + 1) % self._modulo

@@ -31,7 +31,7 @@ from vecu.units import G_MPS2, MPS_PER_KMH
 DT_S = 0.002  # 500 Hz, the paper's sampling frequency
 MANOEUVRES = ("paper", "gentle", "abs", "launch_brake", "road")
 STREAMS = ("speed.manoeuvre", "speed.wheel", "speed.accel")
-ROAD_SPEED_MPS = (20.0, 30.0)  # "road" cruise targets (72-108 km/h, the steering evaluation's)
+ROAD_SPEED_MPS = (20.0, 30.0)  # "road" cruise targets (72-108 km/h, the lateral evaluation's)
 MAX_S = 60.0  # longest manoeuvre before its stop ("road": 150 s)
 
 

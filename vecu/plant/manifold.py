@@ -19,11 +19,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from vecu.kernels import backend, kernel, rebuild_if_stale, using
+from vecu.kernels import backend, kernel, using
 from vecu.models.manifold import (
     air_charge_of,
     cylinder_air_charge,
     event_coefficients,
+    event_map,
     nominal_input,
     port_flow,
     port_flow_of,
@@ -102,17 +103,18 @@ def plant_step(st, sp, n, p_a, t_a, t_cool, ts, w, pc, cst, cd_alpha, cd_table, 
     eq. 1, the event integrator of eq. 5-6, eq. 9, Section IV's Q from noise row w (entries 0-3)
     and the physical clamps; returns the sub-steps used."""
     u_prev, alpha, alpha_prev, p, t, tm = st[0], st[1], st[2], st[3], st[4], st[5]
-    a1, a2, b1, b2, a_t, b_t = event_coefficients(ts, pc[C_ZETA], pc[C_OMEGA0], pc[C_TAU])
+    co = event_coefficients(ts, pc[C_ZETA], pc[C_OMEGA0], pc[C_TAU])
     p_n, t_n, m = integrate_event(p, t, alpha, p_a, t_a, t_cool, n, ts, cst, cd_alpha, cd_table,
                                   prs, eta_rpm, eta_val)
-    new_alpha = a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev + pc[C_SQ0] * w[0]
+    alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, sp, t, tm)
+    new_alpha = alpha_n + pc[C_SQ0] * w[0]
     v = p_n + pc[C_SQ1] * w[1]
     v = pc[C_PMIN] if pc[C_PMIN] > v else v
     new_p = pc[C_PMAX] if pc[C_PMAX] < v else v
     v = t_n + pc[C_SQ2] * w[2]
     v = pc[C_TMIN] if pc[C_TMIN] > v else v
     new_t = pc[C_TMAX] if pc[C_TMAX] < v else v
-    v = a_t * tm + b_t * t + pc[C_SQ3] * w[3]
+    v = tm_n + pc[C_SQ3] * w[3]
     v = pc[C_TMIN] if pc[C_TMIN] > v else v
     new_tm = pc[C_TMAX] if pc[C_TMAX] < v else v
     st[0], st[1], st[2], st[3], st[4], st[5] = sp, new_alpha, alpha, new_p, new_t, new_tm
@@ -349,16 +351,9 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     )
 
 
-_kernels_checked = False
-
-
 def compiled_tables(params: ManifoldParams) -> tuple | None:
     """The event integrator's float64 tables for the compiled kernels (its one signature
-    prepared), or None when they do not take this parameter set. The first call in a process
-    also checks that the integrator linked into the plant's cached kernels is the current one
-    (numba's cache does not notice manifold_integrator.py changing, as vecu.estimators.manifold
-    .kernels explains) and rebuilds them from source when it is not."""
-    global _kernels_checked
+    prepared), or None when they do not take this parameter set."""
     from vecu.models import manifold_integrator as mi
 
     tables = mi._tables(params)[2]
@@ -366,26 +361,7 @@ def compiled_tables(params: ManifoldParams) -> tuple | None:
         return None
     if not mi._numba_sig_ready:
         mi._prepare_numba()
-    if not _kernels_checked:
-        rebuild_if_stale((advance_events, simulate_events, plant_step, profile_at, measure),
-                         lambda: _linked_integrator_is_current(params, tables),
-                         lambda: None, "manifold plant kernels")  # they compile on first call
-        _kernels_checked = True
     return tables
-
-
-def _linked_integrator_is_current(params: ManifoldParams, tables: tuple) -> bool:
-    """One event through plant_step (what advance_events and simulate_events
-    run) against the stand-alone compiled integrator."""
-    from vecu.models import manifold_integrator as mi
-
-    n, ts = 2345.0, 120.0 / (params.n_cyl * 2345.0)
-    st = np.array([0.35, 0.3, 0.29, 61.0, 321.0, 318.0])
-    plant_step.compiled(st, 0.35, n, params.p_a_kpa, params.t_a_k, params.t_cool_k, ts, np.zeros(7),
-                        plant_constants(params, ManifoldPlantConfig(), 1.0, 1.0), *tables)
-    ref = mi._integrate_event.compiled(61.0, 321.0, 0.3, params.p_a_kpa, params.t_a_k,
-                                       params.t_cool_k, n, ts, *tables)
-    return (float(st[3]), float(st[4])) == (ref[0], ref[1])
 
 
 def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duration_s: float,

@@ -19,7 +19,6 @@ from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
 from vecu.kernels import backend
-from vecu.models.lateral import VehicleParams
 from vecu.models.manifold import (
     cylinder_air_charge,
     nominal_input,
@@ -29,8 +28,6 @@ from vecu.models.manifold import (
 from vecu.models.sensors import TpsCalibration
 from vecu.plant.drive import Drive, Leg
 from vecu.plant.input_file import BufferedInput
-from vecu.plant.lateral import DrivenLateral, LateralSensors
-from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
 from vecu.plant.longitudinal import AccelSensorConfig, WheelSensorConfig
 from vecu.plant.manifold import (
     EventsAhead,
@@ -48,7 +45,7 @@ TPS_V_MIN, TPS_V_MAX = 0.0, 5.0  # sensor output saturates at ground and supply
 Send = Callable[[can.Message], bool]
 
 
-_TPS, _SWA = FaultTarget.TPS, FaultTarget.SWA  # bound once (per-tick code)
+_TPS = FaultTarget.TPS  # bound once (per-tick code)
 
 
 class PlantPart(Protocol):
@@ -65,6 +62,7 @@ class ThrottlePart:
     applied, frames sent with timestamp t_k, then x_{k+1} = f(x_k, u_k) + F w_k (eq. 3).
     """
 
+    truth_message = "TRUTH_Throttle"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "throttle"
     period_ns = NS_PER_MS
 
@@ -179,6 +177,7 @@ class LongitudinalPart:
     of the drive at each tick; without a drive it makes its own from seed and sequence.
     """
 
+    truth_message = "TRUTH_Speed"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "longitudinal"
     period_ns = 2 * NS_PER_MS
 
@@ -226,57 +225,13 @@ class LongitudinalPart:
             send(self.truth_msg.frame({"TRU_VehSpeed": v / MPS_PER_KMH, "TRU_VehAccel": a}, ts))
 
 
-class LateralPart:
-    """Single-track vehicle (Khalid) on the drive's speed: CHS_Lateral (gyro, lateral
-    accelerometer, speed) and the E2E-protected SWA_Sensor every 10 ms (sample t_ns / 10 ms of
-    vecu.plant.lateral.DrivenLateral). The fault injector acts on the SWA sensor (deg)."""
-
-    name = "lateral"
-    period_ns = 10 * NS_PER_MS
-
-    def __init__(self, codec: DbcCodec, drive: Drive, seed: int, injector: FaultInjector,
-                 vehicle: VehicleParams = VehicleParams(),
-                 sensors: LateralSensors = LateralSensors()) -> None:
-        self._lat = codec["CHS_Lateral"]
-        self._swa = codec["SWA_Sensor"]
-        self._lat_frame = self._lat.framer(("LAT_YawRate", "LAT_LatAccel", "LAT_VehSpeed"))
-        self._swa_frame = self._swa.framer(("SWA_CRC", "SWA_AliveCounter", "SWA_Angle"))
-        self._modulo = self._swa.e2e.protection.counter_modulo  # P11: 0..14
-        self.injector = injector
-        self.vehicle = DrivenLateral(drive, seed, LateralManoeuvre(), vehicle, sensors)
-        self._j = 0  # the next sample of the vehicle
-        self._counter = 0
-        self.truth_msg = None  # TRUTH_Steering codec when recording truth
-        # truth and sensor of the last tick (deg), read by probes
-        self.swa = self.beta = 0.0
-        self.swa_sensor: float | None = None
-
-    def tick(self, t_ns: int, send: Send) -> None:
-        j = t_ns // self.period_ns
-        s = self.vehicle.sample()
-        self._j += 1
-        while self._j <= j:  # ticks the scheduler left out (live): the car drove on meanwhile
-            s = self.vehicle.sample()
-            self._j += 1
-        swa, beta = s.swa * DEG_PER_RAD, s.beta * DEG_PER_RAD
-        self.swa, self.beta = swa, beta
-        ts = t_ns / NS_PER_S
-        send(self._lat_frame(ts, s.meas_r * DEG_PER_RAD, s.meas_ay, s.meas_vx / MPS_PER_KMH))
-        if self.truth_msg is not None:
-            send(self.truth_msg.frame({"TRU_SwAngle": swa, "TRU_SideSlip": beta}, ts))
-        v = self.injector.apply(_SWA, s.meas_swa * DEG_PER_RAD)
-        self.swa_sensor = v
-        if v is not None:
-            send(self._swa_frame(ts, 0, self._counter, v))
-            self._counter = (self._counter + 1) % self._modulo
-
-
 class ManifoldPart:
     """Engine intake (Dutka 2006) stepped once per engine event, Ts = 120 / (8 N): sends
     ENG_Event (counter, N, throttle setpoint and angle, MAP) and ENG_Intake (IAT) at each event.
     The engine speed and throttle setpoint are the drive's (vecu.plant.drive: the driveline
     behind the car's speed), one leg's profile after the other on the drive's clock."""
 
+    truth_message = "TRUTH_Manifold"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "manifold"
 
     def __init__(self, codec: DbcCodec, seed: int,
@@ -389,7 +344,10 @@ class PlantNode(BusNode):
     """Runs its parts at their rates from a 1 ms base tick; acts on FI_Command frames."""
 
     def __init__(self, bus: can.BusABC, codec: DbcCodec, injector: FaultInjector,
-                 parts: list[PlantPart], drive: Drive | None = None) -> None:
+                 parts: list[PlantPart], drive: Drive | None = None,
+                 manifold: ManifoldPart | None = None) -> None:
+        """parts run from the 1 ms tick; manifold (the engine-event part) from the scheduler's
+        engine-event chain (engine_event)."""
         super().__init__(bus, "plant")
         self.injector = injector
         self.parts = parts
@@ -402,8 +360,7 @@ class PlantNode(BusNode):
         self.frames_received = 0
         self.throttle = next((p for p in parts if isinstance(p, ThrottlePart)), None)
         self.longitudinal = next((p for p in parts if isinstance(p, LongitudinalPart)), None)
-        self.lateral = next((p for p in parts if isinstance(p, LateralPart)), None)
-        self.manifold: ManifoldPart | None = None
+        self.manifold = manifold  # the engine-event chain's part (None: no engine events)
         self.drive = drive  # the car's motion all parts read (vecu.plant.drive)
 
     @property
@@ -413,11 +370,10 @@ class PlantNode(BusNode):
 
     def enable_truth(self, codec: DbcCodec) -> None:
         """Send the debug truth frames of vecu/dbc/vecu_truth.dbc next to each part's sensor frames."""
-        names = {ThrottlePart: "TRUTH_Throttle", LongitudinalPart: "TRUTH_Speed",
-                 LateralPart: "TRUTH_Steering", ManifoldPart: "TRUTH_Manifold"}
         for part in [*self.parts, self.manifold]:
-            if part is not None and type(part) in names:
-                part.truth_msg = codec[names[type(part)]]
+            name = getattr(part, "truth_message", None)  # a part's class names its truth frame
+            if name is not None:
+                part.truth_msg = codec[name]
 
     def engine_event(self, t_ns: int) -> int | None:
         """Scheduler.chain task: one engine event of the manifold part, if there is one."""

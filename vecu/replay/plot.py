@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-PANELS = (("throttle", "throttle angle [deg]"), ("speed", "vehicle speed [km/h]"),
-          ("steering", "steering-wheel angle [deg]"), ("manifold", "manifold pressure [kPa]"))
+from vecu import functions
 
 
 def plot_replay(series: dict[str, list[tuple[float, float, float]]], path: str,
@@ -15,7 +14,7 @@ def plot_replay(series: dict[str, list[tuple[float, float, float]]], path: str,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = [(k, label) for k, label in PANELS if series.get(k)]
+    panels = [(s.name, s.label or s.name) for s in functions.specs() if series.get(s.name)]
     fig, axes = plt.subplots(max(len(panels), 1), 1, figsize=(10, 2.4 * max(len(panels), 1)),
                              sharex=True, squeeze=False)
     for ax, (key, label) in zip(axes[:, 0], panels):

@@ -20,8 +20,8 @@ import can
 
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
+from vecu.plant.lateral import LateralPart, simulate_lateral
 from vecu.plant.lateral import ManoeuvreConfig as LateralManoeuvre
-from vecu.plant.lateral import simulate_lateral
 from vecu.plant.longitudinal import simulate_speed
 from vecu.replay.engine import ReplayConfig, replay
 
@@ -46,7 +46,7 @@ NATIVE = {
                                          swa_fault="stuck")),
 }
 THIRD_PARTY = ReferenceTrace(
-    "oxts_rt_drive.blf", "speed and steering inputs on an OxTS RT-style DBC (vehicle.dbc from "
+    "oxts_rt_drive.blf", "speed and lateral inputs on an OxTS RT-style DBC (vehicle.dbc from "
     "cantools' tests), 4 s, seed 7, with vecu truth frames", dbc=("dbc/vehicle.dbc",),
     signal_map="maps/oxts_rt.toml")
 
@@ -77,7 +77,7 @@ def write_oxts_trace(path: Path, dbc_path: Path, seed: int, duration_s: float) -
     truth = DbcCodec([builtin_dbc_path(TRUTH_DBC)])
     spd, acc = db["RT_SB_Speed"], db["RT_IMU06_Accel"]
     gyro, vel = db["RT_IMU06_Gyro_Rates"], db["RT_SB_INS_Vel_Body_Axes"]
-    t_spd, t_ste = truth["TRUTH_Speed"], truth["TRUTH_Steering"]
+    t_spd, t_lat = truth["TRUTH_Speed"], truth[LateralPart.truth_message]
     lon = simulate_speed(seed=seed)
     lat = simulate_lateral(seed, LateralManoeuvre(duration_s=max(duration_s + 1.0, 20.0)))
     deg = 180.0 / math.pi
@@ -103,7 +103,7 @@ def write_oxts_trace(path: Path, dbc_path: Path, seed: int, duration_s: float) -
                                 "Gyro_Rate_Yaw": lat.meas_r[j] * deg}, ts),
                     vel.frame({**zeros(vel), "Validity_INS_Vel_Forwards": 1,
                                "INS_Vel_Forwards_2D": float(lat.meas_vx[j])}, ts),
-                    t_ste.frame({"TRU_SwAngle": lat.swa[j] * deg,
+                    t_lat.frame({"TRU_SwAngle": lat.swa[j] * deg,
                                  "TRU_SideSlip": lat.beta[j] * deg}, ts)]
             for msg in frames:
                 w.on_message_received(msg)

@@ -13,10 +13,11 @@ testFailedSinceLastClear; bit 7 warningIndicatorRequested: not supported (mask 0
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from vecu.clock import NS_PER_S
+from vecu.ecu.diagnostics import DtcSpec
 from vecu.ecu.sensor_monitor import Dtc, DtcState, SensorMonitor
 from vecu.ecu.sensor_monitor import SensorStatus as S
 
@@ -25,45 +26,9 @@ AVAILABILITY_MASK = 0x7F
 CLEARED = TNCSLC | TNCTOC
 
 
-@dataclass(frozen=True)
-class DtcSpec:
-    number: int          # 3 bytes: J2012 code (2 bytes) and failure type byte
-    source: str          # monitor name ("tps", "swa", "wheel") or "bus"
-    findings: tuple[S, ...]
-    text: str
-
-    @property
-    def code(self) -> str:
-        """The J2012 display form, e.g. P0122-00."""
-        hi = self.number >> 16
-        letter = "PCBU"[hi >> 6]
-        mid, low = (self.number >> 8) & 0xFF, self.number & 0xFF
-        return f"{letter}{(hi >> 4) & 3}{hi & 0xF:X}{mid:02X}-{low:02X}"
-
-
-# failure type bytes (SAE J2012-DA): 0x21/0x22 signal amplitude < min / > max, 0x64 signal
-# plausibility failure, 0x83 value of signal protection calculation incorrect (CRC / alive
-# counter), 0x87 missing message
-DTC_TABLE: tuple[DtcSpec, ...] = (
-    DtcSpec(0x012200, "tps", (S.RANGE_LOW,), "TPS A circuit low (open / short to ground)"),
-    DtcSpec(0x012300, "tps", (S.RANGE_HIGH,), "TPS A circuit high (short to supply)"),
-    DtcSpec(0x012100, "tps", (S.IMPLAUSIBLE, S.STUCK),
-            "TPS A circuit range/performance (implausible against the estimate, or stuck)"),
-    DtcSpec(0x012087, "tps", (S.TIMEOUT,), "TPS A: missing message (TPS_Sensor timeout)"),
-    DtcSpec(0x012083, "tps", (S.E2E_ERROR,), "TPS A: signal protection (E2E CRC / alive counter)"),
-    DtcSpec(0x403587, "wheel", (S.TIMEOUT,), "wheel speed sensor: missing message (ESC_Motion)"),
-    DtcSpec(0x403521, "wheel", (S.RANGE_LOW,), "wheel speed sensor: signal below minimum"),
-    DtcSpec(0x403522, "wheel", (S.RANGE_HIGH,), "wheel speed sensor: signal above maximum"),
-    DtcSpec(0x403564, "wheel", (S.IMPLAUSIBLE, S.STUCK),
-            "wheel speed sensor: implausible against the speed filter"),
-    DtcSpec(0x446087, "swa", (S.TIMEOUT,), "steering angle sensor: missing message"),
-    DtcSpec(0x446083, "swa", (S.E2E_ERROR,), "steering angle sensor: signal protection (E2E)"),
-    DtcSpec(0x446021, "swa", (S.RANGE_LOW,), "steering angle sensor: signal below minimum"),
-    DtcSpec(0x446022, "swa", (S.RANGE_HIGH,), "steering angle sensor: signal above maximum"),
-    DtcSpec(0x446064, "swa", (S.IMPLAUSIBLE, S.STUCK),
-            "steering angle sensor: implausible against the estimate, or stuck"),
-    DtcSpec(0xC00100, "bus", (), "high speed CAN bus: error frames (>= 10 per 100 ms)"),
-)
+# The sensors' DTCs are their functions' (`dtcs()`, vecu.ecu.diagnostics.DtcSpec); the bus DTC
+# is the server's own.
+BUS_DTC = DtcSpec(0xC00100, "bus", (), "high speed CAN bus: error frames (>= 10 per 100 ms)")
 
 
 @dataclass
@@ -89,14 +54,16 @@ class _Source:
 class DtcMemory:
     """The ECU's DTCs; update(t_ns) once per tick (cheap when nothing changed)."""
 
-    def __init__(self, monitors: dict[str, SensorMonitor], bus_dtc: Dtc,
+    def __init__(self, monitors: dict[str, SensorMonitor], specs: Iterable[DtcSpec], bus_dtc: Dtc,
                  snapshot: Callable[[], tuple[bytes, int]]) -> None:
+        """specs: the functions' DTCs (their dtcs()); BUS_DTC is added."""
+        table = (*specs, BUS_DTC)
         self._snapshot = snapshot
         self.records: dict[int, DtcRecord] = {}
         self._sources: list[_Source] = []
         for name, dtc in [(n, m.dtc_item) for n, m in monitors.items()] + [("bus", bus_dtc)]:
             src = _Source(dtc, monitors.get(name))
-            for spec in DTC_TABLE:
+            for spec in table:
                 if spec.source == name:
                     rec = DtcRecord(spec)
                     src.records.append(rec)

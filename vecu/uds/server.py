@@ -124,7 +124,9 @@ class UdsServer:
         self.security = SecurityAccess(rng, config.security_attempts,
                                        round(config.security_delay_ms * NS_PER_MS))
         self.dids: dict[int, Did] = build_dids(node, config, now, lambda: self.session)
-        self.dtcs = DtcMemory(node.monitors, node.bus_dtc, self._snapshot)
+        self.dtcs = DtcMemory(node.monitors, [spec for fn in node.functions
+                                               for spec in getattr(fn, "dtcs", tuple)()],
+                              node.bus_dtc, self._snapshot)
         self.io: dict[int, float] = {}  # DID -> the value the ECU is made to see
         self.routines = {rid: SelfTest(node.monitors[name]) for rid, name in ROUTINES.items()
                          if name in node.monitors}

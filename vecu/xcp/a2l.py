@@ -5,7 +5,7 @@ segment's two pages, DAQ with its event channels, XCP on CAN with the tree's IDs
 
 Names are the tree's dotted paths (`ecu.throttle.tps_monitor.plaus_debounce`) and the
 measurement names (`throttle.estimate_deg`); the long identifier is the leaf's source (or the
-measurement's meaning). A leaf the running ECU cannot take (calibration.LIVE) is READ_ONLY.
+measurement's meaning). A leaf the running ECU cannot take (its function's calibrations()) is READ_ONLY.
 """
 
 from __future__ import annotations

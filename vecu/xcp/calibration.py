@@ -6,36 +6,33 @@ value changes nothing. `Calibrator.apply(tree)` is the one way a new calibration
 functions, for an XCP write and for a timed set (`RunConfig.calibrations`) alike, so the two
 give the same run.
 
-LIVE lists the subtrees the ECU takes live (a registry: a new entry = a subtree whose users can
-take a new value mid-run). Every other leaf is READ_ONLY in the A2L (it shapes objects built at
-start, e.g. the estimator's model) and an XCP write to it is refused (ERR_WRITE_PROTECTED).
+The node's functions list the subtrees they take live (`calibrations()`, beside `dids()` and
+`variables()`: a new entry = a subtree whose users can take a new value mid-run); `live()`
+collects them. Every other leaf is READ_ONLY in the A2L (it shapes objects built at start, e.g.
+the estimator's model) and an XCP write to it is refused (ERR_WRITE_PROTECTED).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from vecu import params as ptree
+from vecu.ecu.diagnostics import Calibrations
 from vecu.ecu.node import EcuNode
 
-# subtree (under ecu.) -> how the node takes its new value
-LIVE: dict[str, Callable[[EcuNode, Any], None]] = {
-    "throttle.tps_monitor": lambda node, cfg: _monitor(node, "tps", cfg),
-    "speed.wheel_monitor": lambda node, cfg: _monitor(node, "wheel", cfg),
-    "steering.monitor": lambda node, cfg: _monitor(node, "swa", cfg),
-}
+
+def live(node: EcuNode) -> Calibrations:
+    """Subtree (under ecu.) -> how the node's function takes its new value, of every function."""
+    found: Calibrations = {}
+    for fn in node.functions:
+        found.update(getattr(fn, "calibrations", dict)())
+    return found
 
 
-def _monitor(node: EcuNode, name: str, cfg: Any) -> None:
-    mon = node.monitors.get(name)
-    if mon is not None:
-        mon.recalibrate(cfg)
-
-
-def is_live(path: str) -> bool:
-    """Whether the leaf at `path` (under ecu.) is taken by the running ECU."""
-    return any(path == p or path.startswith(p + ".") for p in LIVE)
+def is_live(path: str, subtrees: Iterable[str]) -> bool:
+    """Whether the leaf at `path` (under ecu.) is in one of the live subtrees."""
+    return any(path == p or path.startswith(p + ".") for p in subtrees)
 
 
 class Calibrator:
@@ -48,6 +45,7 @@ class Calibrator:
         self.node = node
         self.tree = ecu_tree
         self._validate = validate
+        self.live = live(node)
         self.changes: list[tuple[int, str, Any]] = []  # (t_ns, path, value) applied
 
     def check(self, sets: list[tuple[str, Any]], base: Any = None) -> Any:
@@ -66,13 +64,17 @@ class Calibrator:
 
     def apply(self, tree: Any, t_ns: int) -> None:
         """Make `tree` the ECU's calibration: each live subtree that changed is handed over."""
-        for prefix, take in LIVE.items():
+        for prefix, take in self.live.items():
             new = ptree.get(tree, prefix)
             if new != ptree.get(self.tree, prefix):
-                take(self.node, new)
+                take(new)
         for leaf in ptree.differences(tree, self.tree):
             self.changes.append((t_ns, leaf.path, leaf.value))
         self.tree = tree
+
+    def is_live(self, path: str) -> bool:
+        """Whether the running ECU takes the leaf at `path` (under ecu.)."""
+        return is_live(path, self.live)
 
     def set(self, sets: list[tuple[str, Any]], t_ns: int) -> None:
         """check() then apply(): a timed set; ParamError for a refused value."""

@@ -10,7 +10,7 @@ Calibration: a write to the calibration segment's working page is staged; once a
 are all written (a float may span two DOWNLOADs) its value is checked (the leaf's bounds, its
 config, the tree's validation: calibration.Calibrator) and, if accepted, taken by the ECU from
 its next tick; a refused value answers ERR_OUT_OF_RANGE and keeps the old bytes. Leaves the
-running ECU cannot take (calibration.LIVE) and the reference page are ERR_WRITE_PROTECTED.
+running ECU cannot take (its function's calibrations()) and the reference page are ERR_WRITE_PROTECTED.
 """
 
 from __future__ import annotations

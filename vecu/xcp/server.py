@@ -22,7 +22,7 @@ import numpy as np
 from vecu.clock import NS_PER_S
 from vecu.ecu.node import EcuNode
 from vecu.params import ParamError
-from vecu.xcp.calibration import Calibrator, is_live
+from vecu.xcp.calibration import Calibrator
 from vecu.xcp.commands import CommandProcessor
 from vecu.xcp.config import XcpConfig
 from vecu.xcp.daq import Daq
@@ -43,7 +43,7 @@ class XcpServer:
         self.cfg = config
         self.ids = frozenset({(config.master_id, False), (config.slave_id, False)})
         self.calibrator = Calibrator(node, ecu_tree, validate)
-        self.segment = CalSegment(ecu_tree, is_live)
+        self.segment = CalSegment(ecu_tree, self.calibrator.is_live)
         self.measurements = ecu_measurements(node)
         self.daq = Daq(config)
         self.proc = CommandProcessor(config, self.segment, self.calibrator, reference_tree,
@@ -101,7 +101,7 @@ class XcpServer:
         """The working tree with (path under ecu., value) pairs, checked; ParamError for a
         value out of bounds or a leaf the running ECU does not take."""
         for path, _ in sets:
-            if not is_live(path):
+            if not self.calibrator.is_live(path):
                 raise ParamError(f"parameter 'ecu.{path}' is not calibratable mid-run (the "
                                  f"ECU takes it at start: use --set)")
         return self.calibrator.check(sets, self.proc.working_tree)

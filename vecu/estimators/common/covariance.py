@@ -1,4 +1,4 @@
-"""Numerical guards shared by every filter in vecu (throttle now; manifold, speed, steering later).
+"""Numerical guards shared by every filter in vecu.
 
 - `symmetrise`: remove the asymmetry that rounding leaves in P after an update.
 - `cholesky_lower`: S with S S^T ~= P, never failing on a finite P: plain Cholesky, then Cholesky

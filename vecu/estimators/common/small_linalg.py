@@ -1,7 +1,7 @@
 """Small unrolled Cholesky factorisations (3x3, 4x4) and the 3x3 SPD inverse from the factor.
 
 Written once for every filter that factors a small covariance in plain floats: the throttle UKF
-(3x3 sigma points) and particle filter (3x3 Kalman stretch), the steering UKF and its kernels
+(3x3 sigma points) and particle filter (3x3 Kalman stretch), the lateral UKF and its kernels
 (4x4 sigma points), the manifold filters' innovation covariance S = C P C^T + R (3x3 factor and
 inverse, Python path and SDKF kernel). Each is a `vecu.kernels.kernel`: compiled kernels call
 them directly, plain-Python callers call `.py` (the reference); none calls another, so `.py`

@@ -44,7 +44,7 @@ from vecu.estimators.manifold.event import (
 from vecu.estimators.manifold.event import prepare as prepare_events
 from vecu.kernels import kernel, using
 from vecu.models import manifold_integrator as mi
-from vecu.models.manifold import air_charge_of
+from vecu.models.manifold import air_charge_of, event_map
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 HORIZON = 6
@@ -231,7 +231,7 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
     u_prev, alpha, alpha_prev = float(x[0]), float(x[1]), float(x[2])  # plain floats in Python
     p, t, tm = float(x[3]), float(x[4]), float(x[5])
     ts_prev = math.nan
-    a1 = a2 = b1 = b2 = a_t = b_t = 0.0
+    co = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     n_rpm = 0.0
     last = u.shape[0] - 1
     for i in range(count):
@@ -240,13 +240,12 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
         t_a, t_cool = float(u[r, 3]), float(u[r, 4])
         ts = 120.0 / (fc[F_NCYL] * n_rpm)
         if ts != ts_prev:
-            a1, a2, b1, b2, a_t, b_t = coefficients(ts, fc)
+            co = coefficients(ts, fc)
             ts_prev = ts
         p_n, t_n, _ = integrate_event(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
                                       cd_table, prs, eta_rpm, eta_val)
-        u_prev, alpha, alpha_prev, p, t, tm = (
-            sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha, p_n, t_n,
-            a_t * tm + b_t * t)
+        alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, sp, t, tm)
+        u_prev, alpha, alpha_prev, p, t, tm = sp, alpha_n, alpha, p_n, t_n, tm_n
     out[0], out[1], out[2], out[3], out[4], out[5] = u_prev, alpha, alpha_prev, p, t, tm
     return air_charge_of(n_rpm, p, t, c, fc[F_VCYL], eta_rpm, eta_val)
 

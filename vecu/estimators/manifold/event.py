@@ -17,9 +17,8 @@ kernel returns a status word: bits 0-2 the channels gated, DIVERGED (reset the f
 (the innovation covariance S is not positive definite or not finite: the filter factors it with
 covariance.cholesky_lower's jitter, then `apply_gain` and `sdkf_finish` / `ekf_finish`).
 
-Caveat (numba's cache): the compiled integrator is linked into these kernels' cache entries,
-and numba does not notice when manifold_integrator.py changes; `prepare` checks the linked
-integrator against the stand-alone one on first use and rebuilds the kernels when they differ.
+numba's cache links the compiled integrator into these kernels' entries: vecu.kernels keys
+each entry by the code it was made of, so an edit of manifold_integrator.py recompiles them.
 """
 
 # ruff: noqa: FURB136 (x if c else y mirrors Python's min()/max(), NaN included)
@@ -31,9 +30,9 @@ from typing import Any
 import numpy as np
 
 from vecu.estimators.common.small_linalg import chol3, inverse_from_chol3
-from vecu.kernels import kernel, rebuild_if_stale
+from vecu.kernels import kernel
 from vecu.models import manifold_integrator as mi
-from vecu.models.manifold import efficiency_of, event_coefficients, throttle_flow_of
+from vecu.models.manifold import efficiency_of, event_coefficients, event_map, throttle_flow_of
 
 integrate_event = mi._integrate_event
 
@@ -279,11 +278,11 @@ def map_out(xo, xp, sp, p_n, t_n, co, fc):
     """xo[2] = the event map of eq. 10 from the posterior xp (eq. 1 with the coefficients co,
     the integrator's P_n, T_n, eq. 9; parameter states beyond the sixth held), xo[0] = it
     clamped (the next prior)."""
-    a1, a2, b1, b2, a_t, b_t = co
     u_prev, alpha, alpha_prev, t, tm = xp[0], xp[1], xp[2], xp[4], xp[5]
+    alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, sp, t, tm)
     xf = xo[2]
-    xf[0], xf[1], xf[2] = sp, a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, alpha
-    xf[3], xf[4], xf[5] = p_n, t_n, a_t * tm + b_t * t
+    xf[0], xf[1], xf[2] = sp, alpha_n, alpha
+    xf[3], xf[4], xf[5] = p_n, t_n, tm_n
     n = xp.shape[0]
     for i in range(6, n):
         xf[i] = xp[i]
@@ -437,37 +436,11 @@ def _compile_signatures() -> None:
 def prepare() -> None:
     """Before the first numba call (idempotent): the integrator's search overload and signature,
     each event kernel's one signature (compiled or loaded from numba's cache; further
-    compilation off, so int or numpy-scalar arguments convert to float64), then the check that
-    the integrator linked into the cached kernels is the current one (see module)."""
+    compilation off, so int or numpy-scalar arguments convert to float64)."""
     global _ready
     if _ready:
         return
     if not mi._numba_sig_ready:
         mi._prepare_numba()
     _compile_signatures()
-    rebuild_if_stale((sdkf_event, ekf_event, sdkf_finish, ekf_finish),
-                     _linked_integrator_is_current, _compile_signatures,
-                     "manifold filter kernels")
     _ready = True
-
-
-def _linked_integrator_is_current() -> bool:
-    """sdkf_event's event map (P_n, T_n of its prediction) against the stand-alone compiled
-    integrator."""
-    from vecu.models.manifold_params import V8_5L7
-
-    tabs = numba_tables(V8_5L7)
-    assert tabs is not None
-    fc = model_constants(V8_5L7)  # no channel used; a box and bounds that hold the sample
-    fc[F_A_LO], fc[F_A_HI], fc[F_P_LO], fc[F_P_HI] = -10.0, 10.0, 0.0, 1e3
-    fc[F_T_LO], fc[F_T_HI], fc[F_MAX_TRACE], fc[F_MAX_ABS] = 0.0, 1e4, 1e9, 1e9
-    x = np.array([0.31, 0.3, 0.29, 61.0, 321.0, 318.0])
-    P = np.diag([1e-4, 1e-3, 1e-3, 4.0, 100.0, 1.0])
-    xo, Po = np.empty((3, 6)), np.empty((2, 6, 6))
-    ts = 120.0 / (8.0 * 2345.0)
-    sdkf_event.compiled(x, P, P, xo, Po, 0.35, 2345.0, 99.0, 297.0, 361.0, ts, 0.0, 0.0, 0.0, 0,
-                        0, 0, 0, False, fc, P, *tabs)
-    nb = mi._tables(V8_5L7)[2]
-    assert nb is not None
-    ref = mi._integrate_event.compiled(x[3], x[4], x[1], 99.0, 297.0, 361.0, 2345.0, ts, *nb)
-    return (float(xo[2, 3]), float(xo[2, 4])) == (ref[0], ref[1])

@@ -44,7 +44,7 @@ from vecu.estimators.manifold.event import (
     signature_types,
 )
 from vecu.estimators.manifold.event import prepare as prepare_events
-from vecu.kernels import backend, kernel, rebuild_if_stale
+from vecu.kernels import backend, kernel
 from vecu.models.manifold import air_charge_of
 from vecu.models.manifold_params import EngineInput
 
@@ -187,8 +187,8 @@ _ready = False
 
 
 def prepare(kc: np.ndarray) -> None:
-    """kernels.prepare (the kernels this one calls), then its one signature (compile off),
-    checked against its parts with a filter's packed constants kc (6 states)."""
+    """kernels.prepare (the kernels this one calls), then its one signature (compile off); kc:
+    a filter's packed constants (6 states), the signature's shape."""
     global _ready
     if _ready:
         return
@@ -197,8 +197,6 @@ def prepare(kc: np.ndarray) -> None:
     types, f8, i8, v, m, _ = signature_types()
     sig = (i8, v, m, m, m, f8[:, :, ::1], v) + (f8,) * 8 + (i8,) * 3 + (types.boolean, i8)
     ecu_event.fix_signature(sig)
-    rebuild_if_stale((ecu_event,), lambda: _agrees_with_its_parts(kc),
-                     lambda: ecu_event.fix_signature(sig), "ecu_event")
     _ready = True
 
 
@@ -209,30 +207,6 @@ def unpack_constants(kc: np.ndarray) -> tuple:
     p = [kc[o[i]:o[i + 1]] for i in range(N_PARTS)]
     tables = (p[3], p[4], p[5].reshape((rows, cols)), p[6], p[7], p[8])
     return p[0], p[1].reshape((nq, nq)), p[2], tables, p[9]
-
-
-def _agrees_with_its_parts(kc: np.ndarray) -> bool:
-    """ecu_event on a sample event with the constants kc gives what its kernels give called
-    one by one (numba's cache links the kernels it calls into its own entry and does not see
-    them change); the first call of each, all compiled already."""
-    fc, Q, fd, tables, _ = unpack_constants(kc)
-    kc = pack_constants(fc, Q, fd, tables, np.array([-np.inf, np.inf] * 4))  # any reading
-    x = np.array([0.31, 0.3, 0.29, 61.0, 321.0, 318.0])
-    P = np.diag([1e-4, 1e-3, 1e-3, 4.0, 100.0, 1.0])
-    sp, n, p_a, t_a, t_cool, y = 0.35, 2345.0, 99.0, 297.0, 361.0, (0.305, 60.0, 318.5)
-    xo, Po, xo2, Po2 = np.empty((3, 6)), np.empty((2, 6, 6)), np.empty((3, 6)), np.empty((2, 6, 6))
-    code, cac, cac6 = ecu_event.compiled(KIND_SDKF, x, P, P, xo, Po, kc, sp, n, p_a, t_a, t_cool,
-                                         *y, 0, 0, 0, True, 6)
-    ts = 120.0 / (fc[F_NCYL] * n)
-    code2 = sdkf_event.compiled(x, P, P, xo2, Po2, sp, n, p_a, t_a, t_cool, ts, *y, 7, 0, 0, 0,
-                                True, fc, Q, *tables)
-    out = np.empty(6)
-    cac6_2 = predict_events.compiled(xo2[2].copy(), np.array([[sp, n, p_a, t_a, t_cool]]), 5,
-                                     out, fc, *tables)
-    # (the CAC at the posterior: eta_N and the integrator's constants, checked through these)
-    return ((code, cac6) == (code2, cac6_2) and cac > 0.0 and np.array_equal(xo, xo2)
-            and np.array_equal(Po, Po2))
-
 
 
 def kernel_kind(flt: Any) -> int | None:

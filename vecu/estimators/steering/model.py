@@ -33,8 +33,8 @@ from vecu.models.lateral import (
     DT_S,
     TyreConsts,
     VehicleParams,
+    lateral_motion,
     tyre_consts,
-    tyre_force,
     tyre_force_slope,
 )
 from vecu.units import RAD_PER_DEG
@@ -110,13 +110,11 @@ def constants(model: SteeringModel) -> tuple[float, ...]:
 
 @kernel
 def accelerations(vy: float, r: float, d: float, vx: float, cst: Any) -> tuple[float, float]:
-    """(a_y, r') = ((F_yf cos delta + F_yr) / M, (l_f F_yf cos delta - l_r F_yr) / I_z): the
-    paper's lateral (4) and yaw (11) motion per axle, the tyre forces from the slip angles by
-    vecu.models.lateral.tyre_force. a_y is also the accelerometer's quantity (eq. 2's nonlinear
-    h) and v_y' = a_y - v_x r."""
-    ffc = tyre_force(cst[DF], cst[C], cst[BF], d - (vy + cst[LF] * r) / vx) * math.cos(d)
-    fr = tyre_force(cst[DR], cst[C], cst[BR], (cst[LR] * r - vy) / vx)
-    return (ffc + fr) / cst[M], (cst[LF] * ffc - cst[LR] * fr) / cst[IZ]
+    """(a_y, r'): the paper's lateral (4) and yaw (11) motion, vecu.models.lateral
+    .lateral_motion (the plant's too) on the packed constants. a_y is also the accelerometer's
+    quantity (eq. 2's nonlinear h) and v_y' = a_y - v_x r."""
+    return lateral_motion(vy, r, d, vx, cst[DF], cst[BF], cst[DR], cst[BR], cst[C], cst[LF],
+                          cst[LR], cst[M], cst[IZ])
 
 
 @kernel

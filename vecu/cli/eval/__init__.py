@@ -1,0 +1,20 @@
+"""`vecu eval`: offline estimator accuracy against simulated truth, one subcommand per ECU
+function that has an evaluation (vecu.cli.eval.<function>, in the registry's order)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+
+from vecu import functions
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="score estimators offline against simulated truth",
+                       description="Offline evaluation of state estimators on simulated plants.")
+    models = p.add_subparsers(dest="model", required=True, metavar="MODEL")
+    for name in functions.names():  # names only: nothing of the functions is imported
+        module = f"{__name__}.{name}"
+        if importlib.util.find_spec(module) is not None:
+            importlib.import_module(module).register(models)
