@@ -292,23 +292,21 @@ def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb,
 
 
 @kernel
-def air_charge_std(n_rpm, p_im, t_im, var_p, cov_pt, var_t, c, v_cyl, eta_rpm, eta_val):
-    """Standard deviation (kg) of the cylinder air charge CAC = eta(N, P_im) P_im V_cyl /
-    (R_air T_im) (eq. 8 times T_s = 120 / (n_cyl N); models.manifold.air_charge_of) by
-    first-order propagation of the (P_im, T_im) covariance: dCAC/dP_im = (eta + P_im
-    d eta/dP_im) V_cyl / (R_air T_im), dCAC/dT_im = -CAC / T_im."""
+def air_charge_gradient(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val):
+    """(dCAC/dP_im, dCAC/dT_im) of the cylinder air charge CAC = eta(N, P_im) P_im V_cyl /
+    (R_air T_im) (eq. 8 times T_s = 120 / (n_cyl N); models.manifold.air_charge_of):
+    (eta + P_im d eta/dP_im) V_cyl / (R_air T_im) and -CAC / T_im, kg per kPa and per K."""
     eta, deta = efficiency_of(n_rpm, p_im, c, eta_rpm, eta_val)
     g_p = (eta + p_im * deta) * v_cyl / (c[1] * t_im)
-    g_t = -air_charge_of(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val) / t_im
-    var = g_p * g_p * var_p + 2.0 * g_p * g_t * cov_pt + g_t * g_t * var_t
-    return math.sqrt(var) if var > 0.0 else 0.0
+    return g_p, -air_charge_of(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val) / t_im
 
 
 def predicted_covariance(P: np.ndarray, A: np.ndarray, Q: np.ndarray, count: int) -> np.ndarray:
     """The covariance `count` events ahead with no measurement: P <- A P A^T + Q (the time
     update of eq. 14, A the SDC matrix of eq. 7 / 10 held at the operating point)."""
+    At = A.T.copy()
     for _ in range(count):
-        P = A @ P @ A.T + Q
+        P = A @ P @ At + Q
     return P
 
 
@@ -316,19 +314,21 @@ def cac_sigmas(x: np.ndarray, P: np.ndarray, Q: np.ndarray, u: EngineInput,
                params: ManifoldParams, horizon: int = HORIZON, eta_scale: float = 1.0
                ) -> tuple[float, float]:
     """(sigma of the CAC at the posterior (x, P), sigma of the CAC `horizon` events ahead with
-    u held), kg: air_charge_std with P's (P_im, T_im) block, then with that block of
-    predicted_covariance(P, A(x, u), Q, horizon) (first order at the posterior's operating
-    point). The first six states are used; eta_scale: the adaptive filter's c. Plain Python
-    under both backends (bit-identical outputs)."""
+    u held), kg: first-order propagation g S g^T with g = air_charge_gradient at the posterior
+    and S the (P_im, T_im) block of P, then of predicted_covariance(P, A(x, u), Q, horizon)
+    (the gradient at the posterior's operating point). The first six states are used;
+    eta_scale: the adaptive filter's c. Plain Python under both backends (bit-identical)."""
     c, _, _, _, eta_rpm, eta_val = python_tables(params)
     if eta_scale != 1.0:
         eta_val = tuple(v * eta_scale for v in eta_val)
-    p_im, t_im, n_rpm, v_cyl = float(x[3]), float(x[4]), u.n_rpm, params.v_cyl_dm3
-    run = air_charge_std.py
-    now = run(n_rpm, p_im, t_im, float(P[3, 3]), float(P[3, 4]), float(P[4, 4]), c, v_cyl,
-              eta_rpm, eta_val)
+    with using("python"):  # the kernels it calls as Python too (the tables are tuples)
+        g_p, g_t = air_charge_gradient.py(u.n_rpm, float(x[3]), float(x[4]), c,
+                                          params.v_cyl_dm3, eta_rpm, eta_val)
     A, _ = sdc_matrices(x[:6], u, params)
     P6 = predicted_covariance(P[:6, :6], A, Q[:6, :6], horizon)
-    ahead = run(n_rpm, p_im, t_im, float(P6[3, 3]), float(P6[3, 4]), float(P6[4, 4]), c,
-                v_cyl, eta_rpm, eta_val)
-    return now, ahead
+    out = []
+    for S in (P, P6):
+        var = g_p * g_p * float(S[3, 3]) + 2.0 * g_p * g_t * float(S[3, 4]) \
+            + g_t * g_t * float(S[4, 4])
+        out.append(math.sqrt(var) if var > 0.0 else 0.0)
+    return out[0], out[1]
