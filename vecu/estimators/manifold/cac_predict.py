@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vecu.estimators.manifold.event import (
+    F_ALPHA_MIN,
     F_NCYL,
     F_VCYL,
     coefficients,
@@ -39,10 +40,10 @@ from vecu.estimators.manifold.event import (
     model_constants,
     numba_tables,
     python_tables,
+    sdc_matrix,
     signature_types,
 )
 from vecu.estimators.manifold.event import prepare as prepare_events
-from vecu.estimators.manifold.model import sdc_matrices
 from vecu.kernels import kernel, using
 from vecu.models import manifold_integrator as mi
 from vecu.models.manifold import air_charge_of, efficiency_of
@@ -93,8 +94,9 @@ def prepare() -> None:
     if _ready:
         return
     prepare_events()
-    _, _, i8, v, m, tables = signature_types()
+    _, f8, i8, v, m, tables = signature_types()
     predict_events.fix_signature((v, m, i8, v, v) + tables)
+    air_charge_sigmas.fix_signature((v, m, m, i8, f8, f8, f8, f8, v) + tables)
     _ready = True
 
 
@@ -301,34 +303,51 @@ def air_charge_gradient(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val):
     return g_p, -air_charge_of(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val) / t_im
 
 
-def predicted_covariance(P: np.ndarray, A: np.ndarray, Q: np.ndarray, count: int) -> np.ndarray:
-    """The covariance `count` events ahead with no measurement: P <- A P A^T + Q (the time
-    update of eq. 14, A the SDC matrix of eq. 7 / 10 held at the operating point)."""
-    At = A.T.copy()
-    for _ in range(count):
-        P = A @ P @ At + Q
-    return P
+@kernel
+def air_charge_sigmas(x, P, Q, horizon, n_rpm, p_a, t_a, t_cool, fc, c, cd_alpha, cd_table, prs,
+                      eta_rpm, eta_val):
+    """(sigma of the CAC at the posterior (x, P), sigma of the CAC `horizon` events ahead with
+    the input held), kg: first-order propagation g S g^T with g = air_charge_gradient at the
+    posterior and S the (P_im, T_im) block of P, then of the covariance predicted `horizon`
+    events with no measurement, S <- A S A^T + Q (the time update of eq. 14, A the SDC matrix
+    of eq. 7 / 10 at the posterior and the held input; the gradient stays at the posterior's
+    operating point). The first six states of x, P and Q are used."""
+    ts = 120.0 / (fc[F_NCYL] * n_rpm)  # models.manifold.sample_time
+    A = np.zeros((6, 6))
+    sdc_matrix(A, x, n_rpm, p_a, t_a, t_cool, ts, coefficients(ts, fc), fc[F_ALPHA_MIN], c,
+               cd_alpha, cd_table, prs, eta_rpm, eta_val)
+    g_p, g_t = air_charge_gradient(n_rpm, x[3], x[4], c, fc[F_VCYL], eta_rpm, eta_val)
+    S = np.empty((6, 6))
+    Q6 = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            S[i, j] = P[i, j]
+            Q6[i, j] = Q[i, j]
+    var = g_p * g_p * S[3, 3] + 2.0 * g_p * g_t * S[3, 4] + g_t * g_t * S[4, 4]
+    now = math.sqrt(var) if var > 0.0 else 0.0
+    for _ in range(horizon):
+        S = A @ S @ A.T + Q6
+    var = g_p * g_p * S[3, 3] + 2.0 * g_p * g_t * S[3, 4] + g_t * g_t * S[4, 4]
+    return now, math.sqrt(var) if var > 0.0 else 0.0
 
 
 def cac_sigmas(x: np.ndarray, P: np.ndarray, Q: np.ndarray, u: EngineInput,
                params: ManifoldParams, horizon: int = HORIZON, eta_scale: float = 1.0
                ) -> tuple[float, float]:
-    """(sigma of the CAC at the posterior (x, P), sigma of the CAC `horizon` events ahead with
-    u held), kg: first-order propagation g S g^T with g = air_charge_gradient at the posterior
-    and S the (P_im, T_im) block of P, then of predicted_covariance(P, A(x, u), Q, horizon)
-    (the gradient at the posterior's operating point). The first six states are used;
-    eta_scale: the adaptive filter's c. Plain Python under both backends (bit-identical)."""
-    c, _, _, _, eta_rpm, eta_val = python_tables(params)
+    """air_charge_sigmas for a filter's posterior (x, P; its Q) and the event's input u:
+    compiled under the numba backend, its Python function otherwise (or for a parameter set
+    numba cannot mirror); eta_scale multiplies the eta_N table (the adaptive filter's c)."""
+    hit = _ARGS.get(id(params))
+    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
+    run = air_charge_sigmas.impl()
+    compiled = run is not air_charge_sigmas.py and nb is not None
+    args: tuple = nb if compiled and nb is not None else py
     if eta_scale != 1.0:
-        eta_val = tuple(v * eta_scale for v in eta_val)
+        ev = args[-1]
+        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
+    if compiled:
+        if not _ready:
+            prepare()
+        return run(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)
     with using("python"):  # the kernels it calls as Python too (the tables are tuples)
-        g_p, g_t = air_charge_gradient.py(u.n_rpm, float(x[3]), float(x[4]), c,
-                                          params.v_cyl_dm3, eta_rpm, eta_val)
-    A, _ = sdc_matrices(x[:6], u, params)
-    P6 = predicted_covariance(P[:6, :6], A, Q[:6, :6], horizon)
-    out = []
-    for S in (P, P6):
-        var = g_p * g_p * float(S[3, 3]) + 2.0 * g_p * g_t * float(S[3, 4]) \
-            + g_t * g_t * float(S[4, 4])
-        out.append(math.sqrt(var) if var > 0.0 else 0.0)
-    return out[0], out[1]
+        return air_charge_sigmas.py(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)
