@@ -41,7 +41,8 @@ def test_roundtrip_and_crc(codec):
 def test_every_single_bit_flip_is_caught_by_the_crc(codec):
     est = codec["ECU_ThrottleEstimate"]
     data = est.encode({"THR_CRC": 0, "THR_AliveCounter": 3, "THR_Source": 1, "THR_Angle": 45.0,
-                       "THR_AngleEst": 44.0, "THR_AngleEstStd": 3.0, "THR_TpsStatus": 2})
+                       "THR_AngleEst": 44.0, "THR_AngleEstStd": 3.0, "THR_TpsStatus": 2,
+                       "THR_Validity": 2})
     for bit in range(len(data) * 8):
         flipped = bytearray(data)
         flipped[bit // 8] ^= 1 << (bit % 8)
@@ -51,7 +52,8 @@ def test_every_single_bit_flip_is_caught_by_the_crc(codec):
 def test_encode_saturates_out_of_range_and_nan(codec):
     est = codec["ECU_ThrottleEstimate"]
     data = est.encode({"THR_CRC": 0, "THR_AliveCounter": 0, "THR_Source": 0, "THR_Angle": -3.0,
-                       "THR_AngleEst": 1e6, "THR_AngleEstStd": math.nan, "THR_TpsStatus": 0})
+                       "THR_AngleEst": 1e6, "THR_AngleEstStd": math.nan, "THR_TpsStatus": 0,
+                       "THR_Validity": 1})
     v = est.decode(data)
     assert v["THR_Angle"] == 0.0 and v["THR_AngleEst"] == 90.0 and v["THR_AngleEstStd"] == 0.0
 

@@ -4,7 +4,10 @@ the one recorded before the layered-house refactor (issue 13), on both kernel ba
 A deliberate change of behaviour updates GOLDEN_SHA256 in its own commit, with the reason.
 Re-recorded for issue 29 item 6 ("one car": the plant's lateral and engine parts follow the
 longitudinal part's speed; CHS_Lateral, SWA_Sensor and ENG_Event/ENG_Intake changed, ESC_Motion
-and the throttle frames did not).
+and the throttle frames did not). Re-recorded for issue 30 item 1 (sigma and validity): the ECU's
+estimate frames carry validity signals, ECU_ManifoldSigma (0x212) and ECU_SteeringSigma (0x232)
+are new, the speed filter starts from the first wheel-speed frame and the manifold filter from
+its first readings; every plant frame and ECU_Status / ECU_Diag are unchanged.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import pytest
 
 from vecu import kernels
 
-GOLDEN_SHA256 = "dfda1257fa2966a07865af9ad956825cfc87b4e4b3a19fdd4f2b47843d7ec986"
+GOLDEN_SHA256 = "e91108a0d751908ae0c7566123213323a903d0f2c817324af6d1cb113878ba6b"
 
 
 @pytest.mark.parametrize("backend", ["python", "numba"])

@@ -77,7 +77,8 @@ def test_own_frames_echoed_back_are_ignored_not_errors(setup):
     codec, ecu, _ = setup
     echo = codec["ECU_ThrottleEstimate"].frame(
         {"THR_CRC": 0, "THR_AliveCounter": 0, "THR_Source": 0, "THR_Angle": 1.0,
-         "THR_AngleEst": 1.0, "THR_AngleEstStd": 1.0, "THR_TpsStatus": 0}, 0.0)
+         "THR_AngleEst": 1.0, "THR_AngleEstStd": 1.0, "THR_TpsStatus": 0, "THR_Validity": 1},
+        0.0)
     ecu.receive(echo, 0)
     assert ecu.rx.ignored == 1 and ecu.rx.rejected == 0
 

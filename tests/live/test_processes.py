@@ -63,7 +63,8 @@ def test_live_bus_drops_and_counts_own_echoes_but_passes_other_frames():
         ecu = LiveBus(ecu_raw, sent_ids(codec, "VECU"), "virtual")
         est, watt = codec["ECU_ThrottleEstimate"], codec["ETB_Wattmeter"]
         ecu.send(est.frame({"THR_CRC": 0, "THR_AliveCounter": 0, "THR_Source": 0, "THR_Angle": 1.0,
-                            "THR_AngleEst": 1.0, "THR_AngleEstStd": 1.0, "THR_TpsStatus": 0}, 0.0))
+                            "THR_AngleEst": 1.0, "THR_AngleEstStd": 1.0, "THR_TpsStatus": 0,
+                            "THR_Validity": 1}, 0.0))
         plant_raw.send(watt.frame({"ETB_Voltage": 2.0, "ETB_Power": 3.0}, 0.0))
         # another node sending one of the ECU's IDs (a bus set-up error) is dropped as well, but
         # counted apart: it is not the ECU's own frame

@@ -25,7 +25,7 @@ def test_frames_of_another_local_socket_reach_the_node_although_python_can_says_
         watt, est = codec["ETB_Wattmeter"], codec["ECU_ThrottleEstimate"]
         ecu.send(est.frame({"THR_CRC": 0, "THR_AliveCounter": 0, "THR_Source": 0,
                             "THR_Angle": 1.0, "THR_AngleEst": 1.0, "THR_AngleEstStd": 1.0,
-                            "THR_TpsStatus": 0}, 0.0))
+                            "THR_TpsStatus": 0, "THR_Validity": 1}, 0.0))
         plant.send(watt.frame({"ETB_Voltage": 2.0, "ETB_Power": 3.0}, 0.0))
         plant.send(can.Message(arbitration_id=est.frame_id, data=bytes(8), is_extended_id=False))
         got = ecu.recv(5.0)

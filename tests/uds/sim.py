@@ -60,7 +60,9 @@ DIDS = {0xF190: Codec("17s"), 0xF18C: Codec("10s"), 0xF195: Codec("15s"), 0xF186
         0x0102: Codec("H", 0.01), 0x0103: Codec("B"), 0x0104: Codec("H", 0.0001),
         0x0105: Codec("B"), 0x0110: Codec("H", 0.01), 0x0200: Codec("H", 0.01),
         0x0300: Codec("H", 0.01), 0x0400: Codec("h", 0.05), 0x0402: Codec("h", 0.01),
-        0x0403: Codec("h", 0.05)}
+        0x0403: Codec("h", 0.05), 0x010F: Codec("B"), 0x020F: Codec("B"), 0x030F: Codec("B"),
+        0x040F: Codec("B"), 0x0305: Codec("H", 0.01), 0x0405: Codec("H", 0.01),
+        0x0204: Codec("H", 0.001)}
 CLIENT_CONFIG = {**udsoncan.configs.default_client_config, "data_identifiers": DIDS,
                  "input_output": {0x0104: Codec("H", 0.0001), 0x0302: Codec("H", 0.01),
                                   0x0403: Codec("h", 0.05)},

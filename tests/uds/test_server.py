@@ -77,6 +77,26 @@ def test_a_tester_reads_the_vin_the_live_throttle_and_the_tps_dtc_with_its_snaps
     assert sim.fns.throttle.monitor.dtc_item.confirmations == 2
 
 
+def test_a_tester_reads_each_estimates_validity_and_sigma_as_the_broadcast_has_them(sim):
+    """Issue 30: the validity DIDs 0x0n0F read vecu.ecu.validity's codes, the same state as the
+    *_Validity signals; the sigma DIDs the broadcast sigmas."""
+    from vecu.ecu.validity import VALID
+
+    sim.run_to(0.3)
+    dids = [0x010F, 0x020F, 0x030F, 0x040F, 0x0305, 0x0405, 0x0204]
+    got = sim.serve(lambda c: c.read_data_by_identifier(dids).service_data.values)
+    fn = sim.fns.by_name
+    assert [got[d] for d in dids[:4]] == [fn[n].validity for n in
+                                          ("throttle", "manifold", "speed", "steering")]
+    assert fn["throttle"].validity == fn["manifold"].validity == VALID
+    assert fn["speed"].validity == VALID
+    assert got[0x0305] == pytest.approx(fn["speed"].kf.speed_std_mps * 3.6,
+                                        abs=0.006)
+    assert got[0x0405] == pytest.approx(fn["steering"].swa_std, abs=0.006)
+    assert got[0x0405] > 0
+    assert got[0x0204] > 0.0
+
+
 def test_a_tester_unlocks_security_and_forces_a_sensor_value(sim):
     sim.run_to(0.2)
     thr = sim.fns.throttle

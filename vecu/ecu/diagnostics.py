@@ -101,6 +101,13 @@ class Variable:
     doc: str
 
 
+def validity_did(did: int, name: str, read: Callable[[], int]) -> Did:
+    """A function's validity DID (one byte, vecu.ecu.validity's codes: what its estimate
+    message's *_Validity signal says)."""
+    return Did(did, f"{name} (0 init, 1 valid, 2 degraded, 3 invalid)", "B", 1, "",
+               lambda: float(read()))
+
+
 def status_reader(mon: SensorMonitor) -> Callable[[], float]:
     """A DID reader of a sensor monitor's status code."""
     return lambda: float(int(mon.status))

@@ -8,6 +8,11 @@ setpoint held (the ECU does not know future pedal positions), and sends ECU_Mani
 Under the numba backend the usual SDKF / EKF event is one compiled call for all three
 (filter.event_cac); the python backend, the adaptive filter and any unusual event (a missing or
 rejected reading, a fallback, a reset) make the separate calls, with the same numbers.
+Before each ECU_ManifoldEstimate the function sends ECU_ManifoldSigma: the event's counter, the
+validity (vecu.ecu.validity; UDS DID 0x020F: init until the filter has been initialised from a
+complete event, degraded for an event with a reading missing, rejected or gated) and the
+one-sigma uncertainties (throttle angle, P_im, T_im from P_n|n; the CAC and its 6-event
+prediction by cac_predict.cac_sigmas).
 Events whose frames did not both arrive are counted as lost; the filter predicts through them.
 An event whose input the filter cannot use (engine speed outside `kf.n_range`, e.g. 0 rpm, which
 the DBC allows) is refused when it arrives: counted in `implausible_inputs` (and by the node as an
@@ -22,9 +27,10 @@ from dataclasses import dataclass, field
 
 from vecu.clock import NS_PER_MS, NS_PER_S, Stopwatch
 from vecu.codec import DbcCodec
-from vecu.ecu.diagnostics import FLOAT, ULONG, Did, Reader, Variable
+from vecu.ecu.diagnostics import FLOAT, UBYTE, ULONG, Did, Reader, Variable, validity_did
 from vecu.ecu.node import Send, Subscription
-from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
+from vecu.ecu.validity import DEGRADED, INIT, VALID
+from vecu.estimators.manifold.cac_predict import HORIZON, cac_sigmas, predict_cac
 from vecu.estimators.manifold.factory import make_filter
 from vecu.estimators.manifold.filters import ManifoldFilterConfig, input_problem
 from vecu.models.manifold import cylinder_air_charge, nominal_input
@@ -65,6 +71,12 @@ class ManifoldFunction:
         self._adapt_frame = codec["ECU_ManifoldAdapt"].framer((
             "MFD_EtaCorr", "MFD_EtaCorrStd", "MFD_FlowCorr", "MFD_TaGainCorr", "MFD_ActZetaCorr",
             "MFD_ActOmegaCorr")) if config.filter == "adaptive" else None
+        self._sigma_frame = codec["ECU_ManifoldSigma"].framer((
+            "MFD_EventCounter", "MFD_Validity", "MFD_ThrottleAngleStd", "MFD_PressureStd",
+            "MFD_TemperatureStd", "MFD_CACStd", "MFD_CACPred6Std"))
+        self.validity = INIT
+        # the last event's sigmas: throttle angle (rad), P_im (kPa), T_im (K), CAC, CAC+6 (kg)
+        self.sigmas: tuple[float, float, float, float, float] | None = None
         self.timeouts = 0
         self.estimates_sent = 0
         self.events = 0          # complete events filtered
@@ -131,6 +143,7 @@ class ManifoldFunction:
         # a missing IAT reading is a NaN channel: rejected, the others used
         t_meas = iat[1] if iat is not None and iat[0] == counter else math.nan
         watch = self._watch
+        troubles = flt.missing + sum(flt.rejected) + sum(flt.gated)
         watch.lap()
         # the usual event under the numba backend: filter, CAC and prediction in one call
         done = flt.event_cac(ta, map_kpa, t_meas, u, HORIZON)
@@ -159,7 +172,16 @@ class ManifoldFunction:
             return
         self.events += 1
         self.last = (self._abs_index, x[3], x[4], cac, cac6)
+        P = flt.P_post
+        s_cac, s_cac6 = cac_sigmas(flt.x_post, P, flt.Q, u, self._engine, HORIZON, scale)
+        sd = [math.sqrt(max(float(P[i, i]), 0.0)) for i in (1, 3, 4)]
+        self.sigmas = (sd[0], sd[1], sd[2], s_cac, s_cac6)
+        self.validity = validity = (
+            INIT if not flt.initialised else
+            DEGRADED if flt.missing + sum(flt.rejected) + sum(flt.gated) != troubles else VALID)
         ts = t_ns / NS_PER_S
+        send(self._sigma_frame(ts, counter, validity, sd[0] / RAD_PER_DEG, sd[1], sd[2],
+                               s_cac * MG_PER_KG, s_cac6 * MG_PER_KG))
         self.estimates_sent += send(self._out_frame(
             ts, x[1] / RAD_PER_DEG, x[3], x[4] - KELVIN_AT_0_DEGC, cac * MG_PER_KG,
             cac6 * MG_PER_KG))
@@ -186,7 +208,17 @@ class ManifoldFunction:
             Did(0x0202, "cylinder air charge", "H", 0.1, "mg", last(3, MG_PER_KG)),
             Did(0x0203, "cylinder air charge, 6 events ahead", "H", 0.1, "mg",
                 last(4, MG_PER_KG)),
+            Did(0x0204, "manifold pressure std", "H", 0.001, "kPa", self._sigma(1)),
+            Did(0x0205, "manifold temperature std", "H", 0.01, "K", self._sigma(2)),
+            Did(0x0206, "cylinder air charge std", "H", 0.01, "mg", self._sigma(3, MG_PER_KG)),
+            Did(0x0207, "cylinder air charge 6 events ahead std", "H", 0.01, "mg",
+                self._sigma(4, MG_PER_KG)),
+            validity_did(0x020F, "manifold estimate validity", lambda: self.validity),
         ]
+
+    def _sigma(self, i: int, scale: float = 1.0) -> Reader:
+        """Element i of the last event's sigmas (None before the first), scaled."""
+        return lambda: None if self.sigmas is None else self.sigmas[i] * scale
 
     def variables(self) -> list[Variable]:
         """XCP measurements: the last event's estimates (SI), events filtered."""
@@ -199,5 +231,7 @@ class ManifoldFunction:
                     "cylinder air charge predicted 6 events ahead")), start=1)]
         out.append(Variable("manifold.events", "1", ULONG, lambda: self.events, 0, 4294967295,
                             "engine events filtered"))
+        out.append(Variable("manifold.validity", "1", UBYTE, lambda: self.validity, 0, 3,
+                            "0 init, 1 valid, 2 degraded, 3 invalid"))
         return out
 

@@ -5,7 +5,9 @@ Every 2 ms: diagnose the wheel-speed reading of the latest ESC_Motion frame (rec
 the DBC cycle time, range, plausibility against the filter's speed), feed the Kalman filter the
 wheel speed only while the sensor is healthy and the accelerometer always (no new frame: None,
 predict only), and send ECU_SpeedEstimate (km/h, m/s^2 at the boundary). While the wheel sensor is
-faulty the filter coasts on the accelerometer and SPD_Mode reads 3 (coast).
+faulty the filter coasts on the accelerometer and SPD_Mode reads 3 (coast), SPD_Validity
+degraded; until the first wheel-speed frame has initialised the filter SPD_Validity reads init
+(vecu.ecu.validity), the UDS DID 0x030F too.
 """
 
 from __future__ import annotations
@@ -15,10 +17,20 @@ from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
-from vecu.ecu.diagnostics import FLOAT, UBYTE, Calibrations, Did, DtcSpec, Variable, status_reader
+from vecu.ecu.diagnostics import (
+    FLOAT,
+    UBYTE,
+    Calibrations,
+    Did,
+    DtcSpec,
+    Variable,
+    status_reader,
+    validity_did,
+)
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import SensorMonitor, SensorMonitorConfig, SensorStatus
 from vecu.ecu.sensor_monitor import SensorStatus as S
+from vecu.ecu.validity import DEGRADED, INIT, VALID
 from vecu.estimators.speed.kf import SpeedFilterConfig, SpeedKalmanFilter
 from vecu.units import MPS_PER_KMH
 
@@ -60,7 +72,8 @@ class SpeedFunction:
         self.kf = kf if kf is not None else SpeedKalmanFilter(config.filter)
         self._out = codec["ECU_SpeedEstimate"]
         self._out_frame = self._out.framer(("SPD_VehSpeed", "SPD_VehAccel", "SPD_VehSpeedStd",
-                                            "SPD_AccelOffset", "SPD_Mode"))
+                                            "SPD_AccelOffset", "SPD_Mode", "SPD_Validity",
+                                            "SPD_VehAccelStd"))
         cycle = codec["ESC_Motion"].cycle_time_ms or config.wheel_monitor.cycle_ms
         self.monitor = SensorMonitor(replace(config.wheel_monitor, cycle_ms=cycle), 0.0,
                                      WHEEL_MAX_KMH, float)
@@ -69,6 +82,7 @@ class SpeedFunction:
         self._wheel: float | None = None
         self._accel: float | None = None
         self.mode = MODE_NORMAL
+        self.validity = INIT
 
     # ECU_RxTimeouts keeps counting the TPS and SWA deadlines only (as before this monitor
     # existed); wheel-speed timeouts are in ECU_Diag (DIAG_WheelStatus/Dtc) and the run summary.
@@ -92,7 +106,7 @@ class SpeedFunction:
         mon = self.monitor
         was_ok = mon.status == _OK
         # until the filter has taken its first wheel reading its speed means nothing: no gate
-        std = kf.speed_std_mps / MPS_PER_KMH if getattr(kf, "_initialised", True) else math.inf
+        std = kf.speed_std_mps / MPS_PER_KMH if getattr(kf, "initialised", True) else math.inf
         status = mon.evaluate(t_ns, kf.speed_mps / MPS_PER_KMH, std)
         if was_ok and status == _TIMEOUT:
             mon.timeouts += 1
@@ -107,9 +121,11 @@ class SpeedFunction:
         else:
             mode = MODE_STANDSTILL if kf.standstill else (MODE_ABS if kf.abs_mode else MODE_NORMAL)
         self.mode = mode
+        self.validity = validity = (INIT if not getattr(kf, "initialised", True)
+                                    else VALID if status == _OK else DEGRADED)
         self.estimates_sent += send(self._out_frame(
             t_ns / NS_PER_S, kf.speed_mps / MPS_PER_KMH, kf.accel_mps2,
-            kf.speed_std_mps / MPS_PER_KMH, kf.offset_mps2, mode))
+            kf.speed_std_mps / MPS_PER_KMH, kf.offset_mps2, mode, validity, kf.accel_std_mps2))
 
     def status_signals(self) -> dict[str, int]:
         return {}
@@ -125,6 +141,9 @@ class SpeedFunction:
             Did(0x0303, "wheel-speed sensor status", "B", 1, "", status_reader(wmon)),
             Did(0x0304, "speed filter mode (0 normal, 1 standstill, 2 ABS, 3 coast)", "B", 1,
                 "", lambda: float(self.mode)),
+            Did(0x0305, "vehicle speed std", "H", 0.01, "km/h",
+                lambda: kf.speed_std_mps / MPS_PER_KMH),
+            validity_did(0x030F, "speed estimate validity", lambda: self.validity),
         ]
 
     def dtcs(self) -> tuple[DtcSpec, ...]:
@@ -149,4 +168,6 @@ class SpeedFunction:
                      "accelerometer offset state"),
             Variable("speed.mode", "1", UBYTE, lambda: self.mode, 0, 3,
                      "0 normal, 1 standstill, 2 ABS, 3 coast"),
+            Variable("speed.validity", "1", UBYTE, lambda: self.validity, 0, 3,
+                     "0 init, 1 valid, 2 degraded, 3 invalid"),
         ]

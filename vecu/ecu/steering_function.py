@@ -4,16 +4,32 @@ acceleration (Khalid), SWA sensor diagnosis and substitution, live fixed-lag smo
 Every 10 ms: step the UKF (inside the fixed-lag unscented RTS smoother) with the latest
 CHS_Lateral sample, diagnose the SWA sensor against the UKF, send ECU_SteeringEstimate with the
 sensor angle while it is healthy and the estimate otherwise, and ECU_SteeringSmoothed with the
-smoothed estimate of STS_LagMs ago (flagged invalid until the lag has filled).
+smoothed estimate of STS_LagMs ago (flagged invalid until the lag has filled), and
+ECU_SteeringSigma with the UKF's sigmas. STE_Validity / STS_Validity (vecu.ecu.validity; UDS DID
+0x040F) qualify the estimates: init until the first CHS_Lateral frame has been filtered (STS: until
+the lag has filled), degraded while the car is slower than V_X_MIN (3 m/s): yaw rate and a_y say
+nothing of the steering angle at standstill, so the broadcast sigma then adds the prior's
+(sqrt(sigma_UKF^2 + sigma_prior^2), about 80 deg). The SWA monitor keeps the UKF's own sigma.
 """
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
-from vecu.ecu.diagnostics import FLOAT, UBYTE, Calibrations, Did, DtcSpec, Variable, status_reader
+from vecu.ecu.diagnostics import (
+    FLOAT,
+    UBYTE,
+    Calibrations,
+    Did,
+    DtcSpec,
+    Variable,
+    status_reader,
+    validity_did,
+)
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import (
     SOURCE_SENSOR,
@@ -22,8 +38,9 @@ from vecu.ecu.sensor_monitor import (
     SensorStatus,
 )
 from vecu.ecu.sensor_monitor import SensorStatus as S
+from vecu.ecu.validity import DEGRADED, INIT, VALID
 from vecu.estimators.steering.filters import SteeringUKF
-from vecu.estimators.steering.model import SteeringModel
+from vecu.estimators.steering.model import V_X_MIN, SteeringModel
 from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.units import DEG_PER_RAD, MPS_PER_KMH
 
@@ -68,9 +85,11 @@ class SteeringFunction:
         self._smoothed = codec["ECU_SteeringSmoothed"]
         self._est_frame = self._est.framer((
             "STE_CRC", "STE_AliveCounter", "STE_Source", "STE_SwAngle", "STE_SwAngleEst",
-            "STE_SideSlip", "STE_SwaStatus"))
+            "STE_SideSlip", "STE_SwaStatus", "STE_Validity"))
         self._smoothed_frame = self._smoothed.framer(
-            ("STS_SwAngle", "STS_SideSlip", "STS_LagMs", "STS_Valid"))
+            ("STS_SwAngle", "STS_SideSlip", "STS_LagMs", "STS_Valid", "STS_Validity"))
+        self._sigma_frame = codec["ECU_SteeringSigma"].framer(
+            ("STE_SwAngleEstStd", "STE_SideSlipStd"))
         cycle = codec["SWA_Sensor"].cycle_time_ms or config.monitor.cycle_ms
         self.monitor = SensorMonitor(replace(config.monitor, cycle_ms=cycle), -SWA_LIMIT_DEG,
                                      SWA_LIMIT_DEG, float)
@@ -84,6 +103,13 @@ class SteeringFunction:
         self.source = SOURCE_SENSOR
         self.status = SensorStatus.OK
         self.lagged: tuple[int, float, float] | None = None  # (lag in ms, SWA, side-slip)
+        self.validity = INIT
+        self.smoothed_validity = INIT
+        self.swa_std = 0.0  # the broadcast STE_SwAngleEstStd (deg)
+        self._filtered = False  # a CHS_Lateral frame has been filtered
+        self._speed = 0.0  # the last CHS_Lateral speed (m/s, not clipped)
+        # per step: the car below V_X_MIN, as far back as the smoother's lag
+        self._slow: deque[bool] = deque(maxlen=self.smoother.lag + 1)
 
     @property
     def timeouts(self) -> int:
@@ -105,24 +131,41 @@ class SteeringFunction:
         self.monitor.on_frame(t_ns, values["SWA_Angle"])
 
     def run(self, t_ns: int, send: Send) -> None:
-        lagged = self.smoother.step(self._vx, self._r, self._ay)
+        vx = self._vx
+        if vx is not None:
+            self._filtered = True
+            if math.isfinite(vx):
+                self._speed = abs(vx)
+        lagged = self.smoother.step(vx, self._r, self._ay)
         self._vx = self._r = self._ay = None
         ukf = self.ukf
         est, std, beta = ukf.swa_rad * DEG_PER_RAD, ukf.swa_std_rad * DEG_PER_RAD, ukf.side_slip_rad * DEG_PER_RAD
         angle, source, status = self.monitor.select(t_ns, est, std)
         self.angle, self.source, self.status = angle, source, status
+        slow = self._speed < V_X_MIN
+        self._slow.append(slow)
+        if not self._filtered:
+            validity = INIT
+        elif slow:  # not observable: the prior's sigma too
+            validity = DEGRADED
+            std = math.hypot(std, ukf.swa_prior_std_rad * DEG_PER_RAD)
+        else:
+            validity = VALID
+        self.validity, self.swa_std = validity, std
         ts = t_ns / NS_PER_S
+        send(self._sigma_frame(ts, std, ukf.side_slip_std_rad * DEG_PER_RAD))
         self.estimates_sent += send(self._est_frame(
-            ts, 0, self._tx_counter, source, angle, est, beta, int(status)))
+            ts, 0, self._tx_counter, source, angle, est, beta, int(status), validity))
         self._tx_counter = (self._tx_counter + 1) % self._modulo
         if lagged is not None:
             lag_ms = round(lagged.lag_steps * self.period_ns / NS_PER_MS)
             self.lagged = (lag_ms, lagged.swa_rad * DEG_PER_RAD, lagged.side_slip_rad * DEG_PER_RAD)
         lag = self.lagged
         if lag:
-            send(self._smoothed_frame(ts, lag[1], lag[2], lag[0], 1))
+            self.smoothed_validity = DEGRADED if self._slow[0] else VALID
+            send(self._smoothed_frame(ts, lag[1], lag[2], lag[0], 1, self.smoothed_validity))
         else:
-            send(self._smoothed_frame(ts, 0.0, 0.0, 0, 0))
+            send(self._smoothed_frame(ts, 0.0, 0.0, 0, 0, INIT))
 
     def status_signals(self) -> dict[str, int]:
         return {}
@@ -140,6 +183,11 @@ class SteeringFunction:
             Did(0x0403, "steering-wheel angle sensor (last valid)", "h", 0.05, "deg",
                 lambda: smon.value, io=("SWA_Sensor", "SWA_Angle")),
             Did(0x0404, "steering-wheel angle sensor status", "B", 1, "", status_reader(smon)),
+            Did(0x0405, "steering-wheel angle estimate std", "H", 0.01, "deg",
+                lambda: self.swa_std),
+            Did(0x0406, "side-slip angle estimate std", "H", 0.001, "deg",
+                lambda: ukf.side_slip_std_rad * DEG_PER_RAD),
+            validity_did(0x040F, "steering estimate validity", lambda: self.validity),
         ]
 
     def dtcs(self) -> tuple[DtcSpec, ...]:

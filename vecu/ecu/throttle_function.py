@@ -2,7 +2,9 @@
 
 Every 1 ms: step the estimator from the wattmeter and commanded voltage only, diagnose the TPS,
 and send ECU_ThrottleEstimate carrying the sensor angle while the TPS is healthy and the
-estimate otherwise, with no gap.
+estimate otherwise, with no gap. THR_Validity (vecu.ecu.validity) qualifies the estimate: init
+until the estimator has taken its first wattmeter reading, degraded while wattmeter frames have
+been missing for STALE_RUNS runs (the estimator predicts only), else valid; UDS DID 0x010F.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from vecu.ecu.diagnostics import (
     DtcSpec,
     Variable,
     status_reader,
+    validity_did,
 )
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.sensor_monitor import (
@@ -31,11 +34,13 @@ from vecu.ecu.sensor_monitor import (
     SensorStatus,
 )
 from vecu.ecu.sensor_monitor import SensorStatus as S
+from vecu.ecu.validity import DEGRADED, INIT, VALID
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.models.sensors import TpsCalibration
 from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel
 
 MAX_BACKLOG = 20  # wattmeter samples the estimator catches up on in one run (20 ms of stall)
+STALE_RUNS = 3  # runs in a row without a wattmeter sample: the estimate is degraded
 
 
 # failure type bytes (SAE J2012-DA): 0x21/0x22 signal amplitude < min / > max, 0x64 signal
@@ -82,7 +87,7 @@ class ThrottleFunction:
         self._modulo = e2e.protection.counter_modulo  # P11: 0..14
         self._est_frame = self._est.framer((
             "THR_CRC", "THR_AliveCounter", "THR_Source", "THR_Angle", "THR_AngleEst",
-            "THR_AngleEstStd", "THR_TpsStatus"))
+            "THR_AngleEstStd", "THR_TpsStatus", "THR_Validity"))
         monitor_cfg = config.tps_monitor
         tps_cycle = self._tps.cycle_time_ms or monitor_cfg.cycle_ms
         if monitor_cfg.cycle_ms != tps_cycle:
@@ -101,6 +106,9 @@ class ThrottleFunction:
         self.angle = 0.0
         self.source = SOURCE_SENSOR
         self.status = SensorStatus.OK
+        self.validity = INIT
+        self._measured = False  # the estimator has taken a wattmeter reading (since a reset)
+        self._runs_without = 0  # runs in a row without a wattmeter sample
 
     @property
     def timeouts(self) -> int:
@@ -128,6 +136,10 @@ class ThrottleFunction:
         samples = self._samples
         if not samples:
             est.step(self._u_prev, None)  # no new measurement: predict only, with the last u
+            self._runs_without += 1
+        else:
+            self._runs_without = 0
+            self._measured = True
         while samples:  # predict with u_{k-1}, update with y_k
             u, y = samples.popleft()
             est.step(self._u_prev, y)
@@ -138,10 +150,14 @@ class ThrottleFunction:
             self.estimator_faults += 1
             est.reset()
             theta_hat, std = self.angle, 51.0
+            self._measured = False
         angle, source, status = self.monitor.select(t_ns, theta_hat, std)
         self.angle, self.source, self.status = angle, source, status
+        self.validity = validity = (INIT if not self._measured else
+                                    DEGRADED if self._runs_without >= STALE_RUNS else VALID)
         self.estimates_sent += send(self._est_frame(
-            t_ns / NS_PER_S, 0, self._tx_counter, source, angle, theta_hat, std, int(status)))
+            t_ns / NS_PER_S, 0, self._tx_counter, source, angle, theta_hat, std, int(status),
+            validity))
         self._tx_counter = (self._tx_counter + 1) % self._modulo
 
     def status_signals(self) -> dict[str, int]:
@@ -165,6 +181,7 @@ class ThrottleFunction:
             Did(0x0105, "TPS status", "B", 1, "", status_reader(mon)),
             Did(0x0110, "TPS plausibility margin (ecu.throttle.tps_monitor.plaus_margin)",
                 "H", 0.01, "deg", lambda: mon.cfg.plaus_margin, write=set_margin),
+            validity_did(0x010F, "throttle estimate validity", lambda: self.validity),
         ]
 
     def dtcs(self) -> tuple[DtcSpec, ...]:

@@ -54,6 +54,10 @@ class TruthChannel:
     burn_in_ns: int = 0
     # the scores in words, `vecu replay`'s line (after "score <function>: ")
     describe: Callable[[Mapping[str, ErrorStats]], str] | None = None
+    # (message, signal) of the estimate's validity (vecu.ecu.validity): frames flagged init or
+    # invalid are not scored but counted; a message other than `estimate` is sent before it in
+    # the same tick (its latest frame at that time counts)
+    validity: tuple[str, str] | None = None
 
 
 @dataclass(frozen=True)

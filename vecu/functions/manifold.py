@@ -143,7 +143,7 @@ SPEC = EcuFunctionSpec(
         TruthPair("map_error_kpa", "MFD_Pressure", "TRU_MAP"),
         TruthPair("imt_error_k", "MFD_Temperature", "TRU_IMT"),
         TruthPair("cac_error_mg", "MFD_CAC", "TRU_CAC"),
-    ), describe=lambda e: (
+    ), validity=("ECU_ManifoldSigma", "MFD_Validity"), describe=lambda e: (
         f"MAP RMS {e['map_error_kpa'].rms:.3f} kPa, IMT {e['imt_error_k'].rms:.2f} K, "
         f"CAC {e['cac_error_mg'].rms:.2f} mg")),
     plot=_plot, report_rank=2, label="manifold pressure [kPa]",

@@ -184,7 +184,8 @@ SPEC = EcuFunctionSpec(
     truth=TruthChannel("ECU_SpeedEstimate", "TRUTH_Speed", 2 * NS_PER_MS, (
         TruthPair("speed_error_kmh", "SPD_VehSpeed", "TRU_VehSpeed"),
         TruthPair("accel_error_mps2", "SPD_VehAccel", "TRU_VehAccel"),
-    ), burn_in_ns=SPEED_BURN_IN_NS, describe=lambda e: (
+    ), burn_in_ns=SPEED_BURN_IN_NS, validity=("ECU_SpeedEstimate", "SPD_Validity"),
+        describe=lambda e: (
         f"RMS {e['speed_error_kmh'].rms:.3f} km/h, accel {e['accel_error_mps2'].rms:.3f} m/s^2")),
     plot=_plot, report_rank=1, label="vehicle speed [km/h]",
     profile=(

@@ -206,7 +206,7 @@ SPEC = EcuFunctionSpec(
         TruthPair("side_slip_error_deg", "STE_SideSlip", "TRU_SideSlip"),
         TruthPair("swa_fallback_error_deg", "STE_SwAngle", "TRU_SwAngle",
                   ("STE_Source", SOURCE_ESTIMATE)),
-    ), describe=lambda e: (
+    ), validity=("ECU_SteeringEstimate", "STE_Validity"), describe=lambda e: (
         f"SWA broadcast RMS {e['swa_broadcast_error_deg'].rms:.2f} deg, UKF "
         f"{e['swa_estimate_error_deg'].rms:.2f} deg, side-slip "
         f"{e['side_slip_error_deg'].rms:.3f} deg")),

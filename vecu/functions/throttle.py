@@ -180,7 +180,7 @@ SPEC = EcuFunctionSpec(
         TruthPair("estimate_error_deg", "THR_AngleEst", "TRU_ThrottleAngle"),
         TruthPair("fallback_error_deg", "THR_Angle", "TRU_ThrottleAngle",
                   ("THR_Source", SOURCE_ESTIMATE)),
-    ), describe=lambda e: (
+    ), validity=("ECU_ThrottleEstimate", "THR_Validity"), describe=lambda e: (
         f"broadcast RMS {e['broadcast_error_deg'].rms:.2f} deg, estimator "
         f"{e['estimate_error_deg'].rms:.2f} deg, after fallback "
         f"{e['fallback_error_deg'].rms:.2f} deg ({e['fallback_error_deg'].n} ticks)")),

@@ -4,7 +4,8 @@ frames (vecu/dbc/vecu_truth.dbc) recorded in the same trace.
 Pairing: an estimate at time t is compared with the newest truth frame at or before t, if that
 truth is at most one period of its message old (each function's TruthChannel in its registry
 entry, vecu.functions: its max_age_ns). Estimates without truth are counted as unmatched, not
-scored.
+scored. Estimates their validity signal (TruthChannel.validity, vecu.ecu.validity) flags init or
+invalid are counted (`not_valid_estimates`), not scored: the ECU said they mean nothing.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import can
 
 from vecu import functions
 from vecu.codec import DbcCodec, FrameCodec
+from vecu.ecu.validity import SCORED
 from vecu.functions.base import TruthChannel
 from vecu.replay.summary import ReplayScore, ScoreSection
 from vecu.stats import RunningStats
@@ -38,17 +40,25 @@ class TruthScorer:
             {name: [] for name, _ in self.channels} if keep_series else None)
         self._truth_codecs: dict[tuple[int, bool], FrameCodec] = {}
         self._est: dict[tuple[int, bool], tuple[FrameCodec, TruthChannel]] = {}
+        # messages that carry another estimate message's validity: (codec, its signal)
+        self._validity_msgs: dict[tuple[int, bool], tuple[FrameCodec, str]] = {}
+        self._validity: dict[str, int] = {}  # validity message -> its latest validity
         for _, ch in self.channels:
             if ch.truth in codec and ch.estimate in codec:
                 t, e = codec[ch.truth], codec[ch.estimate]
                 self._truth_codecs[(t.frame_id, t.is_extended)] = t
                 self._est[(e.frame_id, e.is_extended)] = (e, ch)
+                v = ch.validity
+                if v is not None and v[0] != ch.estimate and v[0] in codec:
+                    vc = codec[v[0]]
+                    self._validity_msgs[(vc.frame_id, vc.is_extended)] = (vc, v[1])
         self.truth_ids = frozenset(self._truth_codecs)
         self.truth_codecs: Mapping[tuple[int, bool], FrameCodec] = self._truth_codecs
         self._latest: dict[str, tuple[int, dict[str, float]]] = {}
         self.stats = {ch.estimate: {p.key: RunningStats() for p in ch.pairs}
                       for _, ch in self.channels}
         self.unmatched = {ch.estimate: 0 for _, ch in self.channels}
+        self.not_valid = {ch.estimate: 0 for _, ch in self.channels}
         self.truth_frames = 0
         self.bad_truth_frames = 0
 
@@ -72,8 +82,12 @@ class TruthScorer:
     def on_estimate(self, msg: can.Message, t_ns: int) -> None:
         if not self.truth_frames and self.series is None:
             return
-        entry = self._est.get((msg.arbitration_id, msg.is_extended_id))
+        key = (msg.arbitration_id, msg.is_extended_id)
+        entry = self._est.get(key)
         if entry is None:
+            flag = self._validity_msgs.get(key)
+            if flag is not None:
+                self._validity[flag[0].name] = int(flag[0].decode(msg.data)[flag[1]])
             return
         fc, ch = entry
         latest = self._latest.get(ch.truth)
@@ -91,6 +105,12 @@ class TruthScorer:
                  latest[1][first.truth_signal] if matched else math.nan))
         if not scored:
             return
+        v = ch.validity
+        if v is not None:
+            validity = (est[v[1]] if v[0] == ch.estimate else self._validity.get(v[0]))
+            if validity is not None and int(validity) not in SCORED:
+                self.not_valid[ch.estimate] += 1
+                return
         truth = latest[1]
         stats = self.stats[ch.estimate]
         for p in ch.pairs:
@@ -102,7 +122,9 @@ class TruthScorer:
         sections = {}
         for name, ch in self.channels:
             stats = self.stats[ch.estimate]
-            if any(s.n for s in stats.values()) or self.unmatched[ch.estimate]:
+            if (any(s.n for s in stats.values()) or self.unmatched[ch.estimate]
+                    or self.not_valid[ch.estimate]):
                 sections[name] = ScoreSection(
-                    {k: s.summary() for k, s in stats.items()}, self.unmatched[ch.estimate])
+                    {k: s.summary() for k, s in stats.items()}, self.unmatched[ch.estimate],
+                    self.not_valid[ch.estimate])
         return ReplayScore(self.truth_frames, self.bad_truth_frames, sections)

@@ -70,6 +70,7 @@ class ScoreSection:
 
     errors: dict[str, ErrorStats] = field(metadata=FLATTEN)
     unmatched_estimates: int
+    not_valid_estimates: int = 0  # flagged init / invalid by the ECU (vecu.ecu.validity): skipped
 
 
 @dataclass(frozen=True)

@@ -124,7 +124,7 @@ def test_manifold_function_prediction_reuses_the_filter_step_exactly():
         assert fn.filter.last_prediction is not None
         assert cac6 == predict_cac(x, [u] * HORIZON)
         checked += 1
-    assert checked == 120 and len(sent) == 120
+    assert checked == 120 and len(sent) == 240  # ECU_ManifoldSigma + _Estimate per event
 
 
 def test_predict_state_equals_the_event_map_applied_in_turn():

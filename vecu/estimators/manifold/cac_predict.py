@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vecu.estimators.manifold.event import (
+    F_ALPHA_MIN,
     F_NCYL,
     F_VCYL,
     coefficients,
@@ -39,12 +40,13 @@ from vecu.estimators.manifold.event import (
     model_constants,
     numba_tables,
     python_tables,
+    sdc_matrix,
     signature_types,
 )
 from vecu.estimators.manifold.event import prepare as prepare_events
 from vecu.kernels import kernel, using
 from vecu.models import manifold_integrator as mi
-from vecu.models.manifold import air_charge_of, event_map
+from vecu.models.manifold import air_charge_of, efficiency_of, event_map
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 HORIZON = 6
@@ -92,8 +94,9 @@ def prepare() -> None:
     if _ready:
         return
     prepare_events()
-    _, _, i8, v, m, tables = signature_types()
+    _, f8, i8, v, m, tables = signature_types()
     predict_events.fix_signature((v, m, i8, v, v) + tables)
+    air_charge_sigmas.fix_signature((v, m, m, i8, f8, f8, f8, f8, v) + tables)
     _ready = True
 
 
@@ -287,3 +290,63 @@ def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb,
         ev = eta_val if eta_scale[n] == 1.0 else eta_val * eta_scale[n]
         pred[j] = predict_events(states[n], u, horizon, out, fc, c, cd_alpha, cd_table, prs,
                                  eta_rpm, ev)
+
+
+@kernel
+def air_charge_gradient(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val):
+    """(dCAC/dP_im, dCAC/dT_im) of the cylinder air charge CAC = eta(N, P_im) P_im V_cyl /
+    (R_air T_im) (eq. 8 times T_s = 120 / (n_cyl N); models.manifold.air_charge_of):
+    (eta + P_im d eta/dP_im) V_cyl / (R_air T_im) and -CAC / T_im, kg per kPa and per K."""
+    eta, deta = efficiency_of(n_rpm, p_im, c, eta_rpm, eta_val)
+    g_p = (eta + p_im * deta) * v_cyl / (c[1] * t_im)
+    return g_p, -air_charge_of(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val) / t_im
+
+
+@kernel
+def air_charge_sigmas(x, P, Q, horizon, n_rpm, p_a, t_a, t_cool, fc, c, cd_alpha, cd_table, prs,
+                      eta_rpm, eta_val):
+    """(sigma of the CAC at the posterior (x, P), sigma of the CAC `horizon` events ahead with
+    the input held), kg: first-order propagation g S g^T with g = air_charge_gradient at the
+    posterior and S the (P_im, T_im) block of P, then of the covariance predicted `horizon`
+    events with no measurement, S <- A S A^T + Q (the time update of eq. 14, A the SDC matrix
+    of eq. 7 / 10 at the posterior and the held input; the gradient stays at the posterior's
+    operating point). The first six states of x, P and Q are used."""
+    ts = 120.0 / (fc[F_NCYL] * n_rpm)  # models.manifold.sample_time
+    A = np.zeros((6, 6))
+    sdc_matrix(A, x, n_rpm, p_a, t_a, t_cool, ts, coefficients(ts, fc), fc[F_ALPHA_MIN], c,
+               cd_alpha, cd_table, prs, eta_rpm, eta_val)
+    g_p, g_t = air_charge_gradient(n_rpm, x[3], x[4], c, fc[F_VCYL], eta_rpm, eta_val)
+    S = np.empty((6, 6))
+    Q6 = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            S[i, j] = P[i, j]
+            Q6[i, j] = Q[i, j]
+    var = g_p * g_p * S[3, 3] + 2.0 * g_p * g_t * S[3, 4] + g_t * g_t * S[4, 4]
+    now = math.sqrt(var) if var > 0.0 else 0.0
+    for _ in range(horizon):
+        S = A @ S @ A.T + Q6
+    var = g_p * g_p * S[3, 3] + 2.0 * g_p * g_t * S[3, 4] + g_t * g_t * S[4, 4]
+    return now, math.sqrt(var) if var > 0.0 else 0.0
+
+
+def cac_sigmas(x: np.ndarray, P: np.ndarray, Q: np.ndarray, u: EngineInput,
+               params: ManifoldParams, horizon: int = HORIZON, eta_scale: float = 1.0
+               ) -> tuple[float, float]:
+    """air_charge_sigmas for a filter's posterior (x, P; its Q) and the event's input u:
+    compiled under the numba backend, its Python function otherwise (or for a parameter set
+    numba cannot mirror); eta_scale multiplies the eta_N table (the adaptive filter's c)."""
+    hit = _ARGS.get(id(params))
+    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
+    run = air_charge_sigmas.impl()
+    compiled = run is not air_charge_sigmas.py and nb is not None
+    args: tuple = nb if compiled and nb is not None else py
+    if eta_scale != 1.0:
+        ev = args[-1]
+        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
+    if compiled:
+        if not _ready:
+            prepare()
+        return run(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)
+    with using("python"):  # the kernels it calls as Python too (the tables are tuples)
+        return air_charge_sigmas.py(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)

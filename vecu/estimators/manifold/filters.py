@@ -185,12 +185,14 @@ class _ManifoldKF(CompiledEvents):
         self.Q = q_matrix(c.noise)
         self.R = r_matrix(c.noise)
         self._P0 = np.diag(np.array(c.p0_diag, dtype=float))
+        # a given x0 is the state; else the idle steady state until the first complete reading
+        # initialises it (_initialise; before issue 30 x0 was always "given": 25 kPa at start)
+        self._x_given = x0 is not None
         if x0 is None:
             u0 = nominal_input(self.params.throttle_floor_rad(self.params.n_idle_rpm),
                                self.params.n_idle_rpm, self.params)
             x0 = steady_state_vector(u0, self.params)
         self._x_default = np.asarray(x0, dtype=float).copy()
-        self._x_given = x0 is not None
         self.events = self.missing = self.resets = self.bad_inputs = 0
         self.rejected = [0, 0, 0]  # per channel: NaN / out of range
         self.gated = [0, 0, 0]
@@ -255,7 +257,9 @@ class _ManifoldKF(CompiledEvents):
         if self._initialised or len(chans) < 3:
             return
         ta, p, tm = (float(y[i]) for i in range(3))
-        self.x = np.array([ta, ta, ta, p, tm, tm])
+        x = self._x_default.copy()  # parameter states beyond the sixth (adaptive) as at start
+        x[:6] = (ta, ta, ta, p, tm, tm)
+        self.x = x
         if self._last_u is not None:
             self.x[0] = self._last_u.ta_sp
         self.P = self._P0.copy()
@@ -382,6 +386,11 @@ class _ManifoldKF(CompiledEvents):
         self.reset(count=True)
         self._initialised = True
         self.last_prediction = None
+
+    @property
+    def initialised(self) -> bool:
+        """The state comes from measurements (a complete first reading, or the x0 given)."""
+        return self._initialised
 
     @property
     def p_im(self) -> float:

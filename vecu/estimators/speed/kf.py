@@ -12,7 +12,9 @@ docs/models.md). This is the practical 500 Hz version of the same fusion:
   braking with the wheel persistently below the car (ABS slip: then readings below v_hat get a
   huge std, i.e. the filter follows the upper envelope); readings are used only while
   v_hat >= min_wheel_kmh (dropouts read 0, the sensor is useless below 5 km/h, Section 2.2.2)
-  or when far above it (reacquire_kmh, REACQUIRE_SAMPLES in a row).
+  or when far above it (reacquire_kmh, REACQUIRE_SAMPLES in a row). The first reading in range
+  initialises v (its variance the sensor's at that speed); until then the filter is not
+  initialised (speed 0 with the prior's variance, no standstill: validity init on the bus).
   Accelerometer z_a = a + b + n_a.
   Standstill: the car does not reverse, so v < 0 is corrected by a pseudo-measurement v = 0
   and clipped. With no usable wheel reading, the filter enters standstill when v_hat would cross
@@ -161,6 +163,11 @@ class SpeedKalmanFilter:
         return self.b
 
     @property
+    def initialised(self) -> bool:
+        """The first wheel-speed reading has initialised the speed (before: validity init)."""
+        return self._initialised
+
+    @property
     def speed_std_mps(self) -> float:
         return math.sqrt(self.p[0])
 
@@ -202,6 +209,16 @@ class SpeedKalmanFilter:
             self.missing_wheel += 1
         elif not 0.0 <= wheel_speed <= c.max_wheel_mps:
             self.rejected_wheel += 1
+        elif not self._initialised:
+            # the first reading initialises the filter (issue 30): v = reading, its variance the
+            # sensor's at that speed (a 0 reading: at rest or below ~5 km/h, sigma_wheel_max)
+            v = wheel_speed
+            p00 = min(self._sw2 * (self._vref / wheel_speed) ** 2 if wheel_speed < self._vref
+                      else self._sw2, self._swmax2) if wheel_speed > 0.0 else self._swmax2
+            p01 = p02 = 0.0
+            self._initialised = True
+            self.standstill = False
+            used = True
         elif not ((wheel_speed >= self._vreacq and self._reacq_run >= REACQUIRE_SAMPLES)
                   or (v >= self._vmin and wheel_speed > 0.0)):
             # Gate on the estimate, not the reading: dropping readings below a threshold would
@@ -209,13 +226,6 @@ class SpeedKalmanFilter:
             # REACQUIRE_SAMPLES high readings in a row: at 2 km/h the noise alone reaches 15 km/h.
             self._reacq_run = self._reacq_run + 1 if wheel_speed >= self._vreacq else 0
             self.ignored_wheel += 1
-        elif not self._initialised:
-            v = wheel_speed
-            p00 = self._sw2
-            p01 = p02 = 0.0
-            self._initialised = True
-            self.standstill = False
-            used = True
         else:
             self.standstill = False
             used = True
@@ -241,9 +251,13 @@ class SpeedKalmanFilter:
                 (v, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
                     (v, a, b), (p00, p01, p02, p11, p12, p22), (1.0, 0.0, 0.0), e, r)
 
+        # Before the first wheel reading the speed means nothing (validity init): no standstill,
+        # no v = 0 pseudo-measurement (it would make the prior's sigma look tiny).
+        if not self._initialised:
+            v = 0.0
         # Standstill: entered when v_hat would go negative with no usable wheel reading; left on
         # a usable wheel reading or a sustained accelerometer innovation (the car moves off).
-        if self.standstill and self._innov_mean > c.still_exit_mps2:
+        elif self.standstill and self._innov_mean > c.still_exit_mps2:
             self.standstill = False  # moving off: let a find the accelerometer quickly
             a = self._innov_mean
             p11 += self._exit_p11
@@ -253,7 +267,7 @@ class SpeedKalmanFilter:
             self._innov_mean = 0.0
             self.abs_mode = False
         # Constraint v >= 0 / zero-velocity update: pseudo-measurement v = 0, then clip.
-        if v < 0.0 or self.standstill:
+        if self._initialised and (v < 0.0 or self.standstill):
             (_, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
                 (v, a, b), (p00, p01, p02, p11, p12, p22), (1.0, 0.0, 0.0), -v, self._r_zero)
             v = 0.0

@@ -133,6 +133,17 @@ class _SteeringFilter:
         return sm.side_slip(self._x, self.v_x)
 
     @property
+    def side_slip_std_rad(self) -> float:
+        """First-order standard deviation of side_slip_rad (model.side_slip_std)."""
+        return sm.side_slip_std(self._x, self._p[0], self.v_x)
+
+    @property
+    def swa_prior_std_rad(self) -> float:
+        """The prior's steering-wheel-angle standard deviation (i_s times p0_std of delta): what
+        is known of the angle where yaw rate and a_y say nothing of it (at standstill)."""
+        return self._cst[sm.IS] * self.model.p0_std[2]
+
+    @property
     def rejected(self) -> int:
         return self.rejected_r + self.rejected_ay + self.rejected_vx
 

@@ -153,6 +153,13 @@ def side_slip(x: Sequence[float] | np.ndarray, vx: float) -> float:
     return math.atan2(float(x[0]), vx)
 
 
+def side_slip_std(x: Sequence[float] | np.ndarray, var_vy: float, vx: float) -> float:
+    """Standard deviation of side_slip by first-order propagation: d beta / d v_y =
+    v_x / (v_x^2 + v_y^2) times the standard deviation of v_y (rad)."""
+    vy = float(x[0])
+    return vx / (vx * vx + vy * vy) * math.sqrt(max(var_vy, 0.0))
+
+
 _accel = accelerations.py  # plain-Python callers (the EKF, the Jacobians): no backend dispatch
 
 
