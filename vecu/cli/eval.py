@@ -72,6 +72,25 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="truncate each 80 s profile to S seconds (quick checks)")
     mf.add_argument("--json", action="store_true", help="print JSON instead of a table")
     mf.set_defaults(func=main_manifold)
+    cs = models.add_parser(
+        "consistency", help="NEES / NIS of every estimator's own covariance against the truth",
+        description="Run each estimator (throttle production PF, speed KF, steering UKF, manifold "
+                    "SDKF) on independent held-out seeds and print its time-averaged NEES with "
+                    "the chi-square 95 %% band of the mean over runs (chi2(runs*d)/runs), the "
+                    "share of |z| > 2 and > 3, and the NIS where the filter has innovations.")
+    cs.add_argument("--runs", type=argtypes.positive_int, default=10, metavar="N",
+                    help="independent runs (seeds) per estimator (default 10)")
+    cs.add_argument("--seed", type=argtypes.seed, default=1000,
+                    help="first seed (default 1000: held out from tuning)")
+    cs.add_argument("--mismatch", action="store_true",
+                    help="plant and calibration differ (Dutka Table 2-like errors, docs/models.md)")
+    cs.add_argument("--estimators", default=None, metavar="LIST",
+                    help="comma-separated subset of throttle,speed,steering,manifold (default all)")
+    cs.add_argument("--quick", action="store_true",
+                    help="short runs (5 s throttle / 10 s steering / 5 s manifold): a smoke check, "
+                         "not a verdict")
+    cs.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    cs.set_defaults(func=main_consistency)
 
 
 def _throttle_filters(text: str | None) -> list[str]:
@@ -207,4 +226,25 @@ def main_manifold(args: argparse.Namespace) -> int:
               f"{f['p_im_min']:>8.1f}..{f['p_im_max']:<6.1f}")
     print(f"P_im truth {r['p_im_true_min']:.1f}..{r['p_im_true_max']:.1f} kPa, "
           f"in range: {r['p_im_range_ok']}")
+    return 0
+
+
+def main_consistency(args: argparse.Namespace) -> int:
+    from vecu.eval.consistency import ESTIMATORS, QUICK, Sizes, evaluate_consistency, format_report
+
+    names = list(ESTIMATORS) if args.estimators is None else [
+        x.strip() for x in args.estimators.split(",") if x.strip()]
+    unknown = [x for x in names if x not in ESTIMATORS]
+    if not names or unknown:
+        raise BadArgumentError(f"--estimators: expected names from {', '.join(ESTIMATORS)}, got "
+                               f"{args.estimators!r}")
+    rep = evaluate_consistency(names, runs=args.runs, seed=args.seed, mismatch=args.mismatch,
+                               sizes=QUICK if args.quick else Sizes())
+    if args.json:
+        out = dataclasses.asdict(rep)
+        for r, d in zip(rep.results, out["results"]):
+            d.update(inside=r.inside, ok=r.ok)
+        print(json.dumps(out, indent=2))
+    else:
+        print(format_report(rep))
     return 0
