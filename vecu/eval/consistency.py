@@ -92,6 +92,8 @@ class ConsistencyResult:
     nees_runs: tuple[float, ...]
     frac_z2: float  # share of |e_i| / sigma_i > 2 over all states and samples
     frac_z3: float
+    rms_error: tuple[float, ...]  # per state, the estimator's units (deg, m/s, m/s^2, rad, m/s, kPa, K)
+    mean_sigma: tuple[float, ...]  # per state, mean reported sigma (= |e| / |z|), same units
     nis: float | None  # same for the innovations (None: not available)
     nis_dim: int
     nis_band: tuple[float, float] | None
@@ -128,23 +130,27 @@ def chi2_band(dim: int, runs: int, level: float = 0.95) -> tuple[float, float]:
 
 @dataclass
 class _Run:
-    """One run's scored samples: NEES per sample, |z| per (sample, state), NIS per innovation."""
+    """One run's scored samples: NEES per sample, |z| and |e| per (sample, state), NIS per
+    innovation."""
 
     nees: np.ndarray
     z: np.ndarray
     nis: np.ndarray
+    err: np.ndarray
+    sd: np.ndarray
 
 
-def nees_of(e: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """NEES e^T P^-1 e per sample (e: (n, d), P: (n, d, d)) and |z| = |e_i| / sqrt(P_ii)."""
+def nees_of(e: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NEES e^T P^-1 e per sample (e: (n, d), P: (n, d, d)), |z| = |e_i| / sigma_i and
+    sigma_i = sqrt(P_ii)."""
     nees = np.einsum("ni,ni->n", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
-    z = np.abs(e) / np.sqrt(np.einsum("nii->ni", P))
-    return nees, z
+    sd = np.sqrt(np.einsum("nii->ni", P))
+    return nees, np.abs(e) / sd, sd
 
 
 # ----------------------------------------------------------------------------- throttle
 def run_throttle(seed: int, sizes: Sizes, mismatch: bool, burn_in: int = 1000,
-                 std_inflation: float | None = None) -> _Run:
+                 filter_alpha: float = 1.0) -> _Run:
     from vecu.estimators.throttle.production import make_production_estimator
     from vecu.eval.throttle import run_estimator
     from vecu.models.throttle import ThrottleModel
@@ -157,13 +163,11 @@ def run_throttle(seed: int, sizes: Sizes, mismatch: bool, burn_in: int = 1000,
             model.mode3, b=model.mode3.b / 1.05))
         plant_alpha = 1.2
     tr = simulate(sizes.throttle_steps, seed=seed, noise_scale=plant_alpha)
-    est = make_production_estimator(1.0, model=model)
-    if std_inflation is not None:
-        est.std_inflation = std_inflation
+    est = make_production_estimator(filter_alpha, model=model)
     th, sd, _ = run_estimator(est, tr)
     e = (th - tr.theta)[burn_in:, None]
     s = sd[burn_in:]
-    return _Run((e[:, 0] / s) ** 2, np.abs(e) / s[:, None], np.empty(0))
+    return _Run((e[:, 0] / s) ** 2, np.abs(e) / s[:, None], np.empty(0), e, s[:, None])
 
 
 # ----------------------------------------------------------------------------- speed
@@ -203,8 +207,8 @@ def run_speed(seed: int, sizes: Sizes, mismatch: bool, burn_in_s: float = 0.5,
     sl = slice(round(burn_in_s / DT_S), n)
     keep = ~(still[sl] & (tr.v[sl] == 0.0))
     e = (x[sl] - np.column_stack([tr.v, tr.a])[sl])[keep]
-    nees, z = nees_of(e, P[sl][keep])
-    return _Run(nees, z, np.asarray(nis))
+    nees, z, sd = nees_of(e, P[sl][keep])
+    return _Run(nees, z, np.asarray(nis), e, sd)
 
 
 # ----------------------------------------------------------------------------- steering
@@ -233,10 +237,10 @@ def run_steering(seed: int, sizes: Sizes, mismatch: bool, burn_in_s: float = 2.0
     run = ukf.history()
     sl = slice(round(burn_in_s / DT_S), n)
     e = x[sl] - np.column_stack([tr.delta, tr.v_y])[sl]
-    nees, z = nees_of(e, P[sl])
+    nees, z, sd = nees_of(e, P[sl])
     innov = tr.meas_r[sl] - run.x_pred[sl, 1]
     nis = innov ** 2 / (run.P_pred[sl, 1, 1] + m.sigma_r ** 2)
-    return _Run(nees, z, nis)
+    return _Run(nees, z, nis, e, sd)
 
 
 # ----------------------------------------------------------------------------- manifold
@@ -282,8 +286,8 @@ def run_manifold(seed: int, sizes: Sizes, mismatch: bool, burn_in_s: float = 0.5
             nis[i] = float(innov @ np.linalg.solve(S, innov))
     sl = tr.t >= burn_in_s
     e = x[sl] - tr.x[sl][:, idx]
-    nees, z = nees_of(e, P[sl])
-    return _Run(nees, z, nis[sl & np.isfinite(nis)])
+    nees, z, sd = nees_of(e, P[sl])
+    return _Run(nees, z, nis[sl & np.isfinite(nis)], e, sd)
 
 
 RUNNERS: dict[str, tuple[Callable[..., _Run], tuple[str, ...], int]] = {
@@ -299,6 +303,8 @@ def summarise(name: str, runs: Sequence[_Run], mismatch: bool) -> ConsistencyRes
     d = len(states)
     per_run = tuple(float(r.nees.mean()) for r in runs)
     z = np.concatenate([r.z.ravel() for r in runs])
+    err = np.concatenate([r.err for r in runs])
+    sig = np.concatenate([r.sd for r in runs])
     nis_runs = [float(r.nis.mean()) for r in runs if r.nis.size]
     nis = float(np.mean(nis_runs)) if nis_dim and nis_runs else None
     return ConsistencyResult(
@@ -306,6 +312,8 @@ def summarise(name: str, runs: Sequence[_Run], mismatch: bool) -> ConsistencyRes
         samples=sum(r.nees.size for r in runs), nees=float(np.mean(per_run)),
         nees_band=chi2_band(d, len(runs)), nees_runs=per_run,
         frac_z2=float(np.mean(z > 2.0)), frac_z3=float(np.mean(z > 3.0)),
+        rms_error=tuple(float(np.sqrt(np.mean(err[:, i] ** 2))) for i in range(d)),
+        mean_sigma=tuple(float(np.mean(sig[:, i])) for i in range(d)),
         nis=nis, nis_dim=nis_dim,
         nis_band=chi2_band(nis_dim, len(nis_runs)) if nis is not None else None,
         nis_samples=sum(r.nis.size for r in runs), mismatch=mismatch)
