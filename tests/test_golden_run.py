@@ -8,6 +8,10 @@ and the throttle frames did not). Re-recorded for issue 30 item 1 (sigma and val
 estimate frames carry validity signals, ECU_ManifoldSigma (0x212) and ECU_SteeringSigma (0x232)
 are new, the speed filter starts from the first wheel-speed frame and the manifold filter from
 its first readings; every plant frame and ECU_Status / ECU_Diag are unchanged.
+Re-recorded for issue 30 items 2-3 (consistent sigmas): ECU_ThrottleEstimate's THR_AngleEstStd is
+1.2/1.1 of before (std_inflation 1.2) and the speed, steering and manifold sigmas are the
+filters' reported covariances (floors, considered errors). Identical under VECU_KERNELS=python
+and numba.
 """
 
 from __future__ import annotations

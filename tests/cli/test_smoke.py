@@ -58,6 +58,8 @@ SMOKE: list[tuple[list[str], str]] = [
     (["eval", "steering", "--duration", "1"], r"\nUKF \(live\) +\d+\.\d{3}"),
     (["eval", "manifold", "--duration", "1", "--no-dare"],
      r"\nsdkf +\d+ +\d\.\d{3}.*\nadaptive +\d+ +\d\.\d{3}"),
+    (["eval", "consistency", "--runs", "1", "--quick"],
+     r"\nthrottle +theta +1 +\d+\.\d\d.*\nspeed +v,a +2 .*\nmanifold +p_im,t_im +2 +\d+\.\d\d"),
     (["run", "--duration", "0.5", "--manifold-filter", "adaptive"],
      r"manifold \(adaptive, \d+ engine events, 0 lost\)"),
     (["replay", "{log}", "--no-progress"], r"score throttle: broadcast RMS \d+\.\d\d deg"),
@@ -103,6 +105,7 @@ USER_MISTAKES = [
     (["replay", "missing.log"], "missing.log: no such file"),
     (["scenario", "run", "{bad_scenario}"], "bad.toml: key 'plant.wheels': unknown key"),
     (["eval", "steering", "--duration", "0.1"], "--duration: expected 1..3600 s"),
+    (["eval", "consistency", "--estimators", "brakes"], "--estimators: expected names from"),
     (["inject", "--target", "brakes", "--kind", "dead"], "unknown target 'brakes'"),
     (["ecu", "--log", "x.bogus"], "x.bogus: cannot write log"),  # and no bus-not-shut-down warning
 ]

@@ -4,7 +4,11 @@
   and its sensors are `plant.manifold.*` (the truth, drawn per run), the filters and the 6-event
   CAC predictor believe `ecu.manifold.kf.params` (the calibration). Metrics: integrated absolute
   (iae, mg) and squared (ise, mg^2) 6-event CAC prediction error for direct (all measured),
-  direct_ol (P_im and alpha measured, open-loop T), EKF and SDKF (vecu.eval.manifold).
+  direct_ol (P_im and alpha measured, open-loop T), EKF and SDKF (vecu.eval.manifold); and the
+  filters' consistency under the drawn calibration errors: {ekf,sdkf}_nees_{p_im,t_im}, the
+  mean over events (after 0.5 s) of e^2 / sigma^2 with the reported variance
+  (ManifoldFilterConfig.report_var_scale x P_post), 1 for an honest sigma (vecu eval
+  consistency, docs/models.md "Consistency").
 - "drive": a full simulated-bus run (plant -> frames -> ECU) with the run's fault; metrics are
   read from the run summary (vecu.runner).
 """
@@ -25,8 +29,12 @@ if TYPE_CHECKING:
 
 METHODS = ("direct_ol", "direct", "ekf", "sdkf", "adaptive")
 FILTERS = ("ekf", "sdkf", "adaptive")
+NEES_FILTERS = ("ekf", "sdkf")
+NEES_STATES = {"p_im": 3, "t_im": 4}  # state index
+NEES_BURN_IN_S = 0.5
 MANIFOLD_METRICS = tuple(f"{m}_{k}" for k in ("iae", "ise") for m in METHODS) + (
-    "events", "ekf_resets", "sdkf_resets", "adaptive_resets", "adaptive_eta", "true_eta")
+    "events", "ekf_resets", "sdkf_resets", "adaptive_resets", "adaptive_eta", "true_eta") + tuple(
+    f"{f}_nees_{s}" for f in NEES_FILTERS for s in NEES_STATES)
 DRIVE_METRICS: dict[str, Callable[[RunSummary], Any]] = {  # metric -> its run-summary field
     "detected": lambda s: s.throttle.detection.detected,
     "detection_latency_ms": lambda s: s.throttle.detection.detection_latency_ms,
@@ -89,6 +97,12 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
         else:
             states[name], _, flt = run_filter(name, trace, inputs, kf)
         out[f"{name}_resets"] = flt.resets
+        if name in NEES_FILTERS:
+            keep = trace.t >= NEES_BURN_IN_S
+            var = kf.report_var_scale * flt.run_variances[keep]
+            for st, i in NEES_STATES.items():
+                e = states[name][keep, i] - trace.x[keep, i]
+                out[f"{name}_nees_{st}"] = float(np.mean(e * e / var[:, i]))
         if name == "adaptive":  # the eta correction the CAC uses, per event
             eta = flt.eta_used(states[name][:, 6], flt.run_variances[:, 6])
     out["adaptive_eta"] = float(states["adaptive"][-1, 6])

@@ -11,8 +11,9 @@ rejected reading, a fallback, a reset) make the separate calls, with the same nu
 Before each ECU_ManifoldEstimate the function sends ECU_ManifoldSigma: the event's counter, the
 validity (vecu.ecu.validity; UDS DID 0x020F: init until the filter has been initialised from a
 complete event, degraded for an event with a reading missing, rejected or gated) and the
-one-sigma uncertainties (throttle angle, P_im, T_im from P_n|n; the CAC and its 6-event
-prediction by cac_predict.cac_sigmas).
+one-sigma uncertainties (throttle angle, P_im, T_im from the filter's reported covariance,
+reported_cov(): P_n|n scaled for consistency; the CAC and its 6-event prediction from it by
+cac_predict.cac_sigmas).
 Events whose frames did not both arrive are counted as lost; the filter predicts through them.
 An event whose input the filter cannot use (engine speed outside `kf.n_range`, e.g. 0 rpm, which
 the DBC allows) is refused when it arrives: counted in `implausible_inputs` (and by the node as an
@@ -172,7 +173,7 @@ class ManifoldFunction:
             return
         self.events += 1
         self.last = (self._abs_index, x[3], x[4], cac, cac6)
-        P = flt.P_post
+        P = flt.reported_cov()  # the consistent sigmas (issue 30; docs/models.md)
         s_cac, s_cac6 = cac_sigmas(flt.x_post, P, flt.Q, u, self._engine, HORIZON, scale)
         sd = [math.sqrt(max(float(P[i, i]), 0.0)) for i in (1, 3, 4)]
         self.sigmas = (sd[0], sd[1], sd[2], s_cac, s_cac6)

@@ -5,11 +5,12 @@ Every 10 ms: step the UKF (inside the fixed-lag unscented RTS smoother) with the
 CHS_Lateral sample, diagnose the SWA sensor against the UKF, send ECU_SteeringEstimate with the
 sensor angle while it is healthy and the estimate otherwise, and ECU_SteeringSmoothed with the
 smoothed estimate of STS_LagMs ago (flagged invalid until the lag has filled), and
-ECU_SteeringSigma with the UKF's sigmas. STE_Validity / STS_Validity (vecu.ecu.validity; UDS DID
+ECU_SteeringSigma with the UKF's reported sigmas (reported_cov: the stiffness error considered). STE_Validity / STS_Validity (vecu.ecu.validity; UDS DID
 0x040F) qualify the estimates: init until the first CHS_Lateral frame has been filtered (STS: until
 the lag has filled), degraded while the car is slower than V_X_MIN (3 m/s): yaw rate and a_y say
 nothing of the steering angle at standstill, so the broadcast sigma then adds the prior's
-(sqrt(sigma_UKF^2 + sigma_prior^2), about 80 deg). The SWA monitor keeps the UKF's own sigma.
+(sqrt(sigma_UKF^2 + sigma_prior^2), about 80 deg). The SWA monitor gates on the
+UKF's reported sigma.
 """
 
 from __future__ import annotations

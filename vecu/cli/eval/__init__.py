@@ -1,5 +1,6 @@
 """`vecu eval`: offline estimator accuracy against simulated truth, one subcommand per ECU
-function that has an evaluation (vecu.cli.eval.<function>, in the registry's order)."""
+function that has an evaluation (vecu.cli.eval.<function>, in the registry's order), then
+`consistency` over all of them (vecu.cli.eval.consistency)."""
 
 from __future__ import annotations
 
@@ -18,3 +19,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         module = f"{__name__}.{name}"
         if importlib.util.find_spec(module) is not None:
             importlib.import_module(module).register(models)
+    from vecu.cli.eval import consistency
+
+    consistency.register(models)

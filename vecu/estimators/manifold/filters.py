@@ -108,6 +108,9 @@ class ManifoldFilterConfig:
     t_box: tuple[float, float] = (200.0, 500.0)
     n_range: tuple[float, float] = (300.0, 9000.0)  # plausible engine speed for an input
     gate_sigma: float = 10.0  # per-channel innovation gate (normalised)
+    # the reported covariance (reported_cov: sigmas for the bus, NEES) is P_post x this: model
+    # error the matched Q leaves out (calibration errors, docs/models.md "Consistency")
+    report_var_scale: float = field(default=1.3, metadata={"bounds": (1.0, 100.0)})
     max_gated_in_row: int = 20  # then the channel is believed again (a real step, not a spike)
     doubling_tol: float = 1e-12
     doubling_max_iter: int = 40
@@ -386,6 +389,10 @@ class _ManifoldKF(CompiledEvents):
         self.reset(count=True)
         self._initialised = True
         self.last_prediction = None
+
+    def reported_cov(self) -> np.ndarray:
+        """The posterior covariance as reported: P_post x config.report_var_scale."""
+        return self.P_post * self.config.report_var_scale
 
     @property
     def initialised(self) -> bool:

@@ -74,6 +74,13 @@ class SpeedFilterConfig:
     p0_speed: float = 100.0  # prior variances (x0 = [0, 0, 0], or the first wheel reading)
     p0_accel: float = 4.0
     p0_offset: float = 0.25
+    # Floors of the *reported* std (speed_std_mps, accel_std_mps2, reported_va_cov; the filter's
+    # own P and gains are untouched), for what the model leaves out (docs/models.md, "Consistency"):
+    still_speed_floor_mps: float = 0.1  # at rest the car may still be creeping / finishing its stop
+    still_accel_floor_mps2: float = 1.5  # ... or braking its last centimetres, or moving off
+    coast_speed_floor_mps: float = 0.1  # below min_wheel_kmh, wheel unused: v from the accelerometer
+    abs_speed_floor_mps: float = 0.25  # ABS mode: the envelope rule's bias (slip model) ...
+    abs_accel_floor_mps2: float = 1.5  # ... and the deceleration it follows
 
 
 def scalar_update3(x: tuple[float, float, float], p: tuple[float, ...],
@@ -148,6 +155,7 @@ class SpeedKalmanFilter:
         self.abs_mode = False
         self._innov_mean = 0.0
         self._wheel_innov_mean = 0.0
+        self.wheel_nis: float | None = None  # e^2 / s of this step's wheel update (None: none)
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -162,6 +170,23 @@ class SpeedKalmanFilter:
     def offset_mps2(self) -> float:
         return self.b
 
+    def reported_va_cov(self) -> tuple[float, float, float]:
+        """(var v, cov(v, a), var a) as reported: P's (v, a) block with the std floors of the
+        mode the filter is in (standstill, coasting below the wheel threshold, ABS), the
+        correlation kept."""
+        p00, p01, p11 = self.p[0], self.p[1], self.p[3]
+        c = self.config
+        fv = fa = 0.0
+        if self.standstill:
+            fv, fa = c.still_speed_floor_mps, c.still_accel_floor_mps2
+        elif self.abs_mode:
+            fv, fa = c.abs_speed_floor_mps, c.abs_accel_floor_mps2
+        elif self.v < self._vmin:
+            fv = c.coast_speed_floor_mps
+        sv = math.sqrt(max(p00, fv * fv) / p00) if p00 > 0.0 else 1.0
+        sa = math.sqrt(max(p11, fa * fa) / p11) if p11 > 0.0 else 1.0
+        return p00 * sv * sv, p01 * sv * sa, p11 * sa * sa
+
     @property
     def initialised(self) -> bool:
         """The first wheel-speed reading has initialised the speed (before: validity init)."""
@@ -169,11 +194,11 @@ class SpeedKalmanFilter:
 
     @property
     def speed_std_mps(self) -> float:
-        return math.sqrt(self.p[0])
+        return math.sqrt(self.reported_va_cov()[0])
 
     @property
     def accel_std_mps2(self) -> float:
-        return math.sqrt(self.p[3])
+        return math.sqrt(self.reported_va_cov()[2])
 
     # ------------------------------------------------------------------ step
     def step(self, wheel_speed: float | None, accel: float | None) -> None:
@@ -205,6 +230,7 @@ class SpeedKalmanFilter:
 
         # Wheel speed: H = [1, 0, 0].
         used = False
+        self.wheel_nis = None
         if wheel_speed is None:
             self.missing_wheel += 1
         elif not 0.0 <= wheel_speed <= c.max_wheel_mps:
@@ -248,6 +274,7 @@ class SpeedKalmanFilter:
                 self.gated_wheel += 1
             else:
                 self._gated_run = 0
+                self.wheel_nis = e * e / s
                 (v, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
                     (v, a, b), (p00, p01, p02, p11, p12, p22), (1.0, 0.0, 0.0), e, r)
 

@@ -124,18 +124,33 @@ class _SteeringFilter:
         """Steering-wheel angle estimate i_s * delta."""
         return sm.swa(self._x, self._cst)
 
+    def reported_cov(self) -> np.ndarray:
+        """P as reported (SteeringModel.report_var_scale, stiffness_rel_sigma): the stiffness
+        error considered on (v_y, delta), then scaled."""
+        m = self.model
+        g = np.zeros(4)
+        g[2], g[0] = sm.stiffness_sensitivity(self._x[1], self.v_x, m.params)
+        return m.report_var_scale * (self.P + m.stiffness_rel_sigma ** 2 * np.outer(g, g))
+
     @property
     def swa_std_rad(self) -> float:
-        return self._cst[sm.IS] * math.sqrt(max(self._p[7], 0.0))
+        """Reported std of the steering-wheel angle (reported_cov)."""
+        m = self.model
+        gd = sm.stiffness_sensitivity(self._x[1], self.v_x, m.params)[0]
+        var = m.report_var_scale * (max(self._p[7], 0.0) + (m.stiffness_rel_sigma * gd) ** 2)
+        return self._cst[sm.IS] * math.sqrt(var)
+
+    @property
+    def side_slip_std_rad(self) -> float:
+        """Reported std of the side slip, sigma_vy / v_x (reported_cov)."""
+        m = self.model
+        gv = sm.stiffness_sensitivity(self._x[1], self.v_x, m.params)[1]
+        var = m.report_var_scale * (max(self._p[0], 0.0) + (m.stiffness_rel_sigma * gv) ** 2)
+        return math.sqrt(var) / max(self.v_x, sm.V_X_MIN)
 
     @property
     def side_slip_rad(self) -> float:
         return sm.side_slip(self._x, self.v_x)
-
-    @property
-    def side_slip_std_rad(self) -> float:
-        """First-order standard deviation of side_slip_rad (model.side_slip_std)."""
-        return sm.side_slip_std(self._x, self._p[0], self.v_x)
 
     @property
     def swa_prior_std_rad(self) -> float:

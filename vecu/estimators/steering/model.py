@@ -79,6 +79,12 @@ class SteeringModel:
     gate_after_updates: int = 100  # ... armed after this many accepted readings (1 s)
     max_gated_in_row: int = 10  # ... then this many are accepted ungated
     bounds: DivergenceBounds = STEERING_BOUNDS
+    # The reported covariance (reported_cov: the broadcast sigmas, the SWA plausibility gate,
+    # NEES) is report_var_scale x (P + stiffness_rel_sigma^2 g g^T), g = stiffness_sensitivity:
+    # a calibration error of the cornering stiffnesses is considered (Schmidt), and q_vy, q_r
+    # (raised for the smoother) make P itself ~2x too wide (docs/models.md, "Consistency").
+    stiffness_rel_sigma: float = 0.1
+    report_var_scale: float = 0.45
 
     @property
     def tyres(self) -> TyreConsts:
@@ -153,11 +159,13 @@ def side_slip(x: Sequence[float] | np.ndarray, vx: float) -> float:
     return math.atan2(float(x[0]), vx)
 
 
-def side_slip_std(x: Sequence[float] | np.ndarray, var_vy: float, vx: float) -> float:
-    """Standard deviation of side_slip by first-order propagation: d beta / d v_y =
-    v_x / (v_x^2 + v_y^2) times the standard deviation of v_y (rad)."""
-    vy = float(x[0])
-    return vx / (vx * vx + vy * vy) * math.sqrt(max(var_vy, 0.0))
+def stiffness_sensitivity(r: float, vx: float, p: VehicleParams) -> tuple[float, float]:
+    """(d delta, d v_y) / d eps of the steady turn at yaw rate r when both cornering
+    stiffnesses are (1 + eps) x the calibration: delta = (L + K v^2) r / v with K ~ 1/C gives
+    -K v r; v_y = (l_r - M l_f v^2 / (L C_r)) r gives M l_f v^2 r / (L C_r)."""
+    v = max(vx, V_X_MIN)
+    return (-p.understeer_rad_per_mps2 * v * r,
+            p.mass_kg * p.l_f_m * v * v * r / (p.wheelbase_m * p.c_r_n_per_rad))
 
 
 _accel = accelerations.py  # plain-Python callers (the EKF, the Jacobians): no backend dispatch

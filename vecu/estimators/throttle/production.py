@@ -85,7 +85,7 @@ KF_EXIT = (22.0, 2.0, 0.5)
 KF_CHECK_EVERY = 8  # steps between checks of the KF_ENTER condition
 KF_STEADY_SD_PER_ALPHA = 5.9  # measured steady-state Kalman theta std in mode 3, per unit alpha
 KF_GATE = 49.0  # Kalman innovation outlier gate (r^2 / S, 7 sigma)
-DEFAULT_STD_INFLATION = 1.1  # theta_std_deg = 1.1 x posterior std (calibration, docs/models.md)
+DEFAULT_STD_INFLATION = 1.2  # theta_std_deg = 1.2 x posterior std (calibration, docs/models.md)
 STD_FLOOR_DEG = 0.3
 MAX_STD_DEG = 51.0
 # ufunc reductions and ndarray methods called directly: the np.* / .min() forms add a Python-level
