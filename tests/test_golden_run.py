@@ -25,7 +25,7 @@ import pytest
 
 from vecu import kernels
 
-GOLDEN_SHA256 = "e91108a0d751908ae0c7566123213323a903d0f2c817324af6d1cb113878ba6b"
+GOLDEN_SHA256 = "904306d12908d794d6ffce3b969312b898c39cbdb3eb86bd1d7ff35350a5350f"
 
 
 @pytest.mark.parametrize("backend", ["python", "numba"])
