@@ -18,7 +18,7 @@ small sets, with or without numba).
 
 # The explicit `a if a < b else b` selects keep numpy's NaN semantics (np.minimum / np.clip
 # propagate NaN; Python's min / max depend on the argument order):
-# ruff: noqa: FURB136, PLR1730
+# ruff: noqa: FURB136
 
 from __future__ import annotations
 
@@ -206,34 +206,33 @@ def pf_resample(src, dst, n_new, u0):
     """Systematic resampling of src's particles into dst's n_new (rows 0-2 copied, weights 1).
 
     Copies of particle i: floor(W_i n_new / W + u0) - floor(W_{i-1} n_new / W + u0), W_i the
-    cumulative weights (the last one absorbs the rounding: the total is n_new). Returns the
-    number of particles written (n_new unless the weights are broken).
+    cumulative weights (the last one absorbs the rounding: the total is n_new). Destination k
+    takes the particle i with the k-th copy, i.e. the number of cumulative floors <= k: counted
+    per floor value, then a running sum, so no branch depends on the weights (a copy loop per
+    particle mispredicts on every particle). Returns n_new, or 0 if the weights are broken
+    (sum not finite and > 0).
     """
     n = src.shape[1]
     total = 0.0
     for i in range(n):
         total += src[6, i]
+    if not (total > 0.0 and total < math.inf):
+        return 0
     scale = n_new / total
+    hits = np.zeros(n_new + 1, dtype=np.int64)
     acc = 0.0
-    prev = 0
-    k = 0
-    for i in range(n):
+    for i in range(n - 1):
         acc += src[6, i]
         x = acc * scale
         x = x + u0
-        ic = n_new if i == n - 1 else math.floor(x)
-        cnt = ic - prev
-        prev = ic
-        if cnt > n_new - k:
-            cnt = n_new - k
-        th = src[0, i]
-        rh = src[1, i]
-        ci = src[2, i]
-        for _ in range(cnt):
-            dst[0, k] = th
-            dst[1, k] = rh
-            dst[2, k] = ci
-            k += 1
+        ic = math.floor(x)
+        hits[ic if ic < n_new else n_new] += 1
+    run = 0
+    for k in range(n_new):
+        run += hits[k]
+        dst[0, k] = src[0, run]
+        dst[1, k] = src[1, run]
+        dst[2, k] = src[2, run]
     for j in range(n_new):
         dst[6, j] = 1.0
-    return k
+    return n_new

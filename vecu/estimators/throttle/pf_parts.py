@@ -17,10 +17,12 @@ measure-zero set.)
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from vecu.estimators.common.small_linalg import chol3_floored
+from vecu.kernels import backend, kernel
 from vecu.models.throttle import (
     C3,
     MODE_BOUNDS_DEG,
@@ -129,95 +131,136 @@ class Bank:
         self.zero = np.zeros(n)
 
 
+@kernel
+def mode3_predict(x: Any, coef: Any, q_th: float, q_i: float, u: float) -> Any:
+    """ModeThreeKalman's prediction on its state x = (th, rh, ci, p00, p01, p02, p11, p12, p22):
+    x' = M [x, 1, E sgn rho] with the class-3 matrix M (its constant b u in the i row),
+    P' = A P A^T + Q with A = M's first three columns, then the censored-Gaussian moments at the
+    90 deg stop when it is within 4 sigma (theta' = min(theta, 90); with b = (90 - m) / s:
+    E = m Phi(b) - s phi(b) + 90 (1 - Phi(b)), E[theta'^2] = (m^2 + s^2) Phi(b) - s (m + 90)
+    phi(b) + 90^2 (1 - Phi(b)), and by Stein's lemma Cov(theta', z) = Cov(theta, z) Phi(b))."""
+    (a00, a01, a02, k0, s0, a10, a11, a12, k1, s1, a20, a21, a22, b, s2) = coef
+    th, rh, ci, p00, p01, p02, p11, p12, p22 = x
+    sr = math.sqrt(p11) if p11 > 1e-12 else 1e-6
+    e = math.erf(rh / (sr * 1.4142135623730951))  # E[sgn rho] under N(rh, p11)
+    nth = a00 * th + a01 * rh + a02 * ci + k0 + s0 * e
+    nrh = a10 * th + a11 * rh + a12 * ci + k1 + s1 * e
+    nci = a20 * th + a21 * rh + a22 * ci + b * u + s2 * e
+    # columns P r_j^T of the rows r_j of A
+    u0 = a00 * p00 + a01 * p01 + a02 * p02
+    u1 = a00 * p01 + a01 * p11 + a02 * p12
+    u2 = a00 * p02 + a01 * p12 + a02 * p22
+    v0 = a10 * p00 + a11 * p01 + a12 * p02
+    v1 = a10 * p01 + a11 * p11 + a12 * p12
+    v2 = a10 * p02 + a11 * p12 + a12 * p22
+    w0 = a20 * p00 + a21 * p01 + a22 * p02
+    w1 = a20 * p01 + a21 * p11 + a22 * p12
+    w2 = a20 * p02 + a21 * p12 + a22 * p22
+    n00 = a00 * u0 + a01 * u1 + a02 * u2 + q_th
+    n01 = a00 * v0 + a01 * v1 + a02 * v2
+    n02 = a00 * w0 + a01 * w1 + a02 * w2
+    n11 = a10 * v0 + a11 * v1 + a12 * v2
+    n12 = a10 * w0 + a11 * w1 + a12 * w2
+    n22 = a20 * w0 + a21 * w1 + a22 * w2 + q_i
+    if nth + 4.0 * math.sqrt(n00) > THETA_MAX_DEG:
+        m, v = nth, n00
+        sd = math.sqrt(v)
+        top = THETA_MAX_DEG
+        bb = (top - m) / sd
+        cdf = 0.5 * math.erfc(-bb * 0.7071067811865476)
+        pdf = math.exp(-0.5 * bb * bb) * 0.3989422804014327
+        mean = m * cdf - sd * pdf + top * (1.0 - cdf)
+        second = (m * m + v) * cdf - sd * (m + top) * pdf + top * top * (1.0 - cdf)
+        nth = top if top < mean else mean  # noqa: FURB136 (min(mean, top) with its NaN order, compiled too)
+        n00 = second - mean * mean
+        n00 = 1e-9 if 1e-9 > n00 else n00  # noqa: FURB136 (max(n00, 1e-9), likewise)
+        n01 *= cdf
+        n02 *= cdf
+    return (nth, nrh, nci, n00, n01, n02, n11, n12, n22)
+
+
+@kernel
+def mode3_update(x: Any, r: float, s: float) -> Any:
+    """ModeThreeKalman's linear minimum-variance update with the innovation r = y - E[y] and its
+    variance s (eq. 4 moments), Cov(x, y) = 2 m P[:, i]."""
+    th, rh, ci, p00, p01, p02, p11, p12, p22 = x
+    g = 2.0 * ci / s
+    c = g * 2.0 * ci
+    return (th + g * p02 * r, rh + g * p12 * r, ci + g * p22 * r, p00 - c * p02 * p02,
+            p01 - c * p02 * p12, p02 - c * p02 * p22, p11 - c * p12 * p12,
+            p12 - c * p12 * p22, p22 - c * p22 * p22)
+
+
+@kernel
+def mode3_step(x: Any, coef: Any, prm: Any, u: float, y: float, may_gate: bool) -> int:
+    """One Kalman-stretch step on the state x (9 entries, updated in place): mode3_predict, then
+    (y not NaN) mode3_update unless the innovation is beyond the gate (r^2 > gate S) and
+    may_gate. prm = (q_th, q_i, R, gate). Returns 0 (no y: predicted only), 1 (updated) or 2
+    (gated). Compiled: x, coef, prm are float64 arrays (one call, no tuple boxing); plain
+    Python: lists / tuples."""
+    st = mode3_predict((x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8]),
+                       (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7],
+                        coef[8], coef[9], coef[10], coef[11], coef[12], coef[13], coef[14]),
+                       prm[0], prm[1], u)
+    status = 0
+    if y == y:
+        m, s2 = st[2], st[8]
+        r = y - (m * m + s2)
+        sv = 4.0 * m * m * s2 + 2.0 * s2 * s2 + prm[2]
+        if r * r > prm[3] * sv and may_gate:
+            status = 2
+        else:
+            st = mode3_update(st, r, sv)
+            status = 1
+    for k in range(9):
+        x[k] = st[k]
+    return status
+
+
 class ModeThreeKalman:
     """Moment-matched Kalman filter for the stretches where the posterior is well inside mode 3.
 
     There eq. (3) is linear (the class-3 matrix, read off mode_step; the tiny friction
     c1 sgn(rho), |c1| = 0.0055, uses E[sgn rho] = erf(rho / (sqrt 2 sigma_rho))), and eq. (4)
     is handled with the exact Gaussian moments of i^2: E = m^2 + P_ii, Var = 4 m^2 P_ii + 2 P_ii^2 + 1, Cov(x, i^2) = 2 m P[:, i].
-    Plain floats, unrolled 3x3 symmetric algebra (a numpy call costs as much as ~20 float ops).
+    Plain floats, unrolled 3x3 symmetric algebra, as kernels (mode3_predict / mode3_update /
+    mode3_step: compiled under numba, the same Python otherwise) on the state tuple
+    x = (th, rh, ci, p00, p01, p02, p11, p12, p22).
     The stop at 90 deg is handled by censored-Gaussian moments after each prediction.
     `leave()` says when the particle filter must take over again (a mode switch or a current
     whose sign is no longer certain within reach).
     """
 
-    __slots__ = (
-        "ci",
-        "coef",
-        "p00",
-        "p01",
-        "p02",
-        "p11",
-        "p12",
-        "p22",
-        "q_i",
-        "q_th",
-        "r",
-        "rh",
-        "th",
-    )
+    __slots__ = ("coef", "coef_a", "prm", "prm_a", "q_i", "q_th", "r", "x")
 
-    def __init__(self, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE) -> None:
+    def __init__(self, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE,
+                 gate: float = 49.0) -> None:
         rows = _class_rows(HIGH_CLASS, model)  # eq. (3) in mode 3, sgn(theta - 1) = 1
         rows[2][U_COL] = class_b(model)[HIGH_CLASS]  # this row's constant is b u
         self.coef = tuple(v for row in rows for v in row)
         self.q_th, self.q_i = q_th, q_i
         self.r = model.h_wattmeter * model.h_wattmeter
-        self.th = self.rh = self.ci = 0.0
-        self.p00 = self.p01 = self.p02 = self.p11 = self.p12 = self.p22 = 0.0
+        self.prm = (q_th, q_i, self.r, float(gate))
+        self.coef_a, self.prm_a = np.array(self.coef), np.array(self.prm)
+        self.x = np.zeros(9)  # th, rh, ci, p00, p01, p02, p11, p12, p22
+
+    th = property(lambda self: float(self.x[0]))
+    rh = property(lambda self: float(self.x[1]))
+    ci = property(lambda self: float(self.x[2]))
+    p00 = property(lambda self: float(self.x[3]))
+    p01 = property(lambda self: float(self.x[4]))
+    p02 = property(lambda self: float(self.x[5]))
+    p11 = property(lambda self: float(self.x[6]))
+    p12 = property(lambda self: float(self.x[7]))
+    p22 = property(lambda self: float(self.x[8]))
 
     def load(self, mean: np.ndarray, cov: np.ndarray) -> None:
-        self.th, self.rh, self.ci = float(mean[0]), float(mean[1]), float(mean[2])
-        self.p00, self.p01, self.p02 = float(cov[0, 0]), float(cov[0, 1]), float(cov[0, 2])
-        self.p11, self.p12, self.p22 = float(cov[1, 1]), float(cov[1, 2]), float(cov[2, 2])
+        self.x[:] = (mean[0], mean[1], mean[2], cov[0, 0], cov[0, 1], cov[0, 2], cov[1, 1],
+                     cov[1, 2], cov[2, 2])
 
     def predict(self, u: float) -> None:
-        """x' = M [x, 1, E sgn rho] with the class-3 matrix M (its constant b u in the i row),
-        P' = A P A^T + Q with A = M's first three columns."""
-        (a00, a01, a02, k0, s0, a10, a11, a12, k1, s1, a20, a21, a22, b, s2) = self.coef
-        th, rh, ci = self.th, self.rh, self.ci
-        p00, p01, p02, p11, p12, p22 = self.p00, self.p01, self.p02, self.p11, self.p12, self.p22
-        sr = math.sqrt(p11) if p11 > 1e-12 else 1e-6
-        e = math.erf(rh / (sr * 1.4142135623730951))  # E[sgn rho] under N(rh, p11)
-        self.th = a00 * th + a01 * rh + a02 * ci + k0 + s0 * e
-        self.rh = a10 * th + a11 * rh + a12 * ci + k1 + s1 * e
-        self.ci = a20 * th + a21 * rh + a22 * ci + b * u + s2 * e
-        # columns P r_j^T of the rows r_j of A
-        u0 = a00 * p00 + a01 * p01 + a02 * p02
-        u1 = a00 * p01 + a01 * p11 + a02 * p12
-        u2 = a00 * p02 + a01 * p12 + a02 * p22
-        v0 = a10 * p00 + a11 * p01 + a12 * p02
-        v1 = a10 * p01 + a11 * p11 + a12 * p12
-        v2 = a10 * p02 + a11 * p12 + a12 * p22
-        w0 = a20 * p00 + a21 * p01 + a22 * p02
-        w1 = a20 * p01 + a21 * p11 + a22 * p12
-        w2 = a20 * p02 + a21 * p12 + a22 * p22
-        self.p00 = a00 * u0 + a01 * u1 + a02 * u2 + self.q_th
-        self.p01 = a00 * v0 + a01 * v1 + a02 * v2
-        self.p02 = a00 * w0 + a01 * w1 + a02 * w2
-        self.p11 = a10 * v0 + a11 * v1 + a12 * v2
-        self.p12 = a10 * w0 + a11 * w1 + a12 * w2
-        self.p22 = a20 * w0 + a21 * w1 + a22 * w2 + self.q_i
-        if self.th + 4.0 * math.sqrt(self.p00) > THETA_MAX_DEG:
-            self._censor_at_stop()
-
-    def _censor_at_stop(self) -> None:
-        """theta' = min(theta, 90): moments of the censored Gaussian (the mass beyond the stop
-        sits at 90). With b = (90 - m) / s: E = m Phi(b) - s phi(b) + 90 (1 - Phi(b)),
-        E[theta'^2] = (m^2 + s^2) Phi(b) - s (m + 90) phi(b) + 90^2 (1 - Phi(b)), and by Stein's
-        lemma Cov(theta', z) = Cov(theta, z) Phi(b) for the other states z."""
-        m, v = self.th, self.p00
-        s = math.sqrt(v)
-        top = THETA_MAX_DEG
-        b = (top - m) / s
-        cdf = 0.5 * math.erfc(-b * 0.7071067811865476)
-        pdf = math.exp(-0.5 * b * b) * 0.3989422804014327
-        mean = m * cdf - s * pdf + top * (1.0 - cdf)
-        second = (m * m + v) * cdf - s * (m + top) * pdf + top * top * (1.0 - cdf)
-        self.th = min(mean, top)
-        self.p00 = max(second - mean * mean, 1e-9)
-        self.p01 *= cdf
-        self.p02 *= cdf
+        """mode3_predict."""
+        self.x[:] = mode3_predict(tuple(self.x.tolist()), self.coef, self.q_th, self.q_i, u)
 
     def innovation(self, y: float) -> tuple[float, float]:
         """(y - E[y], Var[y]) under the current Gaussian (eq. 4 moments)."""
@@ -225,35 +268,32 @@ class ModeThreeKalman:
         return y - (m * m + s2), 4.0 * m * m * s2 + 2.0 * s2 * s2 + self.r
 
     def update(self, r: float, s: float) -> None:
-        """Linear minimum-variance update with Cov(x, y) = 2 m P[:, i]."""
-        g = 2.0 * self.ci / s
-        c = g * 2.0 * self.ci
-        p02, p12, p22 = self.p02, self.p12, self.p22
-        self.th += g * p02 * r
-        self.rh += g * p12 * r
-        self.ci += g * p22 * r
-        self.p00 -= c * p02 * p02
-        self.p01 -= c * p02 * p12
-        self.p02 -= c * p02 * p22
-        self.p11 -= c * p12 * p12
-        self.p12 -= c * p12 * p22
-        self.p22 -= c * p22 * p22
+        """mode3_update."""
+        self.x[:] = mode3_update(tuple(self.x.tolist()), r, s)
+
+    def step(self, u: float, y: float, may_gate: bool) -> int:
+        """mode3_step (y NaN: predict only); returns its status (0 no y, 1 updated, 2 gated)."""
+        if backend() == "numba":
+            return int(mode3_step.compiled(self.x, self.coef_a, self.prm_a, u, y, may_gate))
+        x = self.x.tolist()
+        status = mode3_step.py(x, self.coef, self.prm, u, y, may_gate)
+        self.x[:] = x
+        return status
 
     def leave(self, lo_deg: float, top_sigmas: float, i_min: float) -> bool:
         """True if theta - 3 sigma < lo_deg, theta + top_sigmas sigma > 90 (too much mass at the
         stop for the censored moments), i - 3 sigma < i_min, or P / x are broken."""
-        p00, p22 = self.p00, self.p22
+        th, rh, ci, p00, _, _, _, _, p22 = self.x.tolist()
         if not (p00 > 0.0 and p22 > 0.0 and p00 < 1e6 and p22 < 1e6):
             return True
         st = math.sqrt(p00)
-        return (self.th - 3.0 * st < lo_deg or self.th + top_sigmas * st > THETA_MAX_DEG
-                or self.ci - 3.0 * math.sqrt(p22) < i_min or not math.isfinite(self.th + self.rh))
+        return (th - 3.0 * st < lo_deg or th + top_sigmas * st > THETA_MAX_DEG
+                or ci - 3.0 * math.sqrt(p22) < i_min or not math.isfinite(th + rh))
 
     def cholesky(self) -> tuple[float, float, float, float, float, float]:
         """Lower Cholesky factor (l00, l10, l11, l20, l21, l22) of P (pivots floored at 1e-12:
         a tiny jitter if needed; common.small_linalg.chol3_floored)."""
-        return chol3_floored.py((self.p00, self.p01, self.p02, self.p11, self.p12, self.p22),
-                                1e-12)
+        return chol3_floored.py(tuple(self.x[3:].tolist()), 1e-12)
 
 
 def systematic_counts(b: Bank, w: np.ndarray, n_new: int, u0: float) -> np.ndarray:

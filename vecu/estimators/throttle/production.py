@@ -142,7 +142,7 @@ class ThrottleParticleFilter:
         self._bvec = np.array(cls_b)
         self._cls_b = cls_b
         self._yc = np.zeros(())  # 0-d array: y + shift of the current step
-        self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model)
+        self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model, KF_GATE)
         self._kconst = step_constants(s, cls_b, r_watt, cb)  # the compiled step's constants
         self._extremes: tuple[float, float] | None = None  # compiled step: max theta, min i
         self.resets = self.rejected = self.resamples = self.resizes = 0
@@ -424,20 +424,18 @@ class ThrottleParticleFilter:
 
     def _kalman_step(self, u: float, y: float | None, o1: int) -> None:
         kf = self._kf
-        kf.predict(u)
-        if y is not None:
-            r, s = kf.innovation(y)
-            if r * r > KF_GATE * s and self._gated < MAX_GATED_IN_ROW:
-                self._gated += 1
-                self.rejected += 1
-            else:
-                self._gated = 0
-                kf.update(r, s)
+        status = kf.step(u, math.nan if y is None else y, self._gated < MAX_GATED_IN_ROW)
+        if status == 2:
+            self._gated += 1
+            self.rejected += 1
+        elif status == 1:
+            self._gated = 0
         self.kalman_steps += 1
         if kf.leave(*self._kf_exit):
             self._from_kalman(o1)
         else:
-            self._set_output(kf.th, kf.p00)
+            x = kf.x
+            self._set_output(float(x[0]), float(x[3]))
 
     def _from_kalman(self, o1: int) -> None:
         """Back to particles: draw them from the Kalman Gaussian (restart if it is broken)."""
