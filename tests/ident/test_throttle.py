@@ -102,3 +102,17 @@ def test_a_trace_without_excitation_or_too_short_is_refused() -> None:
     short = ThrottleData("short.blf", np.linspace(0, 10, 100), np.ones(100), np.ones(100))
     with pytest.raises(TraceFitError, match="too short .* 100 samples"):
         check_fit_support(short)
+
+
+def test_a_short_trace_says_its_modes_1_2_intervals_are_indicative(fitted) -> None:
+    """Below 180 s the report and the JSON carry the note (docs/reproduction.md: 60 s intervals
+    of mode 2 too narrow); from 180 s of samples on they do not."""
+    from vecu.ident.report import fit_json, format_fit, interval_note
+
+    fit = fitted[2]
+    assert fit.n_samples < 180_000
+    note = interval_note(fit)
+    assert note is not None and "modes 1-2" in note
+    assert f"note: {note}" in format_fit(fit) and fit_json(fit)["interval"]["note"] == note
+    long = dataclasses.replace(fit, n_samples=180_000)
+    assert interval_note(long) is None and "note:" not in format_fit(long)
