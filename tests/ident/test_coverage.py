@@ -1,7 +1,8 @@
-"""Identification intervals that cover (issue 30 item 4): over 20 simulated 60 s excitations of a
-throttle whose mode-3 b is 15 % above Table I, each fitted mode-3 parameter's 95 % interval holds
-the true value in >= 17 of the traces (modes 1 and 2 not yet: a strict xfail), and the 15 %
-change of mode3.b is recovered within 3 %.
+"""Identification intervals that cover (issue 30 item 4): over 20 simulated excitations of a
+throttle whose mode-3 b is 15 % above Table I, each fitted parameter's 95 % interval holds the
+true value in >= 17 of the traces from 180 s on (the length below which the report calls modes
+1-2 intervals indicative); on 60 s traces every mode-3 parameter does (modes 1 and 2 do not: a
+strict xfail), and the 15 % change of mode3.b is recovered within 3 %.
 
 The traces are the plant's own compiled ticks (vecu.plant.throttle_kernel.advance_ticks, as
 `vecu excite throttle` records them, without the CAN round trip) at the paper's noise (alpha = 1);
@@ -18,6 +19,7 @@ import numpy as np
 import pytest
 
 from vecu import kernels
+from vecu.ident.report import SHORT_TRACE_S, interval_note
 from vecu.ident.throttle import NAMES, identify_throttle
 from vecu.ident.trace import ThrottleData
 from vecu.models.sensors import TpsCalibration
@@ -64,6 +66,15 @@ def fits():
                 for seed in SEEDS]
 
 
+@pytest.fixture(scope="module")
+def fits_3min():
+    """The same 20 seeds, 180 s each: the length from which `vecu identify throttle` gives its
+    intervals without the short-trace note (vecu.ident.report.SHORT_TRACE_S)."""
+    with kernels.using("numba"):
+        return [identify_throttle(excitation(TRUE, SHORT_TRACE_S, seed), fit_bounds=False)
+                for seed in SEEDS]
+
+
 def _coverage(fits) -> dict[str, tuple[int, int]]:
     """Per parameter over the traces: (fitted intervals that missed the truth, fitted). A trace
     where the parameter was not identifiable gives no interval, so no miss."""
@@ -92,9 +103,21 @@ def test_each_fitted_mode3_parameter_is_covered_in_17_of_20(fits) -> None:
                    "intervals (estimates scatter 2.0-2.2x the reported sigma), not bias "
                    "(docs/reproduction.md, 'Identification')")
 def test_each_fitted_mode1_mode2_parameter_is_covered_in_17_of_20(fits) -> None:
-    """The issue's bound for the valve below 16 deg: not met yet (strict: passing flags it)."""
+    """The issue's bound for the valve below 16 deg on 60 s traces: not met (strict: passing
+    flags it); such a trace's report says its modes 1-2 intervals are indicative only, and from
+    180 s they cover (test_every_fitted_parameter_is_covered_in_17_of_20_from_3_min)."""
     for name, (missed, _) in _coverage(fits).items():
         assert missed <= 3, name
+
+
+def test_every_fitted_parameter_is_covered_in_17_of_20_from_3_min(fits_3min) -> None:
+    """The issue's bound for every parameter of every mode, on traces as long as the report asks
+    for (>= 180 s): at most 3 of 20 fitted intervals miss (measured: 17/18 .. 20/20)."""
+    cov = _coverage(fits_3min)
+    assert all(cov[f"mode{m}.{p}"][1] >= 17 for m in (1, 2, 3) for p in ("b", "a33"))
+    report = {n: f"{f - m}/{f} covered" for n, (m, f) in cov.items()}
+    assert all(missed <= 3 for missed, _ in cov.values()), report
+    assert all(interval_note(fit) is None for fit in fits_3min)
 
 
 def test_a_15_percent_change_of_mode3_b_is_recovered_within_3_percent(fits) -> None:
