@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -100,20 +101,28 @@ def prepare() -> None:
     _ready = True
 
 
+def _backend_args(kern: Any, params: ManifoldParams, eta_scale: float) -> tuple[Any, bool, tuple]:
+    """(the kernel's active implementation, compiled?, its table arguments for params): the
+    float64-array tables under numba (where numba can mirror the set), tuples otherwise;
+    eta_scale multiplies the eta_N table (the adaptive filter's c)."""
+    hit = _ARGS.get(id(params))
+    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
+    run = kern.impl()
+    compiled = run is not kern.py and nb is not None
+    args: tuple = nb if compiled and nb is not None else py
+    if eta_scale != 1.0:
+        ev = args[-1]
+        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
+    return run, compiled, args
+
+
 def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams,
                 eta_scale: float = 1.0) -> tuple[np.ndarray, float]:
     """(x after the inputs, CAC there at the last input's speed): predict_events, compiled under
     the numba backend, its Python function otherwise (or for a parameter set numba cannot
     mirror). eta_scale multiplies the eta_N table (the adaptive filter's c). x: the first six
     states are used."""
-    hit = _ARGS.get(id(params))
-    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
-    run = predict_events.impl()
-    compiled = run is not predict_events.py and nb is not None
-    args: tuple = nb if compiled and nb is not None else py
-    if eta_scale != 1.0:
-        ev = args[-1]
-        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
+    run, compiled, args = _backend_args(predict_events, params, eta_scale)
     xa = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:6])
     u0 = inputs[0]
     held = True
@@ -336,14 +345,7 @@ def cac_sigmas(x: np.ndarray, P: np.ndarray, Q: np.ndarray, u: EngineInput,
     """air_charge_sigmas for a filter's posterior (x, P; its Q) and the event's input u:
     compiled under the numba backend, its Python function otherwise (or for a parameter set
     numba cannot mirror); eta_scale multiplies the eta_N table (the adaptive filter's c)."""
-    hit = _ARGS.get(id(params))
-    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
-    run = air_charge_sigmas.impl()
-    compiled = run is not air_charge_sigmas.py and nb is not None
-    args: tuple = nb if compiled and nb is not None else py
-    if eta_scale != 1.0:
-        ev = args[-1]
-        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
+    run, compiled, args = _backend_args(air_charge_sigmas, params, eta_scale)
     if compiled:
         if not _ready:
             prepare()
