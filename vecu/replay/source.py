@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 REORDER_WINDOW_NS = 50_000_000  # 50 ms: covers multi-channel loggers that flush per channel
 IDLE_GAP_NS = 10 * NS_PER_S  # a longer silence is shortened to this (docs/replay.md)
 MAX_GAPS_LISTED = 10
+CHUNK_FRAMES = 16  # frames read ahead behind __iter__ (a live player reads that many at a time)
 # Text formats whose writers end every line (candump -L, CANoe ASC, python-can CSV): a last line
 # without a newline there is a cut-off file, and python-can would read its stub as a short frame.
 # (TRC is left out: PCAN writers may omit the final newline, and python-can's TRC reader skips
@@ -177,11 +178,17 @@ class TraceSource:
     # ---------------------------------------------------------------- iteration
     def __iter__(self) -> Iterator[tuple[int, can.Message]]:
         """(t_ns, msg) in timestamp order (within the re-order window), idle gaps shortened."""
-        with quiet_reader_logs():  # for as long as the file is read
-            yield from self._frames()
+        for chunk in self.chunks(CHUNK_FRAMES):
+            yield from chunk
 
-    def _frames(self) -> Iterator[tuple[int, can.Message]]:
-        """Read, order and shorten in one loop (one generator per frame, not one per stage).
+    def chunks(self, size: int) -> Iterator[list[tuple[int, can.Message]]]:
+        """The frames of __iter__ in lists of `size` (the last one shorter; none empty): a
+        consumer that takes them many at a time skips a generator step per frame."""
+        with quiet_reader_logs():  # for as long as the file is read
+            yield from self._frames(max(1, size))
+
+    def _frames(self, size: int) -> Iterator[list[tuple[int, can.Message]]]:
+        """Read, order and shorten in one loop (no generator per stage), `size` frames a list.
 
         While the file's times do not go backwards, the frames held for the re-order window
         wait in a FIFO (already in order, the heap's order too); the first frame that goes
@@ -197,7 +204,9 @@ class TraceSource:
         skipped = 0
         seq = 0
         t0 = None
-        isfinite = math.isfinite
+        isfinite, floor = math.isfinite, math.floor
+        out: list[tuple[int, can.Message]] = []
+        append = out.append
         it = iter(self._reader)
         while True:
             try:
@@ -220,7 +229,7 @@ class TraceSource:
                 if prev_ts is not None and ts < prev_ts:
                     stats.out_of_order += 1
                 prev_ts = ts
-                t_ns = math.floor((ts - t0) * scale + 0.5) * TIME_RESOLUTION_NS  # _quantise
+                t_ns = floor((ts - t0) * scale + 0.5) * TIME_RESOLUTION_NS  # _quantise
                 if t_ns < 0:  # earlier than the first frame: deliver at the start
                     stats.late += 1
                     t_ns = 0
@@ -229,6 +238,7 @@ class TraceSource:
                 t_ns = released
             entry = (t_ns, seq, msg)
             seq += 1
+            edge = t_ns - window
             if fifo is not None:
                 if fifo and t_ns < fifo[-1][0]:  # backwards: from now on the heap
                     heap = list(fifo)
@@ -236,22 +246,29 @@ class TraceSource:
                     heapq.heappush(heap, entry)
                 else:
                     fifo.append(entry)
+                    while fifo and fifo[0][0] <= edge:
+                        released, _, out_msg = fifo.popleft()
+                        if last is not None and released - last > idle_gap:
+                            skipped = self._gap(last, released, skipped)
+                        last = released
+                        append((released - skipped, out_msg))
+                    if len(out) >= size:
+                        yield out
+                        out = []
+                        append = out.append
+                    continue
             else:
                 heapq.heappush(heap, entry)
-            edge = t_ns - window
-            while True:
-                if fifo is not None:
-                    if not fifo or fifo[0][0] > edge:
-                        break
-                    released, _, out = fifo.popleft()
-                else:
-                    if not heap or heap[0][0] > edge:
-                        break
-                    released, _, out = heapq.heappop(heap)
+            while heap and heap[0][0] <= edge:
+                released, _, out_msg = heapq.heappop(heap)
                 if last is not None and released - last > idle_gap:
                     skipped = self._gap(last, released, skipped)
                 last = released
-                yield released - skipped, out
+                append((released - skipped, out_msg))
+            if len(out) >= size:
+                yield out
+                out = []
+                append = out.append
         if self.error is None:
             self.error = self._truncation()
         try:
@@ -259,11 +276,17 @@ class TraceSource:
         except Exception as exc:  # noqa: BLE001 - closing a reader that has failed may fail too
             log.debug("%s: closing the reader: %s", self.path, exc)
         rest = list(fifo) if fifo is not None else [heapq.heappop(heap) for _ in range(len(heap))]
-        for released, _, out in rest:
+        for released, _, out_msg in rest:
             if last is not None and released - last > idle_gap:
                 skipped = self._gap(last, released, skipped)
             last = released
-            yield released - skipped, out
+            append((released - skipped, out_msg))
+            if len(out) >= size:
+                yield out
+                out = []
+                append = out.append
+        if out:
+            yield out
 
     def _gap(self, last: int, t_ns: int, skipped: int) -> int:
         """An idle gap from last to t_ns (trace time) shortened: recorded, new total skipped."""
