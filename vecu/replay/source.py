@@ -161,6 +161,7 @@ class TraceSource:
         self.stats = SourceStats()
         self.error: str | None = None
         self.t0_s: float | None = None  # timestamp of the first frame (the time origin)
+        self._last_ts: float | None = None  # of the last frame read (error messages)
         self._reader = open_reader(self.path, fmt)
         self.size_bytes = _file_size(self.path)
 
@@ -198,11 +199,12 @@ class TraceSource:
         scale = NS_PER_S // TIME_RESOLUTION_NS
         fifo: deque[tuple[int, int, can.Message]] | None = deque()
         heap: list[tuple[int, int, can.Message]] = []
-        released = None  # t_ns (trace time) of the last frame handed out by the ordering
-        prev_ts = None
-        last = None  # trace time of the last frame handed out
+        released = -1  # t_ns (trace time) of the last frame handed out by the ordering (-1: none)
+        prev_ts = -math.inf
+        last: float = math.inf  # trace time of the last frame handed out (inf: none, no gap)
         skipped = 0
-        seq = 0
+        seq = 0  # frames read
+        ts = None
         t0 = None
         isfinite, floor = math.isfinite, math.floor
         out: list[tuple[int, can.Message]] = []
@@ -214,26 +216,25 @@ class TraceSource:
             except StopIteration:
                 break
             except Exception as exc:  # noqa: BLE001 - a corrupt file must not crash the run
+                stats.frames_read, self._last_ts = seq, ts
                 self.error = (f"{self.path}: unreadable after frame {stats.frames_read}"
                               f"{self._where()}: {_one_line(exc)}")
                 break
-            stats.frames_read += 1
             ts = msg.timestamp
-            self._last_ts = ts
             if t0 is None:
                 t0 = self.t0_s = ts if isfinite(ts) else 0.0
             if not isfinite(ts):
                 stats.non_finite_time += 1
-                t_ns = released if released is not None else 0
+                t_ns = max(released, 0)
             else:
-                if prev_ts is not None and ts < prev_ts:
+                if ts < prev_ts:
                     stats.out_of_order += 1
                 prev_ts = ts
                 t_ns = floor((ts - t0) * scale + 0.5) * TIME_RESOLUTION_NS  # _quantise
                 if t_ns < 0:  # earlier than the first frame: deliver at the start
                     stats.late += 1
                     t_ns = 0
-            if released is not None and t_ns < released:
+            if t_ns < released:
                 stats.late += 1
                 t_ns = released
             entry = (t_ns, seq, msg)
@@ -248,11 +249,12 @@ class TraceSource:
                     fifo.append(entry)
                     while fifo and fifo[0][0] <= edge:
                         released, _, out_msg = fifo.popleft()
-                        if last is not None and released - last > idle_gap:
+                        if released - last > idle_gap:
                             skipped = self._gap(last, released, skipped)
                         last = released
                         append((released - skipped, out_msg))
                     if len(out) >= size:
+                        stats.frames_read, self._last_ts = seq, ts
                         yield out
                         out = []
                         append = out.append
@@ -261,14 +263,16 @@ class TraceSource:
                 heapq.heappush(heap, entry)
             while heap and heap[0][0] <= edge:
                 released, _, out_msg = heapq.heappop(heap)
-                if last is not None and released - last > idle_gap:
+                if released - last > idle_gap:
                     skipped = self._gap(last, released, skipped)
                 last = released
                 append((released - skipped, out_msg))
             if len(out) >= size:
+                stats.frames_read, self._last_ts = seq, ts
                 yield out
                 out = []
                 append = out.append
+        stats.frames_read, self._last_ts = seq, ts
         if self.error is None:
             self.error = self._truncation()
         try:
@@ -277,7 +281,7 @@ class TraceSource:
             log.debug("%s: closing the reader: %s", self.path, exc)
         rest = list(fifo) if fifo is not None else [heapq.heappop(heap) for _ in range(len(heap))]
         for released, _, out_msg in rest:
-            if last is not None and released - last > idle_gap:
+            if released - last > idle_gap:
                 skipped = self._gap(last, released, skipped)
             last = released
             append((released - skipped, out_msg))
@@ -303,7 +307,7 @@ class TraceSource:
         return skipped
 
     def _where(self) -> str:
-        ts = getattr(self, "_last_ts", None)
+        ts = self._last_ts
         return "" if ts is None else f" (last timestamp {ts:.6f} s)"
 
     def _truncation(self) -> str | None:
