@@ -3,6 +3,7 @@ and live replay schedule error against python-can's MessageSync player, both in 
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import tempfile
 from pathlib import Path
@@ -41,11 +42,16 @@ def read_only_seconds(path: str) -> tuple[float, int]:
 
 def source_seconds(path: str) -> float:
     """The replay's reading alone: python-can's reader behind vecu's TraceSource (time base,
-    re-ordering, idle gaps), in the feeder's chunks."""
-    t = perf_s()
-    for _ in TraceSource(path).chunks(CHUNK):
-        pass
-    return perf_s() - t
+    re-ordering, idle gaps), in the feeder's chunks; the collector's set-up objects frozen, as
+    in a replay."""
+    gc.freeze()
+    try:
+        t = perf_s()
+        for _ in TraceSource(path).chunks(CHUNK):
+            pass
+        return perf_s() - t
+    finally:
+        gc.unfreeze()
 
 
 def ecu_alone_us_per_tick(path: str) -> float:
@@ -61,7 +67,11 @@ def ecu_alone_us_per_tick(path: str) -> float:
             k = -(-t_ns // TICK_NS)
             ticks.extend([] for _ in range(k + 1 - len(ticks)))
             ticks[k].append(msg)
-    return run_ecu(ticks)["us_per_tick"]
+    gc.freeze()  # as in a replay
+    try:
+        return run_ecu(ticks)["us_per_tick"]
+    finally:
+        gc.unfreeze()
 
 
 def bench_fast(path: str, estimator: str, estimator_us: float | None = None) -> dict[str, Any]:
