@@ -206,7 +206,7 @@ def format_replay(r: dict[str, Any]) -> str:
             b = f["us_per_ms"]
             lines.append(f"    us per ms of trace: reading {b['read']} + ordering {b['ordering']} + "
                          f"ECU alone {b['ecu_alone']} + rest (feeding, scoring, writing) "
-                         f"{b['rest']} = {b['total']}; reading + ECU alone allow at most "
+                         f"{b['rest']} = {b['total']}; reading, ordering and the ECU alone allow at most "
                          f"{f['ecu_ceiling_read_share'] * 100:.0f}% of the bare reading speed")
     lv = r["live"]
     v, b = lv["vecu"], lv["python_can_player"]

@@ -22,8 +22,8 @@ from vecu.stats import DurationHistogram
 log = logging.getLogger(__name__)
 
 SCHEDULE_ERROR_LIMIT_US = 200_000  # 1 us bins up to 200 ms; beyond: counted, max kept
-# frames read (and, fast, checked per message in blocks) at a time: 16 k was ~10 % slower (the
-# chunk's objects no longer in the caches)
+# frames read (and, fast, checked per message in blocks) at a time: 16 k was no faster (up to ~5 %
+# slower in same-run comparisons: the chunk's objects no longer in the caches)
 CHUNK = 2048
 # ... and without blocks (live): reading thousands of frames holds the GIL for ms, a stall of the
 # player thread's schedule; a few frames at a time spread the reader's cost between sends
