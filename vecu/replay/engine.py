@@ -205,7 +205,6 @@ def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
             bus.shutdown()
         if not live:
             ecu_bus.shutdown()
-    scorer.flush()
     summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
                        writer.frames if writer is not None else 0, kernel_load_s)
     return ReplayResult(summary, source.error, scorer.series)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
 
 import can
 
@@ -22,8 +21,6 @@ from vecu.ecu.validity import SCORED
 from vecu.functions.base import TruthChannel
 from vecu.replay.summary import ReplayScore, ScoreSection
 from vecu.stats import RunningStats
-
-PENDING = 4096  # estimate frames of one message decoded and scored at a time
 
 
 def channels() -> list[tuple[str, TruthChannel]]:
@@ -64,11 +61,6 @@ class TruthScorer:
         self.not_valid = {ch.estimate: 0 for _, ch in self.channels}
         self.truth_frames = 0
         self.bad_truth_frames = 0
-        # per estimate message, its frames not scored yet: (t_ns, payload, the truth values
-        # paired with it or None, scored?, the validity another message gave it)
-        self._pending: dict[str, list[tuple[int, bytearray, dict[str, float] | None, bool,
-                                            int | None]]] = {
-            ch.estimate: [] for _, ch in self.channels}
 
     @property
     def active(self) -> bool:
@@ -88,8 +80,6 @@ class TruthScorer:
         self._latest[fc.name] = (t_ns, values)
 
     def on_estimate(self, msg: can.Message, t_ns: int) -> None:
-        """An estimate frame sent at t_ns: paired now with the newest truth (and validity), its
-        payload decoded and scored later, PENDING at a time per message (flush())."""
         if not self.truth_frames and self.series is None:
             return
         key = (msg.arbitration_id, msg.is_extended_id)
@@ -107,67 +97,28 @@ class TruthScorer:
             self.unmatched[ch.estimate] += 1
         if not scored and self.series is None:
             return
+        est = fc.decode(msg.data)
+        if self.series is not None:
+            first = ch.pairs[0]
+            self.series[self._group[ch.estimate]].append(
+                (t_ns / 1e9, est[first.estimate_signal],
+                 latest[1][first.truth_signal] if matched else math.nan))
+        if not scored:
+            return
         v = ch.validity
-        pending = self._pending[ch.estimate]
-        pending.append((t_ns, msg.data, latest[1] if matched else None, scored,  # type: ignore[index]  # matched: latest is set
-                        self._validity.get(v[0]) if v is not None and v[0] != ch.estimate
-                        else None))
-        if len(pending) >= PENDING:
-            self._score(fc, ch, pending)
-            pending.clear()
-
-    def flush(self) -> None:
-        """Score the estimates still pending (summary() does it too)."""
-        for fc, ch in self._est.values():
-            pending = self._pending[ch.estimate]
-            if pending:
-                self._score(fc, ch, pending)
-                pending.clear()
-
-    def _score(self, fc: FrameCodec, ch: TruthChannel,
-               pending: list[tuple[int, bytearray, dict[str, float] | None, bool, int | None]]
-               ) -> None:
-        """The estimates of one message in the order sent: decoded in a block (FrameCodec.
-        check_block: decode()'s values) when their payloads allow, then scored one by one."""
-        payloads: list[bytes | bytearray] = [p[1] for p in pending]
-        block = (fc.check_block(payloads) if all(len(d) == fc.length for d in payloads)
-                 else None)
-        # est[col[signal]]: a block's rows are tuples in its names' order, decode()'s dicts
-        rows: list[Any]
-        col: dict[str, Any]
-        if block is not None and block.names:
-            rows, col = block.rows, {name: i for i, name in enumerate(block.names)}
-        else:
-            rows, col = [fc.decode(d) for d in payloads], {s.name: s.name for s in fc.signals}
+        if v is not None:
+            validity = (est[v[1]] if v[0] == ch.estimate else self._validity.get(v[0]))
+            if validity is not None and int(validity) not in SCORED:
+                self.not_valid[ch.estimate] += 1
+                return
+        truth = latest[1]
         stats = self.stats[ch.estimate]
-        pairs = [(stats[p.key], col[p.estimate_signal], p.truth_signal,
-                  None if p.only_when is None else (col[p.only_when[0]], p.only_when[1]))
-                 for p in ch.pairs]
-        series = None if self.series is None else self.series[self._group[ch.estimate]]
-        first = ch.pairs[0]
-        first_est, first_truth = col[first.estimate_signal], first.truth_signal
-        v = ch.validity
-        own_validity = col[v[1]] if v is not None and v[0] == ch.estimate else None
-        not_valid = 0
-        for (t_ns, _, truth, scored, other_validity), est in zip(pending, rows):
-            if series is not None:
-                series.append((t_ns / 1e9, est[first_est],
-                               truth[first_truth] if truth is not None else math.nan))
-            if not scored:
+        for p in ch.pairs:
+            if p.only_when is not None and int(est[p.only_when[0]]) != p.only_when[1]:
                 continue
-            if v is not None:
-                validity = est[own_validity] if own_validity is not None else other_validity
-                if validity is not None and int(validity) not in SCORED:
-                    not_valid += 1
-                    continue
-            for stat, est_i, truth_signal, only_when in pairs:
-                if only_when is not None and int(est[only_when[0]]) != only_when[1]:
-                    continue
-                stat.add(est[est_i] - truth[truth_signal])  # type: ignore[index]  # scored: matched
-        self.not_valid[ch.estimate] += not_valid
+            stats[p.key].add(est[p.estimate_signal] - truth[p.truth_signal])
 
     def summary(self) -> ReplayScore:
-        self.flush()
         sections = {}
         for name, ch in self.channels:
             stats = self.stats[ch.estimate]
