@@ -363,3 +363,28 @@ def test_block_decoding_gives_the_frame_by_frame_results_also_on_bad_frames(reco
     rx = results[True][0]["frames"]["ecu_rx"]
     assert min(rx["crc_errors"], rx["counter_errors"], rx["value_errors"], rx["dlc_errors"],
                rx["remote_frames"], rx["error_frames"], rx["accepted"]) > 0, rx
+
+
+@pytest.mark.parametrize("with_inputs", [False, True])
+def test_block_path_skips_only_what_the_frame_by_frame_path_merely_counts(recorded, tmp_path,
+                                                                          with_inputs):
+    """Issue 32: in blocks the trace's frames that neither feed the ECU nor are truth (here the
+    recorded ECU's own estimates) are tallied when read and not handed on; the counts, scores,
+    series and --out (with --with-inputs: every trace frame copied, in order, between the
+    estimates) are those of the frame-by-frame path."""
+    results = {}
+    for block in (True, False):
+        out = tmp_path / f"est-{block}-{with_inputs}.log"
+        res = replay(ReplayConfig(trace=recorded[0], out=str(out), with_inputs=with_inputs,
+                                  block=block, keep_series=True, progress=False))
+        s = res.summary
+        for key in ("wall_time_s", "x_realtime", "frames_per_s", "kernel_load_s", "config"):
+            s.pop(key)
+        results[block] = (s, res.series, out.read_bytes())
+    assert results[True] == results[False]
+    s = results[True][0]
+    read = s["frames"]["read"]
+    assert s["frames"]["decoded"] == read and s["frames"]["truth"] > 0
+    assert s["frames"]["ecu_rx"]["received"] < read - s["frames"]["truth"]  # some only tallied
+    estimates = sum(f["estimates_sent"] for f in s["functions"].values())
+    assert s["frames_written"] > estimates + (read if with_inputs else 0)  # + ECU_Status / Diag

@@ -3,6 +3,7 @@ and live replay schedule error against python-can's MessageSync player, both in 
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import tempfile
 from pathlib import Path
@@ -10,10 +11,15 @@ from typing import Any
 
 import can
 
+from vecu.assembly import TICK_NS, build_functions
 from vecu.bus import open_bus
 from vecu.clock import perf_ns, perf_s
+from vecu.codec import DbcCodec
 from vecu.config import RunConfig
+from vecu.ecu.node import native_routes
 from vecu.replay.engine import SCHEDULE_ERROR_LIMIT_US, ReplayConfig, replay
+from vecu.replay.feeder import CHUNK
+from vecu.replay.source import TraceSource
 from vecu.stats import DurationHistogram
 
 TARGET_X = 40.0  # replay x real time (issue 16)
@@ -34,11 +40,47 @@ def read_only_seconds(path: str) -> tuple[float, int]:
     return perf_s() - t, n
 
 
+def source_seconds(path: str) -> float:
+    """The replay's reading alone: python-can's reader behind vecu's TraceSource (time base,
+    re-ordering, idle gaps), in the feeder's chunks; the collector's set-up objects frozen, as
+    in a replay."""
+    gc.freeze()
+    try:
+        t = perf_s()
+        for _ in TraceSource(path).chunks(CHUNK):
+            pass
+        return perf_s() - t
+    finally:
+        gc.unfreeze()
+
+
+def ecu_alone_us_per_tick(path: str) -> float:
+    """The ECU alone (vecu.bench.ecu.run_ecu: receive + tick, all four functions) on the
+    trace's input frames, each before the first tick at or after its time: the ECU's share
+    of a replay of this trace, us per 1 ms tick."""
+    from vecu.bench.ecu import run_ecu
+    codec = DbcCodec()
+    inputs = set(native_routes(codec, build_functions(RunConfig(), codec).enabled()))
+    ticks: list[list[can.Message]] = [[]]
+    for t_ns, msg in TraceSource(path):
+        if (msg.arbitration_id, msg.is_extended_id) in inputs:
+            k = -(-t_ns // TICK_NS)
+            ticks.extend([] for _ in range(k + 1 - len(ticks)))
+            ticks[k].append(msg)
+    gc.freeze()  # as in a replay
+    try:
+        return run_ecu(ticks)["us_per_tick"]
+    finally:
+        gc.unfreeze()
+
+
 def bench_fast(path: str, estimator: str, estimator_us: float | None = None) -> dict[str, Any]:
     """Fast replay of the file against python-can reading it; estimator_us (the throttle
     estimator alone, us per 1 ms tick) adds the ceilings: reading plus that estimator per tick
     bound the x real time and the share of the bare reading speed any replay can reach."""
     read_s, frames = read_only_seconds(path)
+    source_s = source_seconds(path)
+    ecu_us = ecu_alone_us_per_tick(path)
     digests, results = [], []
     for _ in range(2):
         with tempfile.TemporaryDirectory() as d:
@@ -57,7 +99,24 @@ def bench_fast(path: str, estimator: str, estimator_us: float | None = None) -> 
             "target_x_realtime": TARGET_X, "target_read_share": TARGET_READ_SHARE,
             "met": bool(s["x_realtime"] >= TARGET_X
                         and read_s / s["wall_time_s"] >= TARGET_READ_SHARE),
+            **_breakdown(read_s, source_s, ecu_us, s["wall_time_s"], s["trace_duration_s"]),
             **_ceilings(read_s, s["trace_duration_s"], estimator_us)}
+
+
+def _breakdown(read_s: float, source_s: float, ecu_us: float, wall_s: float,
+               trace_s: float) -> dict[str, Any]:
+    """Where a replay's time goes, us per 1 ms of trace: python-can's reading, vecu's ordering
+    on top of it, the ECU alone (receive + tick), the rest (feeding, scoring, writing, the
+    scheduler); and the ceiling the first three set on the share of the bare reading speed."""
+    if not trace_s:
+        return {}
+    per_ms = 1e6 / (trace_s * 1000.0)
+    read_us, source_us, wall_us = read_s * per_ms, source_s * per_ms, wall_s * per_ms
+    return {"us_per_ms": {"read": round(read_us, 1), "ordering": round(source_us - read_us, 1),
+                          "ecu_alone": round(ecu_us, 1),
+                          "rest": round(wall_us - source_us - ecu_us, 1),
+                          "total": round(wall_us, 1)},
+            "ecu_ceiling_read_share": round(read_us / (source_us + ecu_us), 3)}
 
 
 def _ceilings(read_s: float, trace_s: float, estimator_us: float | None) -> dict[str, Any]:
@@ -143,6 +202,12 @@ def format_replay(r: dict[str, Any]) -> str:
                          f"throttle estimator alone ({f['estimator_alone_us_per_tick']} us/tick) "
                          f"allow at most {f['ceiling_x_realtime']}x and "
                          f"{f['ceiling_read_share'] * 100:.0f}% of the bare reading speed")
+        if "us_per_ms" in f:
+            b = f["us_per_ms"]
+            lines.append(f"    us per ms of trace: reading {b['read']} + ordering {b['ordering']} + "
+                         f"ECU alone {b['ecu_alone']} + rest (feeding, scoring, writing) "
+                         f"{b['rest']} = {b['total']}; reading, ordering and the ECU alone allow at most "
+                         f"{f['ecu_ceiling_read_share'] * 100:.0f}% of the bare reading speed")
     lv = r["live"]
     v, b = lv["vecu"], lv["python_can_player"]
     lines.append(f"Live replay at 1x on the virtual bus, {lv['seconds']:.0f} s, {lv['frames']} frames "

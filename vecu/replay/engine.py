@@ -183,11 +183,15 @@ def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
             _run_live(sched, clock, feeder, trace_end, progress)
         else:
             sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
-            end_ns = 0
-            while not trace_end.reached:
-                end_ns += STEP_NS
-                sched.run_until(end_ns)
-                progress.update()
+            gc.freeze()  # the set-up's objects out of the collector's way (live: _run_live)
+            try:
+                end_ns = 0
+                while not trace_end.reached:
+                    end_ns += STEP_NS
+                    sched.run_until(end_ns)
+                    progress.update()
+            finally:
+                gc.unfreeze()
         wall = progress.watch.elapsed()
         progress.close()
         ecu.overruns = ecu_task.overruns

@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 REORDER_WINDOW_NS = 50_000_000  # 50 ms: covers multi-channel loggers that flush per channel
 IDLE_GAP_NS = 10 * NS_PER_S  # a longer silence is shortened to this (docs/replay.md)
 MAX_GAPS_LISTED = 10
+CHUNK_FRAMES = 16  # frames read ahead behind __iter__ (a live player reads that many at a time)
 # Text formats whose writers end every line (candump -L, CANoe ASC, python-can CSV): a last line
 # without a newline there is a cut-off file, and python-can would read its stub as a short frame.
 # (TRC is left out: PCAN writers may omit the final newline, and python-can's TRC reader skips
@@ -160,6 +161,7 @@ class TraceSource:
         self.stats = SourceStats()
         self.error: str | None = None
         self.t0_s: float | None = None  # timestamp of the first frame (the time origin)
+        self._last_ts: float | None = None  # of the last frame read (error messages)
         self._reader = open_reader(self.path, fmt)
         self.size_bytes = _file_size(self.path)
 
@@ -177,11 +179,17 @@ class TraceSource:
     # ---------------------------------------------------------------- iteration
     def __iter__(self) -> Iterator[tuple[int, can.Message]]:
         """(t_ns, msg) in timestamp order (within the re-order window), idle gaps shortened."""
-        with quiet_reader_logs():  # for as long as the file is read
-            yield from self._frames()
+        for chunk in self.chunks(CHUNK_FRAMES):
+            yield from chunk
 
-    def _frames(self) -> Iterator[tuple[int, can.Message]]:
-        """Read, order and shorten in one loop (one generator per frame, not one per stage).
+    def chunks(self, size: int) -> Iterator[list[tuple[int, can.Message]]]:
+        """The frames of __iter__ in lists of `size` (the last one shorter; none empty): a
+        consumer that takes them many at a time skips a generator step per frame."""
+        with quiet_reader_logs():  # for as long as the file is read
+            yield from self._frames(max(1, size))
+
+    def _frames(self, size: int) -> Iterator[list[tuple[int, can.Message]]]:
+        """Read, order and shorten in one loop (no generator per stage), `size` frames a list.
 
         While the file's times do not go backwards, the frames held for the re-order window
         wait in a FIFO (already in order, the heap's order too); the first frame that goes
@@ -191,13 +199,16 @@ class TraceSource:
         scale = NS_PER_S // TIME_RESOLUTION_NS
         fifo: deque[tuple[int, int, can.Message]] | None = deque()
         heap: list[tuple[int, int, can.Message]] = []
-        released = None  # t_ns (trace time) of the last frame handed out by the ordering
-        prev_ts = None
-        last = None  # trace time of the last frame handed out
+        released = -1  # t_ns (trace time) of the last frame handed out by the ordering (-1: none)
+        prev_ts = -math.inf
+        last: float = math.inf  # trace time of the last frame handed out (inf: none, no gap)
         skipped = 0
-        seq = 0
+        seq = 0  # frames read
+        ts = None
         t0 = None
-        isfinite = math.isfinite
+        isfinite, floor = math.isfinite, math.floor
+        out: list[tuple[int, can.Message]] = []
+        append = out.append
         it = iter(self._reader)
         while True:
             try:
@@ -205,30 +216,30 @@ class TraceSource:
             except StopIteration:
                 break
             except Exception as exc:  # noqa: BLE001 - a corrupt file must not crash the run
+                stats.frames_read, self._last_ts = seq, ts
                 self.error = (f"{self.path}: unreadable after frame {stats.frames_read}"
                               f"{self._where()}: {_one_line(exc)}")
                 break
-            stats.frames_read += 1
             ts = msg.timestamp
-            self._last_ts = ts
             if t0 is None:
                 t0 = self.t0_s = ts if isfinite(ts) else 0.0
             if not isfinite(ts):
                 stats.non_finite_time += 1
-                t_ns = released if released is not None else 0
+                t_ns = max(released, 0)
             else:
-                if prev_ts is not None and ts < prev_ts:
+                if ts < prev_ts:
                     stats.out_of_order += 1
                 prev_ts = ts
-                t_ns = math.floor((ts - t0) * scale + 0.5) * TIME_RESOLUTION_NS  # _quantise
+                t_ns = floor((ts - t0) * scale + 0.5) * TIME_RESOLUTION_NS  # _quantise
                 if t_ns < 0:  # earlier than the first frame: deliver at the start
                     stats.late += 1
                     t_ns = 0
-            if released is not None and t_ns < released:
+            if t_ns < released:
                 stats.late += 1
                 t_ns = released
             entry = (t_ns, seq, msg)
             seq += 1
+            edge = t_ns - window
             if fifo is not None:
                 if fifo and t_ns < fifo[-1][0]:  # backwards: from now on the heap
                     heap = list(fifo)
@@ -236,22 +247,32 @@ class TraceSource:
                     heapq.heappush(heap, entry)
                 else:
                     fifo.append(entry)
+                    while fifo and fifo[0][0] <= edge:
+                        released, _, out_msg = fifo.popleft()
+                        if released - last > idle_gap:
+                            skipped = self._gap(last, released, skipped)
+                        last = released
+                        append((released - skipped, out_msg))
+                    if len(out) >= size:
+                        stats.frames_read, self._last_ts = seq, ts
+                        yield out
+                        out = []
+                        append = out.append
+                    continue
             else:
                 heapq.heappush(heap, entry)
-            edge = t_ns - window
-            while True:
-                if fifo is not None:
-                    if not fifo or fifo[0][0] > edge:
-                        break
-                    released, _, out = fifo.popleft()
-                else:
-                    if not heap or heap[0][0] > edge:
-                        break
-                    released, _, out = heapq.heappop(heap)
-                if last is not None and released - last > idle_gap:
+            while heap and heap[0][0] <= edge:
+                released, _, out_msg = heapq.heappop(heap)
+                if released - last > idle_gap:
                     skipped = self._gap(last, released, skipped)
                 last = released
-                yield released - skipped, out
+                append((released - skipped, out_msg))
+            if len(out) >= size:
+                stats.frames_read, self._last_ts = seq, ts
+                yield out
+                out = []
+                append = out.append
+        stats.frames_read, self._last_ts = seq, ts
         if self.error is None:
             self.error = self._truncation()
         try:
@@ -259,11 +280,17 @@ class TraceSource:
         except Exception as exc:  # noqa: BLE001 - closing a reader that has failed may fail too
             log.debug("%s: closing the reader: %s", self.path, exc)
         rest = list(fifo) if fifo is not None else [heapq.heappop(heap) for _ in range(len(heap))]
-        for released, _, out in rest:
-            if last is not None and released - last > idle_gap:
+        for released, _, out_msg in rest:
+            if released - last > idle_gap:
                 skipped = self._gap(last, released, skipped)
             last = released
-            yield released - skipped, out
+            append((released - skipped, out_msg))
+            if len(out) >= size:
+                yield out
+                out = []
+                append = out.append
+        if out:
+            yield out
 
     def _gap(self, last: int, t_ns: int, skipped: int) -> int:
         """An idle gap from last to t_ns (trace time) shortened: recorded, new total skipped."""
@@ -280,7 +307,7 @@ class TraceSource:
         return skipped
 
     def _where(self) -> str:
-        ts = getattr(self, "_last_ts", None)
+        ts = self._last_ts
         return "" if ts is None else f" (last timestamp {ts:.6f} s)"
 
     def _truncation(self) -> str | None:
