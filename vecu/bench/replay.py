@@ -22,8 +22,7 @@ from vecu.replay.feeder import CHUNK
 from vecu.replay.source import TraceSource
 from vecu.stats import DurationHistogram
 
-TARGET_X = 40.0  # replay x real time (issue 16)
-TARGET_READ_SHARE = 0.5  # replay speed / python-can merely iterating the file (issue 16)
+TARGET_READ_SHARE = 0.5  # replay speed / python-can merely iterating the file (issue 32)
 
 
 def record_trace(path: str, duration_s: float, seed: int = 0) -> float:
@@ -95,10 +94,9 @@ def bench_fast(path: str, estimator: str, estimator_us: float | None = None) -> 
             "read_only_frames_per_s": round(frames / read_s),
             "read_share": round(read_s / s["wall_time_s"], 3),
             "bit_identical": digests[0] == digests[1], "estimator": estimator,
-            # issue 16: >= 40x real time and at least half python-can's bare reading speed
-            "target_x_realtime": TARGET_X, "target_read_share": TARGET_READ_SHARE,
-            "met": bool(s["x_realtime"] >= TARGET_X
-                        and read_s / s["wall_time_s"] >= TARGET_READ_SHARE),
+            # issue 32 (restating issue 16's 40x): at least half python-can's bare reading speed
+            "target_read_share": TARGET_READ_SHARE,
+            "met": bool(read_s / s["wall_time_s"] >= TARGET_READ_SHARE),
             **_breakdown(read_s, source_s, ecu_us, s["wall_time_s"], s["trace_duration_s"]),
             **_ceilings(read_s, s["trace_duration_s"], estimator_us)}
 
@@ -194,8 +192,8 @@ def format_replay(r: dict[str, Any]) -> str:
         lines.append(f"  {f['trace']:<12} {f['frames']:>8} frames  {f['x_realtime']:>6.1f}x real "
                      f"time, {f['frames_per_s']:>7} frames/s  (read-only {f['read_only_frames_per_s']}"
                      f" frames/s = {f['read_share'] * 100:.0f}% of the replay time); "
-                     f"bit-identical: {f['bit_identical']}; targets >= {f['target_x_realtime']:.0f}x"
-                     f" and >= {f['target_read_share'] * 100:.0f}%: "
+                     f"bit-identical: {f['bit_identical']}; target >= "
+                     f"{f['target_read_share'] * 100:.0f}% of the bare reading speed: "
                      f"{'met' if f['met'] else 'not met'}")
         if "ceiling_x_realtime" in f:
             lines.append(f"    ceiling: reading ({f['read_us_per_tick']} us per ms of trace) plus the "
