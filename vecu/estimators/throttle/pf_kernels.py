@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from vecu.kernels import kernel
+from vecu.kernels.exp import exp_poly
 
 # pf_step modes
 PRIOR = 0  # no measurement: i from its prior, weights unchanged
@@ -148,12 +149,12 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
             for j in range(n):
                 t1[j] = t1[j] - mx
             for j in range(n):
-                t1[j] = math.exp(t1[j])
+                t1[j] = exp_poly(t1[j])
             for j in range(n):
                 w[j] = w0[j] * t1[j]
         else:
             for j in range(n):
-                t1[j] = math.exp(t1[j])
+                t1[j] = exp_poly(t1[j])
             for j in range(n):
                 w[j] = w0[j] * (q[j] * t1[j])
         neg_four_s2 = cst[_NEG_FOUR_S2]
