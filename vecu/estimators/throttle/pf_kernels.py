@@ -75,14 +75,20 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
     c_lo = (1 if lo_prev > k0 else 0) + (1 if lo_prev > k1 else 0) + (1 if lo_prev > k2 else 0)
     c_hi = (1 if hi_prev > k0 else 0) + (1 if hi_prev > k1 else 0) + (1 if hi_prev > k2 else 0)
     # eq. (3): th = mats row 3c . [theta, rho, i, 1, sgn rho] (+ noise, clipped), likewise rho
-    # and the predicted current m (into row ci; its constant column is b_c u)
-    if c_lo == 3 or c_lo == c_hi:
-        r = 3 * c_lo
+    # and the predicted current m (into row ci; its constant column is b_c u). Every particle's
+    # class lies between those of lo_prev and hi_prev: one pass per class present, class c
+    # overwriting the particles above its lower bound (the numpy path's pick of the class by
+    # theta; NaN theta: the lowest class), so every loop is branch-free and vectorises.
+    c_end = 3 if (c_lo == 3 or c_hi < c_lo) else c_hi  # c_hi < c_lo: hi_prev NaN
+    for c in range(c_lo, c_end + 1):
+        r = 3 * c
         a0, a1, a2, a3, a4 = mats[r, 0], mats[r, 1], mats[r, 2], mats[r, 3], mats[r, 4]
         b0, b1, b2, b3, b4 = (mats[r + 1, 0], mats[r + 1, 1], mats[r + 1, 2], mats[r + 1, 3],
                               mats[r + 1, 4])
-        d0, d1, d2, d3, d4 = (mats[r + 2, 0], mats[r + 2, 1], mats[r + 2, 2], cst[_B0 + c_lo] * u,
+        d0, d1, d2, d3, d4 = (mats[r + 2, 0], mats[r + 2, 1], mats[r + 2, 2], cst[_B0 + c] * u,
                               mats[r + 2, 4])
+        first = c == c_lo
+        kb = cst[_BOUND0 + c - 1] if c > 0 else 0.0  # class >= c: theta > kb
         # one output row per loop: few enough arrays for LLVM's alias checks, so it vectorises
         for j in range(n):
             x1 = rh0[j]
@@ -90,33 +96,18 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
             t = a0 * th0[j] + a1 * x1 + a2 * ci0[j] + a3 + a4 * sg
             t = t + zth[j]
             t = 90.0 if t > 90.0 else t
-            th[j] = 0.0 if t < 0.0 else t  # numpy clips all at 0 if the minimum is below: same
+            t = 0.0 if t < 0.0 else t  # numpy clips all at 0 if the minimum is below: same
+            th[j] = t if (first or th0[j] > kb) else th[j]
         for j in range(n):
             x1 = rh0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            rh[j] = b0 * th0[j] + b1 * x1 + b2 * ci0[j] + b3 + b4 * sg
+            t = b0 * th0[j] + b1 * x1 + b2 * ci0[j] + b3 + b4 * sg
+            rh[j] = t if (first or th0[j] > kb) else rh[j]
         for j in range(n):
             x1 = rh0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            ci[j] = d0 * th0[j] + d1 * x1 + d2 * ci0[j] + d3 + d4 * sg
-    else:
-        for j in range(n):
-            x0 = th0[j]
-            x1 = rh0[j]
-            x2 = ci0[j]
-            sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            # class by the bounds as the numpy lookup (NaN -> class 0)
-            c = 0 if not x0 > k0 else (1 if x0 <= k1 else (2 if x0 <= k2 else 3))
-            r = 3 * c
-            t = (mats[r, 0] * x0 + mats[r, 1] * x1 + mats[r, 2] * x2 + mats[r, 3]
-                 + mats[r, 4] * sg)
-            t = t + zth[j]
-            t = 90.0 if t > 90.0 else t
-            th[j] = 0.0 if t < 0.0 else t
-            rh[j] = (mats[r + 1, 0] * x0 + mats[r + 1, 1] * x1 + mats[r + 1, 2] * x2
-                     + mats[r + 1, 3] + mats[r + 1, 4] * sg)
-            ci[j] = (mats[r + 2, 0] * x0 + mats[r + 2, 1] * x1 + mats[r + 2, 2] * x2
-                     + cst[_B0 + c] * u + mats[r + 2, 4] * sg)
+            t = d0 * th0[j] + d1 * x1 + d2 * ci0[j] + d3 + d4 * sg
+            ci[j] = t if (first or th0[j] > kb) else ci[j]
     if mode == 0:  # prior current, weights unchanged
         for j in range(n):
             ci[j] = ci[j] + zi[j]
@@ -127,9 +118,9 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
             m = ci[j]
             h2 = m * m
             h2 = h2 + inv_c2  # S / (2s)^2
-            qj = math.sqrt(h2)
-            q[j] = kappa / qj  # sqrt(0.5 / S)
-            tj = neg_k2 / h2  # -0.5 / S
+            inv = 1.0 / h2  # one division (numpy: two; the same to rounding)
+            q[j] = kappa * math.sqrt(inv)  # sqrt(0.5 / S)
+            tj = neg_k2 * inv  # -0.5 / S
             rr = yc - h2  # r
             tj = rr * tj
             t3[j] = tj
