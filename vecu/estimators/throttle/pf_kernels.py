@@ -2,14 +2,17 @@
 
 Loop versions of ThrottleParticleFilter's numpy step (vecu.estimators.throttle.production):
 `pf_step` = _predict + (_prior_current | _update | careful _update) + the moments of _summarise
-in one call (branch-free loops that LLVM vectorises, except libm exp / log: no SVML here, and
-the sequential sums), `pf_resample` = systematic_counts + the copy of _resample. They
-work in place on the Frame matrices F (rows theta, rho, i, 1, sgn rho, theta^2, weight) and read
-the same normal table at the same offsets, so they make the same random draws. Per particle the
-arithmetic is the numpy code's, operation by operation (no fastmath, no FMA contraction), so the
-elementwise results agree to the ulp except where BLAS (the eq. 3 matmul, the moments' gemv) or
-numpy's SIMD exp/log round differently; the resampling counts (sequential cumulative sum, as
-numpy's cumsum) are bit-identical for identical weights.
+in one call (branch-free loops that LLVM vectorises, the likelihoods' exp included: it is
+vecu.kernels.exp.exp_poly, plain arithmetic, not a libm call per particle; only the careful
+update's log and the sequential sums stay scalar), `pf_resample` = systematic_counts + the copy
+of _resample. They work in place on the Frame matrices F (rows theta, rho, i, 1, sgn rho,
+theta^2, weight) and read the same normal table at the same offsets, so they make the same
+random draws. The prediction is the numpy code's arithmetic, operation by operation (no
+fastmath, no FMA contraction); the update computes 1 / h^2 once (numpy: two divisions) and
+exp_poly (<= 1 ulp, numpy's exp rounds otherwise), so the results agree with numpy's to
+rounding (as do BLAS's eq. 3 matmul and the moments' gemv); the resampling counts (sequential
+cumulative sum, as numpy's cumsum) are bit-identical for identical weights. The CAN golden log
+is bit-identical under both backends (tests/test_golden_run.py).
 
 The Python backend never calls these as plain Python (far too slow): it keeps the numpy path,
 which is the reference. The kernels are plain Python functions all the same (tested that way on
@@ -58,10 +61,10 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
 
     mats: the 12x5 class matrices (rows 3c..3c+2; the b*u entries are taken from cst instead),
     cst: step_constants, ztab: rows theta noise / prior current noise / proposal noise of the
-    normal table, tmp: 3xn scratch, lo_prev / hi_prev: the filter's _lo / _hi (one class for
-    all particles if both are in it or lo_prev is in mode 3, else the class of each), yc = y +
-    the filter's y shift. Separate branch-free passes so that LLVM vectorises all but exp / log
-    and the sequential sums.
+    normal table, tmp: 3xn scratch, lo_prev / hi_prev: the filter's _lo / _hi (the classes
+    from lo_prev's to hi_prev's are evaluated, one vectorised pass each; only the class of
+    lo_prev if it is mode 3), yc = y + the filter's y shift. Separate branch-free passes so
+    that LLVM vectorises all but the careful update's log and the sequential sums.
     Returns (sum w, sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i); min / max
     are NaN if any value is NaN (as numpy's reductions).
     """
