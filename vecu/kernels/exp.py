@@ -59,4 +59,5 @@ def exp_poly(x: float) -> float:
     huge = k > 1000
     k = k + _SPLIT if tiny else (k - _SPLIT if huge else k)
     scale = _TINY if tiny else (_HUGE if huge else 1.0)
-    return (p * np.int64((k + 1023) << 52).view(np.float64)) * scale  # 2^k: its bits
+    two_k = float(np.int64((k + 1023) << 52).view(np.float64))  # 2^k: its bits
+    return (p * two_k) * scale
