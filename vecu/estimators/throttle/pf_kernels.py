@@ -115,42 +115,55 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
         for j in range(n):
             ci[j] = ci[j] + zi[j]
             w[j] = w0[j]
-    else:  # the linearised optimal proposal, operation by operation as ThrottleParticleFilter
+    elif mode == 1:  # the linearised optimal proposal, operation by operation as
+        # ThrottleParticleFilter._update, fused into one loop (no scratch rows)
         inv_c2, kappa, neg_k2 = cst[_INV_C2], cst[_KAPPA], cst[_NEG_K2]
+        neg_four_s2 = cst[_NEG_FOUR_S2]
         for j in range(n):
             m = ci[j]
             h2 = m * m
             h2 = h2 + inv_c2  # S / (2s)^2
             inv = 1.0 / h2  # one division (numpy: two; the same to rounding)
-            q[j] = kappa * math.sqrt(inv)  # sqrt(0.5 / S)
+            qj = kappa * math.sqrt(inv)  # sqrt(0.5 / S)
             tj = neg_k2 * inv  # -0.5 / S
             rr = yc - h2  # r
             tj = rr * tj
+            w[j] = w0[j] * (qj * exp_poly(rr * tj))  # likelihood up to a constant
+            tj = tj * m
+            tj = tj * neg_four_s2
+            tj = tj + m
+            ci[j] = tj + qj * zq[j]
+    else:  # careful: the same with the correction clamped, likelihoods scaled to a maximum
+        # of 1 in the log domain
+        inv_c2, kappa, neg_k2 = cst[_INV_C2], cst[_KAPPA], cst[_NEG_K2]
+        for j in range(n):
+            m = ci[j]
+            h2 = m * m
+            h2 = h2 + inv_c2
+            inv = 1.0 / h2
+            q[j] = kappa * math.sqrt(inv)
+            tj = neg_k2 * inv
+            rr = yc - h2
+            tj = rr * tj
             t3[j] = tj
-            t1[j] = rr * tj  # -0.5 r^2 / S
-        if mode == 2:  # careful: clamp the correction, likelihoods scaled to a maximum of 1
-            clip_lo, clip_hi = cst[_CLIP_LO], cst[_CLIP_HI]
-            for j in range(n):
-                tj = t3[j]
-                t3[j] = clip_lo if tj < clip_lo else (clip_hi if tj > clip_hi else tj)
-            for j in range(n):
-                t1[j] = t1[j] + math.log(q[j])
-            mx = t1[0]
-            for j in range(1, n):
-                v = t1[j]
-                if not math.isnan(mx) and (v > mx or math.isnan(v)):
-                    mx = v
-            for j in range(n):
-                t1[j] = t1[j] - mx
-            for j in range(n):
-                t1[j] = exp_poly(t1[j])
-            for j in range(n):
-                w[j] = w0[j] * t1[j]
-        else:
-            for j in range(n):
-                t1[j] = exp_poly(t1[j])
-            for j in range(n):
-                w[j] = w0[j] * (q[j] * t1[j])
+            t1[j] = rr * tj
+        clip_lo, clip_hi = cst[_CLIP_LO], cst[_CLIP_HI]
+        for j in range(n):
+            tj = t3[j]
+            t3[j] = clip_lo if tj < clip_lo else (clip_hi if tj > clip_hi else tj)
+        for j in range(n):
+            t1[j] = t1[j] + math.log(q[j])
+        mx = t1[0]
+        for j in range(1, n):
+            v = t1[j]
+            if not math.isnan(mx) and (v > mx or math.isnan(v)):
+                mx = v
+        for j in range(n):
+            t1[j] = t1[j] - mx
+        for j in range(n):
+            t1[j] = exp_poly(t1[j])
+        for j in range(n):
+            w[j] = w0[j] * t1[j]
         neg_four_s2 = cst[_NEG_FOUR_S2]
         for j in range(n):
             m = ci[j]
