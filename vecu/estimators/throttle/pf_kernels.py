@@ -2,14 +2,17 @@
 
 Loop versions of ThrottleParticleFilter's numpy step (vecu.estimators.throttle.production):
 `pf_step` = _predict + (_prior_current | _update | careful _update) + the moments of _summarise
-in one call (branch-free loops that LLVM vectorises, except libm exp / log: no SVML here, and
-the sequential sums), `pf_resample` = systematic_counts + the copy of _resample. They
-work in place on the Frame matrices F (rows theta, rho, i, 1, sgn rho, theta^2, weight) and read
-the same normal table at the same offsets, so they make the same random draws. Per particle the
-arithmetic is the numpy code's, operation by operation (no fastmath, no FMA contraction), so the
-elementwise results agree to the ulp except where BLAS (the eq. 3 matmul, the moments' gemv) or
-numpy's SIMD exp/log round differently; the resampling counts (sequential cumulative sum, as
-numpy's cumsum) are bit-identical for identical weights.
+in one call (branch-free loops that LLVM vectorises, the likelihoods' exp included: it is
+vecu.kernels.exp.exp_poly, plain arithmetic, not a libm call per particle; only the careful
+update's log and the sequential sums stay scalar), `pf_resample` = systematic_counts + the copy
+of _resample. They work in place on the Frame matrices F (rows theta, rho, i, 1, sgn rho,
+theta^2, weight) and read the same normal table at the same offsets, so they make the same
+random draws. The prediction is the numpy code's arithmetic, operation by operation (no
+fastmath, no FMA contraction); the update computes 1 / h^2 once (numpy: two divisions) and
+exp_poly (<= 1 ulp, numpy's exp rounds otherwise), so the results agree with numpy's to
+rounding (as do BLAS's eq. 3 matmul and the moments' gemv); the resampling counts (sequential
+cumulative sum, as numpy's cumsum) are bit-identical for identical weights. The CAN golden log
+is bit-identical under both backends (tests/test_golden_run.py).
 
 The Python backend never calls these as plain Python (far too slow): it keeps the numpy path,
 which is the reference. The kernels are plain Python functions all the same (tested that way on
@@ -27,6 +30,7 @@ import math
 import numpy as np
 
 from vecu.kernels import kernel
+from vecu.kernels.exp import exp_poly
 
 # pf_step modes
 PRIOR = 0  # no measurement: i from its prior, weights unchanged
@@ -57,10 +61,10 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
 
     mats: the 12x5 class matrices (rows 3c..3c+2; the b*u entries are taken from cst instead),
     cst: step_constants, ztab: rows theta noise / prior current noise / proposal noise of the
-    normal table, tmp: 3xn scratch, lo_prev / hi_prev: the filter's _lo / _hi (one class for
-    all particles if both are in it or lo_prev is in mode 3, else the class of each), yc = y +
-    the filter's y shift. Separate branch-free passes so that LLVM vectorises all but exp / log
-    and the sequential sums.
+    normal table, tmp: 3xn scratch, lo_prev / hi_prev: the filter's _lo / _hi (the classes
+    from lo_prev's to hi_prev's are evaluated, one vectorised pass each; only the class of
+    lo_prev if it is mode 3), yc = y + the filter's y shift. Separate branch-free passes so
+    that LLVM vectorises all but the careful update's log and the sequential sums.
     Returns (sum w, sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i); min / max
     are NaN if any value is NaN (as numpy's reductions).
     """
@@ -74,14 +78,20 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
     c_lo = (1 if lo_prev > k0 else 0) + (1 if lo_prev > k1 else 0) + (1 if lo_prev > k2 else 0)
     c_hi = (1 if hi_prev > k0 else 0) + (1 if hi_prev > k1 else 0) + (1 if hi_prev > k2 else 0)
     # eq. (3): th = mats row 3c . [theta, rho, i, 1, sgn rho] (+ noise, clipped), likewise rho
-    # and the predicted current m (into row ci; its constant column is b_c u)
-    if c_lo == 3 or c_lo == c_hi:
-        r = 3 * c_lo
+    # and the predicted current m (into row ci; its constant column is b_c u). Every particle's
+    # class lies between those of lo_prev and hi_prev: one pass per class present, class c
+    # overwriting the particles above its lower bound (the numpy path's pick of the class by
+    # theta; NaN theta: the lowest class), so every loop is branch-free and vectorises.
+    c_end = 3 if (c_lo == 3 or c_hi < c_lo) else c_hi  # c_hi < c_lo: hi_prev NaN
+    for c in range(c_lo, c_end + 1):
+        r = 3 * c
         a0, a1, a2, a3, a4 = mats[r, 0], mats[r, 1], mats[r, 2], mats[r, 3], mats[r, 4]
         b0, b1, b2, b3, b4 = (mats[r + 1, 0], mats[r + 1, 1], mats[r + 1, 2], mats[r + 1, 3],
                               mats[r + 1, 4])
-        d0, d1, d2, d3, d4 = (mats[r + 2, 0], mats[r + 2, 1], mats[r + 2, 2], cst[_B0 + c_lo] * u,
+        d0, d1, d2, d3, d4 = (mats[r + 2, 0], mats[r + 2, 1], mats[r + 2, 2], cst[_B0 + c] * u,
                               mats[r + 2, 4])
+        first = c == c_lo
+        kb = cst[_BOUND0 + c - 1] if c > 0 else 0.0  # class >= c: theta > kb
         # one output row per loop: few enough arrays for LLVM's alias checks, so it vectorises
         for j in range(n):
             x1 = rh0[j]
@@ -89,73 +99,71 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
             t = a0 * th0[j] + a1 * x1 + a2 * ci0[j] + a3 + a4 * sg
             t = t + zth[j]
             t = 90.0 if t > 90.0 else t
-            th[j] = 0.0 if t < 0.0 else t  # numpy clips all at 0 if the minimum is below: same
+            t = 0.0 if t < 0.0 else t  # numpy clips all at 0 if the minimum is below: same
+            th[j] = t if (first or th0[j] > kb) else th[j]
         for j in range(n):
             x1 = rh0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            rh[j] = b0 * th0[j] + b1 * x1 + b2 * ci0[j] + b3 + b4 * sg
+            t = b0 * th0[j] + b1 * x1 + b2 * ci0[j] + b3 + b4 * sg
+            rh[j] = t if (first or th0[j] > kb) else rh[j]
         for j in range(n):
             x1 = rh0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            ci[j] = d0 * th0[j] + d1 * x1 + d2 * ci0[j] + d3 + d4 * sg
-    else:
-        for j in range(n):
-            x0 = th0[j]
-            x1 = rh0[j]
-            x2 = ci0[j]
-            sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            # class by the bounds as the numpy lookup (NaN -> class 0)
-            c = 0 if not x0 > k0 else (1 if x0 <= k1 else (2 if x0 <= k2 else 3))
-            r = 3 * c
-            t = (mats[r, 0] * x0 + mats[r, 1] * x1 + mats[r, 2] * x2 + mats[r, 3]
-                 + mats[r, 4] * sg)
-            t = t + zth[j]
-            t = 90.0 if t > 90.0 else t
-            th[j] = 0.0 if t < 0.0 else t
-            rh[j] = (mats[r + 1, 0] * x0 + mats[r + 1, 1] * x1 + mats[r + 1, 2] * x2
-                     + mats[r + 1, 3] + mats[r + 1, 4] * sg)
-            ci[j] = (mats[r + 2, 0] * x0 + mats[r + 2, 1] * x1 + mats[r + 2, 2] * x2
-                     + cst[_B0 + c] * u + mats[r + 2, 4] * sg)
+            t = d0 * th0[j] + d1 * x1 + d2 * ci0[j] + d3 + d4 * sg
+            ci[j] = t if (first or th0[j] > kb) else ci[j]
     if mode == 0:  # prior current, weights unchanged
         for j in range(n):
             ci[j] = ci[j] + zi[j]
             w[j] = w0[j]
-    else:  # the linearised optimal proposal, operation by operation as ThrottleParticleFilter
+    elif mode == 1:  # the linearised optimal proposal, operation by operation as
+        # ThrottleParticleFilter._update, fused into one loop (no scratch rows)
         inv_c2, kappa, neg_k2 = cst[_INV_C2], cst[_KAPPA], cst[_NEG_K2]
+        neg_four_s2 = cst[_NEG_FOUR_S2]
         for j in range(n):
             m = ci[j]
             h2 = m * m
             h2 = h2 + inv_c2  # S / (2s)^2
-            qj = math.sqrt(h2)
-            q[j] = kappa / qj  # sqrt(0.5 / S)
-            tj = neg_k2 / h2  # -0.5 / S
+            inv = 1.0 / h2  # one division (numpy: two; the same to rounding)
+            qj = kappa * math.sqrt(inv)  # sqrt(0.5 / S)
+            tj = neg_k2 * inv  # -0.5 / S
             rr = yc - h2  # r
             tj = rr * tj
+            w[j] = w0[j] * (qj * exp_poly(rr * tj))  # likelihood up to a constant
+            tj = tj * m
+            tj = tj * neg_four_s2
+            tj = tj + m
+            ci[j] = tj + qj * zq[j]
+    else:  # careful: the same with the correction clamped, likelihoods scaled to a maximum
+        # of 1 in the log domain
+        inv_c2, kappa, neg_k2 = cst[_INV_C2], cst[_KAPPA], cst[_NEG_K2]
+        for j in range(n):
+            m = ci[j]
+            h2 = m * m
+            h2 = h2 + inv_c2
+            inv = 1.0 / h2
+            q[j] = kappa * math.sqrt(inv)
+            tj = neg_k2 * inv
+            rr = yc - h2
+            tj = rr * tj
             t3[j] = tj
-            t1[j] = rr * tj  # -0.5 r^2 / S
-        if mode == 2:  # careful: clamp the correction, likelihoods scaled to a maximum of 1
-            clip_lo, clip_hi = cst[_CLIP_LO], cst[_CLIP_HI]
-            for j in range(n):
-                tj = t3[j]
-                t3[j] = clip_lo if tj < clip_lo else (clip_hi if tj > clip_hi else tj)
-            for j in range(n):
-                t1[j] = t1[j] + math.log(q[j])
-            mx = t1[0]
-            for j in range(1, n):
-                v = t1[j]
-                if not math.isnan(mx) and (v > mx or math.isnan(v)):
-                    mx = v
-            for j in range(n):
-                t1[j] = t1[j] - mx
-            for j in range(n):
-                t1[j] = math.exp(t1[j])
-            for j in range(n):
-                w[j] = w0[j] * t1[j]
-        else:
-            for j in range(n):
-                t1[j] = math.exp(t1[j])
-            for j in range(n):
-                w[j] = w0[j] * (q[j] * t1[j])
+            t1[j] = rr * tj
+        clip_lo, clip_hi = cst[_CLIP_LO], cst[_CLIP_HI]
+        for j in range(n):
+            tj = t3[j]
+            t3[j] = clip_lo if tj < clip_lo else (clip_hi if tj > clip_hi else tj)
+        for j in range(n):
+            t1[j] = t1[j] + math.log(q[j])
+        mx = t1[0]
+        for j in range(1, n):
+            v = t1[j]
+            if not math.isnan(mx) and (v > mx or math.isnan(v)):
+                mx = v
+        for j in range(n):
+            t1[j] = t1[j] - mx
+        for j in range(n):
+            t1[j] = exp_poly(t1[j])
+        for j in range(n):
+            w[j] = w0[j] * t1[j]
         neg_four_s2 = cst[_NEG_FOUR_S2]
         for j in range(n):
             m = ci[j]

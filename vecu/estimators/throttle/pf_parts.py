@@ -280,10 +280,12 @@ class ModeThreeKalman:
         self.x[:] = x
         return status
 
-    def leave(self, lo_deg: float, top_sigmas: float, i_min: float) -> bool:
+    def leave(self, lo_deg: float, top_sigmas: float, i_min: float,
+              x: list[float] | None = None) -> bool:
         """True if theta - 3 sigma < lo_deg, theta + top_sigmas sigma > 90 (too much mass at the
-        stop for the censored moments), i - 3 sigma < i_min, or P / x are broken."""
-        th, rh, ci, p00, _, _, _, _, p22 = self.x.tolist()
+        stop for the censored moments), i - 3 sigma < i_min, or P / x are broken (x: the state
+        as a list if the caller has it already)."""
+        th, rh, ci, p00, _, _, _, _, p22 = self.x.tolist() if x is None else x
         if not (p00 > 0.0 and p22 > 0.0 and p00 < 1e6 and p22 < 1e6):
             return True
         st = math.sqrt(p00)
