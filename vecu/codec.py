@@ -428,26 +428,34 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
         # ---- encode
         enc.append(f"    v = values[{sig.name!r}]")
         start = len(enc)  # this signal's lines after reading v: FrameCodec.framer reuses them
-        enc.append("    if not isinstance(v, _NUM): return None")
-        if sig.name in sat:
-            ns[f"_lo{i}"], ns[f"_hi{i}"] = sat[sig.name]
-            enc.append(f"    v = _lo{i} if not v >= _lo{i} else (_hi{i} if v > _hi{i} else v)")
-        if type(conv) is LinearConversion:
-            raw = f"(v - _off{i}) / _sc{i}"
-            enc.append(f"    r = {raw}" if conv.is_float else f"    r = round({raw})")
-        elif type(conv) is IdentityConversion:
-            enc.append("    r = v" if conv.is_float else "    r = round(v)")
+        lo, hi = ((-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed
+                  else (0, mask))
+        if (type(conv) is IdentityConversion and not conv.is_float and not sig.is_float
+                and sig.name not in sat):
+            # an int in range is its own raw value (what round() gives): no call
+            enc += [f"    if v.__class__ is int and {lo} <= v <= {hi}: r = v", "    else:",
+                    "        if not isinstance(v, _NUM): return None", "        r = round(v)",
+                    f"        if not {lo} <= r <= {hi}: return None"]
         else:
-            enc.append(f"    r = _to_raw{i}(v)")
-        if sig.is_float:
-            f, u = ("_F32", "_U32") if sig.length == 32 else ("_F64", "_U64")
-            enc.append(f"    r = {u}.unpack({f}.pack(r))[0]")
-        else:
-            lo, hi = ((-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed
-                      else (0, mask))
-            enc.append(f"    if not {lo} <= r <= {hi}: return None")
-            if sig.is_signed:
-                enc.append(f"    r &= {mask}")
+            # a float (the usual physical value) skips the isinstance call
+            enc.append("    if v.__class__ is not float and not isinstance(v, _NUM): return None")
+            if sig.name in sat:
+                ns[f"_lo{i}"], ns[f"_hi{i}"] = sat[sig.name]
+                enc.append(f"    v = _lo{i} if not v >= _lo{i} else (_hi{i} if v > _hi{i} else v)")
+            if type(conv) is LinearConversion:
+                raw = f"(v - _off{i}) / _sc{i}"
+                enc.append(f"    r = {raw}" if conv.is_float else f"    r = round({raw})")
+            elif type(conv) is IdentityConversion:
+                enc.append("    r = v" if conv.is_float else "    r = round(v)")
+            else:
+                enc.append(f"    r = _to_raw{i}(v)")
+            if sig.is_float:
+                f, u = ("_F32", "_U32") if sig.length == 32 else ("_F64", "_U64")
+                enc.append(f"    r = {u}.unpack({f}.pack(r))[0]")
+            else:
+                enc.append(f"    if not {lo} <= r <= {hi}: return None")
+        if sig.is_signed and not sig.is_float:
+            enc.append(f"    r &= {mask}")
         enc.append(f"    {kind} |= r << {shift}" if shift else f"    {kind} |= r")
         blocks[sig.name] = enc[start:]
         # ---- decode
