@@ -4,9 +4,10 @@ without the dict, the encode / CRC / Message call chain) and the receive range c
 
 The code is put together from the lines the codec's generated encoder uses for each signal
 (vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E protection
-(autosar-e2e's protect, in place) and vecu.can_message.message. A value the generated encoder would
-refuse (not a number, a raw value that does not fit) makes the builder return
-`slow(ts, values)`, which is FrameCodec.frame with the dict: the same frame either way.
+(autosar-e2e's protect, in place) and vecu.can_message's message, written out (return_lines).
+A value the generated encoder would refuse (not a number, a raw value that does not fit) makes
+the builder return `slow(ts, values)`, which is FrameCodec.frame with the dict: the same frame
+either way.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 
 import can
 
-from vecu.can_message import message
+from vecu.can_message import return_lines
 
 Framer = Callable[..., can.Message]  # make(timestamp, *values in the names' order)
 FrameCodecLike = Any  # vecu.codec.FrameCodec (which imports this module)
@@ -78,8 +79,10 @@ def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
     if protect is not None:  # the message's AUTOSAR profile (autosar-e2e), in place
         ns["_protect"] = protect
         src.append("    _protect(buf)")
-    src.append(f"    return _msg(ts, {frame_id}, {is_extended}, buf, {is_fd})")
-    ns.update(_slow=slow, _msg=message, _Refused=_Refused)
+    ret, names = return_lines("ts", frame_id, is_extended, "buf", length, is_fd)
+    src.extend("    " + line for line in ret)
+    ns.update(names)
+    ns.update(_slow=slow, _Refused=_Refused)
     exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC layout)
     return ns["make"]  # type: ignore[return-value]  # exec'd: typed by the generator
 
