@@ -45,7 +45,13 @@ from vecu.block_codec import (
 from vecu.can_message import message
 from vecu.e2e import E2EProtection, own_protection
 from vecu.errors import BadFileError
-from vecu.frame_builders import EncodeParts, Framer, compile_range_check, make_framer
+from vecu.frame_builders import (
+    EncodeParts,
+    Framer,
+    compile_decode_checked,
+    compile_range_check,
+    make_framer,
+)
 
 DEFAULT_DBC = "vecu.dbc"
 TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
@@ -162,6 +168,10 @@ class FrameCodec:
         # decode() of a payload known to be `length` bytes long (the receive path checked it)
         self.decode_exact: Callable[[bytes | bytearray], dict[str, float]] = (
             self._fast_decode if self._fast_decode is not None else self.decode)
+        # (decode_exact(data), bad_values of it) in one generated call: the receive path
+        self.decode_checked: Callable[[bytes | bytearray], tuple[dict[str, float], list[str]]] = (
+            compile_decode_checked(self.decode_exact, self._checked, self.name,
+                                   complete=self._fast_decode is not None))
         # many payloads at once (numpy), from the same cantools layout (vecu.block_codec)
         self.block: BlockLayout | None = (block_layout(message, self.e2e)
                                           if compiled is not None else None)
@@ -190,6 +200,9 @@ class FrameCodec:
         restricted = copy.copy(self)
         restricted._checked = [c for c in self._checked if c[0] in keep]
         restricted.bad_values = compile_range_check(restricted._checked, self.name)
+        restricted.decode_checked = compile_decode_checked(
+            restricted.decode_exact, restricted._checked, self.name,
+            complete=restricted._fast_decode is not None)
         return restricted
 
     def fit(self, name: str, value: float) -> float:

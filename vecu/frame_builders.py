@@ -93,16 +93,42 @@ def compile_range_check(checked: Sequence[tuple[str, float | None, float | None]
     NaN / inf or outside [lo, hi] (None: no bound), in that order; FrameCodec.bad_values as
     generated code (a test compares the two)."""
     src = ["def bad_values(values):", "    bad = []"]
-    ns: dict[str, object] = {"_isfinite": math.isfinite}
+    ns: dict[str, object] = {}
+    src += _range_lines(checked, ns, may_lack=True)
+    src.append("    return bad")
+    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
+    return ns["bad_values"]  # type: ignore[return-value]  # exec'd: typed by the generator
+
+
+def compile_decode_checked(decode: Callable[[bytes | bytearray], dict[str, float]],
+                           checked: Sequence[tuple[str, float | None, float | None]], label: str,
+                           complete: bool) -> Callable[[bytes | bytearray],
+                                                       tuple[dict[str, float], list[str]]]:
+    """decode_checked(data) = (values, bad_values(values)) with values = decode(data): the
+    receive path's decode and range check in one call (compile_range_check's tests; complete:
+    decode's dict holds every signal, read without .get)."""
+    src = ["def decode_checked(data):", "    values = _decode(data)", "    bad = []"]
+    ns: dict[str, object] = {"_decode": decode}
+    src += _range_lines(checked, ns, may_lack=not complete)
+    src.append("    return values, bad")
+    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
+    return ns["decode_checked"]  # type: ignore[return-value]  # exec'd: typed by the generator
+
+
+def _range_lines(checked: Sequence[tuple[str, float | None, float | None]],
+                 ns: dict[str, object], may_lack: bool) -> list[str]:
+    """Per checked signal (name, lo, hi) of `values`: bad.append(name) when its value is NaN /
+    inf or outside [lo, hi] (None: no bound); may_lack: a signal values lacks is not checked.
+    The bounds go into ns."""
+    src = []
+    ns["_isfinite"] = math.isfinite
     for i, (name, lo, hi) in enumerate(checked):
         ns[f"_lo{i}"], ns[f"_hi{i}"] = lo, hi
-        src.append(f"    v = values.get({name!r})")
+        src.append(f"    v = values.get({name!r})" if may_lack else f"    v = values[{name!r}]")
         if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
             test = f"not (_lo{i} <= v <= _hi{i})"  # NaN and +-inf fail a finite bound too
         else:  # FrameCodec's own test
             test = "(not _isfinite(v)" + (f" or v < _lo{i}" if lo is not None else "") + (
                 f" or v > _hi{i}" if hi is not None else "") + ")"
-        src.append(f"    if v is not None and {test}: bad.append({name!r})")
-    src.append("    return bad")
-    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
-    return ns["bad_values"]  # type: ignore[return-value]  # exec'd: typed by the generator
+        src.append(f"    if {'v is not None and ' if may_lack else ''}{test}: bad.append({name!r})")
+    return src

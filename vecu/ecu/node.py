@@ -120,19 +120,20 @@ def native_routes(codec: DbcCodec, functions: list[EcuFunction]) -> dict[tuple[i
     return routes
 
 
-# receive()'s view of a route: (route, payload length, crc_ok (None: no E2E), decode_exact,
-# alive counter check (None: none), its signal, bad_values, subscription, its on_values)
+# receive()'s view of a route: (route, payload length, crc_ok (None: no E2E), decode_checked
+# (decode_exact and bad_values), alive counter check (None: none), its signal, subscription,
+# its on_values)
 _Plan = tuple[Route, int, Callable[[bytes | bytearray], bool] | None,
-              Callable[[bytes | bytearray], dict[str, float]], AliveCounterCheck | None, str,
-              Callable[[dict[str, float]], list[str]], Subscription,
+              Callable[[bytes | bytearray], tuple[dict[str, float], list[str]]],
+              AliveCounterCheck | None, str, Subscription,
               Callable[[dict[str, float], int], str | None]]
 
 
 def _plan(route: Route) -> _Plan:
     fc = route.codec
     e2e = fc.e2e
-    return (route, fc.length, fc.crc_ok if e2e is not None else None, fc.decode_exact,
-            route.counter, e2e.counter_signal if e2e is not None else "", fc.bad_values,
+    return (route, fc.length, fc.crc_ok if e2e is not None else None, fc.decode_checked,
+            route.counter, e2e.counter_signal if e2e is not None else "",
             route.subscription, route.subscription.on_values)
 
 
@@ -317,7 +318,7 @@ class EcuNode(BusNode):
                     self._problem("unknown-id", msg)
                 return
             # the checks of one frame, in order (inline: this runs for every frame received)
-            route, length, crc_ok, decode, counter, counter_signal, bad_values, sub, on_values = plan
+            route, length, crc_ok, decode_checked, counter, counter_signal, sub, on_values = plan
             data = msg.data
             if len(data) != length:
                 rx.dlc_errors += 1
@@ -327,13 +328,13 @@ class EcuNode(BusNode):
                 rx.crc_errors += 1
                 self._e2e_failure("crc", msg, sub)
                 return
-            values = checked[1] if checked is not None else decode(data)
+            # decode and range check (bad: the signals NaN / inf or outside the DBC range)
+            values, bad = (checked[1], checked[2]) if checked is not None else decode_checked(data)
             # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
             if counter is not None and not counter.check(int(values[counter_signal])):
                 rx.counter_errors += 1
                 self._e2e_failure("alive-counter", msg, sub)
                 return
-            bad = checked[2] if checked is not None else bad_values(values)
             if bad:
                 rx.value_errors += 1
                 self._problem("value", msg, f"bad {', '.join(bad)}")
