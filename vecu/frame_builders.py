@@ -79,9 +79,9 @@ def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
     if protect is not None:  # the message's AUTOSAR profile (autosar-e2e), in place
         ns["_protect"] = protect
         src.append("    _protect(buf)")
-    ret, names = return_lines("ts", frame_id, is_extended, "buf", length, is_fd)
+    ret, ret_names = return_lines("ts", frame_id, is_extended, "buf", length, is_fd)
     src.extend("    " + line for line in ret)
-    ns.update(names)
+    ns.update(ret_names)
     ns.update(_slow=slow, _Refused=_Refused)
     exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC layout)
     return ns["make"]  # type: ignore[return-value]  # exec'd: typed by the generator
