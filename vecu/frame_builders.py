@@ -111,7 +111,7 @@ def compile_decode_checked(decode: Callable[[bytes | bytearray], dict[str, float
     ns: dict[str, object] = {"_decode": decode}
     src += _range_lines(checked, ns, may_lack=not complete)
     src.append("    return values, bad")
-    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
+    exec(compile("\n".join(src) + "\n", f"<vecu decode check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
     return ns["decode_checked"]  # type: ignore[return-value]  # exec'd: typed by the generator
 
 
