@@ -12,7 +12,7 @@ import pytest
 from tests.dbc_sets import every_message
 from vecu.can_message import same_message
 from vecu.codec import DbcCodec
-from vecu.frame_builders import compile_range_check
+from vecu.frame_builders import compile_decode_checked, compile_range_check
 
 RUNS = 120  # value sets per message
 
@@ -89,3 +89,20 @@ def test_generated_range_check_is_the_loop():
         for _ in range(50):
             values = {s.name: rng.choice(specials + [rng.uniform(-1e4, 1e4)]) for s in fc.signals}
             assert fc.bad_values(values) == _bad_values_reference(fc._checked, values)
+
+
+def test_decode_checked_is_decode_then_bad_values():
+    """FrameCodec.decode_checked (the receive path's one call) = (decode_exact, bad_values),
+    on payloads whose signals are in and out of their DBC ranges; a restricted codec's too."""
+    rng = random.Random(4)
+    codec = DbcCodec()
+    for fc in [*codec.by_id.values(), codec["TPS_Sensor"].checking_only(())]:
+        for _ in range(300):
+            data = bytearray(rng.getrandbits(8 * fc.length).to_bytes(fc.length, "little"))
+            values, bad = fc.decode_checked(data)
+            assert values == fc.decode_exact(data) or math.isnan(sum(values.values()))
+            assert bad == fc.bad_values(fc.decode_exact(data)), (fc.name, data.hex())
+    pieces = {"a": 1.0, "b": math.nan}  # an incomplete decoder: its missing signals not checked
+    check = compile_decode_checked(lambda data: dict(pieces), [("a", 0, 2), ("b", 0, 1),
+                                                               ("c", 0, 1)], "t", complete=False)
+    assert check(b"") == (pieces, ["b"])

@@ -82,3 +82,22 @@ def _verified() -> bool:
 
 DIRECT = _verified()
 message = _direct if DIRECT else _reference  # message(timestamp, arbitration_id, ...)
+
+
+def return_lines(timestamp: str, arbitration_id: int, is_extended_id: bool, data: str,
+                 length: int, is_fd: bool) -> tuple[list[str], dict[str, object]]:
+    """Generated code's `return message(timestamp, arbitration_id, is_extended_id, data,
+    is_fd)` for a `data` bytearray of `length` bytes, with _direct's assignments written out
+    (no call; vecu.frame_builders): (lines, the names they use). timestamp and data are
+    expressions; without DIRECT a call of message."""
+    if not DIRECT:
+        call = f"_msg({timestamp}, {arbitration_id}, {is_extended_id}, {data}, {is_fd})"
+        return [f"return {call}"], {"_msg": message}
+    fields = {"timestamp": timestamp, "arbitration_id": arbitration_id,
+              "is_extended_id": is_extended_id, "is_remote_frame": False,
+              "is_error_frame": False, "channel": None, "data": data, "dlc": length,
+              "is_fd": is_fd, "is_rx": True, "bitrate_switch": False,
+              "error_state_indicator": False}
+    assert set(fields) == _FIELDS
+    return (["m = _new(_Message)", *(f"m.{name} = {value}" for name, value in fields.items()),
+             "return m"], {"_new": _new, "_Message": _Message})

@@ -45,7 +45,13 @@ from vecu.block_codec import (
 from vecu.can_message import message
 from vecu.e2e import E2EProtection, own_protection
 from vecu.errors import BadFileError
-from vecu.frame_builders import EncodeParts, Framer, compile_range_check, make_framer
+from vecu.frame_builders import (
+    EncodeParts,
+    Framer,
+    compile_decode_checked,
+    compile_range_check,
+    make_framer,
+)
 
 DEFAULT_DBC = "vecu.dbc"
 TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
@@ -162,6 +168,10 @@ class FrameCodec:
         # decode() of a payload known to be `length` bytes long (the receive path checked it)
         self.decode_exact: Callable[[bytes | bytearray], dict[str, float]] = (
             self._fast_decode if self._fast_decode is not None else self.decode)
+        # (decode_exact(data), bad_values of it) in one generated call: the receive path
+        self.decode_checked: Callable[[bytes | bytearray], tuple[dict[str, float], list[str]]] = (
+            compile_decode_checked(self.decode_exact, self._checked, self.name,
+                                   complete=self._fast_decode is not None))
         # many payloads at once (numpy), from the same cantools layout (vecu.block_codec)
         self.block: BlockLayout | None = (block_layout(message, self.e2e)
                                           if compiled is not None else None)
@@ -190,6 +200,9 @@ class FrameCodec:
         restricted = copy.copy(self)
         restricted._checked = [c for c in self._checked if c[0] in keep]
         restricted.bad_values = compile_range_check(restricted._checked, self.name)
+        restricted.decode_checked = compile_decode_checked(
+            restricted.decode_exact, restricted._checked, self.name,
+            complete=restricted._fast_decode is not None)
         return restricted
 
     def fit(self, name: str, value: float) -> float:
@@ -428,26 +441,34 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
         # ---- encode
         enc.append(f"    v = values[{sig.name!r}]")
         start = len(enc)  # this signal's lines after reading v: FrameCodec.framer reuses them
-        enc.append("    if not isinstance(v, _NUM): return None")
-        if sig.name in sat:
-            ns[f"_lo{i}"], ns[f"_hi{i}"] = sat[sig.name]
-            enc.append(f"    v = _lo{i} if not v >= _lo{i} else (_hi{i} if v > _hi{i} else v)")
-        if type(conv) is LinearConversion:
-            raw = f"(v - _off{i}) / _sc{i}"
-            enc.append(f"    r = {raw}" if conv.is_float else f"    r = round({raw})")
-        elif type(conv) is IdentityConversion:
-            enc.append("    r = v" if conv.is_float else "    r = round(v)")
+        lo, hi = ((-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed
+                  else (0, mask))
+        if (type(conv) is IdentityConversion and not conv.is_float and not sig.is_float
+                and sig.name not in sat):
+            # an int in range is its own raw value (what round() gives): no call
+            enc += [f"    if v.__class__ is int and {lo} <= v <= {hi}: r = v", "    else:",
+                    "        if not isinstance(v, _NUM): return None", "        r = round(v)",
+                    f"        if not {lo} <= r <= {hi}: return None"]
         else:
-            enc.append(f"    r = _to_raw{i}(v)")
-        if sig.is_float:
-            f, u = ("_F32", "_U32") if sig.length == 32 else ("_F64", "_U64")
-            enc.append(f"    r = {u}.unpack({f}.pack(r))[0]")
-        else:
-            lo, hi = ((-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed
-                      else (0, mask))
-            enc.append(f"    if not {lo} <= r <= {hi}: return None")
-            if sig.is_signed:
-                enc.append(f"    r &= {mask}")
+            # a float (the usual physical value) skips the isinstance call
+            enc.append("    if v.__class__ is not float and not isinstance(v, _NUM): return None")
+            if sig.name in sat:
+                ns[f"_lo{i}"], ns[f"_hi{i}"] = sat[sig.name]
+                enc.append(f"    v = _lo{i} if not v >= _lo{i} else (_hi{i} if v > _hi{i} else v)")
+            if type(conv) is LinearConversion:
+                raw = f"(v - _off{i}) / _sc{i}"
+                enc.append(f"    r = {raw}" if conv.is_float else f"    r = round({raw})")
+            elif type(conv) is IdentityConversion:
+                enc.append("    r = v" if conv.is_float else "    r = round(v)")
+            else:
+                enc.append(f"    r = _to_raw{i}(v)")
+            if sig.is_float:
+                f, u = ("_F32", "_U32") if sig.length == 32 else ("_F64", "_U64")
+                enc.append(f"    r = {u}.unpack({f}.pack(r))[0]")
+            else:
+                enc.append(f"    if not {lo} <= r <= {hi}: return None")
+        if sig.is_signed and not sig.is_float:
+            enc.append(f"    r &= {mask}")
         enc.append(f"    {kind} |= r << {shift}" if shift else f"    {kind} |= r")
         blocks[sig.name] = enc[start:]
         # ---- decode

@@ -4,9 +4,10 @@ without the dict, the encode / CRC / Message call chain) and the receive range c
 
 The code is put together from the lines the codec's generated encoder uses for each signal
 (vecu.codec.compile_fast_codec records them as EncodeParts), then the E2E protection
-(autosar-e2e's protect, in place) and vecu.can_message.message. A value the generated encoder would
-refuse (not a number, a raw value that does not fit) makes the builder return
-`slow(ts, values)`, which is FrameCodec.frame with the dict: the same frame either way.
+(autosar-e2e's protect, in place) and vecu.can_message's message, written out (return_lines).
+A value the generated encoder would refuse (not a number, a raw value that does not fit) makes
+the builder return `slow(ts, values)`, which is FrameCodec.frame with the dict: the same frame
+either way.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 
 import can
 
-from vecu.can_message import message
+from vecu.can_message import return_lines
 
 Framer = Callable[..., can.Message]  # make(timestamp, *values in the names' order)
 FrameCodecLike = Any  # vecu.codec.FrameCodec (which imports this module)
@@ -78,8 +79,10 @@ def compile_framer(parts: EncodeParts, names: Sequence[str], *, frame_id: int,
     if protect is not None:  # the message's AUTOSAR profile (autosar-e2e), in place
         ns["_protect"] = protect
         src.append("    _protect(buf)")
-    src.append(f"    return _msg(ts, {frame_id}, {is_extended}, buf, {is_fd})")
-    ns.update(_slow=slow, _msg=message, _Refused=_Refused)
+    ret, ret_names = return_lines("ts", frame_id, is_extended, "buf", length, is_fd)
+    src.extend("    " + line for line in ret)
+    ns.update(ret_names)
+    ns.update(_slow=slow, _Refused=_Refused)
     exec(compile("\n".join(src) + "\n", f"<vecu framer {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC layout)
     return ns["make"]  # type: ignore[return-value]  # exec'd: typed by the generator
 
@@ -90,16 +93,42 @@ def compile_range_check(checked: Sequence[tuple[str, float | None, float | None]
     NaN / inf or outside [lo, hi] (None: no bound), in that order; FrameCodec.bad_values as
     generated code (a test compares the two)."""
     src = ["def bad_values(values):", "    bad = []"]
-    ns: dict[str, object] = {"_isfinite": math.isfinite}
+    ns: dict[str, object] = {}
+    src += _range_lines(checked, ns, may_lack=True)
+    src.append("    return bad")
+    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
+    return ns["bad_values"]  # type: ignore[return-value]  # exec'd: typed by the generator
+
+
+def compile_decode_checked(decode: Callable[[bytes | bytearray], dict[str, float]],
+                           checked: Sequence[tuple[str, float | None, float | None]], label: str,
+                           complete: bool) -> Callable[[bytes | bytearray],
+                                                       tuple[dict[str, float], list[str]]]:
+    """decode_checked(data) = (values, bad_values(values)) with values = decode(data): the
+    receive path's decode and range check in one call (compile_range_check's tests; complete:
+    decode's dict holds every signal, read without .get)."""
+    src = ["def decode_checked(data):", "    values = _decode(data)", "    bad = []"]
+    ns: dict[str, object] = {"_decode": decode}
+    src += _range_lines(checked, ns, may_lack=not complete)
+    src.append("    return values, bad")
+    exec(compile("\n".join(src) + "\n", f"<vecu decode check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
+    return ns["decode_checked"]  # type: ignore[return-value]  # exec'd: typed by the generator
+
+
+def _range_lines(checked: Sequence[tuple[str, float | None, float | None]],
+                 ns: dict[str, object], may_lack: bool) -> list[str]:
+    """Per checked signal (name, lo, hi) of `values`: bad.append(name) when its value is NaN /
+    inf or outside [lo, hi] (None: no bound); may_lack: a signal values lacks is not checked.
+    The bounds go into ns."""
+    src = []
+    ns["_isfinite"] = math.isfinite
     for i, (name, lo, hi) in enumerate(checked):
         ns[f"_lo{i}"], ns[f"_hi{i}"] = lo, hi
-        src.append(f"    v = values.get({name!r})")
+        src.append(f"    v = values.get({name!r})" if may_lack else f"    v = values[{name!r}]")
         if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
             test = f"not (_lo{i} <= v <= _hi{i})"  # NaN and +-inf fail a finite bound too
         else:  # FrameCodec's own test
             test = "(not _isfinite(v)" + (f" or v < _lo{i}" if lo is not None else "") + (
                 f" or v > _hi{i}" if hi is not None else "") + ")"
-        src.append(f"    if v is not None and {test}: bad.append({name!r})")
-    src.append("    return bad")
-    exec(compile("\n".join(src) + "\n", f"<vecu range check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
-    return ns["bad_values"]  # type: ignore[return-value]  # exec'd: typed by the generator
+        src.append(f"    if {'v is not None and ' if may_lack else ''}{test}: bad.append({name!r})")
+    return src

@@ -127,10 +127,13 @@ class Scheduler:
         tasks = self._tasks
         pop, push, wait = heapq.heappop, heapq.heappush, clock.wait_until
         seq = self._seq
+        now = None  # the release time waited for last: the tasks due with it need no wait
         while heap and heap[0][0] < end_ns:
             due, priority, _, idx = pop(heap)
             fn, stats, period, _ = tasks[idx]
-            wait(due)
+            if due != now:
+                wait(due)
+                now = due
             self._seq = seq  # a task that pushes (chain, at) numbers on from here
             fn(due)
             seq = self._seq

@@ -40,6 +40,7 @@ GENERATED: tuple[tuple[str, str], ...] = (
     ("<vecu framer ", "codec: encode + can.Message"),
     ("<vecu e2e check ", "codec: E2E CRC check"),
     ("<vecu range check ", "codec: range check"),
+    ("<vecu decode check ", "codec: decode + range check (receive)"),
 )
 
 FuncKey = tuple[str, int, str]  # pstats' (file, first line, name)

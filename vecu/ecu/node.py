@@ -120,6 +120,23 @@ def native_routes(codec: DbcCodec, functions: list[EcuFunction]) -> dict[tuple[i
     return routes
 
 
+# receive()'s view of a route: (route, payload length, crc_ok (None: no E2E), decode_checked
+# (decode_exact and bad_values), alive counter check (None: none), its signal, subscription,
+# its on_values)
+_Plan = tuple[Route, int, Callable[[bytes | bytearray], bool] | None,
+              Callable[[bytes | bytearray], tuple[dict[str, float], list[str]]],
+              AliveCounterCheck | None, str, Subscription,
+              Callable[[dict[str, float], int], str | None]]
+
+
+def _plan(route: Route) -> _Plan:
+    fc = route.codec
+    e2e = fc.e2e
+    return (route, fc.length, fc.crc_ok if e2e is not None else None, fc.decode_checked,
+            route.counter, e2e.counter_signal if e2e is not None else "",
+            route.subscription, route.subscription.on_values)
+
+
 def _muted(msg: can.Message) -> bool:
     """The send of a node whose broadcast a tester stopped: nothing goes out."""
     return False
@@ -154,6 +171,9 @@ class EcuNode(BusNode):
         self.rx = RxCounters()
         self.overruns = 0  # set by the runner from the scheduler's count
         self._consumers = routes if routes is not None else native_routes(codec, functions)
+        # per consumed key what receive() uses of its route, looked up once (_Plan)
+        self._plans: dict[tuple[int, bool], _Plan] = {
+            key: _plan(route) for key, route in self._consumers.items()}
         self._armed: list[EcuFunction] = [] if arm_on_input else list(functions)
         # routes whose first accepted frame has not come yet (arm_on_input only)
         self._unarmed: set[int] = {id(r) for r in self._consumers.values()} if arm_on_input else set()
@@ -279,8 +299,8 @@ class EcuNode(BusNode):
                 self._problem("remote-frame", msg)
                 return
             key = (msg.arbitration_id, msg.is_extended_id)
-            route = self._consumers.get(key)
-            if route is None:
+            plan = self._plans.get(key)
+            if plan is None:
                 server = self._server_of.get(key)
                 if server is not None:
                     rx.diagnostic += 1
@@ -298,25 +318,23 @@ class EcuNode(BusNode):
                     self._problem("unknown-id", msg)
                 return
             # the checks of one frame, in order (inline: this runs for every frame received)
-            fc = route.codec
+            route, length, crc_ok, decode_checked, counter, counter_signal, sub, on_values = plan
             data = msg.data
-            if len(data) != fc.length:
+            if len(data) != length:
                 rx.dlc_errors += 1
-                self._problem("dlc", msg, f"expected {fc.length} bytes")
+                self._problem("dlc", msg, f"expected {length} bytes")
                 return
-            e2e = fc.e2e
-            if e2e is not None and not (checked[0] if checked is not None else fc.crc_ok(data)):
+            if crc_ok is not None and not (checked[0] if checked is not None else crc_ok(data)):
                 rx.crc_errors += 1
-                self._e2e_failure("crc", msg, route.subscription)
+                self._e2e_failure("crc", msg, sub)
                 return
-            values = checked[1] if checked is not None else fc.decode_exact(data)
+            # decode and range check (bad: the signals NaN / inf or outside the DBC range)
+            values, bad = (checked[1], checked[2]) if checked is not None else decode_checked(data)
             # the counter belongs to E2E: checked on every CRC-valid frame, whatever its values
-            counter = route.counter
-            if counter is not None and not counter.check(int(values[e2e.counter_signal])):
+            if counter is not None and not counter.check(int(values[counter_signal])):
                 rx.counter_errors += 1
-                self._e2e_failure("alive-counter", msg, route.subscription)
+                self._e2e_failure("alive-counter", msg, sub)
                 return
-            bad = checked[2] if checked is not None else fc.bad_values(values)
             if bad:
                 rx.value_errors += 1
                 self._problem("value", msg, f"bad {', '.join(bad)}")
@@ -328,11 +346,10 @@ class EcuNode(BusNode):
         # deliver the values to the function
         if self._track_senders and route.cycle_ns:  # live: the sender is running (HostClock)
             self.host.saw(route.cycle_ns, t_ns)
-        sub = route.subscription
         if self.overrides and sub.message in self.overrides:
             self.own_values[sub.message] = values
             values = {**values, **self.overrides[sub.message]}
-        if sub.on_values(values, t_ns):  # the function refused them (it logs them)
+        if on_values(values, t_ns):  # the function refused them (it logs them)
             rx.value_errors += 1
             rx.implausible += 1
             return

@@ -43,6 +43,9 @@ class DtcState(enum.IntEnum):
 # the members as module constants for the per-tick code (an enum class attribute costs ~65 ns)
 _OK, _TIMEOUT, _RANGE_LOW, _RANGE_HIGH, _E2E_ERROR, _IMPLAUSIBLE, _STUCK = SensorStatus
 _NONE, _PENDING, _CONFIRMED, _HEALED = DtcState
+# the states Dtc.report(t, failed=False, suspicious=False, ...) keeps as they are (none is never
+# confirmed before, healed always: report's last branch)
+_AT_REST = (_NONE, _HEALED)
 
 SENDER_ALIVE_TICKS = 2  # ticks with the sender's traffic at a sensor's rate: it is running
 # a sender reports its skipped ticks every 100 ms (PLANT_Host): a timeout is judged on the
@@ -354,8 +357,10 @@ class SensorMonitor:
                 self._plaus = 0
         suspicious = (self._plaus or self._e2e_bad or self._range_low or self._range_high
                       or (self.cfg.stuck_samples and self._same >= self.cfg.stuck_samples // 2))
-        self.dtc_item.report(t_ns, finding != _OK, bool(suspicious),
-                             status == _OK)
+        dtc = self.dtc_item
+        # a clean evaluation leaves a DTC at rest (none, or healed) as it is: no report call
+        if finding != _OK or suspicious or dtc.state not in _AT_REST:
+            dtc.report(t_ns, finding != _OK, bool(suspicious), status == _OK)
         return status
 
     @property

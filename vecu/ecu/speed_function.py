@@ -83,6 +83,10 @@ class SpeedFunction:
         self._accel: float | None = None
         self.mode = MODE_NORMAL
         self.validity = INIT
+        # the filter's reported (var v, cov, var a) in one call, when it has one (SpeedKalmanFilter;
+        # the std properties compute it each): the frame's two sigmas from one evaluation
+        self._va_cov = getattr(self.kf, "reported_va_cov", None)
+        self._has_init = hasattr(self.kf, "initialised")
 
     # ECU_RxTimeouts keeps counting the TPS and SWA deadlines only (as before this monitor
     # existed); wheel-speed timeouts are in ECU_Diag (DIAG_WheelStatus/Dtc) and the run summary.
@@ -106,7 +110,8 @@ class SpeedFunction:
         mon = self.monitor
         was_ok = mon.status == _OK
         # until the filter has taken its first wheel reading its speed means nothing: no gate
-        std = kf.speed_std_mps / MPS_PER_KMH if getattr(kf, "initialised", True) else math.inf
+        initialised = kf.initialised if self._has_init else True
+        std = kf.speed_std_mps / MPS_PER_KMH if initialised else math.inf
         status = mon.evaluate(t_ns, kf.speed_mps / MPS_PER_KMH, std)
         if was_ok and status == _TIMEOUT:
             mon.timeouts += 1
@@ -121,11 +126,17 @@ class SpeedFunction:
         else:
             mode = MODE_STANDSTILL if kf.standstill else (MODE_ABS if kf.abs_mode else MODE_NORMAL)
         self.mode = mode
-        self.validity = validity = (INIT if not getattr(kf, "initialised", True)
+        self.validity = validity = (INIT if not (kf.initialised if self._has_init else True)
                                     else VALID if status == _OK else DEGRADED)
+        cov = self._va_cov
+        if cov is not None:
+            var_v, _, var_a = cov()
+            v_std, a_std = math.sqrt(var_v), math.sqrt(var_a)
+        else:
+            v_std, a_std = kf.speed_std_mps, kf.accel_std_mps2
         self.estimates_sent += send(self._out_frame(
-            t_ns / NS_PER_S, kf.speed_mps / MPS_PER_KMH, kf.accel_mps2,
-            kf.speed_std_mps / MPS_PER_KMH, kf.offset_mps2, mode, validity, kf.accel_std_mps2))
+            t_ns / NS_PER_S, kf.speed_mps / MPS_PER_KMH, kf.accel_mps2, v_std / MPS_PER_KMH,
+            kf.offset_mps2, mode, validity, a_std))
 
     def status_signals(self) -> dict[str, int]:
         return {}
