@@ -45,6 +45,7 @@ from vecu.estimators.throttle.pf_kernels import (
 from vecu.estimators.throttle.pf_parts import (
     CLASS_BOUNDS_DEG,
     HIGH_CLASS,
+    MAX_STD_DEG,
     U_COL,
     Y_MAX_W,
     Y_MIN_W,
@@ -53,6 +54,7 @@ from vecu.estimators.throttle.pf_parts import (
     class_b,
     class_bounds,
     class_matrix_stack,
+    report,
     systematic_counts,
 )
 from vecu.kernels import backend
@@ -86,7 +88,6 @@ KF_CHECK_EVERY = 8  # steps between checks of the KF_ENTER condition
 KF_STEADY_SD_PER_ALPHA = 5.9  # measured steady-state Kalman theta std in mode 3, per unit alpha
 KF_GATE = 49.0  # Kalman innovation outlier gate (r^2 / S, 7 sigma)
 DEFAULT_STD_INFLATION = 1.2  # theta_std_deg = 1.2 x posterior std (calibration, docs/models.md)
-STD_FLOOR_DEG = 0.3
 # Stuck below the mode-3 bound (issue 30 item 5, docs/models.md "Consistency"): while the
 # estimate is at or below b2 + LOCK_MARGIN_DEG and the command u exceeds LOCK_U_V, the filter
 # sometimes misses a mode-2 -> mode-3 throw of the truth and its particles stay parked below b2
@@ -97,7 +98,6 @@ STD_FLOOR_DEG = 0.3
 LOCK_U_V = 3.0
 LOCK_MARGIN_DEG = 1.5
 LOCK_STD_DEG = 12.0
-MAX_STD_DEG = 51.0
 # ufunc reductions and ndarray methods called directly: the np.* / .min() forms add a Python-level
 # wrapper (~1 us a call, several calls a step); the results are the same
 _min = np.minimum.reduce
@@ -156,6 +156,7 @@ class ThrottleParticleFilter:
         self._cls_b = cls_b
         self._yc = np.zeros(())  # 0-d array: y + shift of the current step
         self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model, KF_GATE)
+        self._kf.set_tick(*self._kf_exit, self.std_inflation)
         self._kconst = step_constants(s, cls_b, r_watt, cb)  # the compiled step's constants
         self._extremes: tuple[float, float] | None = None  # compiled step: max theta, min i
         self.resets = self.rejected = self.resamples = self.resizes = 0
@@ -215,9 +216,8 @@ class ThrottleParticleFilter:
         return sw
 
     def _set_output(self, th: float, var: float) -> None:
-        self._theta = THETA_MIN_DEG if th < THETA_MIN_DEG else min(th, THETA_MAX_DEG)
-        sd = (math.sqrt(var) if var > 0.0 else 0.0) * self.std_inflation
-        self._std = self._std_post = STD_FLOOR_DEG if sd < STD_FLOOR_DEG else min(sd, MAX_STD_DEG)
+        self._theta, self._std = report.py(th, var, self.std_inflation)
+        self._std_post = self._std
 
     @property
     def theta_deg(self) -> float:
@@ -446,19 +446,19 @@ class ThrottleParticleFilter:
         self._in_kf = True
 
     def _kalman_step(self, u: float, y: float | None, o1: int) -> None:
-        kf = self._kf
-        status = kf.step(u, math.nan if y is None else y, self._gated < MAX_GATED_IN_ROW)
+        status, leave, th, sd = self._kf.tick(u, math.nan if y is None else y,
+                                              self._gated < MAX_GATED_IN_ROW)
         if status == 2:
             self._gated += 1
             self.rejected += 1
         elif status == 1:
             self._gated = 0
         self.kalman_steps += 1
-        x = kf.x.tolist()  # once for both (numpy scalar indexing costs ~0.1 us a read)
-        if kf.leave(*self._kf_exit, x):
+        if leave:
             self._from_kalman(o1)
         else:
-            self._set_output(x[0], x[3])
+            self._theta = th
+            self._std = self._std_post = sd
 
     def _from_kalman(self, o1: int) -> None:
         """Back to particles: draw them from the Kalman Gaussian (restart if it is broken)."""
