@@ -22,9 +22,12 @@ is multi-modal; Gaussian filters lock there. The particle filter
 rho is noise-free given (theta, rho, i), so each particle carries its exact rho.
 
 Backends (vecu.kernels, VECU_KERNELS): under "python" the particle step is the numpy code below
-(the reference); under "numba" the same step runs as the compiled loops of
-vecu.estimators.throttle.pf_kernels (same draws, same decisions, results equal to rounding).
-The Kalman stretches and the rare paths (fill, hand-overs) are the same code under both.
+(the reference); under "numba" the whole particle tick (step, outlier / careful redo,
+renormalising, the resample and Kalman hand-over decisions) is one compiled call, pf_tick of
+vecu.estimators.throttle.pf_kernels (same draws, same decisions, results equal to rounding),
+its scalars (extent, weight sums) kept in the array _st. A Kalman-stretch tick is one kernel
+call under both (pf_parts.mode3_tick). The rare paths (fill, resampling's draw, hand-overs) are
+the same Python under both.
 """
 
 from __future__ import annotations
@@ -35,12 +38,21 @@ import math
 import numpy as np
 
 from vecu.estimators.throttle.pf_kernels import (
-    CAREFUL,
-    PRIOR,
-    UPDATE,
+    CAREFUL_RUN,
+    ESS_FRACTION,
+    LOST,
+    MAX_GATED_IN_ROW,
+    OUTLIER_FIT,
+    REJECTED,
+    RESAMPLE,
+    ST_SW,
+    ST_SW2,
+    SURPRISE_FIT,
+    TO_KALMAN,
     pf_resample,
-    pf_step,
+    pf_tick,
     step_constants,
+    tick_config,
 )
 from vecu.estimators.throttle.pf_parts import (
     CLASS_BOUNDS_DEG,
@@ -76,10 +88,7 @@ LOW_EXIT_DEG = 30.0  # all particles above this: back to n_high
 DEFAULT_SEED = 20150923
 NORMAL_TABLE = 1 << 17  # standard normals drawn once; each step reads windows at random offsets
 OFFSET_BLOCK = 4096  # window offsets drawn per refill
-ESS_FRACTION = 0.5  # resample when ESS < ESS_FRACTION * N
-OUTLIER_FIT = 1e-12  # y is an outlier if the mean likelihood ratio is below this (> 7 sigma)
-MAX_GATED_IN_ROW = 3  # at most this many outliers in a row are rejected, then y is believed
-SURPRISE_FIT = 1e-3  # below this: clamp the proposal correction, likelihoods in the log domain
+# ESS_FRACTION, OUTLIER_FIT, MAX_GATED_IN_ROW, SURPRISE_FIT: pf_kernels (pf_tick's decisions)
 KF_ENTER = (30.0, 85.0, 1.0)  # all particles: theta in (30, 85) deg, i > 1 A -> Kalman filter
 # Kalman theta - 3 sigma < 22 deg, theta + 2 sigma > 90 deg (too much mass at the stop) or
 # i - 3 sigma < 0.5 A -> particles again
@@ -111,7 +120,8 @@ class ThrottleParticleFilter:
     (eq. 4); y=None, non-finite or outside (Y_MIN_W, Y_MAX_W), or an isolated outlier: predict
     only. theta_deg / theta_std_deg: posterior mean / std of theta (std x `std_inflation`,
     floored at 0.3 deg, capped at 51 deg). Counters: resets (divergence restarts), rejected
-    (y gated out), resamples, resizes (particle-count changes), kalman_steps.
+    (y gated out), resamples, resizes (particle-count changes), kalman_steps, careful_updates
+    (steps redone with the careful update).
     Deterministic: all randomness comes from PCG64(seed); reset() replays the same sequence.
     """
 
@@ -158,9 +168,11 @@ class ThrottleParticleFilter:
         self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model, KF_GATE)
         self._kf.set_tick(*self._kf_exit, self.std_inflation)
         self._kconst = step_constants(s, cls_b, r_watt, cb)  # the compiled step's constants
-        self._extremes: tuple[float, float] | None = None  # compiled step: max theta, min i
+        self._tcfg = tick_config(self._y_shift, self.std_inflation, self._n_low, self._n_high,
+                                 self._low_enter, self._low_exit, self._kf_enter)
+        self._st = np.zeros(6)  # pf_tick's state (lo, hi, sw, sw2, extremes), kept in step
         self.resets = self.rejected = self.resamples = self.resizes = 0
-        self.kalman_steps = self.steps = 0
+        self.kalman_steps = self.steps = self.careful_updates = 0
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -193,8 +205,13 @@ class ThrottleParticleFilter:
             f.ci[:] = np.where(rng.random(n) < 0.85, r, -r) + rng.standard_normal(n)
         f.w.fill(1.0)
         self._b = b
+        self._adopt(f)
+
+    def _adopt(self, f) -> None:
+        """Frame f (just filled) sets the extent, the sums and the output (also pf_tick's)."""
         self._lo, self._hi = float(f.th.min()), float(f.th.max())
         self._summarise(f)
+        self._st[:4] = (self._lo, self._hi, self._sw, self._sw2)
 
     def _summarise(self, f) -> float:
         """Weighted moments of theta from one frame; returns the weight sum (bad: NaN)."""
@@ -267,6 +284,27 @@ class ThrottleParticleFilter:
             return
         b = self._b
         f, g = b.cur, b.nxt
+        if backend() == "numba":  # the same tick in one compiled call
+            code, target, self._gated, th, sd = pf_tick.compiled(
+                f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u,
+                math.nan if y is None else y, o1, o2, self._st, self._tcfg, self._gated,
+                self.use_kalman and self.steps % KF_CHECK_EVERY == 0)
+            if code & REJECTED:
+                self.rejected += 1
+            elif code & CAREFUL_RUN:
+                self.careful_updates += 1
+            act = code & 3
+            if act == LOST:
+                self._lost(y)
+                return
+            b.cur, b.nxt = g, f
+            self._theta = th
+            self._std = self._std_post = sd
+            if act == RESAMPLE:
+                self._resample(target)
+            elif act == TO_KALMAN:
+                self._to_kalman(g, float(self._st[ST_SW]))
+            return
         sw_old = self._sw
         extent = self._lo, self._hi  # of frame f: a redo picks its mode classes from these
         sw = self._propagate(b, f, g, u, y, o1, o2, False)
@@ -292,23 +330,13 @@ class ThrottleParticleFilter:
             self._resample(target)
         elif (lo > self._kf_enter[0] and self.use_kalman and self.steps % KF_CHECK_EVERY == 0
               and self._fits_kalman(g)):
-            self._to_kalman(g)
+            self._to_kalman(g, self._sw)
 
     def _propagate(self, b: Bank, f, g, u: float, y: float | None, o1: int, o2: int,
                    careful: bool) -> float:
         """Predict f into g, then the prior current (y None) or the update with y; returns
-        the new weight sum (_summarise). numpy, or one compiled kernel under numba."""
-        if backend() == "numba":
-            mode = PRIOR if y is None else (CAREFUL if careful else UPDATE)
-            yc = 0.0 if y is None else y + self._y_shift
-            sw, s_th, s_th2, s_w2, lo, hi, ci_min = pf_step.compiled(
-                f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u, self._lo, self._hi,
-                o1, o2, mode, yc)
-            self._lo = lo
-            self._hi = hi if lo <= self._cb[-1] else THETA_MAX_DEG
-            self._extremes = (hi, ci_min)
-            return self._take_moments(sw, s_th, s_th2, s_w2)
-        self._extremes = None
+        the new weight sum (_summarise). The numpy path (the reference); under numba the
+        whole tick is pf_tick (pf_kernels.pf_step with the same draws and decisions)."""
         self._predict(b, f, g, u, o1)
         if y is None:
             self._prior_current(b, f, g, o2)
@@ -318,10 +346,7 @@ class ThrottleParticleFilter:
 
     def _fits_kalman(self, g) -> bool:
         """The rest of KF_ENTER: all theta below 85 deg and all currents above 1 A."""
-        if self._extremes is None:
-            th_max, ci_min = float(_max(g.th)), float(_min(g.ci))
-        else:
-            th_max, ci_min = self._extremes
+        th_max, ci_min = float(_max(g.th)), float(_min(g.ci))
         return th_max < self._kf_enter[1] and ci_min > self._kf_enter[2]
 
     def _predict(self, b: Bank, f, g, u: float, o1: int) -> None:
@@ -401,6 +426,7 @@ class ThrottleParticleFilter:
             self.rejected += 1
             return self._propagate(b, f, g, u, None, o1, o2, False)
         self._gated = 0
+        self.careful_updates += 1
         return self._propagate(b, f, g, u, y, o1, o2, True)
 
     def _resample(self, n_new: int) -> None:
@@ -422,6 +448,7 @@ class ThrottleParticleFilter:
             b.cur, b.nxt = dst, f
         self._b = nb
         self._sw = self._sw2 = float(n_new)
+        self._st[ST_SW] = self._st[ST_SW2] = self._sw
 
     def _lost(self, y: float | None) -> None:
         """Divergence (no weight left, NaN): restart from the broad prior, count it."""
@@ -431,9 +458,10 @@ class ThrottleParticleFilter:
         self._fill("broad", y)
 
     # -------------------------------------------------------- Kalman stretches
-    def _to_kalman(self, f) -> None:
-        """All particles well inside mode 3 with a positive current: moment-match them."""
-        w = f.w * (1.0 / self._sw)
+    def _to_kalman(self, f, sw: float) -> None:
+        """All particles well inside mode 3 with a positive current (weight sum sw):
+        moment-match them."""
+        w = f.w * (1.0 / sw)
         mean = f.top3.dot(w)
         d = f.top3 - mean[:, None]
         cov = (d * w).dot(d.T)
@@ -479,8 +507,7 @@ class ThrottleParticleFilter:
         f.ci[:] = kf.ci + l20 * z0 + l21 * z1 + l22 * z2
         f.w.fill(1.0)
         self._b = b
-        self._lo, self._hi = float(f.th.min()), float(f.th.max())
-        self._summarise(f)
+        self._adopt(f)
 
 
 def make_production_estimator(noise_scale: float = 1.0,
