@@ -279,8 +279,20 @@ class ThrottleParticleFilter:
             if not (Y_MIN_W < y < Y_MAX_W):  # also False for NaN
                 self.rejected += 1
                 y = None
-        if self._in_kf:
-            self._kalman_step(u, y, o1)
+        if self._in_kf:  # a Kalman-stretch tick: one kernel call (mode3_tick)
+            status, leave, th, sd = self._kf.tick(u, math.nan if y is None else y,
+                                                  self._gated < MAX_GATED_IN_ROW)
+            if status == 2:
+                self._gated += 1
+                self.rejected += 1
+            elif status == 1:
+                self._gated = 0
+            self.kalman_steps += 1
+            if leave:
+                self._from_kalman(o1)
+            else:
+                self._theta = th
+                self._std = self._std_post = sd
             return
         b = self._b
         f, g = b.cur, b.nxt
@@ -472,21 +484,6 @@ class ThrottleParticleFilter:
             cov *= floor / max(float(cov[0, 0]), 1e-12)
         self._kf.load(mean, cov)
         self._in_kf = True
-
-    def _kalman_step(self, u: float, y: float | None, o1: int) -> None:
-        status, leave, th, sd = self._kf.tick(u, math.nan if y is None else y,
-                                              self._gated < MAX_GATED_IN_ROW)
-        if status == 2:
-            self._gated += 1
-            self.rejected += 1
-        elif status == 1:
-            self._gated = 0
-        self.kalman_steps += 1
-        if leave:
-            self._from_kalman(o1)
-        else:
-            self._theta = th
-            self._std = self._std_post = sd
 
     def _from_kalman(self, o1: int) -> None:
         """Back to particles: draw them from the Kalman Gaussian (restart if it is broken)."""
