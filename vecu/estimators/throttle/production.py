@@ -66,6 +66,7 @@ from vecu.estimators.throttle.pf_parts import (
     class_b,
     class_bounds,
     class_matrix_stack,
+    mode3_tick_buf,
     report,
     systematic_counts,
 )
@@ -279,9 +280,11 @@ class ThrottleParticleFilter:
             if not (Y_MIN_W < y < Y_MAX_W):  # also False for NaN
                 self.rejected += 1
                 y = None
+        numba = backend() == "numba"
         if self._in_kf:  # a Kalman-stretch tick: one kernel call (mode3_tick)
-            status, leave, th, sd = self._kf.tick(u, math.nan if y is None else y,
-                                                  self._gated < MAX_GATED_IN_ROW)
+            yk, may_gate = math.nan if y is None else y, self._gated < MAX_GATED_IN_ROW
+            status, leave, th, sd = (mode3_tick_buf.compiled(self._kf.buf, u, yk, may_gate)
+                                     if numba else self._kf.tick(u, yk, may_gate))
             if status == 2:
                 self._gated += 1
                 self.rejected += 1
@@ -292,11 +295,11 @@ class ThrottleParticleFilter:
                 self._from_kalman(o1)
             else:
                 self._theta = th
-                self._std = self._std_post = sd
+                self._std_post = sd  # step() sets _std from it
             return
         b = self._b
         f, g = b.cur, b.nxt
-        if backend() == "numba":  # the same tick in one compiled call
+        if numba:  # the same tick in one compiled call
             code, target, self._gated, th, sd = pf_tick.compiled(
                 f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u,
                 math.nan if y is None else y, o1, o2, self._st, self._tcfg, self._gated,
@@ -311,7 +314,7 @@ class ThrottleParticleFilter:
                 return
             b.cur, b.nxt = g, f
             self._theta = th
-            self._std = self._std_post = sd
+            self._std_post = sd
             if act == RESAMPLE:
                 self._resample(target)
             elif act == TO_KALMAN:
