@@ -263,6 +263,35 @@ def pf_resample(src, dst, n_new, u0):
     return n_new
 
 
+# redo_kind's answers
+KEEP, AS_OUTLIER, WITH_CARE = range(3)
+
+
+@kernel
+def redo_kind(sw: float, sw_old: float, gated: int) -> int:
+    """After an update with y: KEEP the step if its weight sum kept more than SURPRISE_FIT of
+    the last one's; else redo it AS_OUTLIER (predict only: the mean likelihood ratio sw / sw_old
+    not above OUTLIER_FIT, fewer than MAX_GATED_IN_ROW rejected in a row) or WITH_CARE (the
+    careful update). Both backends' particle ticks decide by it."""
+    if sw > SURPRISE_FIT * sw_old:
+        return KEEP
+    if not sw / sw_old > OUTLIER_FIT and gated < MAX_GATED_IN_ROW:
+        return AS_OUTLIER
+    return WITH_CARE
+
+
+@kernel
+def resample_target(lo: float, n: int, sw: float, sw2: float, n_low: int, n_high: int,
+                    low_enter: float, low_exit: float) -> int:
+    """The particle count to resample into after a tick, 0 to keep the set: n_low while the
+    lowest theta lo is below low_enter, n_high once it is above low_exit (else n); a change of
+    count or an ESS sw^2 / sw2 below ESS_FRACTION n resamples. Both backends decide by it."""
+    target = n_low if lo < low_enter else (n_high if lo > low_exit else n)
+    if target != n or sw * sw < ESS_FRACTION * n * sw2:
+        return target
+    return 0
+
+
 @kernel(error_model="numpy")
 def pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, mode, yc, st, inflation):
     """pf_step from the state st's (lo, hi), then the filter's bookkeeping: st's lo, hi (hi is
@@ -305,13 +334,13 @@ def pf_tick(src, dst, mats, cst, ztab, tmp, u, y, o1, o2, st, cfg, gated, check_
     if y == y:
         sw, th, sd = pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, UPDATE,
                                 y + cfg[_C_YSHIFT], st, infl)
-        if sw > SURPRISE_FIT * sw_old:
+        kind = redo_kind(sw, sw_old, gated)
+        if kind == KEEP:
             gated = 0
         else:  # rare: redo from src
             st[ST_LO] = lo0
             st[ST_HI] = hi0
-            fit = sw / sw_old
-            if not fit > OUTLIER_FIT and gated < MAX_GATED_IN_ROW:
+            if kind == AS_OUTLIER:
                 gated += 1
                 rej = REJECTED
                 sw, th, sd = pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, PRIOR, 0.0,
@@ -333,9 +362,9 @@ def pf_tick(src, dst, mats, cst, ztab, tmp, u, y, o1, o2, st, cfg, gated, check_
         sw = 1.0
         st[ST_SW] = sw
     lo = st[ST_LO]
-    target = (int(cfg[_C_NLOW]) if lo < cfg[_C_LOW_ENTER]
-              else (int(cfg[_C_NHIGH]) if lo > cfg[_C_LOW_EXIT] else n))
-    if target != n or sw * sw < ESS_FRACTION * n * st[ST_SW2]:
+    target = resample_target(lo, n, sw, st[ST_SW2], int(cfg[_C_NLOW]), int(cfg[_C_NHIGH]),
+                             cfg[_C_LOW_ENTER], cfg[_C_LOW_EXIT])
+    if target:
         return RESAMPLE | rej, target, gated, th, sd
     if (lo > cfg[_C_KF0] and check_kf and st[ST_HI_EXT] < cfg[_C_KF1]
             and st[ST_CI_MIN] > cfg[_C_KF2]):

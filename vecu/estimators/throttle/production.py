@@ -38,19 +38,20 @@ import math
 import numpy as np
 
 from vecu.estimators.throttle.pf_kernels import (
+    AS_OUTLIER,
     CAREFUL_RUN,
-    ESS_FRACTION,
+    KEEP,
     LOST,
     MAX_GATED_IN_ROW,
-    OUTLIER_FIT,
     REJECTED,
     RESAMPLE,
     ST_SW,
     ST_SW2,
-    SURPRISE_FIT,
     TO_KALMAN,
     pf_resample,
     pf_tick,
+    redo_kind,
+    resample_target,
     step_constants,
     tick_config,
 )
@@ -89,7 +90,8 @@ LOW_EXIT_DEG = 30.0  # all particles above this: back to n_high
 DEFAULT_SEED = 20150923
 NORMAL_TABLE = 1 << 17  # standard normals drawn once; each step reads windows at random offsets
 OFFSET_BLOCK = 4096  # window offsets drawn per refill
-# ESS_FRACTION, OUTLIER_FIT, MAX_GATED_IN_ROW, SURPRISE_FIT: pf_kernels (pf_tick's decisions)
+# ESS_FRACTION, OUTLIER_FIT, MAX_GATED_IN_ROW, SURPRISE_FIT: pf_kernels (redo_kind and
+# resample_target: the tick's decisions, written once for both backends)
 KF_ENTER = (30.0, 85.0, 1.0)  # all particles: theta in (30, 85) deg, i > 1 A -> Kalman filter
 # Kalman theta - 3 sigma < 22 deg, theta + 2 sigma > 90 deg (too much mass at the stop) or
 # i - 3 sigma < 0.5 A -> particles again
@@ -324,11 +326,12 @@ class ThrottleParticleFilter:
         extent = self._lo, self._hi  # of frame f: a redo picks its mode classes from these
         sw = self._propagate(b, f, g, u, y, o1, o2, False)
         if y is not None:
-            if sw > SURPRISE_FIT * sw_old:
+            kind = redo_kind.py(sw, sw_old, self._gated)
+            if kind == KEEP:
                 self._gated = 0
             else:  # rare: redo this step as an outlier (predict only) or with care
                 self._lo, self._hi = extent
-                sw = self._replay(b, f, g, u, y, o1, o2, sw / sw_old)
+                sw = self._replay(b, f, g, u, y, o1, o2, kind)
         if not sw > 0.0:  # NaN or no weight left
             self._lost(y)
             return
@@ -338,10 +341,10 @@ class ThrottleParticleFilter:
             g.w *= inv
             self._sw2 = self._sw2 * inv * inv
             self._sw = sw = 1.0
-        lo, n = self._lo, b.n
-        target = (self._n_low if lo < self._low_enter
-                  else (self._n_high if lo > self._low_exit else n))
-        if target != n or sw * sw < ESS_FRACTION * n * self._sw2:
+        lo = self._lo
+        target = resample_target.py(lo, b.n, sw, self._sw2, self._n_low, self._n_high,
+                                    self._low_enter, self._low_exit)
+        if target:
             self._resample(target)
         elif (lo > self._kf_enter[0] and self.use_kalman and self.steps % KF_CHECK_EVERY == 0
               and self._fits_kalman(g)):
@@ -433,10 +436,10 @@ class ThrottleParticleFilter:
         np.add(t3, t2, out=m)
 
     def _replay(self, b: Bank, f, g, u: float, y: float, o1: int, o2: int,
-                fit: float) -> float:
-        """Redo the step from frame f (same random draws): y an isolated outlier -> predict
-        only; otherwise the careful update. Returns the new weight sum."""
-        if not fit > OUTLIER_FIT and self._gated < MAX_GATED_IN_ROW:
+                kind: int) -> float:
+        """Redo the step from frame f (same random draws) as redo_kind said: y an isolated
+        outlier -> predict only; otherwise the careful update. Returns the new weight sum."""
+        if kind == AS_OUTLIER:
             self._gated += 1
             self.rejected += 1
             return self._propagate(b, f, g, u, None, o1, o2, False)
