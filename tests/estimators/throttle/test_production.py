@@ -105,7 +105,7 @@ def test_eq3_propagation_is_exact():
         f.rh[:3] = 0.0  # sgn(0) = 0 in eq. 3
         f.ci[:] = rng.normal(2.0, 2.0, f.ci.size)
         f.w[:] = 1.0
-        est._lo, est._hi = float(f.th.min()), float(f.th.max())
+        est._adopt(f)
         x0 = f.F[:3].copy()
         est.step(3.7, None)
         ref = np.array([step_mean(*x0[:, j], 3.7) for j in range(x0.shape[1])]).T
@@ -272,8 +272,7 @@ def test_outlier_redo_uses_the_prior_mode_classes(backend):
         f.th[:] = np.linspace(15.0, 17.0, n)
         f.rh[:] = 6.0 / min(TABLE_I[1].a12, TABLE_I[2].a12)  # every theta' > 20 deg
         f.ci[:] = 1.0
-        est._summarise(f)
-        est._lo, est._hi = float(f.th.min()), float(f.th.max())
+        est._adopt(f)  # extent 15..17 deg: classes 2 and 3
         est.step(0.5, y)
         runs.append((est.theta_deg, est.theta_std_deg, est.rejected))
     assert runs[1][2] == runs[0][2] + 1  # the second one was treated as an outlier

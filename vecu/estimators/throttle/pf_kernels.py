@@ -5,8 +5,9 @@ Loop versions of ThrottleParticleFilter's numpy step (vecu.estimators.throttle.p
 in one call (branch-free loops that LLVM vectorises, the likelihoods' exp included: it is
 vecu.kernels.exp.exp_poly, plain arithmetic, not a libm call per particle; only the careful
 update's log and the sequential sums stay scalar), `pf_resample` = systematic_counts + the copy
-of _resample. They work in place on the Frame matrices F (rows theta, rho, i, 1, sgn rho,
-theta^2, weight) and read the same normal table at the same offsets, so they make the same
+of _resample, `pf_tick` = ThrottleParticleFilter._step's particle tick around pf_step (its
+redo, renormalising and decisions; pf_advance: _propagate's bookkeeping). They work in place
+on the Frame matrices F (rows theta, rho, i, 1, sgn rho, theta^2, weight) and read the same normal table at the same offsets, so they make the same
 random draws. The prediction is the numpy code's arithmetic, operation by operation (no
 fastmath, no FMA contraction); the update computes 1 / h^2 once (numpy: two divisions) and
 exp_poly (<= 1 ulp, numpy's exp rounds otherwise), so the results agree with numpy's to
@@ -29,13 +30,29 @@ import math
 
 import numpy as np
 
+from vecu.estimators.throttle.pf_parts import report
 from vecu.kernels import kernel
 from vecu.kernels.exp import exp_poly
+from vecu.models.throttle import THETA_MAX_DEG
 
 # pf_step modes
 PRIOR = 0  # no measurement: i from its prior, weights unchanged
 UPDATE = 1  # linearised optimal proposal, predictive-likelihood weights
 CAREFUL = 2  # the same with the clamped correction and log-domain weights
+
+# the particle tick's decisions (ThrottleParticleFilter._step; pf_tick compiled)
+ESS_FRACTION = 0.5  # resample when ESS < ESS_FRACTION * N
+OUTLIER_FIT = 1e-12  # y is an outlier if the mean likelihood ratio is below this (> 7 sigma)
+MAX_GATED_IN_ROW = 3  # at most this many outliers in a row are rejected, then y is believed
+SURPRISE_FIT = 1e-3  # below this: clamp the proposal correction, likelihoods in the log domain
+
+# pf_tick's actions (code & 3; code & 4: y rejected as an outlier, & 8: careful update)
+GO_ON, RESAMPLE, TO_KALMAN, LOST = range(4)
+REJECTED = 4
+CAREFUL_RUN = 8
+# layout of pf_tick's state vector st (read and written) and of its config vector (tick_config)
+ST_LO, ST_HI, ST_SW, ST_SW2, ST_HI_EXT, ST_CI_MIN = range(6)
+_C_YSHIFT, _C_INFL, _C_NLOW, _C_NHIGH, _C_LOW_ENTER, _C_LOW_EXIT, _C_KF0, _C_KF1, _C_KF2 = range(9)
 
 # layout of the constants vector of pf_step (see step_constants)
 _INV_C2, _KAPPA, _NEG_K2, _NEG_FOUR_S2, _CLIP_LO, _CLIP_HI, _B0 = range(7)
@@ -244,3 +261,119 @@ def pf_resample(src, dst, n_new, u0):
     for j in range(n_new):
         dst[6, j] = 1.0
     return n_new
+
+
+# redo_kind's answers
+KEEP, AS_OUTLIER, WITH_CARE = range(3)
+
+
+@kernel
+def redo_kind(sw: float, sw_old: float, gated: int) -> int:
+    """After an update with y: KEEP the step if its weight sum kept more than SURPRISE_FIT of
+    the last one's; else redo it AS_OUTLIER (predict only: the mean likelihood ratio sw / sw_old
+    not above OUTLIER_FIT, fewer than MAX_GATED_IN_ROW rejected in a row) or WITH_CARE (the
+    careful update). Both backends' particle ticks decide by it."""
+    if sw > SURPRISE_FIT * sw_old:
+        return KEEP
+    if not sw / sw_old > OUTLIER_FIT and gated < MAX_GATED_IN_ROW:
+        return AS_OUTLIER
+    return WITH_CARE
+
+
+@kernel
+def resample_target(lo: float, n: int, sw: float, sw2: float, n_low: int, n_high: int,
+                    low_enter: float, low_exit: float) -> int:
+    """The particle count to resample into after a tick, 0 to keep the set: n_low while the
+    lowest theta lo is below low_enter, n_high once it is above low_exit (else n); a change of
+    count or an ESS sw^2 / sw2 below ESS_FRACTION n resamples. Both backends decide by it."""
+    target = n_low if lo < low_enter else (n_high if lo > low_exit else n)
+    if target != n or sw * sw < ESS_FRACTION * n * sw2:
+        return target
+    return 0
+
+
+@kernel(error_model="numpy")
+def pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, mode, yc, st, inflation):
+    """pf_step from the state st's (lo, hi), then the filter's bookkeeping: st's lo, hi (hi is
+    90 once lo is in mode 3), the extremes max theta / min i, and from the moments (sum w > 0,
+    mean and variance finite) the output (report) with st's sum w and sum w^2. Returns
+    (sum w, theta, std); sum w NaN if the moments are broken (st's sums left as they were)."""
+    sw, s_th, s_th2, s_w2, lo, hi, ci_min = pf_step(src, dst, mats, cst, ztab, tmp, u,
+                                                    st[ST_LO], st[ST_HI], o1, o2, mode, yc)
+    st[ST_LO] = lo
+    st[ST_HI] = hi if lo <= cst[_BOUND0 + 2] else THETA_MAX_DEG
+    st[ST_HI_EXT] = hi
+    st[ST_CI_MIN] = ci_min
+    if not sw > 0.0:
+        return math.nan, 0.0, 0.0
+    th = s_th / sw
+    var = s_th2 / sw - th * th
+    if not (math.isfinite(th) and math.isfinite(var) and math.isfinite(sw)):
+        return math.nan, 0.0, 0.0
+    t, sd = report(th, var, inflation)
+    st[ST_SW] = sw
+    st[ST_SW2] = s_w2
+    return sw, t, sd
+
+
+@kernel(error_model="numpy")
+def pf_tick(src, dst, mats, cst, ztab, tmp, u, y, o1, o2, st, cfg, gated, check_kf):
+    """One particle tick of ThrottleParticleFilter._step in one call: pf_advance with y (NaN:
+    none); a step whose weight sum fell below SURPRISE_FIT of the last one is redone from src
+    with the same draws, as an outlier (predict only; at most MAX_GATED_IN_ROW in a row) if
+    below OUTLIER_FIT, else with the careful update; renormalisation below 1e-150; then the
+    decision: resample (ESS < ESS_FRACTION N, or the particle count for st's lo: cfg's n_low
+    below low_enter, n_high above low_exit), or (check_kf) hand over to the Kalman filter if
+    all theta are in (kf0, kf1) and all i > kf2. cfg: tick_config. Returns (code, target
+    count, gated, theta, std); code & 3 the action (GO_ON, RESAMPLE, TO_KALMAN, LOST: no
+    weight left), code & REJECTED: y was gated out, code & CAREFUL_RUN: the careful update ran."""
+    n = src.shape[1]
+    infl = cfg[_C_INFL]
+    lo0, hi0, sw_old = st[ST_LO], st[ST_HI], st[ST_SW]
+    rej = 0
+    if y == y:
+        sw, th, sd = pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, UPDATE,
+                                y + cfg[_C_YSHIFT], st, infl)
+        kind = redo_kind(sw, sw_old, gated)
+        if kind == KEEP:
+            gated = 0
+        else:  # rare: redo from src
+            st[ST_LO] = lo0
+            st[ST_HI] = hi0
+            if kind == AS_OUTLIER:
+                gated += 1
+                rej = REJECTED
+                sw, th, sd = pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, PRIOR, 0.0,
+                                        st, infl)
+            else:
+                gated = 0
+                rej = CAREFUL_RUN
+                sw, th, sd = pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, CAREFUL,
+                                        y + cfg[_C_YSHIFT], st, infl)
+    else:
+        sw, th, sd = pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, PRIOR, 0.0, st, infl)
+    if not sw > 0.0:  # NaN or no weight left
+        return LOST | rej, n, gated, th, sd
+    if sw < 1e-150:  # weights only shrink (likelihoods <= 1): renormalise
+        inv = 1.0 / sw
+        for j in range(n):
+            dst[6, j] = dst[6, j] * inv
+        st[ST_SW2] = st[ST_SW2] * inv * inv
+        sw = 1.0
+        st[ST_SW] = sw
+    lo = st[ST_LO]
+    target = resample_target(lo, n, sw, st[ST_SW2], int(cfg[_C_NLOW]), int(cfg[_C_NHIGH]),
+                             cfg[_C_LOW_ENTER], cfg[_C_LOW_EXIT])
+    if target:
+        return RESAMPLE | rej, target, gated, th, sd
+    if (lo > cfg[_C_KF0] and check_kf and st[ST_HI_EXT] < cfg[_C_KF1]
+            and st[ST_CI_MIN] > cfg[_C_KF2]):
+        return TO_KALMAN | rej, n, gated, th, sd
+    return GO_ON | rej, n, gated, th, sd
+
+
+def tick_config(y_shift: float, inflation: float, n_low: int, n_high: int, low_enter: float,
+                low_exit: float, kf_enter: tuple[float, float, float]) -> np.ndarray:
+    """pf_tick's config vector."""
+    return np.array([y_shift, inflation, n_low, n_high, low_enter, low_exit, *kf_enter],
+                    dtype=np.float64)

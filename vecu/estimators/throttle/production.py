@@ -22,9 +22,12 @@ is multi-modal; Gaussian filters lock there. The particle filter
 rho is noise-free given (theta, rho, i), so each particle carries its exact rho.
 
 Backends (vecu.kernels, VECU_KERNELS): under "python" the particle step is the numpy code below
-(the reference); under "numba" the same step runs as the compiled loops of
-vecu.estimators.throttle.pf_kernels (same draws, same decisions, results equal to rounding).
-The Kalman stretches and the rare paths (fill, hand-overs) are the same code under both.
+(the reference); under "numba" the whole particle tick (step, outlier / careful redo,
+renormalising, the resample and Kalman hand-over decisions) is one compiled call, pf_tick of
+vecu.estimators.throttle.pf_kernels (same draws, same decisions, results equal to rounding),
+its scalars (extent, weight sums) kept in the array _st. A Kalman-stretch tick is one kernel
+call under both (pf_parts.mode3_tick). The rare paths (fill, resampling's draw, hand-overs) are
+the same Python under both.
 """
 
 from __future__ import annotations
@@ -35,16 +38,27 @@ import math
 import numpy as np
 
 from vecu.estimators.throttle.pf_kernels import (
-    CAREFUL,
-    PRIOR,
-    UPDATE,
+    AS_OUTLIER,
+    CAREFUL_RUN,
+    KEEP,
+    LOST,
+    MAX_GATED_IN_ROW,
+    REJECTED,
+    RESAMPLE,
+    ST_SW,
+    ST_SW2,
+    TO_KALMAN,
     pf_resample,
-    pf_step,
+    pf_tick,
+    redo_kind,
+    resample_target,
     step_constants,
+    tick_config,
 )
 from vecu.estimators.throttle.pf_parts import (
     CLASS_BOUNDS_DEG,
     HIGH_CLASS,
+    MAX_STD_DEG,
     U_COL,
     Y_MAX_W,
     Y_MIN_W,
@@ -53,6 +67,8 @@ from vecu.estimators.throttle.pf_parts import (
     class_b,
     class_bounds,
     class_matrix_stack,
+    mode3_tick_buf,
+    report,
     systematic_counts,
 )
 from vecu.kernels import backend
@@ -74,10 +90,8 @@ LOW_EXIT_DEG = 30.0  # all particles above this: back to n_high
 DEFAULT_SEED = 20150923
 NORMAL_TABLE = 1 << 17  # standard normals drawn once; each step reads windows at random offsets
 OFFSET_BLOCK = 4096  # window offsets drawn per refill
-ESS_FRACTION = 0.5  # resample when ESS < ESS_FRACTION * N
-OUTLIER_FIT = 1e-12  # y is an outlier if the mean likelihood ratio is below this (> 7 sigma)
-MAX_GATED_IN_ROW = 3  # at most this many outliers in a row are rejected, then y is believed
-SURPRISE_FIT = 1e-3  # below this: clamp the proposal correction, likelihoods in the log domain
+# ESS_FRACTION, OUTLIER_FIT, MAX_GATED_IN_ROW, SURPRISE_FIT: pf_kernels (redo_kind and
+# resample_target: the tick's decisions, written once for both backends)
 KF_ENTER = (30.0, 85.0, 1.0)  # all particles: theta in (30, 85) deg, i > 1 A -> Kalman filter
 # Kalman theta - 3 sigma < 22 deg, theta + 2 sigma > 90 deg (too much mass at the stop) or
 # i - 3 sigma < 0.5 A -> particles again
@@ -86,7 +100,6 @@ KF_CHECK_EVERY = 8  # steps between checks of the KF_ENTER condition
 KF_STEADY_SD_PER_ALPHA = 5.9  # measured steady-state Kalman theta std in mode 3, per unit alpha
 KF_GATE = 49.0  # Kalman innovation outlier gate (r^2 / S, 7 sigma)
 DEFAULT_STD_INFLATION = 1.2  # theta_std_deg = 1.2 x posterior std (calibration, docs/models.md)
-STD_FLOOR_DEG = 0.3
 # Stuck below the mode-3 bound (issue 30 item 5, docs/models.md "Consistency"): while the
 # estimate is at or below b2 + LOCK_MARGIN_DEG and the command u exceeds LOCK_U_V, the filter
 # sometimes misses a mode-2 -> mode-3 throw of the truth and its particles stay parked below b2
@@ -97,7 +110,6 @@ STD_FLOOR_DEG = 0.3
 LOCK_U_V = 3.0
 LOCK_MARGIN_DEG = 1.5
 LOCK_STD_DEG = 12.0
-MAX_STD_DEG = 51.0
 # ufunc reductions and ndarray methods called directly: the np.* / .min() forms add a Python-level
 # wrapper (~1 us a call, several calls a step); the results are the same
 _min = np.minimum.reduce
@@ -111,7 +123,8 @@ class ThrottleParticleFilter:
     (eq. 4); y=None, non-finite or outside (Y_MIN_W, Y_MAX_W), or an isolated outlier: predict
     only. theta_deg / theta_std_deg: posterior mean / std of theta (std x `std_inflation`,
     floored at 0.3 deg, capped at 51 deg). Counters: resets (divergence restarts), rejected
-    (y gated out), resamples, resizes (particle-count changes), kalman_steps.
+    (y gated out), resamples, resizes (particle-count changes), kalman_steps, careful_updates
+    (steps redone with the careful update).
     Deterministic: all randomness comes from PCG64(seed); reset() replays the same sequence.
     """
 
@@ -156,10 +169,13 @@ class ThrottleParticleFilter:
         self._cls_b = cls_b
         self._yc = np.zeros(())  # 0-d array: y + shift of the current step
         self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model, KF_GATE)
+        self._kf.set_tick(*self._kf_exit, self.std_inflation)
         self._kconst = step_constants(s, cls_b, r_watt, cb)  # the compiled step's constants
-        self._extremes: tuple[float, float] | None = None  # compiled step: max theta, min i
+        self._tcfg = tick_config(self._y_shift, self.std_inflation, self._n_low, self._n_high,
+                                 self._low_enter, self._low_exit, self._kf_enter)
+        self._st = np.zeros(6)  # pf_tick's state (lo, hi, sw, sw2, extremes), kept in step
         self.resets = self.rejected = self.resamples = self.resizes = 0
-        self.kalman_steps = self.steps = 0
+        self.kalman_steps = self.steps = self.careful_updates = 0
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -192,8 +208,13 @@ class ThrottleParticleFilter:
             f.ci[:] = np.where(rng.random(n) < 0.85, r, -r) + rng.standard_normal(n)
         f.w.fill(1.0)
         self._b = b
+        self._adopt(f)
+
+    def _adopt(self, f) -> None:
+        """Frame f (just filled) sets the extent, the sums and the output (also pf_tick's)."""
         self._lo, self._hi = float(f.th.min()), float(f.th.max())
         self._summarise(f)
+        self._st[:4] = (self._lo, self._hi, self._sw, self._sw2)
 
     def _summarise(self, f) -> float:
         """Weighted moments of theta from one frame; returns the weight sum (bad: NaN)."""
@@ -215,9 +236,8 @@ class ThrottleParticleFilter:
         return sw
 
     def _set_output(self, th: float, var: float) -> None:
-        self._theta = THETA_MIN_DEG if th < THETA_MIN_DEG else min(th, THETA_MAX_DEG)
-        sd = (math.sqrt(var) if var > 0.0 else 0.0) * self.std_inflation
-        self._std = self._std_post = STD_FLOOR_DEG if sd < STD_FLOOR_DEG else min(sd, MAX_STD_DEG)
+        self._theta, self._std = report.py(th, var, self.std_inflation)
+        self._std_post = self._std
 
     @property
     def theta_deg(self) -> float:
@@ -262,20 +282,56 @@ class ThrottleParticleFilter:
             if not (Y_MIN_W < y < Y_MAX_W):  # also False for NaN
                 self.rejected += 1
                 y = None
-        if self._in_kf:
-            self._kalman_step(u, y, o1)
+        numba = backend() == "numba"
+        if self._in_kf:  # a Kalman-stretch tick: one kernel call (mode3_tick)
+            yk, may_gate = math.nan if y is None else y, self._gated < MAX_GATED_IN_ROW
+            status, leave, th, sd = (mode3_tick_buf.compiled(self._kf.buf, u, yk, may_gate)
+                                     if numba else self._kf.tick(u, yk, may_gate))
+            if status == 2:
+                self._gated += 1
+                self.rejected += 1
+            elif status == 1:
+                self._gated = 0
+            self.kalman_steps += 1
+            if leave:
+                self._from_kalman(o1)
+            else:
+                self._theta = th
+                self._std_post = sd  # step() sets _std from it
             return
         b = self._b
         f, g = b.cur, b.nxt
+        if numba:  # the same tick in one compiled call
+            code, target, self._gated, th, sd = pf_tick.compiled(
+                f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u,
+                math.nan if y is None else y, o1, o2, self._st, self._tcfg, self._gated,
+                self.use_kalman and self.steps % KF_CHECK_EVERY == 0)
+            if code & REJECTED:
+                self.rejected += 1
+            elif code & CAREFUL_RUN:
+                self.careful_updates += 1
+            act = code & 3
+            if act == LOST:
+                self._lost(y)
+                return
+            b.cur, b.nxt = g, f
+            self._theta = th
+            self._std_post = sd
+            if act == RESAMPLE:
+                self._resample(target)
+            elif act == TO_KALMAN:
+                self._to_kalman(g, float(self._st[ST_SW]))
+            return
         sw_old = self._sw
         extent = self._lo, self._hi  # of frame f: a redo picks its mode classes from these
         sw = self._propagate(b, f, g, u, y, o1, o2, False)
         if y is not None:
-            if sw > SURPRISE_FIT * sw_old:
+            kind = redo_kind.py(sw, sw_old, self._gated)
+            if kind == KEEP:
                 self._gated = 0
             else:  # rare: redo this step as an outlier (predict only) or with care
                 self._lo, self._hi = extent
-                sw = self._replay(b, f, g, u, y, o1, o2, sw / sw_old)
+                sw = self._replay(b, f, g, u, y, o1, o2, kind)
         if not sw > 0.0:  # NaN or no weight left
             self._lost(y)
             return
@@ -285,30 +341,20 @@ class ThrottleParticleFilter:
             g.w *= inv
             self._sw2 = self._sw2 * inv * inv
             self._sw = sw = 1.0
-        lo, n = self._lo, b.n
-        target = (self._n_low if lo < self._low_enter
-                  else (self._n_high if lo > self._low_exit else n))
-        if target != n or sw * sw < ESS_FRACTION * n * self._sw2:
+        lo = self._lo
+        target = resample_target.py(lo, b.n, sw, self._sw2, self._n_low, self._n_high,
+                                    self._low_enter, self._low_exit)
+        if target:
             self._resample(target)
         elif (lo > self._kf_enter[0] and self.use_kalman and self.steps % KF_CHECK_EVERY == 0
               and self._fits_kalman(g)):
-            self._to_kalman(g)
+            self._to_kalman(g, self._sw)
 
     def _propagate(self, b: Bank, f, g, u: float, y: float | None, o1: int, o2: int,
                    careful: bool) -> float:
         """Predict f into g, then the prior current (y None) or the update with y; returns
-        the new weight sum (_summarise). numpy, or one compiled kernel under numba."""
-        if backend() == "numba":
-            mode = PRIOR if y is None else (CAREFUL if careful else UPDATE)
-            yc = 0.0 if y is None else y + self._y_shift
-            sw, s_th, s_th2, s_w2, lo, hi, ci_min = pf_step.compiled(
-                f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u, self._lo, self._hi,
-                o1, o2, mode, yc)
-            self._lo = lo
-            self._hi = hi if lo <= self._cb[-1] else THETA_MAX_DEG
-            self._extremes = (hi, ci_min)
-            return self._take_moments(sw, s_th, s_th2, s_w2)
-        self._extremes = None
+        the new weight sum (_summarise). The numpy path (the reference); under numba the
+        whole tick is pf_tick (pf_kernels.pf_step with the same draws and decisions)."""
         self._predict(b, f, g, u, o1)
         if y is None:
             self._prior_current(b, f, g, o2)
@@ -318,10 +364,7 @@ class ThrottleParticleFilter:
 
     def _fits_kalman(self, g) -> bool:
         """The rest of KF_ENTER: all theta below 85 deg and all currents above 1 A."""
-        if self._extremes is None:
-            th_max, ci_min = float(_max(g.th)), float(_min(g.ci))
-        else:
-            th_max, ci_min = self._extremes
+        th_max, ci_min = float(_max(g.th)), float(_min(g.ci))
         return th_max < self._kf_enter[1] and ci_min > self._kf_enter[2]
 
     def _predict(self, b: Bank, f, g, u: float, o1: int) -> None:
@@ -393,14 +436,15 @@ class ThrottleParticleFilter:
         np.add(t3, t2, out=m)
 
     def _replay(self, b: Bank, f, g, u: float, y: float, o1: int, o2: int,
-                fit: float) -> float:
-        """Redo the step from frame f (same random draws): y an isolated outlier -> predict
-        only; otherwise the careful update. Returns the new weight sum."""
-        if not fit > OUTLIER_FIT and self._gated < MAX_GATED_IN_ROW:
+                kind: int) -> float:
+        """Redo the step from frame f (same random draws) as redo_kind said: y an isolated
+        outlier -> predict only; otherwise the careful update. Returns the new weight sum."""
+        if kind == AS_OUTLIER:
             self._gated += 1
             self.rejected += 1
             return self._propagate(b, f, g, u, None, o1, o2, False)
         self._gated = 0
+        self.careful_updates += 1
         return self._propagate(b, f, g, u, y, o1, o2, True)
 
     def _resample(self, n_new: int) -> None:
@@ -422,6 +466,7 @@ class ThrottleParticleFilter:
             b.cur, b.nxt = dst, f
         self._b = nb
         self._sw = self._sw2 = float(n_new)
+        self._st[ST_SW] = self._st[ST_SW2] = self._sw
 
     def _lost(self, y: float | None) -> None:
         """Divergence (no weight left, NaN): restart from the broad prior, count it."""
@@ -431,9 +476,10 @@ class ThrottleParticleFilter:
         self._fill("broad", y)
 
     # -------------------------------------------------------- Kalman stretches
-    def _to_kalman(self, f) -> None:
-        """All particles well inside mode 3 with a positive current: moment-match them."""
-        w = f.w * (1.0 / self._sw)
+    def _to_kalman(self, f, sw: float) -> None:
+        """All particles well inside mode 3 with a positive current (weight sum sw):
+        moment-match them."""
+        w = f.w * (1.0 / sw)
         mean = f.top3.dot(w)
         d = f.top3 - mean[:, None]
         cov = (d * w).dot(d.T)
@@ -444,21 +490,6 @@ class ThrottleParticleFilter:
             cov *= floor / max(float(cov[0, 0]), 1e-12)
         self._kf.load(mean, cov)
         self._in_kf = True
-
-    def _kalman_step(self, u: float, y: float | None, o1: int) -> None:
-        kf = self._kf
-        status = kf.step(u, math.nan if y is None else y, self._gated < MAX_GATED_IN_ROW)
-        if status == 2:
-            self._gated += 1
-            self.rejected += 1
-        elif status == 1:
-            self._gated = 0
-        self.kalman_steps += 1
-        x = kf.x.tolist()  # once for both (numpy scalar indexing costs ~0.1 us a read)
-        if kf.leave(*self._kf_exit, x):
-            self._from_kalman(o1)
-        else:
-            self._set_output(x[0], x[3])
 
     def _from_kalman(self, o1: int) -> None:
         """Back to particles: draw them from the Kalman Gaussian (restart if it is broken)."""
@@ -479,8 +510,7 @@ class ThrottleParticleFilter:
         f.ci[:] = kf.ci + l20 * z0 + l21 * z1 + l22 * z2
         f.w.fill(1.0)
         self._b = b
-        self._lo, self._hi = float(f.th.min()), float(f.th.max())
-        self._summarise(f)
+        self._adopt(f)
 
 
 def make_production_estimator(noise_scale: float = 1.0,
