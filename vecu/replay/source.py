@@ -28,8 +28,9 @@ import os
 import traceback
 from bisect import bisect_right
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import can
@@ -197,8 +198,10 @@ class TraceSource:
         stats = self.stats
         window, idle_gap = self.window_ns, self.idle_gap_ns
         scale = NS_PER_S // TIME_RESOLUTION_NS
-        fifo: deque[tuple[int, int, can.Message]] | None = deque()
+        fifo: deque[tuple[int, int, can.Message]] = deque()
         heap: list[tuple[int, int, can.Message]] = []
+        pending: deque[tuple[int, int, can.Message]] | list[tuple[int, int, can.Message]] = fifo
+        pop: Callable[[], tuple[int, int, can.Message]] = fifo.popleft  # pending's earliest
         released = -1  # t_ns (trace time) of the last frame handed out by the ordering (-1: none)
         prev_ts = -math.inf
         last: float = math.inf  # trace time of the last frame handed out (inf: none, no gap)
@@ -239,30 +242,18 @@ class TraceSource:
                 t_ns = released
             entry = (t_ns, seq, msg)
             seq += 1
-            edge = t_ns - window
-            if fifo is not None:
+            if pending is fifo:
                 if fifo and t_ns < fifo[-1][0]:  # backwards: from now on the heap
-                    heap = list(fifo)
-                    fifo = None
+                    heap = list(fifo)  # in order: a heap already
                     heapq.heappush(heap, entry)
+                    pending, pop = heap, partial(heapq.heappop, heap)
                 else:
                     fifo.append(entry)
-                    while fifo and fifo[0][0] <= edge:
-                        released, _, out_msg = fifo.popleft()
-                        if released - last > idle_gap:
-                            skipped = self._gap(last, released, skipped)
-                        last = released
-                        append((released - skipped, out_msg))
-                    if len(out) >= size:
-                        stats.frames_read, self._last_ts = seq, ts
-                        yield out
-                        out = []
-                        append = out.append
-                    continue
             else:
                 heapq.heappush(heap, entry)
-            while heap and heap[0][0] <= edge:
-                released, _, out_msg = heapq.heappop(heap)
+            edge = t_ns - window
+            while pending and pending[0][0] <= edge:
+                released, _, out_msg = pop()
                 if released - last > idle_gap:
                     skipped = self._gap(last, released, skipped)
                 last = released
@@ -279,7 +270,7 @@ class TraceSource:
             self._reader.stop()
         except Exception as exc:  # noqa: BLE001 - closing a reader that has failed may fail too
             log.debug("%s: closing the reader: %s", self.path, exc)
-        rest = list(fifo) if fifo is not None else [heapq.heappop(heap) for _ in range(len(heap))]
+        rest = list(fifo) if pending is fifo else [heapq.heappop(heap) for _ in range(len(heap))]
         for released, _, out_msg in rest:
             if released - last > idle_gap:
                 skipped = self._gap(last, released, skipped)
