@@ -14,7 +14,7 @@ import can
 from vecu.block_codec import BlockChecks
 from vecu.clock import WallClock
 from vecu.codec import DbcCodec, FrameCodec
-from vecu.ecu.node import Checked, EcuNode, Route
+from vecu.ecu.node import EcuNode, Route
 from vecu.replay.scoring import TruthScorer
 from vecu.replay.source import TraceSource
 from vecu.stats import DurationHistogram
@@ -75,6 +75,7 @@ class Feeder:
         self.until_ns = until_ns
         self.schedule_error = DurationHistogram(limit_us=SCHEDULE_ERROR_LIMIT_US)
         self._i = 0
+        self._sorting: dict[tuple[int, bool], tuple[int, FrameCodec | None]] = {}  # _sort's
         if self.block:
             self._chunks: Iterator[list[tuple[int, can.Message]]] | None = source.chunks(CHUNK)
             # per frame handed on: its time, message, what to do, its block's checks, place
@@ -83,7 +84,6 @@ class Feeder:
             self._kinds: list[int] = []
             self._checks: list[BlockChecks | None] = []
             self._at: list[int] = []
-            self._sorting: dict[tuple[int, bool], tuple[int, FrameCodec | None]] = {}
             if not self._load():
                 self._finish()
             return
@@ -94,7 +94,7 @@ class Feeder:
         if self._pending is None:
             self.done = True
 
-    # ------------------------------------------------------------ block path (fast)
+    # ------------------------------------------------------------ where a frame goes (both paths)
     def _sort(self, key: tuple[int, bool]) -> tuple[int, FrameCodec | None]:
         """What becomes of a (non-error, non-remote) frame with this key, and the codec that
         checks it: its block's (truth, ECU input; None: one by one) or its database's (other)."""
@@ -106,10 +106,31 @@ class Feeder:
             return _COPY, self.db.by_id[key]
         return _TO_ECU, None  # unknown: the ECU counts it
 
+    def _kind(self, msg: can.Message) -> tuple[int, FrameCodec | None]:
+        """_sort of msg's key (looked up once per key); error and remote frames go to the ECU."""
+        if msg.is_error_frame or msg.is_remote_frame:
+            return _TO_ECU, None
+        key = (msg.arbitration_id, msg.is_extended_id)
+        got = self._sorting.get(key)
+        if got is None:
+            got = self._sorting[key] = self._sort(key)
+        return got
+
+    def _count_other(self, fc: FrameCodec, data: bytes | bytearray) -> None:
+        """A frame the database knows that neither feeds the ECU nor is truth: tallied as
+        decoded or by why it does not decode."""
+        tally = self.tally
+        reason = "dlc" if len(data) != fc.length else fc.decode_problem(data)
+        if reason is None:
+            tally.decoded_other += 1
+        else:
+            tally.decode_errors[reason] = tally.decode_errors.get(reason, 0) + 1
+
+    # ------------------------------------------------------------ block path (fast)
     def _load(self) -> bool:
         """Sort out the next chunk that has frames to hand on (False: the trace has ended)."""
-        tally, copy = self.tally, self.copy_to is not None
-        sorting, sort = self._sorting, self._sort
+        copy = self.copy_to is not None
+        kind_of, count_other = self._kind, self._count_other
         while self._chunks is not None:
             buf = next(self._chunks, None)
             if buf is not None and self.until_ns is not None and buf[-1][0] > self.until_ns:
@@ -124,30 +145,17 @@ class Feeder:
             kinds: list[int] = []
             groups: dict[FrameCodec, tuple[list[int], list[bytearray]]] = {}
             for t_ns, msg in buf:
-                if msg.is_error_frame or msg.is_remote_frame:
-                    kind, fc = _TO_ECU, None
-                else:
-                    key = (msg.arbitration_id, msg.is_extended_id)
-                    got = sorting.get(key)
-                    if got is None:
-                        got = sorting[key] = sort(key)
-                    kind, fc = got
-                    if kind == _COPY:  # known, not an input: count whether it decodes
-                        data = msg.data
-                        reason = ("dlc" if len(data) != fc.length  # type: ignore[union-attr]  # _COPY: a codec
-                                  else fc.decode_problem(data))  # type: ignore[union-attr]
-                        if reason is None:
-                            tally.decoded_other += 1
-                        else:
-                            tally.decode_errors[reason] = tally.decode_errors.get(reason, 0) + 1
-                        if not copy:
-                            continue
-                    elif fc is not None and len(msg.data) == fc.length:
-                        group = groups.get(fc)
-                        if group is None:
-                            group = groups[fc] = ([], [])
-                        group[0].append(len(times))
-                        group[1].append(msg.data)
+                kind, fc = kind_of(msg)
+                if kind == _COPY:  # known, not an input: count whether it decodes
+                    count_other(fc, msg.data)  # type: ignore[arg-type]  # _COPY: a codec
+                    if not copy:
+                        continue
+                elif fc is not None and len(msg.data) == fc.length:
+                    group = groups.get(fc)
+                    if group is None:
+                        group = groups[fc] = ([], [])
+                    group[0].append(len(times))
+                    group[1].append(msg.data)
                 times.append(t_ns)
                 msgs.append(msg)
                 kinds.append(kind)
@@ -237,24 +245,16 @@ class Feeder:
             return None
         return max(now_ns + 1, int(pending[0] / self.speed) if live else pending[0])
 
-    def _deliver(self, msg: can.Message, t_ns: int, checked: Checked | None = None) -> None:
-        key = (msg.arbitration_id, msg.is_extended_id)
-        tally = self.tally
-        if key in self.scorer.truth_ids and not msg.is_error_frame and not msg.is_remote_frame:
-            tally.truth += 1
-            self.scorer.on_truth(msg, t_ns, checked[1] if checked is not None else None)
-            return
-        if key in self.routes or key not in self.db.by_id or msg.is_error_frame \
-                or msg.is_remote_frame:
-            self.ecu.receive(msg, t_ns, checked)  # its rx counters: accepted / ignored / why not
-            return
-        fc = self.db.by_id[key]  # known, not an input: count whether it decodes
-        data = msg.data
-        reason = "dlc" if len(data) != fc.length else fc.decode_problem(data)
-        if reason is None:
-            tally.decoded_other += 1
+    def _deliver(self, msg: can.Message, t_ns: int) -> None:
+        """One frame to where _sort sends it (the block path's, one by one)."""
+        kind, fc = self._kind(msg)
+        if kind == _TRUTH:
+            self.tally.truth += 1
+            self.scorer.on_truth(msg, t_ns, None)
+        elif kind == _TO_ECU:
+            self.ecu.receive(msg, t_ns, None)  # its rx counters: accepted / ignored / why not
         else:
-            tally.decode_errors[reason] = tally.decode_errors.get(reason, 0) + 1
+            self._count_other(fc, msg.data)  # type: ignore[arg-type]  # _COPY: a codec
 
     def _send_live(self, msg: can.Message, due_ns: int) -> None:
         assert self.player is not None and self.clock is not None
