@@ -225,7 +225,9 @@ def mode3_step(x: Any, coef: Any, prm: Any, u: float, y: float, may_gate: bool) 
 @kernel
 def mode3_leave(th: float, rh: float, ci: float, p00: float, p22: float, lo_deg: float,
                 top_sigmas: float, i_min: float) -> bool:
-    """ModeThreeKalman.leave's test on the state's th, rh, ci, p00, p22."""
+    """The particle filter must take over again: True if theta - 3 sigma < lo_deg, theta +
+    top_sigmas sigma > 90 (too much mass at the stop for the censored moments), i - 3 sigma <
+    i_min, or P / x are broken (on the state's th, rh, ci, p00, p22)."""
     if not (p00 > 0.0 and p22 > 0.0 and p00 < 1e6 and p22 < 1e6):
         return True
     st = math.sqrt(p00)
@@ -273,12 +275,11 @@ class ModeThreeKalman:
     mode3_step: compiled under numba, the same Python otherwise) on the state tuple
     x = (th, rh, ci, p00, p01, p02, p11, p12, p22).
     The stop at 90 deg is handled by censored-Gaussian moments after each prediction.
-    `leave()` says when the particle filter must take over again (a mode switch or a current
-    whose sign is no longer certain within reach).
+    mode3_leave says when the particle filter must take over again (a mode switch or a current
+    whose sign is no longer certain within reach); tick() is mode3_tick (step, leave, output).
     """
 
-    __slots__ = ("buf", "cfg", "cfg_a", "coef", "coef_a", "prm", "prm_a", "q_i", "q_th", "r",
-                 "x")
+    __slots__ = ("buf", "cfg", "coef", "prm", "q_i", "q_th", "r", "x")
 
     def __init__(self, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE,
                  gate: float = 49.0) -> None:
@@ -291,8 +292,7 @@ class ModeThreeKalman:
         # one buffer x | coef | prm | cfg (mode3_tick_buf: one compiled argument), views of it
         self.buf = np.zeros(9 + 15 + 4 + 4)
         self.x = self.buf[:9]  # th, rh, ci, p00, p01, p02, p11, p12, p22
-        self.coef_a, self.prm_a, self.cfg_a = self.buf[9:24], self.buf[24:28], self.buf[28:]
-        self.coef_a[:], self.prm_a[:] = self.coef, self.prm
+        self.buf[9:24], self.buf[24:28] = self.coef, self.prm
         self.set_tick(-math.inf, math.inf, -math.inf, 1.0)
 
     th = property(lambda self: float(self.x[0]))
@@ -322,28 +322,11 @@ class ModeThreeKalman:
         """mode3_update."""
         self.x[:] = mode3_update(tuple(self.x.tolist()), r, s)
 
-    def step(self, u: float, y: float, may_gate: bool) -> int:
-        """mode3_step (y NaN: predict only); returns its status (0 no y, 1 updated, 2 gated)."""
-        if backend() == "numba":
-            return int(mode3_step.compiled(self.x, self.coef_a, self.prm_a, u, y, may_gate))
-        x = self.x.tolist()
-        status = mode3_step.py(x, self.coef, self.prm, u, y, may_gate)
-        self.x[:] = x
-        return status
-
-    def leave(self, lo_deg: float, top_sigmas: float, i_min: float,
-              x: list[float] | None = None) -> bool:
-        """True if theta - 3 sigma < lo_deg, theta + top_sigmas sigma > 90 (too much mass at the
-        stop for the censored moments), i - 3 sigma < i_min, or P / x are broken (x: the state
-        as a list if the caller has it already)."""
-        th, rh, ci, p00, _, _, _, _, p22 = self.x.tolist() if x is None else x
-        return bool(mode3_leave.py(th, rh, ci, p00, p22, lo_deg, top_sigmas, i_min))
-
     def set_tick(self, lo_deg: float, top_sigmas: float, i_min: float,
                  inflation: float) -> None:
-        """tick()'s leave thresholds (as leave()) and output std inflation (report)."""
+        """tick()'s leave thresholds (mode3_leave's) and output std inflation (report)."""
         self.cfg = (lo_deg, top_sigmas, i_min, inflation)
-        self.cfg_a[:] = self.cfg
+        self.buf[28:] = self.cfg
 
     def tick(self, u: float, y: float, may_gate: bool) -> tuple[int, bool, float, float]:
         """mode3_tick with set_tick's cfg: (status, leave, theta, std)."""
