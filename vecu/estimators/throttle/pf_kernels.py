@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from vecu.estimators.throttle.pf_parts import report
+from vecu.estimators.throttle.pf_parts import report, theta_moments
 from vecu.kernels import kernel
 from vecu.kernels.exp import exp_poly
 from vecu.models.throttle import THETA_MAX_DEG
@@ -304,11 +304,8 @@ def pf_advance(src, dst, mats, cst, ztab, tmp, u, o1, o2, mode, yc, st, inflatio
     st[ST_HI] = hi if lo <= cst[_BOUND0 + 2] else THETA_MAX_DEG
     st[ST_HI_EXT] = hi
     st[ST_CI_MIN] = ci_min
-    if not sw > 0.0:
-        return math.nan, 0.0, 0.0
-    th = s_th / sw
-    var = s_th2 / sw - th * th
-    if not (math.isfinite(th) and math.isfinite(var) and math.isfinite(sw)):
+    ok, th, var = theta_moments(sw, s_th, s_th2)
+    if not ok:
         return math.nan, 0.0, 0.0
     t, sd = report(th, var, inflation)
     st[ST_SW] = sw

@@ -236,6 +236,19 @@ def mode3_leave(th: float, rh: float, ci: float, p00: float, p22: float, lo_deg:
 
 
 @kernel
+def theta_moments(sw: float, s_th: float, s_th2: float) -> tuple[bool, float, float]:
+    """(ok, mean, variance) of theta from the weight sums w, w theta, w theta^2; not ok when
+    sw is not > 0 or the mean, variance or sw are not finite (the filter's "no weight left")."""
+    if not sw > 0.0:
+        return False, 0.0, 0.0
+    th = s_th / sw
+    var = s_th2 / sw - th * th
+    if not (math.isfinite(th) and math.isfinite(var) and math.isfinite(sw)):
+        return False, 0.0, 0.0
+    return True, th, var
+
+
+@kernel
 def report(th: float, var: float, inflation: float) -> tuple[float, float]:
     """The filter's output from a posterior mean / variance of theta: (theta clipped to the
     stops, std x inflation floored at STD_FLOOR_DEG and capped at MAX_STD_DEG); NaN th stays

@@ -70,6 +70,7 @@ from vecu.estimators.throttle.pf_parts import (
     mode3_tick_buf,
     report,
     systematic_counts,
+    theta_moments,
 )
 from vecu.kernels import backend
 from vecu.models.throttle import (
@@ -224,11 +225,8 @@ class ThrottleParticleFilter:
 
     def _take_moments(self, sw: float, s_th: float, s_th2: float, s_w2: float) -> float:
         """Output from the sums of w, w theta, w theta^2, w^2; returns sw (bad: NaN)."""
-        if not sw > 0.0:
-            return math.nan
-        th = s_th / sw
-        var = s_th2 / sw - th * th
-        if not (math.isfinite(th) and math.isfinite(var) and math.isfinite(sw)):
+        ok, th, var = theta_moments.py(sw, s_th, s_th2)
+        if not ok:
             return math.nan
         self._set_output(th, var)
         self._sw = sw
