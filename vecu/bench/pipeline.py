@@ -59,7 +59,7 @@ def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> l
     Each row also gives the estimator's own us per step measured inside the same run, so the
     pipeline's cost splits into estimator and everything else (CAN encode/decode, bus, scheduler).
     """
-    from vecu import runner
+    from vecu import kernels, runner
     from vecu.estimators.registry import make_throttle_estimator
 
     timed: list[_TimedEstimator] = []
@@ -86,7 +86,7 @@ def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> l
                          "us_per_tick": round(per_tick, 1),
                          "estimator_us_per_tick": round(est_us, 1),
                          "rest_us_per_tick": round(per_tick - est_us, 1),
-                         "target_x_realtime": 20.0})
+                         "target_x_realtime": TARGET_RUN_X[kernels.backend()]})
     return rows
 
 
