@@ -90,10 +90,11 @@ CLASS_B: tuple[float, ...] = class_b()
 
 
 class Frame:
-    """One particle set. F rows: theta, rho, i, 1, sgn(rho), theta^2, weight (cached views)."""
+    """One particle set. F rows: theta, rho, i, 1, sgn(rho), theta^2, weight (cached views);
+    F is a view of the caller's buffer when given (a Bank's FB)."""
 
-    def __init__(self, n: int) -> None:
-        self.F = np.zeros((7, n))
+    def __init__(self, n: int, F: np.ndarray | None = None) -> None:
+        self.F: np.ndarray = np.zeros((7, n)) if F is None else F
         self.F[3] = 1.0
         self.F[6] = 1.0
         self.th, self.rh, self.ci, self.one, self.sg, self.th2, self.w = self.F
@@ -106,10 +107,16 @@ class Bank:
     the step pre-broadcast to length n (numpy is ~40 % slower with a Python-float operand)."""
 
     def __init__(self, n: int, s_i: float, r_watt: float = 1.0,
-                 bounds: tuple[float, float, float] = CLASS_BOUNDS_DEG) -> None:
+                 bounds: tuple[float, float, float] = CLASS_BOUNDS_DEG,
+                 sel: np.ndarray | None = None) -> None:
         self.n = n
-        self.cur, self.nxt = Frame(n), Frame(n)
-        self.T = np.empty((3, n))  # scratch rows (also the compiled step's, careful mode)
+        # FB: frames 0 and 1, then the scratch rows (also the compiled step's, careful mode);
+        # sel[0] says which frame is the current one (shared by a filter's banks, kept in its
+        # state vector; the compiled tick swaps by flipping it)
+        self.FB = np.zeros((3, 7, n))
+        self.frames = (Frame(n, self.FB[0]), Frame(n, self.FB[1]))
+        self.sel = np.zeros(1) if sel is None else sel
+        self.T = self.FB[2, :3]
         self.t1, self.t2, self.t3 = self.T
         self.cs = np.empty(n)  # resampling: cumulative weights
         self.ics = np.empty(n, dtype=np.intp)  # resampling: floor(cumulative * n_new + u0)
@@ -134,6 +141,20 @@ class Bank:
         self.neg_four_s2 = np.full(n, -4.0 * s_i * s_i)
         self.ninety = np.full(n, 90.0)
         self.zero = np.zeros(n)
+
+    @property
+    def cur(self) -> Frame:
+        """The frame holding the particles."""
+        return self.frames[int(self.sel[0])]
+
+    @property
+    def nxt(self) -> Frame:
+        """The other frame (a step writes there, then swap())."""
+        return self.frames[1 - int(self.sel[0])]
+
+    def swap(self) -> None:
+        """nxt becomes cur."""
+        self.sel[0] = 1.0 - self.sel[0]
 
 
 @kernel
@@ -295,7 +316,7 @@ class ModeThreeKalman:
     __slots__ = ("buf", "cfg", "coef", "prm", "q_i", "q_th", "r", "x")
 
     def __init__(self, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE,
-                 gate: float = 49.0) -> None:
+                 gate: float = 49.0, buf: np.ndarray | None = None) -> None:
         rows = _class_rows(HIGH_CLASS, model)  # eq. (3) in mode 3, sgn(theta - 1) = 1
         rows[2][U_COL] = class_b(model)[HIGH_CLASS]  # this row's constant is b u
         self.coef = tuple(v for row in rows for v in row)
@@ -303,7 +324,8 @@ class ModeThreeKalman:
         self.r = model.h_wattmeter * model.h_wattmeter
         self.prm = (q_th, q_i, self.r, float(gate))
         # one buffer x | coef | prm | cfg (mode3_tick_buf: one compiled argument), views of it
-        self.buf = np.zeros(9 + 15 + 4 + 4)
+        # (buf: a view of the caller's, 32 entries)
+        self.buf = np.zeros(9 + 15 + 4 + 4) if buf is None else buf
         self.x = self.buf[:9]  # th, rh, ci, p00, p01, p02, p11, p12, p22
         self.buf[9:24], self.buf[24:28] = self.coef, self.prm
         self.set_tick(-math.inf, math.inf, -math.inf, 1.0)

@@ -21,24 +21,21 @@ is multi-modal; Gaussian filters lock there. The particle filter
     at a fraction of the cost.
 rho is noise-free given (theta, rho, i), so each particle carries its exact rho.
 
-Backends (vecu.kernels, VECU_KERNELS): under "python" the particle step is the numpy code below
-(the reference); under "numba" the whole particle tick (step, outlier / careful redo,
-renormalising, the resample and Kalman hand-over decisions) is one compiled call, pf_tick of
-vecu.estimators.throttle.pf_kernels (same draws, same decisions, results equal to rounding),
-its scalars (extent, weight sums) kept in the array _st. A Kalman-stretch tick is one kernel
-call under both (pf_parts.mode3_tick). The rare paths (fill, resampling's draw, hand-overs) are
-the same Python under both.
+Backends (vecu.kernels, VECU_KERNELS): under "python" the particle step is the numpy code of
+pf_numpy (the reference) and a Kalman-stretch tick mode3_tick as plain Python; under "numba"
+a whole tick, particle or Kalman, is one compiled call, filter_tick of
+vecu.estimators.throttle.tick (pf_kernels.pf_tick around pf_step: same draws, same decisions,
+results equal to rounding), all its state in one vector _S. The rare paths (offset refills,
+fill, resampling, hand-overs) are the same Python under both.
 """
 
 from __future__ import annotations
 
-import bisect
 import math
 
 import numpy as np
 
 from vecu.estimators.throttle.pf_kernels import (
-    AS_OUTLIER,
     CAREFUL_RUN,
     KEEP,
     LOST,
@@ -47,18 +44,15 @@ from vecu.estimators.throttle.pf_kernels import (
     RESAMPLE,
     ST_SW,
     ST_SW2,
-    TO_KALMAN,
     pf_resample,
-    pf_tick,
     redo_kind,
     resample_target,
     step_constants,
     tick_config,
 )
+from vecu.estimators.throttle.pf_numpy import NumpyParticleStep
 from vecu.estimators.throttle.pf_parts import (
     CLASS_BOUNDS_DEG,
-    HIGH_CLASS,
-    MAX_STD_DEG,
     U_COL,
     Y_MAX_W,
     Y_MIN_W,
@@ -67,10 +61,35 @@ from vecu.estimators.throttle.pf_parts import (
     class_b,
     class_bounds,
     class_matrix_stack,
-    mode3_tick_buf,
     report,
     systematic_counts,
     theta_moments,
+)
+from vecu.estimators.throttle.tick import (
+    LEAVE_KF,
+    N_CFG,
+    N_CST,
+    N_KF,
+    NEED_OFFS,
+    S_CFG,
+    S_CST,
+    S_CUR,
+    S_GATED,
+    S_INKF,
+    S_KF,
+    S_KF_EVERY,
+    S_KOFF,
+    S_KSTEPS,
+    S_LOCK_BELOW,
+    S_LOCK_U,
+    S_LOCK_VAR,
+    S_O1,
+    S_OFFS,
+    S_STEPS,
+    S_TARGET,
+    S_USEKF,
+    filter_tick,
+    reported_std,
 )
 from vecu.kernels import backend
 from vecu.models.throttle import (
@@ -117,7 +136,7 @@ _min = np.minimum.reduce
 _max = np.maximum.reduce
 
 
-class ThrottleParticleFilter:
+class ThrottleParticleFilter(NumpyParticleStep):
     """ThrottleEstimator: particle filter on eq. (3) / eq. (4), see the module docstring.
 
     step(u_prev, y): propagate with eq. (3) and u_prev (theta noise, clip), then update with y_k
@@ -162,22 +181,39 @@ class ThrottleParticleFilter:
         self._lock_var = float(lock_std_deg) ** 2  # 0: the posterior's std alone
         cls_b = class_b(model)
         self._n_high, self._n_low = int(n_high), int(n_low)
-        self._banks = {n: Bank(n, s, r_watt, cb) for n in {self._n_high, self._n_low}}
+        # the whole state in one vector (vecu.estimators.throttle.tick), views of its parts
+        self._S = S = np.zeros(S_OFFS + 2 * OFFSET_BLOCK)
+        sel = S[S_CUR:S_CUR + 1]
+        self._banks = {n: Bank(n, s, r_watt, cb, sel) for n in {self._n_high, self._n_low}}
         self._mats = class_matrix_stack(model)
         self._mviews = [self._mats[3 * c:3 * c + 3] for c in range(4)]
         self._bcol = self._mats[2::3, U_COL]
         self._bvec = np.array(cls_b)
         self._cls_b = cls_b
         self._yc = np.zeros(())  # 0-d array: y + shift of the current step
-        self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model, KF_GATE)
+        self._kf = ModeThreeKalman(self._s_th ** 2, s * s, model, KF_GATE,
+                                   S[S_KF:S_KF + N_KF])
         self._kf.set_tick(*self._kf_exit, self.std_inflation)
-        self._kconst = step_constants(s, cls_b, r_watt, cb)  # the compiled step's constants
-        self._tcfg = tick_config(self._y_shift, self.std_inflation, self._n_low, self._n_high,
-                                 self._low_enter, self._low_exit, self._kf_enter)
-        self._st = np.zeros(6)  # pf_tick's state (lo, hi, sw, sw2, extremes), kept in step
-        self.resets = self.rejected = self.resamples = self.resizes = 0
-        self.kalman_steps = self.steps = self.careful_updates = 0
+        self._kconst = S[S_CST:S_CST + N_CST]  # the compiled step's constants
+        self._kconst[:] = step_constants(s, cls_b, r_watt, cb)
+        self._tcfg = S[S_CFG:S_CFG + N_CFG]
+        self._tcfg[:] = tick_config(self._y_shift, self.std_inflation, self._n_low,
+                                    self._n_high, self._low_enter, self._low_exit,
+                                    self._kf_enter)
+        self._st = S[:6]  # pf_tick's state (lo, hi, sw, sw2, extremes), kept in step
+        self._offs = S[S_OFFS:]
+        S[S_USEKF], S[S_KF_EVERY] = float(self.use_kalman), KF_CHECK_EVERY
+        S[S_LOCK_BELOW], S[S_LOCK_VAR], S[S_LOCK_U] = self._lock_below, self._lock_var, LOCK_U_V
+        self.resets = self.rejected = self.resamples = self.resizes = self.careful_updates = 0
         self.reset()
+
+    # counters and flags kept in S (the compiled tick's state)
+    steps = property(lambda self: int(self._S[S_STEPS]))
+    kalman_steps = property(lambda self: int(self._S[S_KSTEPS]))
+    _in_kf = property(lambda self: self._S[S_INKF] != 0.0,
+                      lambda self, v: self._S.__setitem__(S_INKF, float(v)))
+    _gated = property(lambda self: int(self._S[S_GATED]),
+                      lambda self, v: self._S.__setitem__(S_GATED, float(v)))
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -189,8 +225,7 @@ class ThrottleParticleFilter:
         np.multiply(z, self._s_th, out=self._zth)  # theta process noise
         np.multiply(z, self._s_i, out=self._zi)  # current process noise (prior draw)
         np.multiply(z, self._s_i * math.sqrt(2.0), out=self._zq)  # proposal noise, x sqrt(.5/S)
-        self._offs: list[int] = []
-        self._k_off = 0
+        self._S[S_KOFF] = self._offs.size  # none left: the first tick draws them
         self._gated = 0
         self._in_kf = False
         self._fill(self.init, None)
@@ -257,69 +292,93 @@ class ThrottleParticleFilter:
     # ------------------------------------------------------------------- step
     def step(self, u_prev: float, y: float | None) -> None:
         """Predict with eq. (3) and u_prev, update with the wattmeter y (eq. 4) unless None;
-        the reported std widened where the filter is known to get stuck (LOCK_STD_DEG)."""
-        self._step(u_prev, y)
-        sd = self._std_post  # the posterior's (set by every step)
-        if self._theta <= self._lock_below and u_prev > LOCK_U_V:  # False for NaN u
-            sd = min(math.sqrt(sd * sd + self._lock_var), MAX_STD_DEG)
-        self._std = sd
-
-    def _step(self, u_prev: float, y: float | None) -> None:
-        self.steps += 1
-        k = self._k_off
-        if k >= len(self._offs):
-            self._offs = self._rng.integers(0, NORMAL_TABLE, size=2 * OFFSET_BLOCK).tolist()
-            k = 0
-        o1, o2 = self._offs[k], self._offs[k + 1]
-        self._k_off = k + 2
+        the reported std widened where the filter is known to get stuck (reported_std). Under
+        numba one compiled call (tick.filter_tick), Python only for its rare events."""
         u = float(u_prev)
+        if y is None:
+            yk = math.nan
+        else:
+            yk = float(y)
+            if yk != yk:  # a NaN reading is rejected, not missing
+                yk = math.inf
+        if backend() == "numba":
+            code, th, sd = filter_tick.compiled(self._S, self._b.FB, self._mats, self._ztab, u,
+                                                yk)
+            if code:
+                th, sd = self._events(code, th, sd, u, yk)
+            self._theta, self._std = th, sd
+            return
+        self._step(u, yk)
+        self._std = reported_std.py(self._theta, self._std_post, u, self._lock_below,
+                                    self._lock_var, LOCK_U_V)
+
+    def _events(self, code: int, th: float, sd: float, u: float, yk: float
+                ) -> tuple[float, float]:
+        """The rare outcomes of filter_tick, finished in Python: (theta, reported std)."""
+        if code & NEED_OFFS:
+            self._refill()
+            code, th, sd = filter_tick.compiled(self._S, self._b.FB, self._mats, self._ztab,
+                                                u, yk)
+            if not code:
+                return th, sd
+        if code & REJECTED:
+            self.rejected += 1
+        elif code & CAREFUL_RUN:
+            self.careful_updates += 1
+        act = code & 3
+        if not (act or code & LEAVE_KF):
+            return th, sd  # the reported std already
+        self._theta, self._std_post = th, sd
+        if code & LEAVE_KF:
+            self._from_kalman(int(self._S[S_O1]))
+        elif act == LOST:
+            self._lost(yk if Y_MIN_W < yk < Y_MAX_W else None)
+        elif act == RESAMPLE:
+            self._resample(int(self._S[S_TARGET]))
+        else:
+            self._to_kalman(self._b.cur, float(self._st[ST_SW]))
+        return self._theta, reported_std.py(self._theta, self._std_post, u, self._lock_below,
+                                            self._lock_var, LOCK_U_V)
+
+    def _refill(self) -> None:
+        """The next block of window offsets (pairs: theta noise, current noise)."""
+        self._offs[:] = self._rng.integers(0, NORMAL_TABLE, size=self._offs.size)
+        self._S[S_KOFF] = 0.0
+
+    def _step(self, u: float, yk: float) -> None:
+        """The python backend's tick (the reference; filter_tick's under numba)."""
+        S = self._S
+        if S_OFFS + S[S_KOFF] + 1 >= S.size:
+            self._refill()
+        k = int(S[S_KOFF])
+        o1, o2 = int(self._offs[k]), int(self._offs[k + 1])
+        S[S_KOFF] = k + 2
+        S[S_STEPS] += 1.0
         if not math.isfinite(u):
             u = 0.0
-        if y is not None:
-            y = float(y)
-            if not (Y_MIN_W < y < Y_MAX_W):  # also False for NaN
+        y: float | None = None
+        if yk == yk:
+            if Y_MIN_W < yk < Y_MAX_W:
+                y = yk
+            else:
                 self.rejected += 1
-                y = None
-        numba = backend() == "numba"
         if self._in_kf:  # a Kalman-stretch tick: one kernel call (mode3_tick)
             yk, may_gate = math.nan if y is None else y, self._gated < MAX_GATED_IN_ROW
-            status, leave, th, sd = (mode3_tick_buf.compiled(self._kf.buf, u, yk, may_gate)
-                                     if numba else self._kf.tick(u, yk, may_gate))
+            status, leave, th, sd = self._kf.tick(u, yk, may_gate)
             if status == 2:
                 self._gated += 1
                 self.rejected += 1
             elif status == 1:
                 self._gated = 0
-            self.kalman_steps += 1
+            S[S_KSTEPS] += 1.0
             if leave:
                 self._from_kalman(o1)
             else:
                 self._theta = th
-                self._std_post = sd  # step() sets _std from it
+                self._std_post = sd  # step() reports from it
             return
         b = self._b
         f, g = b.cur, b.nxt
-        if numba:  # the same tick in one compiled call
-            code, target, self._gated, th, sd = pf_tick.compiled(
-                f.F, g.F, self._mats, self._kconst, self._ztab, b.T, u,
-                math.nan if y is None else y, o1, o2, self._st, self._tcfg, self._gated,
-                self.use_kalman and self.steps % KF_CHECK_EVERY == 0)
-            if code & REJECTED:
-                self.rejected += 1
-            elif code & CAREFUL_RUN:
-                self.careful_updates += 1
-            act = code & 3
-            if act == LOST:
-                self._lost(y)
-                return
-            b.cur, b.nxt = g, f
-            self._theta = th
-            self._std_post = sd
-            if act == RESAMPLE:
-                self._resample(target)
-            elif act == TO_KALMAN:
-                self._to_kalman(g, float(self._st[ST_SW]))
-            return
         sw_old = self._sw
         extent = self._lo, self._hi  # of frame f: a redo picks its mode classes from these
         sw = self._propagate(b, f, g, u, y, o1, o2, False)
@@ -333,7 +392,7 @@ class ThrottleParticleFilter:
         if not sw > 0.0:  # NaN or no weight left
             self._lost(y)
             return
-        b.cur, b.nxt = g, f
+        b.swap()
         if sw < 1e-150:  # weights only shrink (likelihoods <= 1): renormalise
             inv = 1.0 / sw
             g.w *= inv
@@ -348,102 +407,10 @@ class ThrottleParticleFilter:
               and self._fits_kalman(g)):
             self._to_kalman(g, self._sw)
 
-    def _propagate(self, b: Bank, f, g, u: float, y: float | None, o1: int, o2: int,
-                   careful: bool) -> float:
-        """Predict f into g, then the prior current (y None) or the update with y; returns
-        the new weight sum (_summarise). The numpy path (the reference); under numba the
-        whole tick is pf_tick (pf_kernels.pf_step with the same draws and decisions)."""
-        self._predict(b, f, g, u, o1)
-        if y is None:
-            self._prior_current(b, f, g, o2)
-        else:
-            self._update(b, f, g, y, o2, careful)
-        return self._summarise(g)
-
     def _fits_kalman(self, g) -> bool:
         """The rest of KF_ENTER: all theta below 85 deg and all currents above 1 A."""
         th_max, ci_min = float(_max(g.th)), float(_min(g.ci))
         return th_max < self._kf_enter[1] and ci_min > self._kf_enter[2]
-
-    def _predict(self, b: Bank, f, g, u: float, o1: int) -> None:
-        """Eq. (3) for every particle into frame g, theta noise added and clipped to [0, 90]."""
-        np.sign(f.rh, out=f.sg)
-        cb = self._cb
-        c = bisect.bisect_left(cb, self._lo)
-        if c == HIGH_CLASS or c == bisect.bisect_left(cb, self._hi):
-            self._mats[3 * c + 2, U_COL] = self._cls_b[c] * u
-            np.dot(self._mviews[c], f.top5, out=g.top3)
-        else:  # particles straddle a mode switch: all four classes, then pick per particle
-            np.multiply(self._bvec, u, out=self._bcol)
-            np.dot(self._mats, f.top5, out=b.Y)
-            if b.class_offset is not None:  # whole-degree bounds: class by ceil(theta)
-                np.ceil(f.th, out=b.cls, casting="unsafe")  # exact class lookup by ceil(theta)
-                b.class_offset.take(b.cls, out=b.cls, mode="clip")  # class * 3n
-            else:  # other bounds: the number of bounds below theta, x 3n
-                b.cls[:] = np.searchsorted(b.bounds, f.th, side="left") * (3 * b.n)
-            np.add(b.base, b.cls, out=b.idx)
-            b.Yflat.take(b.idx, out=g.top3, mode="clip")
-        th = g.th
-        np.add(th, self._zth[o1:o1 + b.n], out=th)
-        np.minimum(th, b.ninety, out=th)
-        lo = float(_min(th))
-        if lo < THETA_MIN_DEG:
-            np.maximum(th, b.zero, out=th)
-            lo = THETA_MIN_DEG
-        self._lo = lo
-        self._hi = float(_max(th)) if lo <= self._cb[-1] else THETA_MAX_DEG
-
-    def _prior_current(self, b: Bank, f, g, o2: int) -> None:
-        """No measurement: i from its prior N(m, s^2), weights unchanged."""
-        np.add(g.ci, self._zi[o2:o2 + b.n], out=g.ci)
-        np.copyto(g.w, f.w)
-
-    def _update(self, b: Bank, f, g, y: float, o2: int, careful: bool) -> None:
-        """Linearised optimal proposal for i and predictive-likelihood weights (eq. 4).
-
-        Prior i ~ N(m, s^2); y ~ N(m^2 + s^2, S), S = 1 + 4 m^2 s^2 (eq. 4 linearised at m);
-        proposal i = m (1 + 2 s^2 r / S) + s z / sqrt(S), r = y - m^2 - s^2; new weight
-        w N(y; m^2 + s^2, S). careful (y far from every particle): the linearisation overshoots
-        (sqrt(m^2 + r) < m + r / 2m), so the relative correction is clamped to [-1/2, 1] and the
-        likelihoods are scaled to a maximum of 1 in the log domain (no underflow).
-        """
-        m, t1, t2, t3 = g.ci, b.t1, b.t2, b.t3
-        np.multiply(m, m, out=t1)
-        np.add(t1, b.inv_c2, out=t1)  # h^2 = 1/(2s)^2 + m^2 = S / (2s)^2
-        np.sqrt(t1, out=t2)
-        np.divide(b.kappa, t2, out=t2)  # q = sqrt(0.5 / S)
-        np.divide(b.neg_k2, t1, out=t3)  # -0.5 / S
-        self._yc[()] = y + self._y_shift
-        np.subtract(self._yc, t1, out=t1)  # r
-        np.multiply(t1, t3, out=t3)  # -0.5 r / S
-        np.multiply(t1, t3, out=t1)  # -0.5 r^2 / S
-        if careful:
-            s2 = self._s_i * self._s_i
-            np.clip(t3, -0.25 / s2, 0.125 / s2, out=t3)  # 2 s^2 r / S in [-1/2, 1]
-            t1 += np.log(t2)
-            t1 -= t1.max()
-            np.exp(t1, out=t1)
-        else:
-            np.exp(t1, out=t1)
-            np.multiply(t2, t1, out=t1)  # sqrt(.5/S) exp(-r^2/2S): likelihood up to a constant
-        np.multiply(f.w, t1, out=g.w)
-        np.multiply(t3, m, out=t3)
-        np.multiply(t3, b.neg_four_s2, out=t3)  # 2 s^2 r m / S
-        np.add(t3, m, out=t3)
-        np.multiply(t2, self._zq[o2:o2 + b.n], out=t2)  # s z / sqrt(S)
-        np.add(t3, t2, out=m)
-
-    def _replay(self, b: Bank, f, g, u: float, y: float, o1: int, o2: int,
-                kind: int) -> float:
-        """Redo the step from frame f (same random draws) as redo_kind said: y an isolated
-        outlier -> predict only; otherwise the careful update. Returns the new weight sum."""
-        if kind == AS_OUTLIER:
-            self._gated += 1
-            self.rejected += 1
-            return self._propagate(b, f, g, u, None, o1, o2, False)
-        self._gated = 0
-        self.careful_updates += 1
-        return self._propagate(b, f, g, u, y, o1, o2, True)
 
     def _resample(self, n_new: int) -> None:
         """Systematic resampling into n_new particles (weights back to 1)."""
@@ -461,7 +428,7 @@ class ThrottleParticleFilter:
             f.top3.take(b.ar.repeat(counts), axis=1, out=dst.top3)
             dst.w.fill(1.0)
         if nb is b:
-            b.cur, b.nxt = dst, f
+            b.swap()
         self._b = nb
         self._sw = self._sw2 = float(n_new)
         self._st[ST_SW] = self._st[ST_SW2] = self._sw
