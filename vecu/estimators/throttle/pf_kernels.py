@@ -72,6 +72,41 @@ def step_constants(s_i: float, class_b: tuple[float, ...], r_watt: float = 1.0,
                      -0.25 / s2, 0.125 / s2, *class_b, *bounds], dtype=np.float64)
 
 
+@kernel(error_model="numpy")
+def eq3_row(out, th0, rh0, ci0, mats, cst, u, r, c0, c1, c2, c3, z, theta_row):
+    """Row r (0 theta, 1 rho, 2 i) of eq. (3) for every particle into out, each with its own
+    class: c_s for the slot s = the number of class bounds (1, b1, b2) below its theta (NaN:
+    slot 0), picked by selects (no branch, vectorises); the same arithmetic as pf_step's
+    per-class passes (the i row's constant b_c u); theta_row: + the noise z, clipped to
+    [0, 90]. pf_step's pass when several classes are present."""
+    n = th0.shape[0]
+    k0, k1, k2 = cst[_BOUND0], cst[_BOUND0 + 1], cst[_BOUND0 + 2]
+    ra, rb, rc, rd = 3 * c0 + r, 3 * c1 + r, 3 * c2 + r, 3 * c3 + r
+    a0, a1, a2, a3, a4 = mats[ra, 0], mats[ra, 1], mats[ra, 2], mats[ra, 3], mats[ra, 4]
+    b0, b1, b2, b3, b4 = mats[rb, 0], mats[rb, 1], mats[rb, 2], mats[rb, 3], mats[rb, 4]
+    d0, d1, d2, d3, d4 = mats[rc, 0], mats[rc, 1], mats[rc, 2], mats[rc, 3], mats[rc, 4]
+    e0, e1, e2, e3, e4 = mats[rd, 0], mats[rd, 1], mats[rd, 2], mats[rd, 3], mats[rd, 4]
+    if r == 2:
+        a3, b3, d3, e3 = (cst[_B0 + c0] * u, cst[_B0 + c1] * u, cst[_B0 + c2] * u,
+                          cst[_B0 + c3] * u)
+    for j in range(n):
+        t0 = th0[j]
+        x1 = rh0[j]
+        g1, g2, g3 = t0 > k0, t0 > k1, t0 > k2
+        sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
+        m0 = e0 if g3 else (d0 if g2 else (b0 if g1 else a0))
+        m1 = e1 if g3 else (d1 if g2 else (b1 if g1 else a1))
+        m2 = e2 if g3 else (d2 if g2 else (b2 if g1 else a2))
+        m3 = e3 if g3 else (d3 if g2 else (b3 if g1 else a3))
+        m4 = e4 if g3 else (d4 if g2 else (b4 if g1 else a4))
+        t = m0 * t0 + m1 * x1 + m2 * ci0[j] + m3 + m4 * sg
+        if theta_row:
+            t = t + z[j]
+            t = 90.0 if t > 90.0 else t
+            t = 0.0 if t < 0.0 else t
+        out[j] = t
+
+
 @kernel(error_model="numpy")  # x / 0 -> inf / NaN as numpy, no check per division
 def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, yc):
     """One particle-mode step from frame src into frame dst (rows 0-2 and 6 written).
@@ -98,8 +133,18 @@ def pf_step(src, dst, mats, cst, ztab, tmp, u, lo_prev, hi_prev, o1, o2, mode, y
     # and the predicted current m (into row ci; its constant column is b_c u). Every particle's
     # class lies between those of lo_prev and hi_prev: one pass per class present, class c
     # overwriting the particles above its lower bound (the numpy path's pick of the class by
-    # theta; NaN theta: the lowest class), so every loop is branch-free and vectorises.
+    # theta; NaN theta: the lowest class), so every loop is branch-free and vectorises: one
+    # class, one pass; several, one pass per row with the class picked per particle (eq3_row,
+    # the same arithmetic; a pass per class costs more from two classes on).
     c_end = 3 if (c_lo == 3 or c_hi < c_lo) else c_hi  # c_hi < c_lo: hi_prev NaN
+    if c_end > c_lo:  # several classes: one pass per row, the class picked per particle
+        # (slot s = the bounds below theta -> class clamp(s, c_lo, c_end))
+        s1 = c_lo if c_lo > 1 else (1 if c_end > 1 else c_end)
+        s2 = c_lo if c_lo > 2 else (2 if c_end > 2 else c_end)
+        eq3_row(th, th0, rh0, ci0, mats, cst, u, 0, c_lo, s1, s2, c_end, zth, True)
+        eq3_row(rh, th0, rh0, ci0, mats, cst, u, 1, c_lo, s1, s2, c_end, zth, False)
+        eq3_row(ci, th0, rh0, ci0, mats, cst, u, 2, c_lo, s1, s2, c_end, zth, False)
+        c_end = -1  # done
     for c in range(c_lo, c_end + 1):
         r = 3 * c
         a0, a1, a2, a3, a4 = mats[r, 0], mats[r, 1], mats[r, 2], mats[r, 3], mats[r, 4]
