@@ -32,6 +32,7 @@ fill, resampling, hand-overs) are the same Python under both.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -202,18 +203,19 @@ class ThrottleParticleFilter(NumpyParticleStep):
                                     self._kf_enter)
         self._st = S[:6]  # pf_tick's state (lo, hi, sw, sw2, extremes), kept in step
         self._offs = S[S_OFFS:]
+        self._Sv: Any = S.data  # the same memory: Python's element access at half numpy's cost
         S[S_USEKF], S[S_KF_EVERY] = float(self.use_kalman), KF_CHECK_EVERY
         S[S_LOCK_BELOW], S[S_LOCK_VAR], S[S_LOCK_U] = self._lock_below, self._lock_var, LOCK_U_V
         self.resets = self.rejected = self.resamples = self.resizes = self.careful_updates = 0
         self.reset()
 
     # counters and flags kept in S (the compiled tick's state)
-    steps = property(lambda self: int(self._S[S_STEPS]))
-    kalman_steps = property(lambda self: int(self._S[S_KSTEPS]))
-    _in_kf = property(lambda self: self._S[S_INKF] != 0.0,
-                      lambda self, v: self._S.__setitem__(S_INKF, float(v)))
-    _gated = property(lambda self: int(self._S[S_GATED]),
-                      lambda self, v: self._S.__setitem__(S_GATED, float(v)))
+    steps = property(lambda self: int(self._Sv[S_STEPS]))
+    kalman_steps = property(lambda self: int(self._Sv[S_KSTEPS]))
+    _in_kf = property(lambda self: self._Sv[S_INKF] != 0.0,
+                      lambda self, v: self._Sv.__setitem__(S_INKF, float(v)))
+    _gated = property(lambda self: int(self._Sv[S_GATED]),
+                      lambda self, v: self._Sv.__setitem__(S_GATED, float(v)))
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -347,12 +349,13 @@ class ThrottleParticleFilter(NumpyParticleStep):
 
     def _step(self, u: float, yk: float) -> None:
         """The python backend's tick (the reference; filter_tick's under numba)."""
-        S = self._S
-        if S_OFFS + S[S_KOFF] + 1 >= S.size:
-            self._refill()
+        S = self._Sv
         k = int(S[S_KOFF])
-        o1, o2 = int(self._offs[k]), int(self._offs[k + 1])
-        S[S_KOFF] = k + 2
+        if S_OFFS + k + 1 >= len(S):
+            self._refill()
+            k = 0
+        o1, o2 = int(S[S_OFFS + k]), int(S[S_OFFS + k + 1])
+        S[S_KOFF] = k + 2.0
         S[S_STEPS] += 1.0
         if not math.isfinite(u):
             u = 0.0
