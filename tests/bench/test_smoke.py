@@ -36,7 +36,9 @@ EXPECTED = {
             rf"cantools-only encode/decode: {NUM} us/tick"],
     "breakdown": [rf"{NUM}x real time, {NUM} us/tick",
                   rf"estimator: throttle production PF/KF\s+{NUM}", rf"bus: send\s+{NUM}"],
-    "kernels": [rf"(x real time vs {NUM}x|Compiled kernels: skipped)"],
+    "kernels": [rf"(x real time vs {NUM}x|Compiled kernels: skipped)",
+                (rf"(particle filter alone: {NUM} us/tick vs {NUM} us/tick \({NUM}x; target <= 4 "
+                 rf"us/tick: (met|not met)\)|Compiled kernels: skipped)")],
     "replay": [rf"drive\.blf\s+\d+ frames\s+{NUM}x real time",
                r"drive\.log .* target >= 50% of the bare reading speed: (met|not met)",
                (rf"ceiling: reading \({NUM} us per ms of trace\) plus the throttle estimator alone "
