@@ -156,3 +156,29 @@ def test_a_catch_up_window_runs_missed_releases_late_instead_of_skipping_them():
     assert stats.skipped == 30 and stats.caught_up == 19
     assert starts == sorted(starts) and stats.runs + stats.skipped == 100
     assert [t // NS_PER_MS for t in starts if t > 5 * NS_PER_MS][:20] == list(range(36, 56))
+
+
+def test_a_task_that_schedules_an_earlier_release_keeps_the_order():
+    """A periodic task that puts a one-shot ahead of its own next release (same time, lower
+    priority; the simulated loop's release is then no longer on top of its heap) and a one-shot
+    that adds another: every release once, in (time, priority, registration) order."""
+    sched = Scheduler(SimClock())
+    calls: list[tuple[str, int]] = []
+
+    def a(t):
+        calls.append(("a", t))
+        if t == NS_PER_MS:
+            sched.at(t, lambda u: calls.append(("now", u)), name="now", priority=-5)
+            sched.at(t, b, name="b", priority=-1)
+
+    def b(t):
+        calls.append(("b", t))
+        sched.at(t, lambda u: calls.append(("c", u)), name="c", priority=-3)
+
+    sched.every(NS_PER_MS, a, name="a", priority=0)
+    sched.every(NS_PER_MS, lambda t: calls.append(("z", t)), name="z", priority=1)
+    sched.run_until(3 * NS_PER_MS)
+    m = NS_PER_MS
+    assert calls == [("a", 0), ("z", 0), ("a", m), ("now", m), ("b", m), ("c", m), ("z", m),
+                     ("a", 2 * m), ("z", 2 * m)]
+    assert [t.runs for t in sched.stats] == [3, 3, 1, 1, 1]

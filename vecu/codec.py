@@ -46,6 +46,7 @@ from vecu.can_message import message
 from vecu.e2e import E2EProtection, own_protection
 from vecu.errors import BadFileError
 from vecu.frame_builders import (
+    DecodeParts,
     EncodeParts,
     Framer,
     compile_decode_checked,
@@ -171,7 +172,8 @@ class FrameCodec:
         # (decode_exact(data), bad_values of it) in one generated call: the receive path
         self.decode_checked: Callable[[bytes | bytearray], tuple[dict[str, float], list[str]]] = (
             compile_decode_checked(self.decode_exact, self._checked, self.name,
-                                   complete=self._fast_decode is not None))
+                                   complete=self._fast_decode is not None,
+                                   parts=getattr(self._fast_decode, "parts", None)))
         # many payloads at once (numpy), from the same cantools layout (vecu.block_codec)
         self.block: BlockLayout | None = (block_layout(message, self.e2e)
                                           if compiled is not None else None)
@@ -202,7 +204,8 @@ class FrameCodec:
         restricted.bad_values = compile_range_check(restricted._checked, self.name)
         restricted.decode_checked = compile_decode_checked(
             restricted.decode_exact, restricted._checked, self.name,
-            complete=restricted._fast_decode is not None)
+            complete=restricted._fast_decode is not None,
+            parts=getattr(restricted._fast_decode, "parts", None))
         return restricted
 
     def fit(self, name: str, value: float) -> float:
@@ -498,12 +501,14 @@ def compile_fast_codec(message: Message, saturate: list[tuple[str, float, float]
     if "be" in kinds:
         head.append("    be = int.from_bytes(data, 'big')")
     dec[1:1] = head
-    dec.append("    return {" + ", ".join(out) + "}")
+    values = "{" + ", ".join(out) + "}"
+    dec.append(f"    return {values}")
     code = compile("\n".join(enc + [""] + dec) + "\n", f"<vecu fast codec {message.name}>", "exec")
     exec(code, ns)  # noqa: S102 (generated from the DBC's signal layout, no user text)
-    encode = ns["encode"]
+    encode, decode = ns["encode"], ns["decode"]
     encode.parts = EncodeParts(blocks, enc[-1].strip()[len("return "):], ns)  # for framer()
-    return encode, ns["decode"]  # type: ignore[return-value]  # exec'd: typed by the generator
+    decode.parts = DecodeParts(dec[1:-1], values, ns)  # for decode_checked
+    return encode, decode  # type: ignore[return-value]  # exec'd: typed by the generator
 
 
 def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:

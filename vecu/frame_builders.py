@@ -30,6 +30,16 @@ class _Refused(Exception):
 
 
 @dataclass(frozen=True)
+class DecodeParts:
+    """A generated decoder's pieces: its lines before the return (they read `data`), the
+    expression of the values dict it returns and the namespace the lines use."""
+
+    lines: list[str]
+    values: str
+    namespace: dict[str, object]
+
+
+@dataclass(frozen=True)
 class EncodeParts:
     """A generated encoder's pieces: per signal its lines after `v = values[name]` (they read
     v, OR the raw bits into `le` / `be` and `return None` on a value it cannot take), the
@@ -102,27 +112,34 @@ def compile_range_check(checked: Sequence[tuple[str, float | None, float | None]
 
 def compile_decode_checked(decode: Callable[[bytes | bytearray], dict[str, float]],
                            checked: Sequence[tuple[str, float | None, float | None]], label: str,
-                           complete: bool) -> Callable[[bytes | bytearray],
-                                                       tuple[dict[str, float], list[str]]]:
+                           complete: bool, parts: DecodeParts | None = None
+                           ) -> Callable[[bytes | bytearray], tuple[dict[str, float], list[str]]]:
     """decode_checked(data) = (values, bad_values(values)) with values = decode(data): the
     receive path's decode and range check in one call (compile_range_check's tests; complete:
-    decode's dict holds every signal, read without .get)."""
-    src = ["def decode_checked(data):", "    values = _decode(data)", "    bad = []"]
-    ns: dict[str, object] = {"_decode": decode}
-    src += _range_lines(checked, ns, may_lack=not complete)
+    decode's dict holds every signal, read without .get). parts (decode's own, from the
+    codec's generator): its lines written out here instead of a call of decode."""
+    if parts is None or not complete:
+        src = ["def decode_checked(data):", "    values = _decode(data)", "    bad = []"]
+        ns: dict[str, object] = {"_decode": decode}
+    else:
+        src = ["def decode_checked(data):", *parts.lines, f"    values = {parts.values}",
+               "    bad = []"]
+        ns = dict(parts.namespace)
+    src += _range_lines(checked, ns, may_lack=not complete, prefix="_chk")
     src.append("    return values, bad")
     exec(compile("\n".join(src) + "\n", f"<vecu decode check {label}>", "exec"), ns)  # noqa: S102 (generated from the DBC ranges)
     return ns["decode_checked"]  # type: ignore[return-value]  # exec'd: typed by the generator
 
 
 def _range_lines(checked: Sequence[tuple[str, float | None, float | None]],
-                 ns: dict[str, object], may_lack: bool) -> list[str]:
+                 ns: dict[str, object], may_lack: bool, prefix: str = "") -> list[str]:
     """Per checked signal (name, lo, hi) of `values`: bad.append(name) when its value is NaN /
     inf or outside [lo, hi] (None: no bound); may_lack: a signal values lacks is not checked.
-    The bounds go into ns."""
+    The bounds go into ns (as {prefix}_lo{i}, {prefix}_hi{i})."""
     src = []
     ns["_isfinite"] = math.isfinite
-    for i, (name, lo, hi) in enumerate(checked):
+    for j, (name, lo, hi) in enumerate(checked):
+        i = f"{prefix}{j}"
         ns[f"_lo{i}"], ns[f"_hi{i}"] = lo, hi
         src.append(f"    v = values.get({name!r})" if may_lack else f"    v = values[{name!r}]")
         if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):

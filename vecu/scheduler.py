@@ -121,15 +121,19 @@ class Scheduler:
 
     def _run_simulated(self, end_ns: int) -> int:
         """run_until on a simulated clock (no lateness, no overruns): the same releases in the
-        same order as the general loop, with its lookups bound once."""
+        same order as the general loop, with its lookups bound once. A periodic release stays
+        at the top of the heap while it runs and is replaced there by its next one (one sift
+        instead of a pop and a push); were it no longer on top (its task pushed an earlier
+        release), it is taken out where it is."""
         clock = self.clock
         heap = self._heap
         tasks = self._tasks
-        pop, push, wait = heapq.heappop, heapq.heappush, clock.wait_until
+        pop, replace, wait = heapq.heappop, heapq.heapreplace, clock.wait_until
         seq = self._seq
         now = None  # the release time waited for last: the tasks due with it need no wait
         while heap and heap[0][0] < end_ns:
-            due, priority, _, idx = pop(heap)
+            item = heap[0]
+            due, priority, _, idx = item
             fn, stats, period, _ = tasks[idx]
             if due != now:
                 wait(due)
@@ -137,16 +141,33 @@ class Scheduler:
             self._seq = seq  # a task that pushes (chain, at) numbers on from here
             fn(due)
             seq = self._seq
-            stats.runs += 1
-            if period is not None:
+            if period is None:
+                nxt = None
+            else:
                 seq += 1
-                push(heap, (due + period, priority, seq, idx))
+                nxt = (due + period, priority, seq, idx)
+            if heap[0] is not item:
+                self._take(item, nxt)
+            elif nxt is None:
+                pop(heap)
+            else:
+                replace(heap, nxt)
+            stats.runs += 1
             if self._stopped:
                 self._seq = seq
                 return clock.now_ns()
         self._seq = seq
         clock.wait_until(end_ns)
         return clock.now_ns()
+
+    def _take(self, item: tuple[int, int, int, int], nxt: tuple[int, int, int, int] | None
+              ) -> None:
+        """Take `item` off the heap where a push moved it (not the top), pushing `nxt`."""
+        heap = self._heap
+        heap.remove(item)
+        heapq.heapify(heap)
+        if nxt is not None:
+            heapq.heappush(heap, nxt)
 
     def run_until(self, end_ns: int) -> int:
         """Run every release due before end_ns (exclusive); return the clock time at exit."""

@@ -7,6 +7,10 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from vecu.kernels import backend, kernel
+
 NS_PER_US = 1_000
 COARSE_US = 100  # second-level bins of DurationHistogram (fast percentile queries)
 
@@ -23,39 +27,93 @@ class ErrorStats:
     non_finite: int
 
 
-class RunningStats:
-    """Count, mean, standard deviation, RMS and max |x| of a stream of finite values."""
+@kernel
+def welford(xs: Any, n: int, mean: float, m2: float, sumsq: float, max_abs: float,
+            non_finite: int) -> tuple[int, float, float, float, float, int]:
+    """RunningStats' state after the values xs in order (Welford's mean and M2, the sum of
+    squares, max |x|; a non-finite value is only counted). The one copy of the update."""
+    for x in xs:
+        if not math.isfinite(x):
+            non_finite += 1
+            continue
+        n += 1
+        d = x - mean
+        mean += d / n
+        m2 += d * (x - mean)
+        sumsq += x * x
+        ax = -x if x < 0 else x
+        if ax > max_abs:  # noqa: PLR1730 - every sample: a compare, not a call
+            max_abs = ax
+    return n, mean, m2, sumsq, max_abs, non_finite
 
-    __slots__ = ("n", "mean", "_m2", "_sumsq", "max_abs", "non_finite")
+
+class RunningStats:
+    """Count, mean, standard deviation, RMS and max |x| of a stream of finite values.
+
+    add() only keeps the value; every CHUNK values (and before any figure is read) they are
+    folded into the moments in order by `welford` (compiled under the numba backend): the same
+    numbers as folding each value as it comes, in constant memory."""
+
+    __slots__ = ("_n", "_mean", "_m2", "_sumsq", "_max_abs", "_non_finite", "_pending")
+    CHUNK = 512
 
     def __init__(self) -> None:
-        self.n = 0
-        self.mean = 0.0
+        self._n = 0
+        self._mean = 0.0
         self._m2 = 0.0
         self._sumsq = 0.0
-        self.max_abs = 0.0
-        self.non_finite = 0
+        self._max_abs = 0.0
+        self._non_finite = 0
+        self._pending: list[float] = []
 
     def add(self, x: float) -> None:
-        if not math.isfinite(x):
-            self.non_finite += 1
+        pending = self._pending
+        pending.append(x)
+        if len(pending) >= self.CHUNK:
+            self._fold()
+
+    def _fold(self) -> None:
+        pending = self._pending
+        if not pending:
             return
-        self.n += 1
-        d = x - self.mean
-        self.mean += d / self.n
-        self._m2 += d * (x - self.mean)
-        self._sumsq += x * x
-        ax = -x if x < 0 else x
-        if ax > self.max_abs:  # noqa: PLR1730 - every sample: a compare, not a call
-            self.max_abs = ax
+        if backend() == "numba":
+            xs: Any = np.array(pending, dtype=np.float64)
+            fold = welford.compiled
+        else:
+            xs, fold = pending, welford.py
+        (self._n, self._mean, self._m2, self._sumsq, self._max_abs, self._non_finite) = fold(
+            xs, self._n, self._mean, self._m2, self._sumsq, self._max_abs, self._non_finite)
+        pending.clear()
+
+    @property
+    def n(self) -> int:
+        self._fold()
+        return self._n
+
+    @property
+    def mean(self) -> float:
+        self._fold()
+        return self._mean
+
+    @property
+    def max_abs(self) -> float:
+        self._fold()
+        return self._max_abs
+
+    @property
+    def non_finite(self) -> int:
+        self._fold()
+        return self._non_finite
 
     @property
     def std(self) -> float:
-        return math.sqrt(self._m2 / self.n) if self.n > 1 else 0.0
+        n = self.n
+        return math.sqrt(self._m2 / n) if n > 1 else 0.0
 
     @property
     def rms(self) -> float:
-        return math.sqrt(self._sumsq / self.n) if self.n else 0.0
+        n = self.n
+        return math.sqrt(self._sumsq / n) if n else 0.0
 
     def as_dict(self, digits: int = 4) -> dict[str, float | int]:
         return {"n": self.n, "mean": round(self.mean, digits), "std": round(self.std, digits),

@@ -68,3 +68,31 @@ def test_plant_and_filter_model_share_the_curve(backend):
         assert sm.accelerations(x[0], x[1], x[2], vx, cst) == \
             sm.accelerations.py(x[0], x[1], x[2], vx, cst)
         assert sm.transition(*x, vx, cst) == sm.transition.py(*x, vx, cst)
+
+
+def test_rk4_step_is_f_and_the_plant_sample_the_same_bits(backend):
+    """rk4_motion is the classic RK4 of `f` with the input linear within the step (the sums in
+    the reference order), and the plant's one-call sample (sample_motion: h's a_y, then
+    SIM_SUBSTEPS RK4 steps) gives the reference bits under every backend."""
+    from vecu.plant import lateral as plant
+
+    p = lat.VehicleParams()
+    t = lat.tyre_consts(p)
+    cst = lat.motion_constants(p, t)
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        x = (float(rng.normal(0.0, 0.5)), float(rng.normal(0.0, 0.3)))
+        u0 = (float(rng.normal(0.0, 0.05)), float(rng.uniform(3.0, 40.0)))
+        u1 = (u0[0] + float(rng.normal(0.0, 0.01)), u0[1] + float(rng.normal(0.0, 0.02)))
+        dt = 0.005
+        um = (0.5 * (u0[0] + u1[0]), 0.5 * (u0[1] + u1[1]))
+        k1 = lat.f(x, u0, p, t)
+        k2 = lat.f((x[0] + 0.5 * dt * k1[0], x[1] + 0.5 * dt * k1[1]), um, p, t)
+        k3 = lat.f((x[0] + 0.5 * dt * k2[0], x[1] + 0.5 * dt * k2[1]), um, p, t)
+        k4 = lat.f((x[0] + dt * k3[0], x[1] + dt * k3[1]), u1, p, t)
+        ref = tuple(x[i] + dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in (0, 1))
+        assert lat.rk4_motion(*x, *u0, *u1, dt, cst) == ref
+        assert plant.sample_motion(*x, *u0, *u1, cst) == plant.sample_motion.py(*x, *u0, *u1, cst)
+        ay, vy, r = plant.sample_motion.py(*x, *u0, *u1, cst)
+        assert ay == lat.h(x, u0, p, t)[1]
+        assert (vy, r) == plant.advance(x, *u0, *u1, p, t)

@@ -182,3 +182,38 @@ def test_longitudinal_frames_encoded_per_manoeuvre_are_the_framers():
         assert (sent[-1].arbitration_id, sent[-1].dlc, sent[-1].is_extended_id) == (
             want.arbitration_id, want.dlc, want.is_extended_id)
     assert part._leg.index == 1 and len({bytes(m.data) for m in sent}) > first // 2
+
+
+@pytest.mark.parametrize("kind", [FaultKind.DEAD, FaultKind.STUCK, FaultKind.NOISE])
+def test_tps_frames_of_a_fault_are_the_framers(kind, backend):
+    """A fault's TPS voltages (a held one's payloads kept per counter value) go out as the
+    framer makes them, counter after counter."""
+    from vecu.codec import shared_codec
+    from vecu.faults import FaultInjector
+    from vecu.plant.node import ThrottlePart
+    from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig
+    from vecu.rng import rng_streams
+
+    codec = shared_codec()
+    tps = codec["TPS_Sensor"]
+    make = tps.framer(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage"))
+    rngs = rng_streams(3, ("i", "p", "f"))
+    inj = FaultInjector(rngs["f"])
+    part = ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
+                        InputGenerator(InputConfig(), rngs["i"]), inj)
+    sent = []
+    for k in range(200):
+        if k == 20:
+            assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS), int(kind), 0.2)
+        part.tick(k * NS_PER_MS, lambda m: sent.append(m) or True)
+    frames = [m for m in sent if m.arbitration_id == tps.frame_id][20:]
+    assert len(frames) == 180
+    counters = []
+    for m in frames:
+        values = tps.decode(m.data)
+        counters.append(int(values["TPS_AliveCounter"]))
+        ref = make(m.timestamp, 0, counters[-1], values["TPS_Voltage"])
+        assert bytes(m.data) == bytes(ref.data)
+    assert all((b - a) % 15 == 1 for a, b in zip(counters, counters[1:]))
+    if kind != FaultKind.NOISE:
+        assert len({bytes(m.data) for m in frames}) == 15  # one payload per counter value

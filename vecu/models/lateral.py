@@ -129,16 +129,32 @@ def h(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,
     return x[1], _motion(x, u, p, t)[0]
 
 
-def rk4_step(x: tuple[float, float], u0: tuple[float, float], u1: tuple[float, float], dt: float,
-             p: VehicleParams, t: TyreConsts) -> tuple[float, float]:
-    """One RK4 step of `f` with the input linear between u0 (start) and u1 (end)."""
-    um = (0.5 * (u0[0] + u1[0]), 0.5 * (u0[1] + u1[1]))
-    k1 = f(x, u0, p, t)
-    k2 = f((x[0] + 0.5 * dt * k1[0], x[1] + 0.5 * dt * k1[1]), um, p, t)
-    k3 = f((x[0] + 0.5 * dt * k2[0], x[1] + 0.5 * dt * k2[1]), um, p, t)
-    k4 = f((x[0] + dt * k3[0], x[1] + dt * k3[1]), u1, p, t)
-    return (x[0] + dt / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
-            x[1] + dt / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]))
+def motion_constants(p: VehicleParams, t: TyreConsts) -> tuple[float, ...]:
+    """lateral_motion's constants in its order: (D_f, B_f, D_r, B_r, C, l_f, l_r, M, I_z)."""
+    return (t.d_f, t.b_f, t.d_r, t.b_r, t.c, p.l_f_m, p.l_r_m, p.mass_kg, p.yaw_inertia_kgm2)
+
+
+@kernel
+def rk4_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: float, dt: float,
+               cst: tuple[float, ...]) -> tuple[float, float]:
+    """One RK4 step of `f` (eqs. 4, 11) from x = (v_y, r), the input (delta, v_x) linear from
+    (d0, v0) at the start to (d1, v1) at the end; cst: motion_constants. The one copy (the
+    plant's stepping, both backends; the sums in this order: the golden logs' bits)."""
+    df, bf, dr, br, c, lf, lr, m, iz = cst
+    dm, vm = 0.5 * (d0 + d1), 0.5 * (v0 + v1)
+    a, k1r = lateral_motion(vy, r, d0, v0, df, bf, dr, br, c, lf, lr, m, iz)
+    k1v = a - v0 * r
+    y, q = vy + 0.5 * dt * k1v, r + 0.5 * dt * k1r
+    a, k2r = lateral_motion(y, q, dm, vm, df, bf, dr, br, c, lf, lr, m, iz)
+    k2v = a - vm * q
+    y, q = vy + 0.5 * dt * k2v, r + 0.5 * dt * k2r
+    a, k3r = lateral_motion(y, q, dm, vm, df, bf, dr, br, c, lf, lr, m, iz)
+    k3v = a - vm * q
+    y, q = vy + dt * k3v, r + dt * k3r
+    a, k4r = lateral_motion(y, q, d1, v1, df, bf, dr, br, c, lf, lr, m, iz)
+    k4v = a - v1 * q
+    return (vy + dt / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v),
+            r + dt / 6.0 * (k1r + 2.0 * k2r + 2.0 * k3r + k4r))
 
 
 def steady_state(delta: float, v_x: float, p: VehicleParams, iters: int = 60) -> tuple[float, float]:

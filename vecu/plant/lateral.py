@@ -20,12 +20,15 @@ import numpy as np
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, FaultTarget
+from vecu.kernels import kernel
 from vecu.models.lateral import (
     DT_S,
     TyreConsts,
     VehicleParams,
     h,
-    rk4_step,
+    lateral_motion,
+    motion_constants,
+    rk4_motion,
     steady_state,
     tyre_consts,
 )
@@ -201,17 +204,35 @@ def steering_profile(cfg: ManoeuvreConfig, p: VehicleParams, rng: np.random.Gene
     return v, _low_pass2(swa, cfg.column_hz, dt)
 
 
-def advance(x: tuple[float, float], d0: float, v0: float, d1: float, v1: float,
-            params: VehicleParams, tc: TyreConsts) -> tuple[float, float]:
-    """The state one sample (DT_S) on: SIM_SUBSTEPS RK4 steps, the inputs (road-wheel angle,
-    speed) linear from (d0, v0) to (d1, v1) within the sample."""
+@kernel
+def advance_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: float,
+                   cst: tuple[float, ...]) -> tuple[float, float]:
+    """(v_y, r) one sample (DT_S) on: SIM_SUBSTEPS RK4 steps (rk4_motion), the inputs
+    (road-wheel angle, speed) linear from (d0, v0) to (d1, v1) within the sample;
+    cst: vecu.models.lateral.motion_constants."""
     hsub = DT_S / SIM_SUBSTEPS
     for s in range(SIM_SUBSTEPS):
         a0, a1 = s / SIM_SUBSTEPS, (s + 1) / SIM_SUBSTEPS
-        u0 = (d0 + a0 * (d1 - d0), v0 + a0 * (v1 - v0))
-        u1 = (d0 + a1 * (d1 - d0), v0 + a1 * (v1 - v0))
-        x = rk4_step(x, u0, u1, hsub, params, tc)
-    return x
+        vy, r = rk4_motion(vy, r, d0 + a0 * (d1 - d0), v0 + a0 * (v1 - v0),
+                           d0 + a1 * (d1 - d0), v0 + a1 * (v1 - v0), hsub, cst)
+    return vy, r
+
+
+@kernel
+def sample_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: float,
+                  cst: tuple[float, ...]) -> tuple[float, float, float]:
+    """(a_y at the sample, v_y and r one sample on): `h`'s a_y, then advance_motion; one
+    compiled call per sample of the plant (DrivenLateral)."""
+    ay = lateral_motion(vy, r, d0, v0, cst[0], cst[1], cst[2], cst[3], cst[4], cst[5], cst[6],
+                        cst[7], cst[8])[0]
+    vy, r = advance_motion(vy, r, d0, v0, d1, v1, cst)
+    return ay, vy, r
+
+
+def advance(x: tuple[float, float], d0: float, v0: float, d1: float, v1: float,
+            params: VehicleParams, tc: TyreConsts) -> tuple[float, float]:
+    """The state one sample (DT_S) on (advance_motion)."""
+    return advance_motion(x[0], x[1], d0, v0, d1, v1, motion_constants(params, tc))
 
 
 def simulate_lateral(
@@ -292,6 +313,8 @@ class DrivenLateral:
         self._rng, self._rs = rngs["steer.manoeuvre"], rngs["steer.sensors"]
         self._drive, self._cfg, self._p, self._sensors = drive, cfg, params, sensors
         self._tc = tyre_consts(params)
+        self._cst = motion_constants(params, self._tc)
+        self._motion = sample_motion.impl()  # the active backend's, fetched once
         self._stride = round(DT_S / drive.dt_s)  # drive samples per lateral sample
         self._ahead = round(AHEAD_S / DT_S)
         self._col = math.exp(-2.0 * math.pi * cfg.column_hz * DT_S)
@@ -357,10 +380,13 @@ class DrivenLateral:
         nxt = self._command()
         delta = swa / p.steering_ratio
         x = self._x
-        ay = h(x, (delta, v), p, self._tc)[1] if v >= V_KINEMATIC_MPS else v * x[1]
         d1, v1 = nxt[0] / p.steering_ratio, nxt[1]
-        self._x = (advance(x, delta, v, d1, v1, p, self._tc)
-                   if min(v, v1) >= V_KINEMATIC_MPS else linear_steady_state(d1, v1, p))
+        if v >= V_KINEMATIC_MPS and v1 >= V_KINEMATIC_MPS:  # a_y of h, then RK4 (one call)
+            ay, vy1, r1 = self._motion(x[0], x[1], delta, v, d1, v1, self._cst)
+            self._x = (vy1, r1)
+        else:
+            ay = h(x, (delta, v), p, self._tc)[1] if v >= V_KINEMATIC_MPS else v * x[1]
+            self._x = linear_steady_state(d1, v1, p)
         self._cur = nxt
         if not self._noise:
             self._noise = self._rs.standard_normal((NOISE_BLOCK, 4)).tolist()[::-1]

@@ -42,6 +42,7 @@ from vecu.units import DEG_PER_RAD, KELVIN_AT_0_DEGC, MG_PER_KG, MPS_PER_KMH
 log = logging.getLogger(__name__)
 
 TPS_V_MIN, TPS_V_MAX = 0.0, 5.0  # sensor output saturates at ground and supply
+HELD_PAYLOADS = 64  # TPS payloads of fault values kept (ThrottlePart._tps_faulted)
 Send = Callable[[can.Message], bool]
 
 
@@ -92,6 +93,7 @@ class ThrottlePart:
         self._tps_ahead: list[bytearray | None] = []  # payloads of the ticks ahead (None: make)
         self._watt_ahead: list[bytearray | None] = []
         self._counter_ahead = 0  # the TPS counter the first tick ahead was encoded with
+        self._held: dict[tuple[float, int], bytes] = {}  # (voltage, counter) -> payload
 
     def _fill(self) -> None:
         """The next TicksAhead.AHEAD ticks: their rows and the payloads of their frames, the
@@ -128,6 +130,21 @@ class ThrottlePart:
         theta, y, v = self._rows[k]
         return self._us[k], theta, y, v
 
+    def _tps_faulted(self, ts: float, v: float) -> can.Message:
+        """The TPS frame of a fault's voltage v: the framer's; the payloads of a held value (a
+        dead, stuck or shorted sensor) are kept per counter value, each encoded once (at most
+        HELD_PAYLOADS kept)."""
+        key = (v, self._counter)
+        data = self._held.get(key)
+        if data is None:
+            msg = self._tps_frame(ts, 0, self._counter, v)
+            if len(self._held) >= HELD_PAYLOADS:
+                self._held.clear()
+            self._held[key] = bytes(msg.data)
+            return msg
+        return message(ts, self._tps.frame_id, self._tps.is_extended, bytearray(data),
+                       self._tps.is_fd)
+
     def tick(self, t_ns: int, send: Send) -> None:
         u, theta, y, v_sensor = self._measure_and_step()
         v = self.injector.apply(_TPS, v_sensor)
@@ -136,9 +153,12 @@ class ThrottlePart:
         if v is not None:
             data = (self._tps_ahead[k] if 0 <= k < len(self._tps_ahead) and v is v_sensor
                     and self._counter == (self._counter_ahead + k) % self._modulo else None)
+            faulted = v is not v_sensor
             v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
             if data is not None:  # encoded from the same clamped voltage
                 send(message(ts, self._tps.frame_id, self._tps.is_extended, data, self._tps.is_fd))
+            elif faulted:
+                send(self._tps_faulted(ts, v))
             else:
                 send(self._tps_frame(ts, 0, self._counter, v))
             self._counter = (self._counter + 1) % self._modulo

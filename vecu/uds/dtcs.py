@@ -13,7 +13,7 @@ testFailedSinceLastClear; bit 7 warningIndicatorRequested: not supported (mask 0
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sized
 from dataclasses import dataclass, field
 
 from vecu.clock import NS_PER_S
@@ -48,7 +48,15 @@ class _Source:
     dtc: Dtc
     monitor: SensorMonitor | None
     records: list[DtcRecord] = field(default_factory=list)
-    seen: tuple[int, int] = (-1, -1)     # lengths of its status and DTC histories
+    # the sum of the lengths of its status and DTC histories (both only grow: a new entry in
+    # either changes it); -1: evaluate at the next update
+    seen: int = -1
+    # the monitor's status history (none: empty) and the DTC's history
+    histories: tuple[Sized, Sized] = ((), ())
+
+    def __post_init__(self) -> None:
+        mon = self.monitor
+        self.histories = (() if mon is None else mon.status_history, self.dtc.history)
 
 
 class DtcMemory:
@@ -76,8 +84,8 @@ class DtcMemory:
         if not self.enabled:
             return
         for src in self._sources:
-            mon = src.monitor
-            seen = (len(mon.status_history) if mon else 0, len(src.dtc.history))
+            status, dtc = src.histories
+            seen = len(status) + len(dtc)
             if seen != src.seen:
                 src.seen = seen
                 self._evaluate(src, t_ns)
@@ -125,7 +133,7 @@ class DtcMemory:
             if hit and len(hit) == len(src.records):  # the monitor's lifecycle too
                 src.dtc.clear(t_ns)
             if hit:
-                src.seen = (-1, -1)
+                src.seen = -1
         self._incomplete = True
 
     def new_operation_cycle(self) -> None:
@@ -135,14 +143,14 @@ class DtcMemory:
             st = (st | PDTC) if st & TFTOC else (st & ~PDTC)
             rec.status = (st & ~TFTOC) | TNCTOC
         for src in self._sources:
-            src.seen = (-1, -1)
+            src.seen = -1
         self._incomplete = True
 
     def resume(self) -> None:
         """ControlDTCSetting on: catch up with the monitors."""
         self.enabled = True
         for src in self._sources:
-            src.seen = (-1, -1)
+            src.seen = -1
 
     def aging_counter(self, rec: DtcRecord, t_ns: int) -> int:
         """Whole seconds healthy since the finding went away (0 while failing, max 255)."""
