@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.kernels import kernel
+
 # Relative jitter tried before eigenvalue clipping: eps * scale * 10**k, k = 0..JITTER_STEPS-1.
 JITTER_STEPS = 6
 JITTER_REL = 1e-12
@@ -89,6 +91,20 @@ def diverged(x: np.ndarray, P: np.ndarray, bounds: DivergenceBounds = Divergence
     return bool(np.abs(x).max() > bounds.max_abs_state) if x.size else False
 
 
+@kernel
+def diverged_scalars(x: Sequence[float], trace: float, offdiag_sum: float, max_trace: float,
+                     max_abs_state: float) -> bool:
+    """The criterion of `diverged_floats` with the bounds as numbers (a kernel: compiled filter
+    steps call it; x a tuple there)."""
+    if not 0.0 <= trace <= max_trace:
+        return True
+    m = max_abs_state
+    for v in x:
+        if not -m <= v <= m:
+            return True
+    return offdiag_sum - offdiag_sum != 0.0
+
+
 def diverged_floats(
     x: Sequence[float], trace: float, offdiag_sum: float,
     bounds: DivergenceBounds = DivergenceBounds(),
@@ -98,10 +114,4 @@ def diverged_floats(
     x: the state entries; trace: trace(P), so a NaN or inf on the diagonal fails the range test;
     offdiag_sum: the sum of the stored off-diagonal entries (NaN or +-inf makes `s - s` non-zero).
     """
-    if not 0.0 <= trace <= bounds.max_trace:
-        return True
-    m = bounds.max_abs_state
-    for v in x:
-        if not -m <= v <= m:
-            return True
-    return offdiag_sum - offdiag_sum != 0.0
+    return diverged_scalars.py(x, trace, offdiag_sum, bounds.max_trace, bounds.max_abs_state)

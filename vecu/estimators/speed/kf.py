@@ -25,7 +25,8 @@ docs/models.md). This is the practical 500 Hz version of the same fusion:
 
 Inputs: None = missing (predict only, counted); non-finite or outside the plausible range =
 rejected (counted); wheel innovations beyond gate_sigma are gated out, at most MAX_GATED_IN_ROW
-in a row. Divergence (vecu.estimators.common.covariance.diverged_floats) resets to the prior and counts.
+in a row. Divergence (vecu.estimators.common.covariance.diverged_scalars) resets to the prior and
+counts. One step is one kernel, kf_kernel.kf_step (compiled under numba, plain Python otherwise).
 Nothing the inputs contain can make the outputs NaN.
 """
 
@@ -33,13 +34,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
-from vecu.estimators.common.covariance import DivergenceBounds, diverged_floats
+import numpy as np
+
+from vecu.estimators.common.covariance import DivergenceBounds
+from vecu.estimators.speed import kf_kernel as K
+from vecu.estimators.speed.kf_kernel import (  # noqa: F401 (this module's names)
+    MAX_GATED_IN_ROW,
+    REACQUIRE_SAMPLES,
+    kf_reset,
+    kf_step,
+    scalar_update3,
+)
+from vecu.kernels import backend
 from vecu.units import MPS_PER_KMH
 
 DT_S = 0.002
-REACQUIRE_SAMPLES = 10  # 20 ms of readings >= reacquire_kmh before they are believed
-MAX_GATED_IN_ROW = 25  # 50 ms of consecutive gated wheel readings, then believe the sensor
 SPEED_BOUNDS = DivergenceBounds(max_trace=1e4, max_abs_state=1e3)
 
 
@@ -83,25 +94,19 @@ class SpeedFilterConfig:
     abs_accel_floor_mps2: float = 1.5  # ... and the deceleration it follows
 
 
-def scalar_update3(x: tuple[float, float, float], p: tuple[float, ...],
-                   h: tuple[float, float, float], e: float, r: float
-                   ) -> tuple[tuple[float, float, float], tuple[float, ...]]:
-    """Kalman update of a 3-state filter with one scalar measurement (plain floats).
+_numba_ready = False
 
-    x: state, p: upper triangle (p00, p01, p02, p11, p12, p22) of P, h: the measurement row H,
-    e: residual z - H x, r: measurement variance. c = P H^T, s = H c + r, x += c e / s,
-    P -= c c^T / s.
-    """
-    p00, p01, p02, p11, p12, p22 = p
-    h0, h1, h2 = h
-    c0 = p00 * h0 + p01 * h1 + p02 * h2
-    c1 = p01 * h0 + p11 * h1 + p12 * h2
-    c2 = p02 * h0 + p12 * h1 + p22 * h2
-    s = h0 * c0 + h1 * c1 + h2 * c2 + r
-    y = e / s
-    return ((x[0] + c0 * y, x[1] + c1 * y, x[2] + c2 * y),
-            (p00 - c0 * c0 / s, p01 - c0 * c1 / s, p02 - c0 * c2 / s,
-             p11 - c1 * c1 / s, p12 - c1 * c2 / s, p22 - c2 * c2 / s))
+
+def _fix_numba_signature() -> None:
+    """kf_step's one signature, compiled or loaded from numba's cache, then no further
+    compilation: an int or numpy-scalar reading is converted to float64."""
+    global _numba_ready
+    if not _numba_ready:
+        from numba import types
+
+        f8, b1 = types.float64, types.boolean
+        kf_step.fix_signature((f8[::1], f8[::1], f8, b1, f8, b1))
+        _numba_ready = True
 
 
 class SpeedKalmanFilter:
@@ -118,44 +123,75 @@ class SpeedKalmanFilter:
     def __init__(self, config: SpeedFilterConfig = SpeedFilterConfig()) -> None:
         c = self.config = config
         dt = c.dt_s
-        self._dt = dt
         q = c.q_jerk
-        self._q00, self._q01, self._q11 = q * dt ** 3 / 3.0, q * dt * dt / 2.0, q * dt
-        self._q22 = c.q_offset * dt
-        self._r_a = c.sigma_accel_mps2 ** 2
-        self._sw2 = c.sigma_wheel_mps ** 2
-        self._swmax2 = c.sigma_wheel_max_mps ** 2
-        self._vref = c.wheel_ref_kmh * MPS_PER_KMH
-        self._vmin = c.min_wheel_kmh * MPS_PER_KMH
-        self._vreacq = c.reacquire_kmh * MPS_PER_KMH
-        self._still_alpha = dt / c.still_tau_s
-        self._above2 = c.abs_above_factor ** 2
-        self._abs_alpha = dt / c.abs_tau_s
-        self._vstill = c.still_enter_kmh * MPS_PER_KMH
-        self._a_still = c.still_enter_accel_mps2
-        self._exit_p11 = c.p0_accel
-        self._r_zero = c.zero_speed_std_mps ** 2
-        self._r_still_a = c.still_accel_std_mps2 ** 2
-        self._gate2 = c.gate_sigma ** 2
-        self.steps = self.missing_wheel = self.missing_accel = 0
-        self.rejected_wheel = self.rejected_accel = self.gated_wheel = self.ignored_wheel = 0
-        self.resets = 0
+        prm = [0.0] * K.N_PARAMS
+        for i, val in (
+                (K.DT, dt), (K.Q00, q * dt ** 3 / 3.0), (K.Q01, q * dt * dt / 2.0),
+                (K.Q11, q * dt), (K.Q22, c.q_offset * dt), (K.R_A, c.sigma_accel_mps2 ** 2),
+                (K.SW2, c.sigma_wheel_mps ** 2), (K.SWMAX2, c.sigma_wheel_max_mps ** 2),
+                (K.VREF, c.wheel_ref_kmh * MPS_PER_KMH), (K.VMIN, c.min_wheel_kmh * MPS_PER_KMH),
+                (K.VREACQ, c.reacquire_kmh * MPS_PER_KMH), (K.STILL_ALPHA, dt / c.still_tau_s),
+                (K.ABOVE2, c.abs_above_factor ** 2), (K.ABS_ALPHA, dt / c.abs_tau_s),
+                (K.VSTILL, c.still_enter_kmh * MPS_PER_KMH),
+                (K.A_STILL, c.still_enter_accel_mps2), (K.EXIT_P11, c.p0_accel),
+                (K.R_ZERO, c.zero_speed_std_mps ** 2),
+                (K.R_STILL_A, c.still_accel_std_mps2 ** 2), (K.GATE2, c.gate_sigma ** 2),
+                (K.MAX_ACCEL, c.max_accel_mps2), (K.MAX_WHEEL, c.max_wheel_mps),
+                (K.ABS_DECEL, c.abs_decel_mps2), (K.ABS_INNOV, c.abs_innov_mps),
+                (K.ABS_SLIP_STD, c.abs_slip_std), (K.STILL_EXIT, c.still_exit_mps2),
+                (K.P0_SPEED, c.p0_speed), (K.P0_ACCEL, c.p0_accel), (K.P0_OFFSET, c.p0_offset),
+                (K.MAX_TRACE, SPEED_BOUNDS.max_trace),
+                (K.MAX_ABS_STATE, SPEED_BOUNDS.max_abs_state), (K.SQUARE, 2.0)):
+            prm[i] = float(val)
+        self._vmin = prm[K.VMIN]
+        # the backend at construction: numpy arrays for the compiled step, lists of Python
+        # floats for the plain-Python one (same kernel source, same bits)
+        self._step: Any = kf_step.impl()
+        if backend() == "numba":
+            _fix_numba_signature()
+            self._s: Any = np.zeros(K.N_STATE)
+            self._prm: Any = np.array(prm)
+        else:
+            self._s = [0.0] * K.N_STATE
+            self._prm = prm
         self.reset()
 
     def reset(self) -> None:
         """Back to the prior (not counted as a divergence); the next usable wheel reading
         initialises the speed."""
-        c = self.config
-        self.v = self.a = self.b = 0.0
-        self.p = [c.p0_speed, 0.0, 0.0, c.p0_accel, 0.0, c.p0_offset]  # p00 p01 p02 p11 p12 p22
-        self._initialised = False
-        self._gated_run = 0
-        self._reacq_run = 0
-        self.standstill = False
-        self.abs_mode = False
-        self._innov_mean = 0.0
-        self._wheel_innov_mean = 0.0
-        self.wheel_nis: float | None = None  # e^2 / s of this step's wheel update (None: none)
+        kf_reset.py(self._s, self._prm)
+        self._out()
+
+    def _out(self) -> None:
+        s = self._s
+        self.v, self.a, self.b = float(s[K.V]), float(s[K.A]), float(s[K.B])
+        self._p00, self._p01, self._p11 = float(s[K.P00]), float(s[K.P01]), float(s[K.P11])
+        self._initialised = s[K.INIT] != 0.0
+        self.standstill = bool(s[K.STILL] != 0.0)
+        self.abs_mode = bool(s[K.ABS] != 0.0)
+
+    @property
+    def p(self) -> list[float]:
+        """P's upper triangle (p00, p01, p02, p11, p12, p22)."""
+        s = self._s
+        return [float(s[i]) for i in (K.P00, K.P01, K.P02, K.P11, K.P12, K.P22)]
+
+    @property
+    def wheel_nis(self) -> float | None:
+        """e^2 / s of this step's wheel update (None: none)."""
+        return float(self._s[K.NIS]) if self._s[K.HAS_NIS] != 0.0 else None
+
+    def _count(self, i: int) -> int:
+        return int(self._s[i])
+
+    steps = property(lambda self: self._count(K.STEPS))
+    missing_wheel = property(lambda self: self._count(K.MISSING_WHEEL))
+    missing_accel = property(lambda self: self._count(K.MISSING_ACCEL))
+    rejected_wheel = property(lambda self: self._count(K.REJECTED_WHEEL))
+    rejected_accel = property(lambda self: self._count(K.REJECTED_ACCEL))
+    gated_wheel = property(lambda self: self._count(K.GATED_WHEEL))
+    ignored_wheel = property(lambda self: self._count(K.IGNORED_WHEEL))
+    resets = property(lambda self: self._count(K.RESETS))
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -174,7 +210,7 @@ class SpeedKalmanFilter:
         """(var v, cov(v, a), var a) as reported: P's (v, a) block with the std floors of the
         mode the filter is in (standstill, coasting below the wheel threshold, ABS), the
         correlation kept."""
-        p00, p01, p11 = self.p[0], self.p[1], self.p[3]
+        p00, p01, p11 = self._p00, self._p01, self._p11
         c = self.config
         fv = fa = 0.0
         if self.standstill:
@@ -202,113 +238,8 @@ class SpeedKalmanFilter:
 
     # ------------------------------------------------------------------ step
     def step(self, wheel_speed: float | None, accel: float | None) -> None:
-        """Predict 2 ms, then update with the accelerometer and the wheel speed."""
-        self.steps += 1
-        c = self.config
-        dt = self._dt
-        p00, p01, p02, p11, p12, p22 = self.p
-        # Predict: F = [[1, dt, 0], [0, 1, 0], [0, 0, 1]].
-        v = self.v + self.a * dt
-        a = self.a
-        b = self.b
-        p00 = p00 + dt * (2.0 * p01 + dt * p11) + self._q00
-        p01 = p01 + dt * p11 + self._q01
-        p02 = p02 + dt * p12
-        p11 = p11 + self._q11
-        p22 = p22 + self._q22
-
-        # Accelerometer: H = [0, 1, 1].
-        if accel is None:
-            self.missing_accel += 1
-        elif not -c.max_accel_mps2 <= accel <= c.max_accel_mps2:  # NaN fails too
-            self.rejected_accel += 1
-        else:
-            e = accel - a - b
-            self._innov_mean += self._still_alpha * (e - self._innov_mean)
-            (v, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
-                (v, a, b), (p00, p01, p02, p11, p12, p22), (0.0, 1.0, 1.0), e, self._r_a)
-
-        # Wheel speed: H = [1, 0, 0].
-        used = False
-        self.wheel_nis = None
-        if wheel_speed is None:
-            self.missing_wheel += 1
-        elif not 0.0 <= wheel_speed <= c.max_wheel_mps:
-            self.rejected_wheel += 1
-        elif not self._initialised:
-            # the first reading initialises the filter (issue 30): v = reading, its variance the
-            # sensor's at that speed (a 0 reading: at rest or below ~5 km/h, sigma_wheel_max)
-            v = wheel_speed
-            p00 = min(self._sw2 * (self._vref / wheel_speed) ** 2 if wheel_speed < self._vref
-                      else self._sw2, self._swmax2) if wheel_speed > 0.0 else self._swmax2
-            p01 = p02 = 0.0
-            self._initialised = True
-            self.standstill = False
-            used = True
-        elif not ((wheel_speed >= self._vreacq and self._reacq_run >= REACQUIRE_SAMPLES)
-                  or (v >= self._vmin and wheel_speed > 0.0)):
-            # Gate on the estimate, not the reading: dropping readings below a threshold would
-            # bias the accepted ones upwards near it. Reacquisition (and the first reading) needs
-            # REACQUIRE_SAMPLES high readings in a row: at 2 km/h the noise alone reaches 15 km/h.
-            self._reacq_run = self._reacq_run + 1 if wheel_speed >= self._vreacq else 0
-            self.ignored_wheel += 1
-        else:
-            self.standstill = False
-            used = True
-            vh = max(0.001, v)
-            r = self._sw2 * (self._vref / vh) ** 2 if vh < self._vref else self._sw2
-            r = min(r, self._swmax2)
-            e = wheel_speed - v
-            self._wheel_innov_mean += self._abs_alpha * (e - self._wheel_innov_mean)
-            self.abs_mode = (a < -c.abs_decel_mps2
-                             and self._wheel_innov_mean < -c.abs_innov_mps)
-            if self.abs_mode:  # ABS slip pulls the wheel below the car: trust the upper envelope
-                if e < 0.0:
-                    ds = c.abs_slip_std * vh
-                    r += ds * ds
-                else:
-                    r *= self._above2
-            s = p00 + r
-            if e * e > self._gate2 * s and self._gated_run < MAX_GATED_IN_ROW:
-                self._gated_run += 1
-                self.gated_wheel += 1
-            else:
-                self._gated_run = 0
-                self.wheel_nis = e * e / s
-                (v, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
-                    (v, a, b), (p00, p01, p02, p11, p12, p22), (1.0, 0.0, 0.0), e, r)
-
-        # Before the first wheel reading the speed means nothing (validity init): no standstill,
-        # no v = 0 pseudo-measurement (it would make the prior's sigma look tiny).
-        if not self._initialised:
-            v = 0.0
-        # Standstill: entered when v_hat would go negative with no usable wheel reading; left on
-        # a usable wheel reading or a sustained accelerometer innovation (the car moves off).
-        elif self.standstill and self._innov_mean > c.still_exit_mps2:
-            self.standstill = False  # moving off: let a find the accelerometer quickly
-            a = self._innov_mean
-            p11 += self._exit_p11
-        elif not used and not self.standstill and (
-                v + a * dt <= 0.0 or (v < self._vstill and -self._a_still < a < self._a_still)):
-            self.standstill = True
-            self._innov_mean = 0.0
-            self.abs_mode = False
-        # Constraint v >= 0 / zero-velocity update: pseudo-measurement v = 0, then clip.
-        if self._initialised and (v < 0.0 or self.standstill):
-            (_, a, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
-                (v, a, b), (p00, p01, p02, p11, p12, p22), (1.0, 0.0, 0.0), -v, self._r_zero)
-            v = 0.0
-            if self.standstill:  # at rest a = 0 too: accelerometer readings go to b
-                (_, _, b), (p00, p01, p02, p11, p12, p22) = scalar_update3(
-                    (v, a, b), (p00, p01, p02, p11, p12, p22), (0.0, 1.0, 0.0), -a,
-                    self._r_still_a)
-                a = 0.0
-                v = 0.0  # both pinned at rest (the update moves v by ~1e-5 m/s)
-
-        if (diverged_floats((v, a, b), p00 + p11 + p22, p01 + p02 + p12, SPEED_BOUNDS)
-                or p00 <= 0.0 or p11 <= 0.0 or p22 <= 0.0):
-            self.resets += 1
-            self.reset()
-            return
-        self.v, self.a, self.b = v, a, b
-        self.p = [p00, p01, p02, p11, p12, p22]
+        """Predict 2 ms, then update with the accelerometer and the wheel speed (kf_step)."""
+        (self.v, self.a, self.b, self._p00, self._p01, self._p11, self._initialised,
+         self.standstill, self.abs_mode) = self._step(
+            self._s, self._prm, 0.0 if wheel_speed is None else wheel_speed,
+            wheel_speed is not None, 0.0 if accel is None else accel, accel is not None)
