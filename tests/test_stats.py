@@ -8,21 +8,15 @@ import math
 
 import numpy as np
 
-from vecu.stats import RunningStats
+from vecu.stats import RunningStats, welford
 
 
 def _per_value(values):
-    n, mean, m2, sumsq, max_abs, non_finite = 0, 0.0, 0.0, 0.0, 0.0, 0
+    """Welford's update applied to each value as it comes (welford on one value at a time)."""
+    state = (0, 0.0, 0.0, 0.0, 0.0, 0)
     for x in values:
-        if not math.isfinite(x):
-            non_finite += 1
-            continue
-        n += 1
-        d = x - mean
-        mean += d / n
-        m2 += d * (x - mean)
-        sumsq += x * x
-        max_abs = max(max_abs, abs(x))
+        state = welford.py([x], *state)
+    n, mean, m2, sumsq, max_abs, non_finite = state
     return n, mean, math.sqrt(m2 / n) if n > 1 else 0.0, math.sqrt(sumsq / n), max_abs, non_finite
 
 
@@ -38,6 +32,10 @@ def test_chunked_fold_gives_the_per_value_bits(backend):
     got = (stats.n, stats.mean, stats.std, stats.rms, stats.max_abs, stats.non_finite)
     assert got == _per_value(values)
     assert stats.summary().n == len(values) - 3
+    finite = np.array([v for v in values if math.isfinite(v)])  # and Welford is right
+    assert math.isclose(stats.mean, float(finite.mean()), rel_tol=1e-12)
+    assert math.isclose(stats.std, float(finite.std()), rel_tol=1e-12)
+    assert stats.max_abs == float(np.abs(finite).max())
 
 
 def test_empty_stats_read_zero(backend):
