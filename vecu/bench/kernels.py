@@ -14,7 +14,12 @@ from typing import Any
 
 from vecu import kernels
 from vecu.bench.ecu import TARGET_ECU_US
-from vecu.bench.pipeline import TARGET_PF_US, TARGET_RUN_X, throttle_estimator_alone_us
+from vecu.bench.pipeline import (
+    TARGET_PF_US,
+    TARGET_RUN_X,
+    pf_alone_seconds,
+    throttle_estimator_alone_us,
+)
 from vecu.clock import perf_s
 
 BACKEND_ORDER = ("python", "numba")
@@ -43,7 +48,7 @@ def bench_kernels(duration_s: float = 5.0, repeats: int = 2) -> dict[str, Any]:
         best_run: dict[str, float] = {}
         best_ecu: dict[str, float] = {}
         best_pf: dict[str, float] = {}
-        pf_s = min(20.0, max(5.0, duration_s))  # the pipeline group's trace length
+        pf_s = pf_alone_seconds(duration_s)  # the pipeline group's trace
         for _ in range(repeats):
             for name in BACKEND_ORDER:
                 kernels.set_backend(name)

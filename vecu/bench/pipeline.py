@@ -95,6 +95,7 @@ def bench_pipeline(duration_s: float = 10.0, estimator: str = "production") -> l
 # issue 16 (docs/performance.md), for the scenarios' ratio
 TARGET_RUN_X = {"numba": 25.0, "python": 20.0}
 TARGET_PF_US = 4.0  # the throttle estimator alone, us per 1 ms tick (issue 32)
+PF_ALONE_S = 20.0  # its simulated trace (seed 7, alpha 1) in every group that measures it
 SCENARIOS_BEFORE_S = {"numba": 7.03, "python": 5.94}  # 17 scenarios, wall s (performance.md)
 TARGET_SCENARIOS_SPEEDUP = 3.0
 
@@ -112,7 +113,7 @@ def bench_run_backends(duration_s: float = 60.0) -> list[dict[str, Any]]:
             load_kernels()  # compiling or loading the kernels is not the run's speed
             cfg = RunConfig(duration_s=duration_s, kill_tps_at_s=duration_s / 2)
             s = run(cfg).report
-            alone_us = throttle_estimator_alone_us(min(20.0, max(5.0, duration_s)))
+            alone_us = throttle_estimator_alone_us(pf_alone_seconds(duration_s))
         rows.append({"name": f"vecu run --duration {duration_s:g}", "kernels": name,
                      "wall_s": s.wall_time_s, "x_realtime": s.x_realtime,
                      "target_x_realtime": TARGET_RUN_X[name],
@@ -122,6 +123,12 @@ def bench_run_backends(duration_s: float = 60.0) -> list[dict[str, Any]]:
                      "ceiling_x_realtime": round(1000.0 / alone_us, 1),
                      "budget_left_us_per_tick": round(1000.0 / TARGET_RUN_X[name] - alone_us, 1)})
     return rows
+
+
+def pf_alone_seconds(group_s: float) -> float:
+    """The trace length for throttle_estimator_alone_us in a group sized group_s: PF_ALONE_S
+    (the same figure in the pipeline, kernels and replay groups), 5 s in --quick runs."""
+    return PF_ALONE_S if group_s >= 5.0 else 5.0
 
 
 def throttle_estimator_alone_us(duration_s: float, seed: int = 7) -> float:

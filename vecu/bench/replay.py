@@ -178,8 +178,8 @@ def bench_replay(duration_s: float, live_seconds: float, estimator: str) -> dict
                 w.on_message_received(m)
         est_us = None
         if estimator == "production":
-            from vecu.bench.pipeline import throttle_estimator_alone_us
-            est_us = round(throttle_estimator_alone_us(min(20.0, max(5.0, duration_s))), 1)
+            from vecu.bench.pipeline import pf_alone_seconds, throttle_estimator_alone_us
+            est_us = round(throttle_estimator_alone_us(pf_alone_seconds(duration_s)), 1)
         out["fast"] = [bench_fast(blf, estimator, est_us), bench_fast(log, estimator, est_us)]
         out["live"] = bench_live(blf, live_seconds, estimator)
     return out
