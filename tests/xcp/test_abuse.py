@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from tests.xcp.sim import RawMaster, XcpSim
+from vecu.config import RunConfig
 from vecu.xcp.daq import EVENTS
 from vecu.xcp.memory import CAL_BASE, ID_BASE, MEAS_BASE
 
@@ -120,10 +121,13 @@ def check_alive(sim: XcpSim, raw: RawMaster) -> None:
     raw.step(2)
     assert raw.ask(CONNECT) == [CONNECTED]
     running = sim.xcp.daq.running
+    locked = sim.xcp.proc.security.locked  # 0, or every resource after CONNECT (seed & key)
+    assert locked == (0x15 if sim.config.params.ecu.xcp.seed_key else 0)
     status = [p for p in raw.ask(bytes([0xFD])) if p[0] >= 0xFC]  # DTOs may come too
-    assert status == [bytes([0xFF, 0x40 if running else 0, 0, 0, 0, 0])]
-    assert [p for p in raw.ask(bytes([0xDD, 0])) if p[0] >= 0xFC] == [b"\xff"]  # stop all
-    assert raw.ask(bytes([0xFD])) == [bytes([0xFF, 0, 0, 0, 0, 0])]
+    assert status == [bytes([0xFF, 0x40 if running else 0, locked, 0, 0, 0])]
+    if not locked:
+        assert [p for p in raw.ask(bytes([0xDD, 0])) if p[0] >= 0xFC] == [b"\xff"]  # stop all
+        assert raw.ask(bytes([0xFD])) == [bytes([0xFF, 0, 0, 0, 0, 0])]
     assert sim.xcp.boundary.counts == {}
 
 
@@ -134,7 +138,18 @@ def sim():
     s.close()
 
 
-def test_every_command_at_every_length_and_edge_leaves_the_ecu_ticking(sim):
+@pytest.mark.parametrize("seed_key", [False, True])
+def test_every_command_at_every_length_and_edge_leaves_the_ecu_ticking(seed_key):
+    config = RunConfig(duration_s=600.0, kill_tps_at_s=None).with_params(
+        [("ecu.xcp.seed_key", str(seed_key).lower())])
+    sim = XcpSim(config)
+    try:
+        sweep(sim)
+    finally:
+        sim.close()
+
+
+def sweep(sim: XcpSim) -> None:
     raw = RawMaster(sim)
     raw.step(20)
     raw.estimates.clear()
