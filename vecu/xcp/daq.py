@@ -6,7 +6,13 @@ A list is sampled at the end of the ECU's tick, after the functions ran (the val
 tick). DTOs: absolute ODT number as PID (1 byte), then, in the first ODT of a list with
 timestamps, the ECU's clock in µs (4 bytes, fixed), then the entries' bytes. At most
 `daq_frames_per_tick` DTOs leave per tick; one more is lost and counted (`odts_lost`), never
-delaying the broadcast.
+delaying the broadcast; an entry whose read raises drops its DTO (`odts_dropped`, the slave's
+boundary), never raising out of the tick.
+
+XCP 1.5 DAQ rules kept: allocation in the order FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY
+(else ERR_SEQUENCE), ALLOC_ODT_ENTRY again on an ODT replaces its entries (and its share of
+`max_odt_entries`); a running or selected list keeps its layout and mode (ERR_DAQ_ACTIVE);
+CLEAR_DAQ_LIST stops the list, and `running` (GET_STATUS) is recomputed.
 """
 
 from __future__ import annotations
