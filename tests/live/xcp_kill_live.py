@@ -19,6 +19,7 @@ from pathlib import Path
 import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from tests.live.pair import ecu_summary, start_ecu_and_plant
 from tests.xcp.test_boundary import CONNECT, GET_STATUS, eleven_frames
 from vecu.codec import DbcCodec
 from vecu.live.scenario import stop_all
@@ -63,25 +64,10 @@ class Raw:
 
 
 def main(out: Path) -> dict:
-    vecu = [sys.executable, "-m", "vecu"]
-    procs = []
+    procs: list[subprocess.Popen] = []
     res: dict = {"variants": {}}
     try:
-        procs.append(subprocess.Popen(
-            [*vecu, "ecu", *BUS, "--ready-file", str(out / "ecu.ready"), "--sync-timeout", "20",
-             "--duration", "90", "--summary", str(out / "ecu.json"), "--quiet"],
-            stderr=open(out / "ecu.err", "w")))  # noqa: SIM115 (the child owns it)
-        for _ in range(600):
-            if (out / "ecu.ready").exists():
-                break
-            time.sleep(0.1)
-        procs.append(subprocess.Popen(
-            [*vecu, "plant", *BUS, "--duration", "80", "--quiet", "--ready-file",
-             str(out / "plant.ready")], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 (the child owns it)
-        for _ in range(600):
-            if (out / "plant.ready").exists():
-                break
-            time.sleep(0.1)
+        procs += start_ecu_and_plant(out, BUS, ecu_s=90, plant_s=80)
         raw = Raw()
         for _ in range(60):  # until the ECU ticks (it syncs to the plant's first frames)
             if raw.ask(CONNECT, 0.5) is not None:
@@ -100,10 +86,8 @@ def main(out: Path) -> dict:
         raw.bus.shutdown()
     finally:
         res["exit_codes"] = stop_all(procs, signal.SIGTERM, 30.0)
-    summary = json.loads((out / "ecu.json").read_text()) if (out / "ecu.json").exists() else {}
+    summary, res["ecu_runs_share"] = ecu_summary(out)
     res["xcp"] = summary.get("xcp")
-    ticks = summary.get("ticks", {}).get("ecu", {})
-    res["ecu_runs_share"] = ticks.get("runs", 0) / max(ticks.get("releases", 1), 1)
     return res
 
 
