@@ -365,6 +365,7 @@ class BusNode:
         self.tap = tap
         self.rx_budget = rx_budget
         self.rx_shed = 0  # frames read past rx_budget.frames_per_tick and dropped undecoded
+        self.rx_peak = 0  # the most frames read in one tick (at most the budget's two parts)
         self.handler_errors: dict[str, int] = {}  # by handler: requests whose handling raised
         self._log = logging.getLogger(f"vecu.{name}")
 
@@ -374,12 +375,16 @@ class BusNode:
         bus: the tick's receive work is bounded whatever arrives. The first shed is logged."""
         recv = self.bus.recv
         before = self.rx_shed
-        for _ in range(self.rx_budget.shed_per_tick):
+        n = 0
+        for n in range(self.rx_budget.shed_per_tick):  # noqa: B007 (n: how many were read)
             msg = recv(0.0)
             if msg is None:
                 break
             if keep is None or not keep(msg):
                 self.rx_shed += 1
+        else:
+            n = self.rx_budget.shed_per_tick
+        self.rx_peak = max(self.rx_peak, self.rx_budget.frames_per_tick + n)
         if before == 0 and self.rx_shed:
             self._log.warning("%s: receive flood: frames beyond %d per tick are shed and counted "
                               "(rx_shed)", self.node_name, self.rx_budget.frames_per_tick)

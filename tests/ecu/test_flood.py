@@ -60,6 +60,7 @@ def test_a_tick_takes_its_budget_sheds_the_next_and_leaves_the_rest_in_the_bus(s
         ecu.tick(k * NS_PER_MS)
     assert (rx.received, rx.unknown_id, rx.shed) == (100, 36, 64)
     assert rx.received == rx.accepted + rx.ignored + rx.rejected + rx.diagnostic + rx.shed
+    assert ecu.rx_peak == 24  # the most frames read in one tick: the budget's two parts
     # every 1 ms a throttle estimate, flood or not
     assert sum(m.arbitration_id == 0x200 for m in _drain(tester)) == 5
 

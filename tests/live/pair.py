@@ -18,7 +18,8 @@ def _await(path: Path, timeout_s: float = 60.0) -> None:
 
 
 def start_ecu_and_plant(out: Path, bus: list[str], ecu_args: tuple[str, ...] = (),
-                        ecu_s: float = 120, plant_s: float = 90) -> list[subprocess.Popen]:
+                        ecu_s: float = 120, plant_s: float = 90,
+                        plant_args: tuple[str, ...] = ()) -> list[subprocess.Popen]:
     """[ecu, plant], both ready; the ECU's summary goes to OUT/ecu.json. The caller stops them
     (vecu.live.scenario.stop_all)."""
     vecu = [sys.executable, "-m", "vecu"]
@@ -29,7 +30,7 @@ def start_ecu_and_plant(out: Path, bus: list[str], ecu_args: tuple[str, ...] = (
     _await(out / "ecu.ready")
     procs.append(subprocess.Popen(
         [*vecu, "plant", *bus, "--duration", f"{plant_s:g}", "--quiet", "--ready-file",
-         str(out / "plant.ready")], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 (the child owns it)
+         str(out / "plant.ready"), *plant_args], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 (the child owns it)
     _await(out / "plant.ready")
     return procs
 
