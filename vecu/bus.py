@@ -393,12 +393,13 @@ class BusNode:
         """The boundary of a command handler or periodic sampler (XCP, UDS, FI / RB commands):
         its error is counted by handler and logged once with its traceback; the node goes on
         ticking. Only what a client can provoke goes through here; a function's own error is a
-        bug and propagates."""
-        n = self.handler_errors.get(handler, 0) + 1
-        self.handler_errors[handler] = n
+        bug and propagates. Counted as "handler: ExceptionType"."""
+        kind = f"{handler}: {type(exc).__name__}"
+        n = self.handler_errors.get(kind, 0) + 1
+        self.handler_errors[kind] = n
         if n == 1:
             self._log.error("%s: %s failed (counted in handler_errors; further ones not logged)",
-                            self.node_name, handler, exc_info=exc)
+                            self.node_name, kind, exc_info=exc)
 
     def send(self, msg: can.Message) -> bool:
         """Send one frame; True when the bus took it (a failure is counted and logged)."""

@@ -128,7 +128,7 @@ def check_alive(sim: XcpSim, raw: RawMaster) -> None:
     if not locked:
         assert [p for p in raw.ask(bytes([0xDD, 0])) if p[0] >= 0xFC] == [b"\xff"]  # stop all
         assert raw.ask(bytes([0xFD])) == [bytes([0xFF, 0, 0, 0, 0, 0])]
-    assert sim.xcp.boundary.counts == {}
+    assert sim.xcp.internal_errors() == {}
 
 
 @pytest.fixture

@@ -56,7 +56,7 @@ def test_the_eleven_frames_leave_the_ecu_broadcasting_and_answering(last):
     assert all(0.0 <= e["THR_AngleEst"] <= 90.0 for e in estimates)
     assert connect == [bytes([0xFF, 0x15, 0xC0, 8, 8, 0, 1, 1])]
     assert status == [bytes([0xFF, 0x00, 0x00, 0, 0, 0])]  # no DAQ running, nothing locked
-    assert sim.xcp.boundary.counts == {}  # refused by the protocol, not caught as a fault
+    assert sim.xcp.internal_errors() == {}  # refused by the protocol, not caught as a fault
 
 
 def test_a_daq_entry_that_cannot_be_read_drops_its_dto_and_the_rest_go_on(caplog):
@@ -102,7 +102,7 @@ def test_a_handler_fault_answers_err_generic_logs_once_and_the_node_ticks(caplog
 
         sim.xcp.proc._cmds[0xF1] = broken  # USER_CMD: a handler bug
         raw.estimates.clear()
-        with caplog.at_level(logging.ERROR, logger="vecu.xcp.server"):
+        with caplog.at_level(logging.ERROR, logger="vecu.ecu"):
             answers = [raw.ask(bytes([0xF1, 0, 0])) for _ in range(3)]
         status = raw.ask(GET_STATUS)
         summary = sim.xcp.summary()

@@ -8,7 +8,7 @@ running DAQ lists whose event fired are sampled (the values of this tick) and se
 the same responses, calibrations and samples at the same times.
 
 Nothing a master sends raises out of tick(): the command handler and the DAQ sampler run behind
-one boundary (`Boundary`). A refused command is its XCP error packet (commands.py); an error
+the node's one boundary (`BusNode.handler_failed`, keys "xcp ..."). A refused command is its XCP error packet (commands.py); an error
 the handler did not foresee is ERR_GENERIC (0x31) to the master, and a DAQ entry that cannot be
 read drops its DTO (`odts_dropped`); either is counted per kind (`xcp.internal_errors` in the
 summary) and logged once per kind, and the node goes on ticking.
@@ -40,22 +40,6 @@ log = logging.getLogger(__name__)
 INBOX_FACTOR = 8  # frames kept waiting: this many ticks' worth of commands
 
 
-class Boundary:
-    """Errors that reached the slave's boundary: counted per kind ("where: ExceptionType"),
-    the first of each kind logged with its traceback (a bug to report), none raised."""
-
-    def __init__(self) -> None:
-        self.counts: dict[str, int] = {}
-
-    def caught(self, where: str, exc: BaseException) -> None:
-        kind = f"{where}: {type(exc).__name__}"
-        n = self.counts.get(kind, 0)
-        if not n:
-            log.error("xcp %s: %s (counted in the summary's xcp.internal_errors, logged once)",
-                      kind, exc, exc_info=exc)
-        self.counts[kind] = n + 1
-
-
 class XcpServer:
     """The XCP slave of `node` (attach with node.attach(server))."""
 
@@ -77,8 +61,7 @@ class XcpServer:
         self.frames_dropped = 0
         self.echoes = 0
         self.responses = 0
-        self.boundary = Boundary()
-        self.daq.on_read_error = lambda exc: self.boundary.caught("daq sample", exc)
+        self.daq.on_read_error = lambda exc: node.handler_failed("xcp daq sample", exc)
         self._manifold = node.function("manifold")
         self._events_seen = 0
         self._ts = 0.0
@@ -115,7 +98,7 @@ class XcpServer:
                 try:
                     packets = handle(cto, t_ns)
                 except Exception as exc:  # noqa: BLE001 - the boundary: answered, never raised
-                    self.boundary.caught(f"command 0x{cto[0]:02X}", exc)
+                    self.node.handler_failed(f"xcp command 0x{cto[0]:02X}", exc)
                     packets = [bytes([ERR, ERR_GENERIC])]
                 for packet in packets:
                     self.responses += self._send(packet)
@@ -128,7 +111,7 @@ class XcpServer:
             try:
                 self.daq.sample(t_ns, engine, self._send)
             except Exception as exc:  # noqa: BLE001 - the boundary: counted, never raised
-                self.boundary.caught("daq sample", exc)
+                self.node.handler_failed("xcp daq sample", exc)
 
     def check_calibration(self, sets: list[tuple[str, Any]]) -> Any:
         """The working tree with (path under ecu., value) pairs, checked; ParamError for a
@@ -143,12 +126,17 @@ class XcpServer:
         """A timed set: as an XCP write of the same values in the tick at t_ns."""
         self.proc.take(self.check_calibration(sets), t_ns)
 
+    def internal_errors(self) -> dict[str, int]:
+        """What reached the boundary from this slave ("command 0xF1: ZeroDivisionError": n)."""
+        return {k[4:]: n for k, n in sorted(self.node.handler_errors.items())
+                if k.startswith("xcp ")}
+
     def summary(self) -> dict[str, Any]:
         """For the run summary: counters and the calibrations taken."""
         return {**asdict(self.proc.stats), **asdict(self.daq.stats),
                 "values_saturated": self.measurements[0].stats.saturated
                 if self.measurements else 0,
-                "internal_errors": dict(sorted(self.boundary.counts.items())),
+                "internal_errors": self.internal_errors(),
                 "responses": self.responses, "frames_dropped": self.frames_dropped,
                 "connected": self.proc.connected,
                 "calibrations_taken": [[t / NS_PER_S, "ecu." + p, v]
