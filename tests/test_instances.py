@@ -5,16 +5,12 @@ for every instance, the parameter tree's follow rule, the user errors, and two E
 from __future__ import annotations
 
 import re
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import can
 import isotp
 import pytest
-from udsoncan.client import Client
-from udsoncan.connections import PythonIsoTpConnection
 
 from vecu.assembly import TICK_NS, build_functions, build_plant, schedule_ecu, schedule_plant
 from vecu.bus import open_bus
@@ -37,7 +33,7 @@ from vecu.params import ParamError
 from vecu.scheduler import Scheduler
 from vecu.uds.server import attach_uds
 
-from .uds.sim import CLIENT_CONFIG
+from .uds.sim import drive_tester
 
 INSTANCES = range(MAX_INSTANCE + 1)
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "live.md"
@@ -187,26 +183,7 @@ class TwoEcus:
         stack = isotp.CanStack(bus, address=isotp.Address(
             isotp.AddressingMode.Normal_11bits, txid=ids["request_id"], rxid=ids["response_id"]),
             params={"tx_padding": 0xCC, "blocking_send": False})
-        out: dict[str, Any] = {}
-
-        def body() -> None:
-            try:
-                with Client(PythonIsoTpConnection(stack), config=CLIENT_CONFIG) as c:
-                    out["result"] = work(c)
-            except BaseException as exc:  # noqa: BLE001 - handed to the test
-                out["error"] = exc
-
-        thread = threading.Thread(target=body, daemon=True)
-        thread.start()
-        for _ in range(60_000):
-            if not thread.is_alive():
-                break
-            self.step()
-            time.sleep(0.0002)
-        thread.join(10.0)
-        if "error" in out:
-            raise out["error"]
-        return out["result"]
+        return drive_tester(stack, work, self.step, max_ticks=60_000)
 
     def close(self) -> None:
         for bus in self.buses:
