@@ -17,10 +17,9 @@ import can
 import isotp
 from udsoncan.client import Client
 from udsoncan.connections import PythonIsoTpConnection
-from udsoncan.exceptions import TimeoutException
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from tests.live.pair import start_ecu_and_plant
+from tests.live.pair import await_ecu, start_ecu_and_plant
 from tests.uds.sim import CLIENT_CONFIG
 from vecu.instances import uds_ids
 from vecu.live.scenario import stop_all
@@ -35,12 +34,7 @@ def ask(bus: can.BusABC, instance: int, work):
     stack = isotp.CanStack(bus, address=isotp.Address(
         isotp.AddressingMode.Normal_11bits, txid=ids["request_id"], rxid=ids["response_id"]))
     with Client(PythonIsoTpConnection(stack), config=CLIENT_CONFIG) as c:
-        for _ in range(60):  # until the ECU ticks (it syncs to the plant's first frames)
-            try:
-                c.tester_present()
-                break
-            except TimeoutException:
-                continue
+        await_ecu(c)  # until the ECU ticks (it syncs to the plant's first frames)
         return work(c)
 
 

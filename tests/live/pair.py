@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 
 def _await(path: Path, timeout_s: float = 60.0) -> None:
@@ -46,3 +47,16 @@ def ecu_summary(out: Path) -> tuple[dict, float]:
     summary = json.loads(path.read_text()) if path.exists() else {}
     ticks = summary.get("ticks", {}).get("ecu", {})
     return summary, ticks.get("runs", 0) / max(ticks.get("releases", 1), 1)
+
+
+def await_ecu(client: Any, attempts: int = 60) -> None:
+    """TesterPresent until the ECU answers (a live ECU ticks once it has synced to the plant's
+    first frames); a udsoncan Client."""
+    from udsoncan.exceptions import TimeoutException
+
+    for _ in range(attempts):
+        try:
+            client.tester_present()
+            return
+        except TimeoutException:
+            continue

@@ -131,24 +131,35 @@ def drive_tester(stack: isotp.CanStack, work: Callable[[Client], Any], step: Cal
                  pace_s: float = 0.0002) -> Any:
     """Run `work(client)` (a udsoncan Client over `stack`) on a thread while step() advances a
     simulated clock 1 ms at a time (at most max_ticks); its result (or its exception)."""
+    def body() -> Any:
+        with Client(PythonIsoTpConnection(stack), config=config or CLIENT_CONFIG) as c:
+            return work(c)
+
+    return run_stepped(body, step, max_ticks, pace_s, who="tester")
+
+
+def run_stepped(body: Callable[[], Any], step: Callable[[], None], max_ticks: int,
+                pace_s: float, settle_s: float = 0.0, who: str = "tester") -> Any:
+    """body() on a thread (after settle_s, the clock still) while step() advances the simulated
+    clock 1 ms at a time, at most max_ticks; its result, or its exception raised here."""
     out: dict[str, Any] = {}
 
-    def body() -> None:
+    def run() -> None:
         try:
-            with Client(PythonIsoTpConnection(stack), config=config or CLIENT_CONFIG) as c:
-                out["result"] = work(c)
+            out["result"] = body()
         except BaseException as exc:  # noqa: BLE001 - handed to the test
             out["error"] = exc
 
-    thread = threading.Thread(target=body, daemon=True)
+    thread = threading.Thread(target=run, daemon=True)
     thread.start()
+    time.sleep(settle_s)
     for _ in range(max_ticks):
         if not thread.is_alive():
             break
         step()
         time.sleep(pace_s)
     thread.join(10.0)
-    assert not thread.is_alive(), "the tester did not finish"
+    assert not thread.is_alive(), f"the {who} did not finish"
     if "error" in out:
         raise out["error"]
     return out["result"]
