@@ -244,3 +244,18 @@ def test_two_ecus_broadcast_their_frames_at_distinct_ids(two_ecus):
     # instance 1's frame is not instance 0's: its CRC fails under instance 0's data ID
     payload = seen[thr[1].frame_id][-1].data
     assert not thr[0].crc_ok(payload)
+
+
+@pytest.mark.parametrize("name", ["uds_tps_dtc", "xcp_tps_debounce"])
+def test_a_shipped_scenario_passes_on_another_instance(tmp_path, name):
+    """The scenario's UDS tester / XCP master and its checks follow `ecu.instance`."""
+    from vecu.scenario.batch import run_scenario
+    from vecu.scenario.loader import load_scenario
+    from vecu.shipped import shipped_files
+
+    path = tmp_path / f"{name}.toml"
+    path.write_text(shipped_files("scenario")[name].read_text() + '\n[set]\n"ecu.instance" = 3\n')
+    scenario = load_scenario(path)
+    assert scenario.config.params.ecu.uds.request_id == 0x7E3
+    outcome = run_scenario(scenario)
+    assert outcome.error is None and outcome.passed, outcome
