@@ -5,6 +5,8 @@ split FI_EvKind's code space without overlap, each code named in the DBC (cantoo
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import cantools
 import numpy as np
@@ -72,3 +74,20 @@ def test_only_signal_kinds_build_a_signal_fault():
                 make_fault(kind, None, rng)
         else:
             assert make_fault(kind, None, rng).kind is kind
+
+
+def test_the_fault_library_table_in_the_docs_is_the_records():
+    """docs/scenarios.md's fault library: one row per kind, its default (in parentheses) the
+    record's, '–' for a kind whose value means nothing."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "scenarios.md").read_text()
+    rows = dict(re.findall(r"^\| `([a-z_]+)` \| ([^|]*) \|", text, flags=re.MULTILINE))
+    for kind in FaultKind:
+        if kind == FaultKind.CLEAR:
+            continue
+        assert kind.label in rows, kind.label
+        shown = re.search(r"\(([-0-9.e]+)\)", rows[kind.label])
+        if shown is None:
+            assert rows[kind.label].strip() == "–" and not kind.spec.meaning or \
+                kind == FaultKind.SHORT_SUPPLY, (kind.label, rows[kind.label])
+        else:
+            assert float(shown.group(1)) == kind.default, (kind.label, rows[kind.label])
