@@ -394,6 +394,8 @@ def test_layering():
     # the XCP slave stands on the ECU too (floor 5), beside the UDS server
     bad += _layer_violations("vecu.xcp", None, ("vecu.plant", "vecu.estimators.registry",
                                                 "vecu.uds"))
+    # the gateway routes into the ECUs' diagnostic channels on CAN: never the plant
+    bad += _layer_violations("vecu.gateway", None, ("vecu.plant", "vecu.cli"))
     for name in FOUNDATION:
         bad += _layer_violations(name, ())
     _report(bad, "layering (docs/architecture.md)")
