@@ -129,10 +129,10 @@ class ActivationHandler:
                                     {o.serial for o in targets}))
 
     def alive(self, c: Connection, sa: int) -> None:
-        self.e.count["alive_checks"]["answered"] += 1
-        for p in self.pending:
-            if c.serial in p.targets:
-                p.answered.add(c.serial)
+        asked = [p for p in self.pending if c.serial in p.targets]
+        self.e.count["alive_checks"]["answered" if asked else "unsolicited"] += 1
+        for p in asked:
+            p.answered.add(c.serial)
 
     def tick(self, t_ns: int) -> None:
         if not self.pending:
