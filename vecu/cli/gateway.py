@@ -66,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
     from vecu.codec import DbcCodec
     from vecu.errors import UnavailableError
     from vecu.gateway.entity import DoipEntity
-    from vecu.gateway.router import DiagRouter
+    from vecu.gateway.router import FRAMES_PER_STEP, DiagRouter
     from vecu.gateway.settings import settings_of
     from vecu.live.options import LiveOptions
     from vecu.live.process import LiveProcess
@@ -93,8 +93,11 @@ def main(args: argparse.Namespace) -> int:
                                    f"{exc.strerror or exc}") from None
         bus, meter = proc.bus, proc.meter("gateway")
 
-        def step(t_ns: int) -> None:
-            while (msg := bus.recv(0.0)) is not None:
+        def step(t_ns: int) -> None:  # CAN in, DoIP in and out, then the router's sends / replies
+            for _ in range(FRAMES_PER_STEP):
+                msg = bus.recv(0.0)
+                if msg is None:
+                    break
                 router.on_frame(msg, t_ns)
             entity.step(t_ns)
             router.tick(t_ns)
