@@ -83,6 +83,7 @@ class DoipEntity:
         self.tcp: socket.socket | None = None
         self.udp: socket.socket | None = None
         self.announce_to = settings.announce_address or broadcast_address(bind)
+        self.announce_delay_s = announce_delay_s
         first = settings.ns(announce_delay_s)
         self._announce_at = [first + k * settings.ns(settings.announce_interval_s)
                              for k in range(settings.announce_count)]
@@ -104,6 +105,7 @@ class DoipEntity:
             tcp.bind((self.bind, self.port))
             tcp.listen(16)
             tcp.setblocking(False)
+            self.port = tcp.getsockname()[1]  # port 0: the one the system gave, for UDP too
             # testers on this host may listen on the same UDP port for announcements
             udp.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             udp.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
@@ -114,7 +116,6 @@ class DoipEntity:
             udp.close()
             raise
         self.tcp, self.udp = tcp, udp
-        self.port = tcp.getsockname()[1]
         self.sel.register(tcp, selectors.EVENT_READ, None)
         self.sel.register(udp, selectors.EVENT_READ, None)
 
@@ -480,6 +481,7 @@ class DoipEntity:
     def summary(self) -> dict[str, Any]:
         return {
             "bind": self.bind, "port": self.port, "announce_to": self.announce_to,
+            "announce_delay_ms": round(self.announce_delay_s * 1000, 3),
             "max_sockets": self.s.max_sockets,
             **{k: dict(sorted(v.items())) for k, v in self.count.items()},
             "bad_input_total": sum(self.count["bad_input"].values()),
