@@ -227,6 +227,32 @@ def diagnostic(out: dict) -> None:
     o["foreign_sa"] = code_and_closed(s, read(s))
 
 
+def flood(out: dict, n: int = 2000) -> None:
+    """Thousands of requests in one burst from one tester: each acked or NACKed (0x05 when the
+    gateway's own answer queue is full), none lost, and the gateway answers afterwards."""
+    s = connect()
+    activate(s, 0x0E00)
+    one = msg(0x8001, m.DiagnosticMessage(0x0E00, 0x1000, b"\x3e\x00").pack())
+    s.sendall(one * n)
+    seen: dict[str, int] = {}
+    acks = nacks = answers = 0
+    while acks + nacks < n or answers < acks:  # T_TCP_General_Inactivity is 1 s here
+        got = read(s, timeout=0.5)
+        if got is None or isinstance(got, str):
+            break
+        acks += isinstance(got, m.DiagnosticMessagePositiveAcknowledgement)
+        nacks += isinstance(got, m.DiagnosticMessageNegativeAcknowledgement)
+        answers += isinstance(got, m.DiagnosticMessage)
+        key = type(got).__name__
+        if isinstance(got, m.DiagnosticMessageNegativeAcknowledgement):
+            key += f"_0x{got.nack_code:02X}"
+        seen[key] = seen.get(key, 0) + 1
+    s.sendall(one)
+    after = [name(read(s)), name(read(s))]
+    s.close()
+    out["flood"] = {"sent": n, "seen": seen, "after": after}
+
+
 def timers(out: dict) -> None:
     o = out["timers"] = {}
     t0 = time.monotonic()
@@ -308,7 +334,7 @@ def main(outdir: Path) -> dict:
             if (outdir / "gateway.ready").exists():
                 break
             time.sleep(0.05)
-        for part in (generic, activation, diagnostic, timers, fuzz):
+        for part in (generic, activation, diagnostic, flood, timers, fuzz):
             t0 = time.monotonic()
             part(out)
             out.setdefault("seconds", {})[part.__name__] = round(time.monotonic() - t0, 2)

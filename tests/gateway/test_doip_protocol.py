@@ -102,6 +102,16 @@ def test_diagnostic_message_nacks_of_the_entity(seen):
     assert "1VECU00SIM0000001" in d["own_address_answer"][1]["user_data"]
 
 
+def test_a_flood_from_one_tester_gets_an_answer_for_every_request(seen):
+    f = seen["flood"]
+    acks = f["seen"].get("DiagnosticMessagePositiveAcknowledgement", 0)
+    nacks = f["seen"].get("DiagnosticMessageNegativeAcknowledgement_0x05", 0)
+    assert acks + nacks == f["sent"]  # each one acked or NACKed (out of memory), none lost
+    assert f["seen"].get("DiagnosticMessage", 0) == acks  # an answer for every accepted one
+    assert f["after"][0][0] == "DiagnosticMessagePositiveAcknowledgement"
+    assert f["after"][1][1]["user_data"] == str(bytearray(b"\x7e\x00"))
+
+
 def test_inactivity_timers_close_stalled_sockets(seen):
     t = seen["timers"]  # config: initial 0.6 s, general 1.0 s
     assert t["half_header"] == "closed" and 0.5 <= t["half_header_closed_after_s"] < 1.5
