@@ -154,3 +154,14 @@ def test_unreadable_files_are_one_line_too(tmp_path):
     bad.write_text("vin = \n")
     with pytest.raises(GatewayConfigError, match="syntax.toml: TOML syntax error"):
         load_gateway_config(bad)
+
+
+def test_docs_print_the_default_as_shipped():
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "gateway.md").read_text()
+    assert "```toml\n" + DEFAULT_TOML + "```" in doc
+    for key in [*DEFAULT_TOML.split("[doip]")[1].split("[[ecu]]")[0].splitlines()]:
+        name = key.split("=")[0].strip()
+        if name and not name.startswith("#"):
+            assert f"`doip.{name}`" in doc or f"doip.{name}`" in doc, name

@@ -266,3 +266,34 @@ def test_the_default_config_routes_to_the_two_default_ecus():
     assert [(r.logical_address, r.request_id) for r in cfg.ecus] == [(ECU_A, 0x7E0),
                                                                       (ECU_B, 0x7E1)]
     assert TESTER in range(cfg.tester_addresses[0], cfg.tester_addresses[1] + 1)
+
+
+def test_junk_on_the_response_ids_never_breaks_the_router_and_is_counted():
+    """Random frames (any PCI, any length, 29-bit twins) on the ECUs' response IDs while
+    requests run: no exception, the errors counted, and the next request answered as before."""
+    import random
+
+    import can
+
+    rnd = random.Random(40)
+    sim = GatewaySim()
+    try:
+        sim.step(20)
+        junk = sim.run.bus()
+        ids = [0x7E8, 0x7E9, 0x7DF]
+        for tick in range(300):
+            if tick % 30 == 0:
+                for target in (ECU_A, ECU_B):
+                    sim.submit(target, "22 F1 90")
+            for _ in range(rnd.randint(0, 12)):
+                data = bytes(rnd.randrange(256) for _ in range(rnd.randint(0, 8)))
+                junk.send(can.Message(arbitration_id=rnd.choice(ids), data=data,
+                                      is_extended_id=rnd.random() < 0.1))
+            sim.step()
+        sim.step(100)
+        rows = sim.router.summary().routes
+        assert sum(r.transport_errors + r.late for r in rows) > 0
+        vin = sim.ask(ECU_B, "22 F1 90")
+        assert read_dids(vin[-1][1], [0xF190]) == {0xF190: VIN_B}
+    finally:
+        sim.close()

@@ -111,7 +111,8 @@ DEFAULT_ROUTES = (_route("ecu0", 0x0010, 0x7E0, 0x7E8), _route("ecu1", 0x0011, 0
 
 DEFAULT_TOML = '''\
 # vecu gateway configuration (docs/gateway.md "Config file"). Numbers may be written in hex.
-# Every key is optional; what is left out takes the value shown here.
+# Every key is optional; what is left out takes the value shown here. [[ecu]] tables replace
+# the two shown (each needs logical_address and, except normal_fixed_29bit, both CAN IDs).
 
 vin = "1VECU00SIM0000001"        # 17 characters, answered in vehicle identification and DID 0xF190
 eid = "02:00:00:00:10:00"        # entity ID, 6 bytes (usually a MAC address)

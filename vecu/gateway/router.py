@@ -157,7 +157,8 @@ class Channel:
 
 
 class DiagRouter:
-    """The CAN side of the gateway on `node`'s bus; time comes from `now_ns` (vecu's clock)."""
+    """The CAN side of the gateway on `node`'s bus; time comes from `now_ns` (vecu's clock).
+    Not thread-safe: submit / cancel / on_frame / tick from the gateway loop's one thread."""
 
     def __init__(self, node: BusNode, config: GatewayConfig, now_ns: NowNs) -> None:
         self.node = node
