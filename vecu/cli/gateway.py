@@ -66,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
     from vecu.codec import DbcCodec
     from vecu.errors import UnavailableError
     from vecu.gateway.entity import DoipEntity
-    from vecu.gateway.router import FRAMES_PER_STEP, DiagRouter
+    from vecu.gateway.router import DiagRouter
     from vecu.gateway.settings import settings_of
     from vecu.live.options import LiveOptions
     from vecu.live.process import LiveProcess
@@ -91,16 +91,11 @@ def main(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UnavailableError(f"--doip-bind {args.doip_bind} --doip-port {args.doip_port}: "
                                    f"{exc.strerror or exc}") from None
-        bus, meter = proc.bus, proc.meter("gateway")
+        meter = proc.meter("gateway")
 
-        def step(t_ns: int) -> None:  # CAN in, DoIP in and out, then the router's sends / replies
-            for _ in range(FRAMES_PER_STEP):
-                msg = bus.recv(0.0)
-                if msg is None:
-                    break
-                router.on_frame(msg, t_ns)
-            entity.step(t_ns)
-            router.tick(t_ns)
+        def step(t_ns: int) -> None:
+            entity.step(t_ns)  # DoIP in (requests submitted) and out
+            router.step(t_ns)  # CAN in, requests out, replies to the testers (sent at once)
 
         meter.stats = proc.sched.every(STEP_NS, meter.wrap(step), name="gateway", priority=10)
         proc.status_lines = lambda: [_status_line(entity)]
