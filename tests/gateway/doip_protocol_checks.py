@@ -153,6 +153,23 @@ def generic(out: dict) -> None:
     }
 
 
+def versions(out: dict) -> None:
+    """Protocol versions 2 (2012) and 3 (2019): an answer carries the request's version; one
+    to version 0xFF (identification only) the entity's own (2)."""
+    o = out["versions"] = {}
+    for v in (2, 3, 0xFF):
+        u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        u.settimeout(1.0)
+        u.sendto(msg(0x0001, version=v), (HOST, PORT))
+        o[f"udp_{v}"] = list(u.recvfrom(64)[0][:2])
+        u.close()
+    s = connect()
+    s.sendall(msg(0x0005, m.RoutingActivationRequest(0x0E00, 0).pack(), version=3))
+    s.settimeout(1.0)
+    o["tcp_3"] = list(s.recv(2))
+    s.close()
+
+
 def answer_alive_checks(socks: list[socket.socket], sas: list[int]) -> int:
     n = 0
     for s, sa in zip(socks, sas):
@@ -334,7 +351,7 @@ def main(outdir: Path) -> dict:
             if (outdir / "gateway.ready").exists():
                 break
             time.sleep(0.05)
-        for part in (generic, activation, diagnostic, flood, timers, fuzz):
+        for part in (generic, versions, activation, diagnostic, flood, timers, fuzz):
             t0 = time.monotonic()
             part(out)
             out.setdefault("seconds", {})[part.__name__] = round(time.monotonic() - t0, 2)

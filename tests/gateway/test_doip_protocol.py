@@ -67,6 +67,12 @@ def test_generic_header_nacks_and_answers_on_udp(seen):
     assert u["power_mode"] == ["DiagnosticPowerModeResponse", {"diagnostic_power_mode": 1}]
 
 
+def test_answers_carry_the_requests_protocol_version(seen):
+    v = seen["versions"]
+    assert v["udp_2"] == [2, 0xFD] and v["udp_3"] == [3, 0xFC] and v["tcp_3"] == [3, 0xFC]
+    assert v["udp_255"] == [2, 0xFD]  # 0xFF (any version) answered in the entity's own
+
+
 @pytest.mark.parametrize("code,closes", [(0x00, True), (0x02, True), (0x03, True),
                                          (0x01, True), (0x06, True), (0x04, False),
                                          (0x05, False)])
