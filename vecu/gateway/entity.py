@@ -131,7 +131,19 @@ class DoipEntity:
 
     # ------------------------------------------------------------------ stepping
     def step(self, t_ns: int) -> None:
-        """One pass: every ready socket, the timers, the queued output. Never raises."""
+        """One pass: every ready socket, the timers, the queued output. Never raises: a bug
+        outside a connection's handlers is counted and logged once too, and the next step runs."""
+        try:
+            self._step(t_ns)
+        except Exception as exc:  # noqa: BLE001 - a bug: counted, logged once, the gateway runs on
+            self._bug("DoIP step error (counted as handler_errors, logged once)", exc)
+
+    def _bug(self, text: str, exc: Exception) -> None:
+        self.handler_errors += 1
+        if self.handler_errors == 1:
+            log.error(text, exc_info=exc)
+
+    def _step(self, t_ns: int) -> None:
         for key, _ in self.sel.select(0):
             sock = key.fileobj
             if sock is self.tcp:
@@ -155,11 +167,9 @@ class DoipEntity:
     def _guarded(self, c: Connection, fn: Callable[[Connection, int], None], t_ns: int) -> None:
         try:
             fn(c, t_ns)
-        except Exception:  # a bug in a handler: this connection only
-            self.handler_errors += 1
-            if self.handler_errors == 1:
-                log.exception("DoIP handler error (connection %s closed; counted as "
-                              "handler_errors, logged once)", c.peer)
+        except Exception as exc:  # noqa: BLE001 - a bug in a handler: this connection only
+            self._bug(f"DoIP handler error (connection {c.peer} closed; counted as "
+                      "handler_errors, logged once)", exc)
             self.drop(c, "handler error")
 
     def _accept(self, t_ns: int) -> None:
@@ -413,10 +423,8 @@ class DoipEntity:
                 return
             try:
                 self._datagram(data, addr)
-            except Exception:  # a bug: counted, logged once, the next one read
-                self.handler_errors += 1
-                if self.handler_errors == 1:
-                    log.exception("DoIP UDP handler error (counted as handler_errors)")
+            except Exception as exc:  # noqa: BLE001 - a bug: counted, logged once, the next one read
+                self._bug("DoIP UDP handler error (counted as handler_errors, logged once)", exc)
 
     def _udp_nack(self, code: int, addr: Any, version: int, kind: str, text: str) -> None:
         self.count["generic_nacks"][f"0x{code:02X}"] += 1
