@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from vecu import params as ptree
+from vecu.bus import RxBudget
 from vecu.ecu.manifold_function import ManifoldFunctionConfig
 from vecu.ecu.speed_function import SpeedFunctionConfig
 from vecu.ecu.steering_function import SteeringFunctionConfig
@@ -68,6 +69,7 @@ class EcuParams:
     manifold: ManifoldFunctionConfig = field(default_factory=ManifoldFunctionConfig)
     uds: UdsConfig = field(default_factory=UdsConfig)  # diagnostics server (docs/uds.md)
     xcp: XcpConfig = field(default_factory=XcpConfig)  # measurement and calibration (docs/xcp.md)
+    rx: RxBudget = field(default_factory=RxBudget)  # receive work per 1 ms tick (docs/live.md)
 
 
 @dataclass(frozen=True)
