@@ -45,7 +45,7 @@ def test_doip_testers_discover_the_gateway_and_diagnose_two_live_ecus_behind_it(
     gw = out["gateway"]
     d = gw["doip"]
     assert d["activations"] == {"0x10": 3} and d["bad_input_total"] == 0
-    assert d["handler_errors"] == 0 and d["diag"]["routed"] >= 9
+    assert d["handler_errors"] == {} and d["diag"]["routed"] >= 9
     routes = {r["logical_address"]: r for r in gw["routes"]["routes"]}
     assert routes[0x10]["responses"] >= 4 and routes[0x11]["responses"] >= 4
     assert gw["routes"]["functional"]["responses"] >= 2

@@ -1,5 +1,6 @@
 """A bug inside a DoIP handler (here: a router whose submit() raises) costs one connection:
-counted as handler_errors, its traceback logged once, that socket closed; the entity keeps
+counted by the node's handler boundary (BusNode.handler_failed), its traceback logged once,
+that socket closed; the entity keeps
 serving UDP and new connections. The entity runs in a private network namespace (loopback),
 stepped by the test on vecu's clock as the gateway's loop steps it."""
 
@@ -18,6 +19,7 @@ pytestmark = pytest.mark.skipif(namespace_prefix()[0] is None,
 CODE = r'''
 import json, logging, socket, struct, subprocess, threading
 from doipclient import DoIPClient
+from vecu.bus import BusNode, open_bus
 from vecu.clock import WallClock
 from vecu.gateway.config import default_config
 from vecu.gateway.entity import DoipEntity
@@ -36,7 +38,8 @@ class BrokenRouter:
         pass
 
 cfg = default_config()
-e = DoipEntity(cfg, settings_of(cfg), BrokenRouter(), 0.0, "127.0.0.1", 13400)
+node = BusNode(open_bus("virtual", "gateway-bug"), "gateway")
+e = DoipEntity(cfg, settings_of(cfg), BrokenRouter(), node, 0.0, "127.0.0.1", 13400)
 e.open()
 clock = WallClock(spin_ns=0)
 clock.start()
@@ -73,7 +76,7 @@ def test_a_handler_bug_closes_one_connection_and_the_entity_keeps_serving():
     assert out["tester0"] != "acked" and out["tester1"] != "acked"
     assert out["identification_after"] == "1VECU00SIM0000001"
     s = out["summary"]
-    assert s["handler_errors"] == 2 and s["closed"]["handler error"] == 2
+    assert s["handler_errors"] == {"doip tcp: RuntimeError": 2} and s["closed"]["handler error"] == 2
     assert s["activations"] == {"0x10": 2}  # the second tester was served up to the bug
     tracebacks = [msg for msg, exc in out["logged"] if exc]
     assert len(tracebacks) == 1 and "handler_errors" in tracebacks[0]

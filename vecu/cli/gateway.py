@@ -85,7 +85,8 @@ def main(args: argparse.Namespace) -> int:
         router = DiagRouter(node, config, proc.clock.now_ns)
         delay = float(rng_streams(args.seed, ("doip_announce",))["doip_announce"].uniform(
             0.0, settings.announce_wait_s))
-        entity = DoipEntity(config, settings, router, delay, args.doip_bind, args.doip_port)
+        entity = DoipEntity(config, settings, router, node, delay, args.doip_bind,
+                            args.doip_port)
         try:
             entity.open()
         except OSError as exc:
@@ -144,5 +145,5 @@ def format_gateway_summary(s: dict[str, Any]) -> str:
          f"{d['diag'].get('routed', 0)} requests routed, {d['diag'].get('responses', 0)} "
          f"responses, diagnostic NACKs {d['diag_nacks']}"),
         (f"  bad input {d['bad_input_total']} (generic NACKs {d['generic_nacks']}), "
-         f"handler errors {d['handler_errors']}"),
+         f"handler errors {sum(d['handler_errors'].values())}"),
     ])

@@ -4,7 +4,8 @@
 every socket that is ready (selectors, no wait), runs the timers and flushes what is queued.
 Nothing it receives can raise out of step(): a bad header or payload gets the generic NACK the
 standard names (§7.1.4 Figure 9) and, where it says so, the socket closed; a bug inside a
-handler is counted, logged once with its traceback, and closes that one connection.
+handler stops at the node's boundary (BusNode.handler_failed: counted, logged once with its
+traceback) and closes that one connection.
 
 UDP (port 13400): vehicle identification requests (plain, by EID, by VIN: §7.3.3) answered with
 0x0004 to the sender; entity status 0x4001 -> 0x4002, power mode 0x4003 -> 0x4004; the vehicle
@@ -27,6 +28,7 @@ from typing import Any, Protocol
 
 from doipclient import messages as m
 
+from vecu.bus import BusNode
 from vecu.gateway import doip
 from vecu.gateway.activation import ActivationHandler
 from vecu.gateway.connection import Connection
@@ -72,7 +74,11 @@ class DoipEntity:
     """The gateway's DoIP side: sockets, the socket table, counters (summary())."""
 
     def __init__(self, ident: Identity, settings: DoipSettings, router: Router,
-                 announce_delay_s: float, bind: str = "127.0.0.1", port: int = 13400) -> None:
+                 node: BusNode, announce_delay_s: float, bind: str = "127.0.0.1",
+                 port: int = 13400) -> None:
+        """node: the gateway's bus node, whose handler_failed() is the boundary a bug inside
+        a handler stops at (counted by kind, logged once with its traceback)."""
+        self.node = node
         self.ident = ident
         self.s = settings
         self.router = router
@@ -91,7 +97,6 @@ class DoipEntity:
         self.count: dict[str, Counter[str]] = {
             k: Counter() for k in ("connections", "closed", "activations", "generic_nacks",
                                    "diag_nacks", "diag", "udp", "alive_checks", "bad_input")}
-        self.handler_errors = 0
         self._logged: set[str] = set()
         self.reserved_bytes = 0  # payload memory held by messages being received
 
@@ -136,12 +141,7 @@ class DoipEntity:
         try:
             self._step(t_ns)
         except Exception as exc:  # noqa: BLE001 - a bug: counted, logged once, the gateway runs on
-            self._bug("DoIP step error (counted as handler_errors, logged once)", exc)
-
-    def _bug(self, text: str, exc: Exception) -> None:
-        self.handler_errors += 1
-        if self.handler_errors == 1:
-            log.error(text, exc_info=exc)
+            self.node.handler_failed("doip step", exc)
 
     def _step(self, t_ns: int) -> None:
         for key, _ in self.sel.select(0):
@@ -168,8 +168,7 @@ class DoipEntity:
         try:
             fn(c, t_ns)
         except Exception as exc:  # noqa: BLE001 - a bug in a handler: this connection only
-            self._bug(f"DoIP handler error (connection {c.peer} closed; counted as "
-                      "handler_errors, logged once)", exc)
+            self.node.handler_failed("doip tcp", exc)
             self.drop(c, "handler error")
 
     def _accept(self, t_ns: int) -> None:
@@ -424,7 +423,7 @@ class DoipEntity:
             try:
                 self._datagram(data, addr)
             except Exception as exc:  # noqa: BLE001 - a bug: counted, logged once, the next one read
-                self._bug("DoIP UDP handler error (counted as handler_errors, logged once)", exc)
+                self.node.handler_failed("doip udp", exc)
 
     def _udp_nack(self, code: int, addr: Any, version: int, kind: str, text: str) -> None:
         self.count["generic_nacks"][f"0x{code:02X}"] += 1
@@ -493,6 +492,7 @@ class DoipEntity:
             "max_sockets": self.s.max_sockets,
             **{k: dict(sorted(v.items())) for k, v in self.count.items()},
             "bad_input_total": sum(self.count["bad_input"].values()),
-            "handler_errors": self.handler_errors,
+            "handler_errors": {k: n for k, n in self.node.handler_errors.items()
+                               if k.startswith("doip")},
             "open_connections": len(self.conns),
         }
