@@ -24,6 +24,7 @@ from doipclient.messages import DiagnosticMessage
 from udsoncan.client import Client
 from udsoncan.exceptions import TimeoutException
 
+from tests.live.pair import start_ecu_and_plant
 from tests.uds.sim import CLIENT_CONFIG
 from vecu.live.scenario import stop_all
 
@@ -66,23 +67,24 @@ def main(out: Path) -> dict:
 
     def start(name: str, argv: list[str]) -> None:
         procs.append(subprocess.Popen([*vecu, *argv, "--ready-file", str(out / f"{name}.ready"),
-                                       "--summary", str(out / f"{name}.json"), "--quiet"],
+                                       "--summary", str(out / f"{name}.json"), "--quiet",
+                                       "--no-status"],
                                       stderr=open(out / f"{name}.err", "w")))  # noqa: SIM115 - the child holds it
         wait_file(out / f"{name}.ready")
 
     try:
-        common = ["--sync-timeout", "30", "--duration", "120", "--tps-timeout-cycles=100",
-                  "--no-status"]
-        start("ecu_a", ["ecu", *BUS, *common])
-        start("ecu_b", ["ecu", *BUS, *common, *ECU_B])
-        start("plant", ["plant", *BUS, "--duration", "110", "--no-status"])
+        # the first ECU and the plant as every live test starts them, then the second ECU
+        procs += start_ecu_and_plant(out, BUS, ecu_args=("--tps-timeout-cycles=100",),
+                                     plant_s=110)
+        start("ecu_b", ["ecu", *BUS, "--sync-timeout", "30", "--duration", "120",
+                        "--tps-timeout-cycles=100", *ECU_B])
         listener = announcement_listener()
         # the shipped config, P2 raised for a loaded machine (the ECUs' 1 ms ticks may stall)
         shipped = subprocess.run([*vecu, "gateway", "--print-config"], check=True,
                                  capture_output=True, text=True).stdout
         (out / "gateway.toml").write_text(shipped.replace("p2_ms = 50.0", "p2_ms = 1500.0"))
         start("gateway", ["gateway", *BUS, "--config", str(out / "gateway.toml"),
-                          "--doip-bind", "0.0.0.0", "--duration", "100", "--no-status"])
+                          "--doip-bind", "0.0.0.0", "--duration", "100"])
         addr, ann = DoIPClient.await_vehicle_announcement(sock=listener, timeout=5)
         res["announcement"] = {"ip": addr[0], "vin": ann.vin,
                                "logical_address": ann.logical_address}
@@ -135,8 +137,8 @@ def main(out: Path) -> dict:
         res["scapy"] = scapy_part(ip)
     finally:
         stop_all(procs, signal.SIGTERM, 30.0)
-    for name in ("gateway", "ecu_a", "ecu_b"):
-        p = out / f"{name}.json"
+    for name, file in (("gateway", "gateway"), ("ecu_a", "ecu"), ("ecu_b", "ecu_b")):
+        p = out / f"{file}.json"
         res[name] = json.loads(p.read_text()) if p.exists() else None
     return res
 
