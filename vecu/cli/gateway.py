@@ -8,7 +8,12 @@ from typing import Any
 
 from vecu import argtypes
 from vecu.cli import check_outputs, configure_logging
-from vecu.live.args import add_bus_arguments
+from vecu.live.args import (
+    add_bus_arguments,
+    add_duration_argument,
+    add_process_arguments,
+    live_options,
+)
 
 STEP_NS = 1_000_000  # the gateway's loop: sockets, CAN frames, timers every 1 ms
 
@@ -32,23 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "interface, needed for broadcast discovery)")
     p.add_argument("--doip-port", type=argtypes.bounded(0, 65535, integer=True), default=13400,
                    metavar="N", help="TCP_DATA and UDP_DISCOVERY port (default 13400)")
-    p.add_argument("--duration", type=argtypes.live_seconds, metavar="S",
-                   help=f"run S seconds, {argtypes.TICK_S:g}..{argtypes.RUN_MAX_S:g} (default: "
-                        "until Ctrl-C / SIGTERM)")
+    add_duration_argument(p)
     p.add_argument("--seed", type=argtypes.seed, default=0,
                    help="seed of the announcement delay, 0..2**63-1 (default 0)")
-    p.add_argument("--log", metavar="FILE", help="record every frame on the bus; format by suffix")
-    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary on exit")
-    p.add_argument("--ready-file", metavar="FILE",
-                   help="write FILE when the sockets and the bus are open (for scripts)")
-    p.add_argument("--spin-us", type=argtypes.tick_us, default=50, metavar="US",
-                   help="busy-wait the last US microseconds before each 1 ms step (default 50)")
-    status = p.add_mutually_exclusive_group()
-    status.add_argument("--status", dest="status", action="store_true", default=None,
-                        help="show the status panel on stderr (default: when it is a terminal)")
-    status.add_argument("--no-status", dest="status", action="store_false",
-                        help="never show the status panel")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    add_process_arguments(p)
     p.set_defaults(func=main, uses_kernels=False)
 
 
@@ -68,19 +60,16 @@ def main(args: argparse.Namespace) -> int:
     from vecu.gateway.entity import DoipEntity
     from vecu.gateway.router import DiagRouter
     from vecu.gateway.settings import settings_of
-    from vecu.live.options import LiveOptions
     from vecu.live.process import LiveProcess
     from vecu.rng import rng_streams
 
     settings = settings_of(config)
-    opts = LiveOptions(role="gateway", duration_s=args.duration, interface=args.interface,
-                       channel=args.channel, bitrate=args.bitrate, log_path=args.log,
-                       summary_path=args.summary, ready_file=args.ready_file,
-                       spin_us=max(0, args.spin_us), status=args.status)
-    proc = LiveProcess(opts, DbcCodec(), "TESTER", own_ids=request_ids(config))
+    proc = LiveProcess(live_options(args, "gateway"), DbcCodec(), "TESTER",
+                       own_ids=request_ids(config))
     entity: DoipEntity | None = None
     summary: dict[str, Any] | None = None
     try:
+        proc.consume_only({(r.response_id, r.extended_ids) for r in config.ecus})
         node = BusNode(proc.bus, "gateway")  # type: ignore[arg-type]  # LiveBus: python-can's send
         router = DiagRouter(node, config, proc.clock.now_ns)
         delay = float(rng_streams(args.seed, ("doip_announce",))["doip_announce"].uniform(
