@@ -30,8 +30,7 @@ from vecu.live.scenario import stop_all
 
 GROUP = "239.74.163.2"
 BUS = ["--interface", "udp_multicast", "--channel", GROUP]
-ECU_B = ["--set", "ecu.uds.request_id=0x7E1", "--set", "ecu.uds.response_id=0x7E9",
-         "--set", "ecu.xcp.enabled=false"]
+ECU_B = ["--instance", "1"]  # 0x7E1 / 0x7E9, its frames and XCP IDs apart (docs/live.md)
 # a network to broadcast on, inside the namespace only (TEST-NET-1, RFC 5737): a veth pair
 # (the kernel here may have no dummy driver), the limited broadcast routed onto it
 NETWORK = ["ip link add v0 type veth peer name v1", "ip addr add 192.0.2.1/24 dev v0",

@@ -297,3 +297,24 @@ def test_junk_on_the_response_ids_never_breaks_the_router_and_is_counted():
         assert read_dids(vin[-1][1], [0xF190]) == {0xF190: VIN_B}
     finally:
         sim.close()
+
+
+def test_a_flood_on_the_gateways_bus_is_shed_within_its_budget_and_requests_still_answered():
+    """issue-39 bound on the gateway's CAN side: at most RxBudget frames read per 1 ms step,
+    what is past frames_per_tick shed and counted, except frames on a route's response IDs."""
+    import can
+
+    sim = GatewaySim(ecu_b=False)
+    try:
+        sim.step(20)
+        flood = sim.run.bus()
+        junk = can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False)
+        for _ in range(2000):
+            flood.send(junk)
+        budget = sim.node.rx_budget
+        answers = sim.ask(ECU_A, "22 F1 90", max_ms=400)
+        assert read_dids(answers[-1][1], [0xF190]) == {0xF190: VIN_A}
+        assert sim.node.rx_shed > 0
+        assert budget.frames_per_tick < sim.node.rx_peak <= budget.frames_per_tick + budget.shed_per_tick
+    finally:
+        sim.close()

@@ -133,9 +133,7 @@ def measure(out: Path, requests: int, seconds: float) -> dict[str, Any]:
     try:
         ecu = ["ecu", *BUS, "--sync-timeout", "0", "--tps-timeout-cycles", "10000"]
         procs.append(_start(out, "ecu_a", ecu))
-        procs.append(_start(out, "ecu_b", [*ecu, "--set", "ecu.uds.request_id=0x7E1", "--set",
-                                           "ecu.uds.response_id=0x7E9", "--set",
-                                           "ecu.xcp.enabled=false"]))
+        procs.append(_start(out, "ecu_b", [*ecu, "--instance", "1"]))
         procs.append(_start(out, "gateway", ["gateway", *BUS]))
         bus = open_bus("udp_multicast", GROUP)
         direct = _direct_client(bus)

@@ -46,7 +46,6 @@ Nack = DiagnosticMessageNegativeAcknowledgement.NackCodes  # ISO 13400-2 Table 2
 RESPONSE_PENDING = Response.Code.RequestCorrectlyReceived_ResponsePending
 Reply = Callable[[int, bytes], None]  # (source logical address, UDS response)
 MAX_LOGGED = 20
-FRAMES_PER_STEP = 1024     # frames step() reads from the bus per call
 INBOX_FRAMES = 4096        # frames a channel holds before process() (a flood beyond: dropped)
 OWN_QUEUE = 64             # the gateway's own answers not yet delivered (beyond: NACK 0x05)
 FUNCTIONAL_MAX = 7         # ISO 15765-2: a functional request is one single frame (classic CAN)
@@ -253,13 +252,24 @@ class DiagRouter:
                 ch.ep.put(msg)
 
     def step(self, t_ns: int) -> None:
-        """Read what the node's bus has (at most FRAMES_PER_STEP frames), then tick()."""
-        bus = self.node.bus
-        for _ in range(FRAMES_PER_STEP):
-            msg = bus.recv(0.0)
-            if msg is None:
+        """Read the node's bus within its RxBudget (docs/live.md 'Floods': a flood is shed and
+        counted, never stalls the step; a frame on a route's response ID is never shed), then
+        tick()."""
+        node, by_id, on_frame = self.node, self._by_id, self.on_frame
+        n = node.rx_budget.frames_per_tick
+        recv = node.bus.recv
+        while (msg := recv(0.0)) is not None:
+            on_frame(msg, t_ns)
+            n -= 1
+            if not n:
+                def keep(m: can.Message) -> bool:
+                    if (m.arbitration_id, m.is_extended_id) not in by_id:
+                        return False
+                    on_frame(m, t_ns)
+                    return True
+
+                node.shed(keep)
                 break
-            self.on_frame(msg, t_ns)
         self.tick(t_ns)
 
     def tick(self, t_ns: int) -> None:
