@@ -20,7 +20,6 @@ import numpy as np
 from vecu.can_message import message
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec
-
 from vecu.models.lateral import VehicleParams
 from vecu.models.manifold_params import V8_5L7, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile

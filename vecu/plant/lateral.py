@@ -314,7 +314,6 @@ class DrivenLateral:
         self._drive, self._cfg, self._p, self._sensors = drive, cfg, params, sensors
         self._tc = tyre_consts(params)
         self._cst = motion_constants(params, self._tc)
-        self._motion = sample_motion.impl()  # the active backend's, fetched once
         self._stride = round(DT_S / drive.dt_s)  # drive samples per lateral sample
         self._ahead = round(AHEAD_S / DT_S)
         self._col = math.exp(-2.0 * math.pi * cfg.column_hz * DT_S)
@@ -382,7 +381,7 @@ class DrivenLateral:
         x = self._x
         d1, v1 = nxt[0] / p.steering_ratio, nxt[1]
         if v >= V_KINEMATIC_MPS and v1 >= V_KINEMATIC_MPS:  # a_y of h, then RK4 (one call)
-            ay, vy1, r1 = self._motion(x[0], x[1], delta, v, d1, v1, self._cst)
+            ay, vy1, r1 = sample_motion(x[0], x[1], delta, v, d1, v1, self._cst)
             self._x = (vy1, r1)
         else:
             ay = h(x, (delta, v), p, self._tc)[1] if v >= V_KINEMATIC_MPS else v * x[1]

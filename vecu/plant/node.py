@@ -16,7 +16,7 @@ import numpy as np
 from vecu.bus import BusNode
 from vecu.clock import NS_PER_S
 from vecu.codec import DbcCodec
-from vecu.faults import FaultInjector, FaultTarget, fault_event_signals
+from vecu.faults import FaultInjector, fault_event_signals
 from vecu.kernels import backend
 from vecu.models.manifold import (
     cylinder_air_charge,
