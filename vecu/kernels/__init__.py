@@ -26,9 +26,10 @@ mechanism for every kernel, no module keeps a guard of its own.
 One way to call a kernel: `k(...)`, from Python and from other kernels alike. A small piece
 (a few arithmetic operations, shared by bigger kernels: `@kernel(small=True)`) called from
 Python runs as Python under every backend (a compiled call from Python costs more than the
-piece itself); inside compiled code it is compiled with its caller. `constants(values)` gives
-a kernel's read-only arguments in the form the active backend takes fast (a float64 array
-compiled, tuples of Python floats as Python); `@kernel(setup=fn)` runs fn once before the
+piece itself); inside compiled code it is compiled with its caller. `constants(values)` and
+`record(dtype)` give a kernel's arguments in the form the active backend takes fast (a float64
+array or a structured array compiled; tuples of Python floats or a dict of named Python numbers
+as Python); `@kernel(setup=fn)` runs fn once before the
 kernel is first compiled (an external symbol it links, say).
 
 Same seed, same backend -> bit-identical output. The two backends agree to rounding (a few ulp:
@@ -163,7 +164,7 @@ def kernel_cache_dirs() -> list[Path]:
 class Kernel:
     """A numba-compatible function, compiled on first use under the numba backend."""
 
-    __slots__ = ("_compiled", "_options", "_setup", "py", "small")
+    __slots__ = ("_compiled", "_fixed", "_options", "_setup", "py", "small")
 
     def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
         self.py = fn
@@ -171,6 +172,7 @@ class Kernel:
         self._setup: Callable[[], None] | None = options.pop("setup", None)
         self._options = options
         self._compiled: Callable[..., Any] | None = None
+        self._fixed = False
 
     @property
     def compiled(self) -> Callable[..., Any]:
@@ -197,16 +199,24 @@ class Kernel:
             if cache is not None:
                 cache.flush()
         self._compiled = None
+        self._fixed = False
 
     def fix_signature(self, signature: tuple) -> None:
         """Under the numba backend, compile (or load from numba's cache) this one signature now
         and switch further compilation off: an int or numpy-scalar argument then converts to it
-        instead of compiling a new specialisation in the middle of a run. Nothing otherwise."""
-        if backend() != "numba":
+        instead of compiling a new specialisation in the middle of a run. Nothing otherwise,
+        nor once fixed."""
+        if backend() != "numba" or self._fixed:
             return
         disp = self.compiled
         disp.compile(signature)
         disp.disable_compile()
+        self._fixed = True
+
+    def fix_types(self, *example: Any) -> None:
+        """fix_signature for the types of these example arguments (numba.typeof of each)."""
+        if backend() == "numba" and not self._fixed:
+            self.fix_signature(tuple(_import_numba().typeof(a) for a in example))
 
     def impl(self) -> Callable[..., Any]:
         """The function a call from Python runs under the active backend."""
@@ -216,6 +226,19 @@ class Kernel:
         if _active == "python" or self.small:  # first: a kernel calling kernels in Python
             return self.py(*args)
         return (self._compiled or self.impl())(*args)
+
+
+def record(dtype: np.dtype, **values: Any) -> Any:
+    """A one-element record of dtype's named fields (the others 0), as the active backend's
+    kernels read and write it fast, `r[0]["field"]` either way: a numpy structured array when
+    they run compiled (numba types its fields), a list of one dict of Python numbers when they
+    run as Python (a numpy field access and numpy scalars cost ~10x a dict's and a float's)."""
+    arr = np.zeros(1, dtype=dtype)
+    for name, value in values.items():
+        arr[0][name] = value
+    if backend() == "numba":
+        return arr
+    return [{name: arr[0][name].item() for name in dtype.names}]
 
 
 def constants(values: Any) -> Any:
