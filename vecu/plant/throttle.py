@@ -98,10 +98,6 @@ class ThrottlePlant:
         self._sig_theta = config.noise_scale * model.f_diag[0]
         self._sig_i = config.noise_scale * model.f_diag[2]
 
-    @property
-    def theta(self) -> float:
-        return float(self.state[0])
-
     def ticks(self, u: list[float] | np.ndarray,
               calibration: TpsCalibration = TpsCalibration()) -> np.ndarray:
         """(len(u), 5) rows (theta, rho, i, y, TPS voltage) of the next ticks with inputs u: each
