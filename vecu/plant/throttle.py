@@ -229,7 +229,9 @@ class ThrottlePart:
         self._tps = codec["TPS_Sensor"]
         self._watt = codec["ETB_Wattmeter"]
         self._tps_frame = self._tps.framer(TPS_SIGNALS)
-        self._modulo = self._tps.e2e.protection.counter_modulo  # P11: 0..14
+        e2e = self._tps.e2e
+        assert e2e is not None, "TPS_Sensor is E2E-protected in vecu.dbc"
+        self._modulo = e2e.protection.counter_modulo  # P11: 0..14
         self._watt_frame = self._watt.framer(WATT_SIGNALS)
         self._counter = 0
         self.truth_msg = None  # TRUTH_Throttle codec when recording truth (PlantNode.enable_truth)
