@@ -36,8 +36,6 @@ from vecu.plant.throttle import ThrottlePart
 from vecu.rng import rng_streams
 from vecu.units import DEG_PER_RAD, KELVIN_AT_0_DEGC, MG_PER_KG
 
-__all__ = ["LongitudinalPart", "ManifoldPart", "PlantNode", "PlantPart", "ThrottlePart"]
-
 log = logging.getLogger(__name__)
 
 
