@@ -50,13 +50,20 @@ from vecu.estimators.steering import model as sm
 from vecu.estimators.steering import rts
 from vecu.estimators.steering import unscented as uk
 from vecu.estimators.steering.base import FilterRun
-from vecu.estimators.steering.history import COL_C, COL_PP, COL_VX, COL_XP, N_COLS, Ring
+from vecu.estimators.steering.history import (
+    COL_C,
+    COL_PP,
+    COL_VX,
+    COL_XP,
+    IDX16,
+    N_COLS,
+    TRIU,
+    Ring,
+)
 from vecu.estimators.steering.model import SteeringModel
 from vecu.kernels import constants
 
 P10 = tuple[float, float, float, float, float, float, float, float, float, float]
-# index of (i, j) in the 10-entry upper triangle p00 p01 p02 p03 p11 p12 p13 p22 p23 p33
-_IDX = ((0, 1, 2, 3), (1, 4, 5, 6), (2, 5, 7, 8), (3, 6, 8, 9))
 V_X_DEFAULT = 20.0  # used for v_x until the first good reading
 
 
@@ -66,15 +73,12 @@ def default_sigma_set() -> SigmaSet:
 
 
 def p10_from_matrix(P: np.ndarray) -> P10:
-    return tuple(float(P[i, j]) for i in range(4) for j in range(i, 4))  # type: ignore[return-value]  # 10 entries (upper triangle of 4x4)
+    """The 10-entry upper triangle p00 p01 p02 p03 p11 p12 p13 p22 p23 p33 of P."""
+    return tuple(P[TRIU].tolist())  # type: ignore[return-value]  # 10 entries
 
 
 def matrix_from_p10(p: P10 | list[float]) -> np.ndarray:
-    P = np.empty((4, 4))
-    for i in range(4):
-        for j in range(4):
-            P[i, j] = p[_IDX[i][j]]
-    return P
+    return np.asarray(p, dtype=np.float64)[IDX16].reshape(4, 4)
 
 
 class _SteeringFilter:
