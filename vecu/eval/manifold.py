@@ -15,7 +15,6 @@ first `scipy_events` events of the first run), the cheap-vs-full-DARE SDKF agree
 from __future__ import annotations
 
 import math
-from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +27,6 @@ from vecu.estimators.manifold.cac_predict import (
 )
 from vecu.estimators.manifold.factory import make_filter
 from vecu.estimators.manifold.filters import ManifoldFilterConfig
-from vecu.kernels import using
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile, us06_like
 from vecu.plant.manifold import ManifoldTrace, simulate
@@ -132,14 +130,13 @@ def direct_states(trace: ManifoldTrace) -> np.ndarray:
 
 
 def direct_ol_states(trace: ManifoldTrace, inputs: list[EngineInput] | None,
-                     params: ManifoldParams = V8_5L7, compiled: bool = True) -> np.ndarray:
+                     params: ManifoldParams = V8_5L7) -> np.ndarray:
     """direct_states with T_im from the open-loop observer driven by the measured angle (the
     ambient and coolant conditions of `inputs`; None: the nominal ones of params, as
-    trace_inputs(trace, params) gives; compiled: one call)."""
+    trace_inputs(trace, params) gives)."""
     out = direct_states(trace)
-    with nullcontext() if compiled else using("python"):
-        out[:, 4] = open_loop_temperatures(trace.y[:, 0], trace.n_rpm, trace.y[0, 1],
-                                           trace.y[0, 2], params, inputs)
+    out[:, 4] = open_loop_temperatures(trace.y[:, 0], trace.n_rpm, trace.y[0, 1],
+                                       trace.y[0, 2], params, inputs)
     return out
 
 

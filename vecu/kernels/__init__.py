@@ -156,12 +156,13 @@ def kernel_cache_dirs() -> list[Path]:
 class Kernel:
     """A numba-compatible function, compiled on first use under the numba backend."""
 
-    __slots__ = ("_compiled", "_options", "py")
+    __slots__ = ("_compiled", "_options", "_signature", "py")
 
     def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
         self.py = fn
         self._options = options
         self._compiled: Callable[..., Any] | None = None
+        self._signature: tuple | None = None
 
     @property
     def compiled(self) -> Callable[..., Any]:
@@ -177,6 +178,8 @@ class Kernel:
             else:
                 _drop_stale_cache(compiled, self.py)
             self._compiled = compiled
+            if self._signature is not None:
+                self._fix()
         return self._compiled
 
     def discard_compiled(self) -> None:
@@ -187,13 +190,21 @@ class Kernel:
                 cache.flush()
         self._compiled = None
 
-    def fix_signature(self, signature: tuple) -> None:
-        """Compile (or load from numba's cache) this one signature now and switch further
-        compilation off: an int or numpy-scalar argument then converts to it instead of
-        compiling a new specialisation in the middle of a run."""
-        disp = self.compiled
-        disp.compile(signature)
-        disp.disable_compile()
+    def fix_signature(self, signature: tuple | Callable[[], tuple]) -> None:
+        """Declare this kernel's one signature (numba types, or a function returning them, so
+        that numba is imported only to compile): numba compiles it (or loads it from its cache)
+        when the kernel is first compiled, and no other; an int or numpy-scalar argument then
+        converts to it instead of compiling a new specialisation in the middle of a run."""
+        self._signature = signature
+        if self._compiled is not None:
+            self._fix()
+
+    def _fix(self) -> None:
+        sig = self._signature
+        self._signature = sig = sig() if callable(sig) else sig
+        assert self._compiled is not None and sig is not None
+        self._compiled.compile(sig)  # type: ignore[attr-defined]  # a numba dispatcher
+        self._compiled.disable_compile()  # type: ignore[attr-defined]  # as above
 
     def impl(self) -> Callable[..., Any]:
         """The function for the active backend (hot callers fetch it once per call site)."""

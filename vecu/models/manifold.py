@@ -20,27 +20,16 @@ Layers:
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
-from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq
 
-from vecu.kernels import Kernel, backend, kernel, using
-from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA, _tables, interp  # noqa: F401 (re-exported)
+from vecu.kernels import kernel
+from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA, interp, search_right, tables  # noqa: F401 (re-exported)
 from vecu.models.manifold_integrator import integrate_manifold as _integrate_fast
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 N_STATE = 6
-
-
-def _py(k: Kernel, *args: Any) -> Any:
-    """Kernel k's Python function with the Python functions of the kernels it calls (the
-    parameter set's tables are tuples here, which the compiled kernels do not take)."""
-    if backend() == "python":
-        return k.py(*args)
-    with using("python"):
-        return k.py(*args)
 
 
 def nominal_input(ta_sp: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> EngineInput:
@@ -90,7 +79,7 @@ def actuator_coeffs(
     a1 = 2 a b, a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b),
     a = exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2).
     """
-    a1, a2, b1, b2, _, _ = _py(event_coefficients, ts, params.zeta, params.omega0,
+    a1, a2, b1, b2, _, _ = event_coefficients(ts, params.zeta, params.omega0,
                                                  params.tau_temp_s)
     return a1, a2, b1, b2
 
@@ -140,14 +129,16 @@ def discharge_of(pr, alpha, c, cd_alpha, cd_table, prs):
     a = 0.0 if 0.0 > alpha else alpha  # noqa: FURB136 (min/max with Python's NaN behaviour)
     a_deg = math.degrees(c[26] if c[26] < a else a)  # noqa: FURB136 (as above)
     n = len(prs)
-    p = prs[0] if prs[0] > pr else pr  # noqa: FURB136 (as above)
-    p = prs[n - 1] if prs[n - 1] < p else p  # noqa: FURB136 (as above)
-    j = bisect_right(prs, p) - 1
+    lo_pr, hi_pr = float(prs[0]), float(prs[n - 1])  # plain floats in Python
+    p = lo_pr if lo_pr > pr else pr  # noqa: FURB136 (as above)
+    p = hi_pr if hi_pr < p else p  # noqa: FURB136 (as above)
+    j = search_right(prs, p) - 1
     j = n - 2 if n - 2 < j else j  # noqa: FURB136 (as above)
     lo, _ = interp(a_deg, cd_alpha, cd_table[j])
     hi, _ = interp(a_deg, cd_alpha, cd_table[j + 1])
-    s = (hi - lo) / (prs[j + 1] - prs[j])
-    return lo + s * (p - prs[j]), s if prs[0] < pr < prs[n - 1] else 0.0
+    pj = float(prs[j])
+    s = (hi - lo) / (float(prs[j + 1]) - pj)
+    return lo + s * (p - pj), s if lo_pr < pr < hi_pr else 0.0
 
 
 @kernel
@@ -168,17 +159,12 @@ def throttle_area(alpha: float, params: ManifoldParams = V8_5L7) -> float:
     return math.pi * params.r_th_m * params.r_th_m * (1.0 - math.cos(a))
 
 
-def _interp(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> tuple[float, float]:
-    """Piecewise-linear lookup with end clamping: (value, slope) (slope 0 outside the table)."""
-    return _py(interp, x, xs, ys)
-
-
 def discharge_coefficient(
     pr: float, alpha: float, params: ManifoldParams = V8_5L7,
 ) -> tuple[float, float]:
     """C_d(pr, alpha) by bilinear lookup (eq. 2-3 text): (C_d, dC_d/dpr); pr clamped to [0, 1]."""
-    c, cd_alpha, cd_table, prs, _, _ = _tables(params)[1]
-    return _py(discharge_of, pr, alpha, c, cd_alpha, cd_table, prs)
+    c, cd_alpha, cd_table, prs, _, _ = tables(params)
+    return discharge_of(pr, alpha, c, cd_alpha, cd_table, prs)
 
 
 def critical_pressure_ratio(kappa: float) -> float:
@@ -202,7 +188,7 @@ def flow_function(pr: float, params: ManifoldParams = V8_5L7) -> tuple[float, fl
     infinite slope of eq. 2 at pr -> 1 is removed; the odd extension gives a small reverse flow
     for pr > 1 (reached only through process noise at wide open throttle), saturated at -psi(s0).
     """
-    return _py(flow_function_of, pr, _tables(params)[1][0])
+    return flow_function_of(pr, tables(params)[0])
 
 
 def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
@@ -211,8 +197,8 @@ def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
 
     Xi = C_d A_th(alpha) P_a / sqrt(R_air T_a) with P_a converted to Pa (A_th in m^2).
     """
-    c, cd_alpha, cd_table, prs, _, _ = _tables(params)[1]
-    return _py(throttle_flow_of, alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs)
+    c, cd_alpha, cd_table, prs, _, _ = tables(params)
+    return throttle_flow_of(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs)
 
 
 # ------------------------------------------------------------------------- port flow, eq. 8
@@ -246,22 +232,22 @@ def volumetric_efficiency(
     n_rpm: float, p_im: float, params: ManifoldParams = V8_5L7,
 ) -> tuple[float, float]:
     """eta(N, P) = eta_N(N) (r_c - (P_exh/P)^(1/kappa)) / (r_c - 1): (eta, d eta/dP_im per kPa)."""
-    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
-    return _py(efficiency_of, n_rpm, p_im, c, eta_rpm, eta_val)
+    c, _, _, _, eta_rpm, eta_val = tables(params)
+    return efficiency_of(n_rpm, p_im, c, eta_rpm, eta_val)
 
 
 def port_flow(p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> float:
     """Eq. 8: mdot_ac = eta P_im N V_d / (120 R_air T_im), kg/s (kPa dm^3 = J)."""
-    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
-    return _py(port_flow_of, n_rpm, p_im, t_im, c, eta_rpm, eta_val)
+    c, _, _, _, eta_rpm, eta_val = tables(params)
+    return port_flow_of(n_rpm, p_im, t_im, c, eta_rpm, eta_val)
 
 
 def cylinder_air_charge(
     p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7,
 ) -> float:
     """Air mass trapped per cylinder event, kg: mdot_ac T_s = eta P_im V_cyl / (R_air T_im)."""
-    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
-    return _py(air_charge_of, n_rpm, p_im, t_im, c, params.v_cyl_dm3, eta_rpm, eta_val)
+    c, _, _, _, eta_rpm, eta_val = tables(params)
+    return air_charge_of(n_rpm, p_im, t_im, c, params.v_cyl_dm3, eta_rpm, eta_val)
 
 
 def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V8_5L7) -> float:
@@ -377,7 +363,7 @@ def steady_state(
 
 def iat_coeffs(ts: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
     """(a_T, 1 - a_T) of eq. 9, a_T = exp(-T_s / tau_Temp)."""
-    return _py(event_coefficients, ts, params.zeta, params.omega0, params.tau_temp_s)[4:]
+    return event_coefficients(ts, params.zeta, params.omega0, params.tau_temp_s)[4:]
 
 
 # ------------------------------------------------------------------------- augmented model
@@ -392,9 +378,9 @@ def f(
     """
     ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
-    co = _py(event_coefficients, ts, params.zeta, params.omega0, params.tau_temp_s)
+    co = event_coefficients(ts, params.zeta, params.omega0, params.tau_temp_s)
     p_n, t_n, _ = integrate_manifold(p, t, alpha, u, ts, params)
-    alpha_n, tm_n = _py(event_map, co, u_prev, alpha, alpha_prev, u.ta_sp, t, tm)
+    alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, u.ta_sp, t, tm)
     return np.array([u.ta_sp, alpha_n, alpha, p_n, t_n, tm_n])
 
 

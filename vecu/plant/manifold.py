@@ -3,11 +3,11 @@
 The model (eq. 1-9, the event integrator) is vecu.models.manifold; this module adds state, noise
 and the event-by-event simulation over a drive profile. The truth's event (`plant_step`: eq. 1,
 the integrator of eq. 5-6, eq. 9, Section IV's Q, the physical clamps) and its measurement
-(`measure`: Section IV's R, the sensor gains) are written once as kernels (vecu.kernels):
-ManifoldPlant calls their Python functions; under the numba backend `simulate_events` (simulate's
-whole loop, bit-identical to it: the noise rows are drawn beforehand from the same stream, which
-Generator.standard_normal fills in order) and `advance_events` (vecu.plant.node.ManifoldPart's
-events ahead) call them compiled.
+(`measure`: Section IV's R, the sensor gains) are written once as kernels (vecu.kernels), and
+driven by loops that are kernels too: `simulate_events` (simulate: a whole drive) and
+`advance_events` (EventsAhead: vecu.plant.node.ManifoldPart's events, computed ahead in blocks).
+The noise rows are drawn in blocks of config.block from one stream (Generator.standard_normal
+fills them in order), so the block size never changes the numbers.
 """
 
 # ruff: noqa: FURB136 (x if c else y in the kernels mirrors Python's min()/max(), NaN included)
@@ -15,33 +15,29 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Protocol
 
 import numpy as np
 
-from vecu.kernels import backend, kernel, using
+from vecu.kernels import kernel
 from vecu.models.manifold import (
     air_charge_of,
-    cylinder_air_charge,
     event_coefficients,
     event_map,
     nominal_input,
-    port_flow,
     port_flow_of,
     sample_time,
     steady_state_vector,
-    throttle_flow,
     throttle_flow_of,
 )
 from vecu.models.manifold_integrator import _integrate_event as integrate_event
-from vecu.models.manifold_integrator import _tables
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import (
     PAPER_NOISE,
     V8_5L7,
-    EngineInput,
     ManifoldNoise,
     ManifoldParams,
 )
+from vecu.plant.drive_profile import DriveProfile
 from vecu.rng import rng_streams
 
 # ------------------------------------------------------------------------- stochastic plant
@@ -193,76 +189,6 @@ def advance_events(st, t_ns, t0_ns, prof_n, prof_sp, noise, pos, pc, cst, cd_alp
     return k, t_ns, pos
 
 
-def _python(k: Any, *args: Any) -> Any:
-    """Kernel k's Python function, the kernels it calls too (the tables here are tuples)."""
-    if backend() == "python":
-        return k.py(*args)
-    with using("python"):
-        return k.py(*args)
-
-
-class ManifoldPlant:
-    """Truth: eq. 10 with the corrected eq. 1, sub-stepped eq. 5-6, eq. 9 and Section IV noise."""
-
-    def __init__(self, params: ManifoldParams, config: ManifoldPlantConfig,
-                 rng: np.random.Generator, x0: np.ndarray) -> None:
-        self.params = params
-        self.config = config
-        self._rng = rng
-        self.x = [float(v) for v in x0]
-        self.last_substeps = 0
-        self._pc = tuple(plant_constants(params, config, 0.0, 0.0).tolist())
-        self._noise: list[list[float]] = []
-        self._pos = 0
-
-    def _row(self) -> list[float]:
-        if self._pos >= len(self._noise):
-            self._noise = self._rng.standard_normal((self.config.block, 7)).tolist()
-            self._pos = 0
-        return self._noise[self._pos]
-
-    @property
-    def alpha(self) -> float:
-        return self.x[1]
-
-    @property
-    def p_im(self) -> float:
-        return self.x[3]
-
-    @property
-    def t_im(self) -> float:
-        return self.x[4]
-
-    @property
-    def t_meas(self) -> float:
-        return self.x[5]
-
-    def measure(self) -> tuple[float, float, float]:
-        """y_n = (TA rad, P_im kPa, T_im.out K) with the paper's R (eq. 1, 7, 9)."""
-        return _python(measure, self.x, self._row(), self._pc)
-
-    def step(self, u: EngineInput, dt: float | None = None) -> int:
-        """Advance one engine event (dt defaults to T_s = 120/(8N)); returns the sub-steps used."""
-        prm = self.params
-        ts = sample_time(u.n_rpm, prm.n_cyl) if dt is None else dt
-        w = self._row()
-        self._pos += 1
-        m = _python(plant_step, self.x, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, w, self._pc,
-                    *_tables(prm)[1])
-        self.last_substeps = m
-        return m
-
-
-class Profile(Protocol):
-    """What `simulate` needs from a drive profile (vecu.plant.drive_profile.DriveProfile)."""
-
-    duration_s: float
-
-    def at(self, t: float) -> tuple[float, float]:
-        """(N in rpm, TA_SP in rad) at time t."""
-        ...
-
-
 @dataclass(frozen=True)
 class ManifoldTrace:
     """One simulated run, one entry per event n (state and measurements before the step)."""
@@ -279,70 +205,24 @@ class ManifoldTrace:
     substeps: np.ndarray
 
 
-def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
-             config: ManifoldPlantConfig = ManifoldPlantConfig(),
-             compiled: bool = True) -> ManifoldTrace:
-    """Run the plant event by event over the profile, starting at rest at its first point.
-    Under the numba backend (compiled) the whole loop is one call
-    (simulate_events, bit-identical); compiled=False steps ManifoldPlant."""
+def simulate(profile: DriveProfile, seed: int = 0, params: ManifoldParams = V8_5L7,
+             config: ManifoldPlantConfig = ManifoldPlantConfig()) -> ManifoldTrace:
+    """Run the plant event by event over the profile (simulate_events), starting at rest at its
+    first point."""
     rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
     n0, sp0 = profile.at(0.0)
     x0 = steady_state_vector(nominal_input(sp0, n0, params), params)
-    fast = _simulate_compiled(profile, params, config, rng, x0) if compiled else None
-    if fast is not None:
-        return fast
-    plant = ManifoldPlant(params, config, rng, x0)
-    rows: list[tuple[float, ...]] = []
-    xs: list[list[float]] = []
-    ys: list[tuple[float, float, float]] = []
-    t = 0.0
-    while t < profile.duration_s:
-        n, sp = profile.at(t)
-        u = nominal_input(sp, n, params)
-        ts = sample_time(n, params.n_cyl)
-        xs.append(list(plant.x))
-        ys.append(plant.measure())
-        mdot_at, _ = throttle_flow(plant.alpha, plant.p_im, u.p_a, u.t_a, params)
-        mdot_ac = port_flow(plant.p_im, plant.t_im, n, params)
-        cac = cylinder_air_charge(plant.p_im, plant.t_im, n, params)
-        m = plant.step(u, ts)
-        rows.append((t, ts, n, sp, mdot_at, mdot_ac, cac, float(m)))
-        t += ts
-    a = np.array(rows)
-    return ManifoldTrace(
-        t=a[:, 0], ts=a[:, 1], n_rpm=a[:, 2], ta_sp=a[:, 3], x=np.array(xs), y=np.array(ys),
-        mdot_at=a[:, 4], mdot_ac=a[:, 5], cac=a[:, 6], substeps=a[:, 7].astype(int),
-    )
-
-
-def _simulate_compiled(profile: Profile, params: ManifoldParams, config: ManifoldPlantConfig,
-                       rng: np.random.Generator, x0: np.ndarray) -> ManifoldTrace | None:
-    """simulate's loop as one compiled call (simulate_events) under the numba
-    backend for a DriveProfile; None: run the Python loop (python backend, another profile type,
-    a parameter set the compiled integrator does not take)."""
-    from vecu.kernels import backend
-    from vecu.plant.drive_profile import DriveProfile
-    if backend() != "numba" or not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
-        return None
-    tables = compiled_tables(params)
-    if tables is None:
-        return None
-    prof_n = np.ascontiguousarray(profile.n_rpm, dtype=np.float64)
-    prof_sp = np.ascontiguousarray(profile.ta_sp, dtype=np.float64)
-    n_min = float(prof_n.min())
-    if not (math.isfinite(n_min) and n_min > 0.0):
-        return None
+    prof_n, prof_sp = profile_arrays(profile)
     cap = int(profile.duration_s / sample_time(float(prof_n.max()), params.n_cyl)) + 2
     block = config.block
-    noise = rng.standard_normal((-(-cap // block) * block, 7))  # as ManifoldPlant._row draws
+    noise = rng.standard_normal((-(-cap // block) * block, 7))  # as EventsAhead draws them
     pc = plant_constants(params, config, profile.duration_s, profile.dt_s)
     rows = np.empty((cap, 8))
     xs = np.empty((cap, 6))
     ys = np.empty((cap, 3))
-    k = simulate_events.compiled(np.asarray(x0, dtype=np.float64), prof_n, prof_sp, noise, pc,
-                                 *tables, rows, xs, ys)
-    if k < 0:
-        return None
+    k = simulate_events(np.asarray(x0, dtype=np.float64), prof_n, prof_sp, noise, pc,
+                        *tables(params), rows, xs, ys)
+    assert k >= 0, "simulate: more events than the profile's fastest speed allows"
     a = rows[:k]
     return ManifoldTrace(
         t=a[:, 0].copy(), ts=a[:, 1].copy(), n_rpm=a[:, 2].copy(), ta_sp=a[:, 3].copy(),
@@ -351,17 +231,14 @@ def _simulate_compiled(profile: Profile, params: ManifoldParams, config: Manifol
     )
 
 
-def compiled_tables(params: ManifoldParams) -> tuple | None:
-    """The event integrator's float64 tables for the compiled kernels (its one signature
-    prepared), or None when they do not take this parameter set."""
-    from vecu.models import manifold_integrator as mi
-
-    tables = mi._tables(params)[2]
-    if tables is None:
-        return None
-    if not mi._numba_sig_ready:
-        mi._prepare_numba()
-    return tables
+def profile_arrays(profile: DriveProfile) -> tuple[np.ndarray, np.ndarray]:
+    """A drive profile's (N, TA_SP) grid as the kernels read it (profile_at); ValueError for
+    one they cannot: fewer than two points, or an engine speed that is not positive."""
+    prof_n = np.ascontiguousarray(profile.n_rpm, dtype=np.float64)
+    n_min = float(prof_n.min()) if len(prof_n) else math.nan
+    if len(prof_n) < 2 or not (math.isfinite(n_min) and n_min > 0.0):
+        raise ValueError("manifold drive profile: at least two points, engine speeds > 0 rpm")
+    return prof_n, np.ascontiguousarray(profile.ta_sp, dtype=np.float64)
 
 
 def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duration_s: float,
@@ -381,20 +258,19 @@ def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duratio
 
 
 class EventsAhead:
-    """ManifoldPlant's events computed ahead in blocks by one compiled call
-    (advance_events), for vecu.plant.node.ManifoldPart under the numba backend:
-    the same noise rows from the same stream (blocks of config.block rows, as ManifoldPlant
-    draws them), the same operations, so the same frames. The plant depends on nothing the ECU
-    sends, so nothing can change its course between the events computed and their frames."""
+    """The truth's events computed ahead in blocks by one kernel call (advance_events), for
+    vecu.plant.node.ManifoldPart: noise rows from the stream in blocks of config.block, as
+    simulate draws them. The plant depends on nothing the ECU sends, so nothing can change its
+    course between the events computed and their frames."""
 
-    AHEAD = 256  # events per compiled call (~1.3 s of driving at 2000 rpm)
+    AHEAD = 256  # events per kernel call (~1.3 s of driving at 2000 rpm)
 
     def __init__(self, params: ManifoldParams, config: ManifoldPlantConfig,
-                 rng: np.random.Generator, x0: np.ndarray, tables: tuple) -> None:
+                 rng: np.random.Generator, x0: np.ndarray) -> None:
         self.params, self.config = params, config
         self._rng = rng
         self.state = np.array(x0, dtype=np.float64)
-        self._tables = tables
+        self._tables = tables(params)
         self._noise = np.empty((0, 7))
         self._pos = 0
         self._prof: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -402,21 +278,10 @@ class EventsAhead:
         self.out = np.zeros((self.AHEAD, 8))
         self.next_ns = 0
 
-    @staticmethod
-    def usable(profile: Profile) -> bool:
-        """The kernel's profile lookup takes a DriveProfile with positive engine speeds."""
-        from vecu.plant.drive_profile import DriveProfile
-
-        if not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
-            return False
-        n_min = float(np.min(profile.n_rpm))
-        return math.isfinite(n_min) and n_min > 0.0
-
-    def start_profile(self, profile: Profile) -> None:
-        self._prof = (np.ascontiguousarray(profile.n_rpm, dtype=np.float64),  # type: ignore[attr-defined]  # a manifold drive profile (usable() checked it)
-                      np.ascontiguousarray(profile.ta_sp, dtype=np.float64),  # type: ignore[attr-defined]  # as above
+    def start_profile(self, profile: DriveProfile) -> None:
+        self._prof = (*profile_arrays(profile),
                       plant_constants(self.params, self.config, profile.duration_s,
-                                      profile.dt_s))  # type: ignore[attr-defined]  # as above
+                                      profile.dt_s))
 
     def fill(self, t_ns: int, t0_ns: int) -> int:
         """Compute the events from t_ns (the profile started at t0_ns) into times / out; returns
@@ -427,7 +292,7 @@ class EventsAhead:
             if self._pos >= len(self._noise):
                 self._noise = self._rng.standard_normal((self.config.block, 7))
                 self._pos = 0
-            k, self.next_ns, self._pos = advance_events.compiled(
+            k, self.next_ns, self._pos = advance_events(
                 self.state, t_ns, t0_ns, prof_n, prof_sp, self._noise, self._pos, pc,
                 *self._tables, self.times, self.out)
             if k > 0 or self._pos < len(self._noise):

@@ -166,16 +166,9 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     return gated
 
 
-_ready = False
-
-
-def prepare() -> None:
-    """event.prepare (the kernels this one calls), then its one signature."""
-    global _ready
-    if _ready:
-        return
-    K.prepare()
+def _signature() -> tuple:
     _, f8, i8, v, m, tables = K.signature_types()
-    adaptive_event.fix_signature((v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
-                                 + (v, m, v, v) + tables)
-    _ready = True
+    return (v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v, v) + tables
+
+
+adaptive_event.fix_signature(_signature)

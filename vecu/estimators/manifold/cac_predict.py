@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -38,14 +37,12 @@ from vecu.estimators.manifold.event import (
     coefficients,
     const_tuple,
     integrate_event,
+    kernel_tables,
     model_constants,
-    numba_tables,
-    python_tables,
     sdc_matrix,
     signature_types,
 )
-from vecu.estimators.manifold.event import prepare as prepare_events
-from vecu.kernels import kernel, using
+from vecu.kernels import kernel
 from vecu.models import manifold_integrator as mi
 from vecu.models.manifold import air_charge_of, efficiency_of, event_map
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
@@ -72,57 +69,27 @@ def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: Manifol
     return out
 
 
-# id(params) -> (params, (constants, tables) for the compiled kernels or None, ... for Python)
-_ARGS: dict[int, tuple[ManifoldParams, tuple | None, tuple]] = {}
-_ready = False
+# id(params) -> (params, (model constants, kernel tables))
+_ARGS: dict[int, tuple[ManifoldParams, tuple]] = {}
 
 
-def _args(params: ManifoldParams) -> tuple[ManifoldParams, tuple | None, tuple]:
+def _args(params: ManifoldParams, eta_scale: float = 1.0) -> tuple:
+    """The prediction kernels' constants and tables for params (cached); eta_scale multiplies
+    the eta_N table (the adaptive filter's c)."""
     hit = _ARGS.get(id(params))
     if hit is None or hit[0] is not params:
-        fc = model_constants(params)
-        tables = numba_tables(params)
-        hit = (params, None if tables is None else (fc, *tables),
-               (tuple(fc.tolist()), *python_tables(params)))
+        hit = (params, (model_constants(params), *kernel_tables(params)))
         _ARGS[id(params)] = hit
-    return hit
-
-
-def prepare() -> None:
-    """Before the first numba call (idempotent): event.prepare, then predict_events' one
-    signature (compilation off)."""
-    global _ready
-    if _ready:
-        return
-    prepare_events()
-    _, f8, i8, v, m, tables = signature_types()
-    predict_events.fix_signature((v, m, i8, v, v) + tables)
-    air_charge_sigmas.fix_signature((v, m, m, i8, f8, f8, f8, f8, v) + tables)
-    _ready = True
-
-
-def _backend_args(kern: Any, params: ManifoldParams, eta_scale: float) -> tuple[Any, bool, tuple]:
-    """(the kernel's active implementation, compiled?, its table arguments for params): the
-    float64-array tables under numba (where numba can mirror the set), tuples otherwise;
-    eta_scale multiplies the eta_N table (the adaptive filter's c)."""
-    hit = _ARGS.get(id(params))
-    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
-    run = kern.impl()
-    compiled = run is not kern.py and nb is not None
-    args: tuple = nb if compiled and nb is not None else py
+    args = hit[1]
     if eta_scale != 1.0:
-        ev = args[-1]
-        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
-    return run, compiled, args
+        args = (*args[:-1], args[-1] * eta_scale)
+    return args
 
 
 def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams,
                 eta_scale: float = 1.0) -> tuple[np.ndarray, float]:
-    """(x after the inputs, CAC there at the last input's speed): predict_events, compiled under
-    the numba backend, its Python function otherwise (or for a parameter set numba cannot
-    mirror). eta_scale multiplies the eta_N table (the adaptive filter's c). x: the first six
-    states are used."""
-    run, compiled, args = _backend_args(predict_events, params, eta_scale)
+    """(x after the inputs, CAC there at the last input's speed): predict_events. eta_scale
+    multiplies the eta_N table (the adaptive filter's c). x: the first six states are used."""
     xa = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:6])
     u0 = inputs[0]
     held = True
@@ -133,15 +100,7 @@ def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldPa
     rows = inputs[:1] if held else inputs
     ua = np.array([(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool) for u in rows], dtype=np.float64)
     out = np.empty(6)
-    if compiled:
-        if not _ready:
-            prepare()
-        cac = run(xa, ua, len(inputs), out, *args)
-    elif run is predict_events.py:
-        cac = run(xa, ua, len(inputs), out, *args)
-    else:  # numba, a parameter set it cannot mirror: the Python functions throughout
-        with using("python"):
-            cac = predict_events.py(xa, ua, len(inputs), out, *args)
+    cac = predict_events(xa, ua, len(inputs), out, *_args(params, eta_scale))
     return out, cac
 
 
@@ -169,41 +128,24 @@ def direct_state(y: Sequence[float], y_prev: Sequence[float], sp_prev: float) ->
 def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       cac_actual: np.ndarray, params: ManifoldParams = V8_5L7,
                       config: CacPredictionConfig = CacPredictionConfig(),
-                      compiled: bool = True, eta_scale: np.ndarray | None = None
+                      eta_scale: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For events n = 0, stride, 2 stride, ... with n + horizon in range:
-    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg. Under the numba backend (compiled)
-    all predictions in one call (predict_at_events: the same numbers). eta_scale:
-    per event, the eta correction the state came with (the adaptive filter's c; None: 1)."""
+    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg, all predictions in one kernel call
+    (predict_at_events: predict_cac's numbers). eta_scale: per event, the eta correction the
+    state came with (the adaptive filter's c; None: 1)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
     pred = np.empty(len(idx))
     scale = np.ones(len(states)) if eta_scale is None else np.asarray(eta_scale, dtype=float)
-    if compiled and _predict_block(states, idx, ta_sp, n_rpm, params, config, pred, scale):
-        return idx, pred, cac_actual[idx + hz]
-    sp = ta_sp.tolist()
-    for j, n in enumerate(idx):
-        inputs = horizon_inputs(sp, int(n), float(n_rpm[n]), params, config)
-        pred[j] = predict_cac(states[n], inputs, params, float(scale[n]))
+    if hz >= 1 and len(idx):
+        u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
+        predict_at_events(np.ascontiguousarray(states[:, :6], dtype=np.float64), idx,
+                          np.ascontiguousarray(ta_sp, dtype=np.float64),
+                          np.ascontiguousarray(n_rpm, dtype=np.float64), hz,
+                          config.known_setpoint, u_amb, np.ascontiguousarray(scale), pred,
+                          *_args(params))
     return idx, pred, cac_actual[idx + hz]
-
-
-def _predict_block(states: np.ndarray, idx: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
-                   params: ManifoldParams, config: CacPredictionConfig, pred: np.ndarray,
-                   eta_scale: np.ndarray) -> bool:
-    """prediction_errors' predictions into pred by one compiled call; False: not available."""
-    nb = _args(params)[1]
-    if (predict_events.impl() is predict_events.py or config.horizon < 1 or not len(idx)
-            or nb is None):
-        return False
-    prepare()
-    u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
-    predict_at_events.compiled(np.ascontiguousarray(states[:, :6], dtype=np.float64), idx,
-                               np.ascontiguousarray(ta_sp, dtype=np.float64),
-                               np.ascontiguousarray(n_rpm, dtype=np.float64), config.horizon,
-                               config.known_setpoint, u_amb, np.ascontiguousarray(eta_scale),
-                               pred, *nb)
-    return True
 
 
 def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0: float,
@@ -211,8 +153,8 @@ def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0
                            inputs: Sequence[EngineInput] | None = None) -> np.ndarray:
     """T_im,n of the open-loop manifold observer over the events: (P, T) of eq. 5-6 from (p0,
     t0) driven by the measured throttle angle TA_n (the last finite one), no feedback, with
-    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n.
-    open_loop_run: compiled under the numba backend, its Python function otherwise."""
+    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n
+    (the kernel open_loop_run)."""
     n_ev = len(ta_meas)
     out = np.empty(n_ev)
     if inputs is None:
@@ -220,17 +162,9 @@ def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0
     else:
         amb = np.array([(u.p_a, u.t_a, u.t_cool) for u in inputs], dtype=np.float64)
     amb = np.ascontiguousarray(amb, dtype=np.float64).reshape(n_ev, 3)
-    ta = np.ascontiguousarray(ta_meas, dtype=np.float64)
-    n = np.ascontiguousarray(n_rpm, dtype=np.float64)
-    tables = mi._tables(params)[2]
-    if open_loop_run.impl() is not open_loop_run.py and tables is not None:
-        prepare()
-        open_loop_run.compiled(ta, n, float(p0), float(t0), amb, float(params.n_cyl), *tables,
-                               out)
-        return out
-    with using("python"):
-        open_loop_run.py(ta.tolist(), n.tolist(), float(p0), float(t0), amb.tolist(),
-                         float(params.n_cyl), *python_tables(params), out)
+    open_loop_run(np.ascontiguousarray(ta_meas, dtype=np.float64),
+                  np.ascontiguousarray(n_rpm, dtype=np.float64), float(p0), float(t0), amb,
+                  float(params.n_cyl), *mi.tables(params), out)
     return out
 
 
@@ -342,13 +276,21 @@ def air_charge_sigmas(x, P, Q, horizon, n_rpm, p_a, t_a, t_cool, fc, c, cd_alpha
 def cac_sigmas(x: np.ndarray, P: np.ndarray, Q: np.ndarray, u: EngineInput,
                params: ManifoldParams, horizon: int = HORIZON, eta_scale: float = 1.0
                ) -> tuple[float, float]:
-    """air_charge_sigmas for a filter's posterior (x, P; its Q) and the event's input u:
-    compiled under the numba backend, its Python function otherwise (or for a parameter set
-    numba cannot mirror); eta_scale multiplies the eta_N table (the adaptive filter's c)."""
-    run, compiled, args = _backend_args(air_charge_sigmas, params, eta_scale)
-    if compiled:
-        if not _ready:
-            prepare()
-        return run(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)
-    with using("python"):  # the kernels it calls as Python too (the tables are tuples)
-        return air_charge_sigmas.py(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)
+    """air_charge_sigmas for a filter's posterior (x, P; its Q) and the event's input u;
+    eta_scale multiplies the eta_N table (the adaptive filter's c)."""
+    return air_charge_sigmas(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool,
+                             *_args(params, eta_scale))
+
+
+def _predict_signature() -> tuple:
+    _, f8, i8, v, m, tables = signature_types()
+    return (v, m, i8, v, v) + tables
+
+
+def _sigmas_signature() -> tuple:
+    _, f8, i8, v, m, tables = signature_types()
+    return (v, m, m, i8, f8, f8, f8, f8, v) + tables
+
+
+predict_events.fix_signature(_predict_signature)
+air_charge_sigmas.fix_signature(_sigmas_signature)

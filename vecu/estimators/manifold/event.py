@@ -11,8 +11,8 @@ of the integrator: `jacobian`) and P = F P F^T + Q. The adaptive filter's event
 (manifold.adaptive) and the runs of events (manifold.runs) call these pieces.
 
 Each function is a `vecu.kernels.kernel`: numba-compiled under the numba backend, the same
-Python function under the python backend (ManifoldEKF / ManifoldSDKF call `.impl()`; the block
-and ECU paths call them from compiled loops), so every path computes an event the same way. A
+Python function under the python backend, on the same arguments (`kernel_tables`), so every
+path computes an event the same way. A
 kernel returns a status word: bits 0-2 the channels gated, DIVERGED (reset the filter), FALLBACK
 (the innovation covariance S is not positive definite or not finite: the filter factors it with
 covariance.cholesky_lower's jitter, then `apply_gain` and `sdkf_finish` / `ekf_finish`).
@@ -49,9 +49,6 @@ ALPHA_SDC_MIN = 1e-3  # rad: B_IM divides by alpha (eq. 7); below this the flow 
 # Finite-difference steps for the manifold block of F (relative for P and T).
 FD_ALPHA = 1e-6  # rad
 FD_REL = 1e-6
-
-_ready = False
-
 
 # input_fault's answers
 INPUT_OK, INPUT_SPEED, INPUT_SETPOINT, INPUT_AMBIENT = range(4)
@@ -401,18 +398,19 @@ def model_constants(prm: Any) -> np.ndarray:
     return out
 
 
-def numba_tables(params: Any) -> tuple | None:
-    """(constants array, C_d alpha, C_d table, C_d pr, eta_N rpm, eta_N values) as float64
-    arrays for the compiled kernels, or None when the parameter set runs in Python only."""
-    nb = mi._tables(params)[2]
-    if nb is None:
-        return None
-    return (np.array(nb[0], dtype=np.float64), *nb[1:])
+_KERNEL_TABLES: dict[int, tuple[Any, tuple]] = {}  # id(params) -> (params, kernel_tables)
 
 
-def python_tables(params: Any) -> tuple:
-    """The same tables for the kernels' Python functions (tuples: the integrator's fast form)."""
-    return mi._tables(params)[1]
+def kernel_tables(params: Any) -> tuple:
+    """(constants array, C_d alpha, C_d table, C_d pr, eta_N rpm, eta_N values): the
+    integrator's tables (manifold_integrator.tables, cached) as the event kernels take them;
+    ValueError for a parameter set the kernels cannot take."""
+    hit = _KERNEL_TABLES.get(id(params))
+    if hit is None or hit[0] is not params:
+        tab = mi.tables(params)
+        hit = (params, (np.array(tab[0], dtype=np.float64), *tab[1:]))
+        _KERNEL_TABLES[id(params)] = hit
+    return hit[1]
 
 
 def signature_types() -> tuple[Any, Any, Any, Any, Any, tuple]:
@@ -425,22 +423,16 @@ def signature_types() -> tuple[Any, Any, Any, Any, Any, tuple]:
     return types, f8, i8, v, m, (v, v, m, v, v, v)
 
 
-def _compile_signatures() -> None:
+def _sdkf_signature() -> tuple:
     types, f8, i8, v, m, tables = signature_types()
-    sdkf_event.fix_signature((v, m, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
-                             + (types.boolean, v, m) + tables)
-    ekf_event.fix_signature((v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v)
-                            + tables)
+    return ((v, m, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (types.boolean, v, m)
+            + tables)
 
 
-def prepare() -> None:
-    """Before the first numba call (idempotent): the integrator's search overload and signature,
-    each event kernel's one signature (compiled or loaded from numba's cache; further
-    compilation off, so int or numpy-scalar arguments convert to float64)."""
-    global _ready
-    if _ready:
-        return
-    if not mi._numba_sig_ready:
-        mi._prepare_numba()
-    _compile_signatures()
-    _ready = True
+def _ekf_signature() -> tuple:
+    _, f8, i8, v, m, tables = signature_types()
+    return (v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v) + tables
+
+
+sdkf_event.fix_signature(_sdkf_signature)
+ekf_event.fix_signature(_ekf_signature)

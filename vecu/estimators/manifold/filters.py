@@ -64,7 +64,7 @@ from vecu.estimators.manifold.event import (
     ekf_finish,
     filter_constants,
     input_fault,
-    python_tables,
+    kernel_tables,
     sdkf_event,
     sdkf_finish,
 )
@@ -77,7 +77,6 @@ from vecu.estimators.manifold.model import (
     sdc_matrices,
 )
 from vecu.estimators.manifold.runs import CompiledEvents
-from vecu.kernels import backend, using
 from vecu.models.manifold import nominal_input, steady_state_vector
 from vecu.models.manifold_params import (
     PAPER_NOISE,
@@ -138,7 +137,7 @@ def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
     setpoint outside [-0.2, 1.9] rad, ambient or coolant conditions outside physical bounds.
     The filter holds its last plausible input instead; the ECU refuses the event (NaN fails)."""
     lo, hi = config.n_range
-    fault = input_fault.py(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, lo, hi)
+    fault = input_fault(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, lo, hi)
     if fault == INPUT_OK:
         return None
     if fault == INPUT_SPEED:
@@ -187,6 +186,8 @@ class _ManifoldKF(CompiledEvents):
         self.params = c.params
         self.Q = q_matrix(c.noise)
         self.R = r_matrix(c.noise)
+        self._kargs = (filter_constants(c), self.Q, np.array([FD_ALPHA, FD_REL]),
+                       *kernel_tables(self.params))
         self._P0 = np.diag(np.array(c.p0_diag, dtype=float))
         # a given x0 is the state; else the idle steady state until the first complete reading
         # initialises it (_initialise; before issue 30 x0 was always "given": 25 kPa at start)
@@ -270,37 +271,12 @@ class _ManifoldKF(CompiledEvents):
 
     # ---------------------------------------------------------------- the event
     _KERNELS: tuple[Any, Any] = (None, None)  # (event kernel, finish kernel) of the subclass
+    _KIND = 0  # filter_events' kind (runs.KINDS)
     _count_gated_on_reset = True  # the gated counters of an event that diverged still count
-    _py_args: tuple | None = None  # the kernels' constants for their Python functions
+    _kargs: tuple  # the kernels' constants: filter constants, Q, FD steps (, ...), tables
     # what a failing event raises (the filter resets): non-finite or implausible numbers
     _EVENT_ERRORS: tuple[type[Exception], ...] = (FloatingPointError, ValueError,
                                                   np.linalg.LinAlgError)
-
-    _runner_backend: str | None = None  # the backend _runner was made for
-    _runner: tuple[Any, Any, tuple, bool]
-
-    def _event_runner(self) -> tuple[Any, Any, tuple, bool]:
-        """(event kernel, finish kernel, their constants, Python only?) for the active backend:
-        the compiled kernels under numba (event.prepare first), their Python functions with
-        plain-float constants otherwise or for a parameter set numba cannot mirror."""
-        active = backend()
-        if active != self._runner_backend:
-            self._runner = self._make_runner()
-            self._runner_backend = active
-        return self._runner
-
-    def _make_runner(self) -> tuple[Any, Any, tuple, bool]:
-        ev, fin = self._KERNELS
-        if ev.impl() is not ev.py:
-            args = self._kernel_args
-            if args is None and not self._kernel_args_ready:
-                args = self._prepare_kernel()
-            if args is not None:
-                return ev.compiled, fin.compiled, args, False
-        if self._py_args is None:
-            self._py_args = (tuple(filter_constants(self.config).tolist()), self.Q,
-                             (FD_ALPHA, FD_REL), *python_tables(self.params))
-        return ev.py, fin.py, self._py_args, ev.impl() is not ev.py
 
     def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                     u: EngineInput, ts: float, mask: int) -> int:
@@ -320,7 +296,8 @@ class _ManifoldKF(CompiledEvents):
         """The event after the input checks: one call of the subclass's event kernel (prior
         covariance, update, guards, prediction), a fallback update when S needs jitter, then
         the counters, a reset or the new state."""
-        run, finish, args, py_only = self._event_runner()
+        run, finish = self._KERNELS
+        args = self._kargs
         mask = 0
         for i in chans:
             mask |= 1 << i
@@ -328,11 +305,7 @@ class _ManifoldKF(CompiledEvents):
         xo = np.empty((3, n))
         Po = np.empty((2, n, n))
         try:
-            if py_only:
-                with using("python"):
-                    code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
-            else:
-                code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
+            code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
         except self._EVENT_ERRORS:
             self._reset_in_step()
             return
@@ -362,7 +335,7 @@ class _ManifoldKF(CompiledEvents):
         L = cholesky_lower(prior[np.ix_(idx, idx)] + self.R[np.ix_(ch, ch)])
         Linv = np.linalg.inv(L)
         ly = self._last_y
-        apply_gain.impl()(self.x, prior, xo[1], Po[1], (ly[0], ly[1], ly[2]),
+        apply_gain(self.x, prior, xo[1], Po[1], np.array(ly, dtype=np.float64),
                           np.array(ch, dtype=np.int64), len(ch), Linv.T @ Linv)
         return self._call_finish(finish, args, xo, Po, u, ts, gated)
 
@@ -417,6 +390,8 @@ class ManifoldEKF(_ManifoldKF):
 
     name = "ekf"
     _KERNELS = (ekf_event, ekf_finish)
+    _KIND = 1
+    _ecu_kind = 1  # runs.KIND_EKF
 
     def _call_finish(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                      u: EngineInput, ts: float, gated: int) -> int:
@@ -436,6 +411,7 @@ class ManifoldSDKF(_ManifoldKF):
             raise ValueError(f"riccati must be one of {RICCATI_MODES}, got {config.riccati!r}")
         self.dare_failures = 0
         self.doublings = 0
+        self._ecu_kind = 0 if config.riccati == "iterate" else None  # runs.KIND_SDKF
         super().__init__(config, x0)
 
     def _dare_prior(self, u: EngineInput, ts: float) -> None:

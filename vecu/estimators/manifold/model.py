@@ -32,14 +32,14 @@ from vecu.estimators.manifold.event import (
     coefficients,
     integrate_event,
     jacobian,
+    kernel_tables,
     model_constants,
-    python_tables,
     sdc_matrix,
 )
-from vecu.kernels import using
 from vecu.models.manifold import N_STATE, sample_time
 from vecu.models.manifold import f as plant_f
 from vecu.models.manifold import h as plant_h
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import (
     PAPER_NOISE,
     V8_5L7,
@@ -90,14 +90,14 @@ def f_and_jacobian(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L
     ts = event_dt(u, params) if dt is None else dt
     xp = np.array([float(v) for v in x])
     fc = model_constants(params)
-    c, cd_alpha, cd_table, prs, eta_rpm, eta_val = python_tables(params)
+    c, cd_alpha, cd_table, prs, eta_rpm, eta_val = tables(params)
     F = np.zeros((N_X, N_X))
-    with using("python"):  # the Python functions throughout (the tables are tuples)
-        p_n, t_n, m = integrate_event(xp[3], xp[4], xp[1], u.p_a, u.t_a, u.t_cool, u.n_rpm, ts,
-                                      c, cd_alpha, cd_table, prs, eta_rpm, eta_val)
-        jacobian(F, xp, p_n, t_n, m, coefficients(ts, fc), (FD_ALPHA, FD_REL), 0.0, 3, u.p_a,
-                 u.t_a, u.t_cool, u.n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm, eta_val,
-                 cd_table, eta_val)
+    p_n, t_n, m = integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), u.p_a, u.t_a,
+                                  u.t_cool, u.n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm,
+                                  eta_val)
+    jacobian(F, xp, p_n, t_n, m, coefficients(ts, fc), np.array([FD_ALPHA, FD_REL]), 0.0, 3,
+             u.p_a, u.t_a, u.t_cool, u.n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm, eta_val,
+             cd_table, eta_val)
     return f(x, u, params, ts), F
 
 
@@ -129,8 +129,7 @@ def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
     ts = event_dt(u, params) if dt is None else dt
     fc = model_constants(params)
     A = np.zeros((N_X, N_X))
-    co = coefficients.py(ts, fc)
-    with using("python"):  # the Python functions throughout (the tables are tuples)
-        sdc_matrix(A, [float(v) for v in x], u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, co,
-                   fc[F_ALPHA_MIN], *python_tables(params))
+    co = coefficients(ts, fc)
+    sdc_matrix(A, np.array([float(v) for v in x]), u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, co,
+               fc[F_ALPHA_MIN], *kernel_tables(params))
     return A, np.array([1.0, co[2], 0.0, 0.0, 0.0, 0.0])

@@ -20,32 +20,26 @@ The python backend never runs these loops (the per-event path is the reference).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from vecu.estimators.manifold.adaptive_event import adaptive_event
-from vecu.estimators.manifold.cac_predict import predict_events
-from vecu.estimators.manifold.cac_predict import prepare as prepare_predictions
+from vecu.estimators.manifold.cac_predict import predict_cac, predict_events
 from vecu.estimators.manifold.event import (
-    ALPHA_SDC_MIN,
     DIVERGED,
     F_NCYL,
     F_VCYL,
     FALLBACK,
-    FD_ALPHA,
-    FD_REL,
     INPUT_OK,
     ekf_event,
-    filter_constants,
     input_fault,
-    numba_tables,
     sdkf_event,
     signature_types,
 )
-from vecu.estimators.manifold.event import prepare as prepare_events
-from vecu.kernels import backend, kernel
-from vecu.models.manifold import air_charge_of
+from vecu.kernels import kernel
+from vecu.models.manifold import air_charge_of, cylinder_air_charge
 from vecu.models.manifold_params import EngineInput
 
 # plausibility limits vector of filter_events (filters.input_problem, ManifoldFilterConfig.y_ranges)
@@ -183,21 +177,13 @@ def ecu_event(kind, x, P, P_post, xo, Po, kc, sp, n_rpm, p_a, t_a, t_cool, y0, y
     return code, cac, cac6
 
 
-_ready = False
-
-
-def prepare(kc: np.ndarray) -> None:
-    """kernels.prepare (the kernels this one calls), then its one signature (compile off); kc:
-    a filter's packed constants (6 states), the signature's shape."""
-    global _ready
-    if _ready:
-        return
-    prepare_events()
-    prepare_predictions()
+def _ecu_signature() -> tuple:
+    """ecu_event's one signature (kc: a filter's packed constants, 6 states)."""
     types, f8, i8, v, m, _ = signature_types()
-    sig = (i8, v, m, m, m, f8[:, :, ::1], v) + (f8,) * 8 + (i8,) * 3 + (types.boolean, i8)
-    ecu_event.fix_signature(sig)
-    _ready = True
+    return (i8, v, m, m, m, f8[:, :, ::1], v) + (f8,) * 8 + (i8,) * 3 + (types.boolean, i8)
+
+
+ecu_event.fix_signature(_ecu_signature)
 
 
 def unpack_constants(kc: np.ndarray) -> tuple:
@@ -209,17 +195,6 @@ def unpack_constants(kc: np.ndarray) -> tuple:
     return p[0], p[1].reshape((nq, nq)), p[2], tables, p[9]
 
 
-def kernel_kind(flt: Any) -> int | None:
-    """ecu_event's kind for a filter, None when it has none (the adaptive filter, an SDKF
-    that solves the DARE per event)."""
-    name = getattr(flt, "name", "")
-    if name == "ekf":
-        return KIND_EKF
-    if name == "sdkf" and flt.config.riccati == "iterate":
-        return KIND_SDKF
-    return None
-
-KINDS = {"sdkf": 0, "ekf": 1, "adaptive": 2}  # filter_events' kind
 _NO_AC = np.zeros(3)
 _ALL = [0, 1, 2]
 
@@ -248,31 +223,56 @@ class CompiledEvents:
         """The filter's own step (filters._ManifoldKF.step)."""
         raise NotImplementedError
 
-    _kernel_args: tuple | None = None  # filter constants, Q, FD steps and tables, on first use
-    _kernel_args_ready = False
+    _kargs: tuple  # filter constants, Q, FD steps (, the adaptive constants), tables
+    _KIND: int  # filter_events' kind
+
+    def estimate(self, y0: float, y1: float, y2: float, u: EngineInput, horizon: int,
+                 lap: Callable[[], float]) -> tuple[list[float], float, float, float, float,
+                                                    float]:
+        """The ECU's event: step((y0, y1, y2), u), the CAC at the posterior and predicted
+        `horizon` events ahead with u held (the adaptive filter's eta correction applied):
+        (posterior, CAC, CAC+horizon, the eta scale used, seconds in the filter, seconds in
+        the prediction made apart). The usual event is one kernel call (event_cac: the
+        prediction's time counted in the filter's); lap: the caller's Stopwatch.lap."""
+        done = self.event_cac(y0, y1, y2, u, horizon)
+        if done is not None:
+            return self.x_post.tolist(), done[0], done[1], 1.0, lap(), 0.0
+        x = self.step((y0, y1, y2), u).tolist()
+        filter_s = lap()
+        scale = 1.0
+        if len(x) > 6:  # the adaptive filter's eta correction as the CAC uses it
+            scale = float(self.eta_used(x[6], float(self.P_post[6, 6])))
+        cac = scale * cylinder_air_charge(x[3], x[4], u.n_rpm, self.params)
+        first = self.last_prediction  # the filter already ran event n+1 from x
+        if first is not None and first[0] is u:
+            cac6 = predict_cac(first[1], [u] * (horizon - 1), self.params, scale)
+        else:
+            cac6 = predict_cac(self.x_post, [u] * horizon, self.params, scale)
+        return x, cac, cac6, scale, filter_s, lap()
+
+    def eta_used(self, c: Any, var: Any) -> Any:
+        """The eta correction the CAC uses (the adaptive filter's)."""
+        raise NotImplementedError
 
     def event_cac(self, y0: float, y1: float, y2: float, u: EngineInput, horizon: int
                   ) -> tuple[float, float] | None:
         """step((y0, y1, y2), u), then (CAC at the posterior, cac_predict.predict_cac of the
-        event map's output over horizon - 1 more events with u held), as one compiled call
-        (ecu_event) under the numba backend: the same state, counters and numbers
-        as those calls. None (nothing changed): make them instead (python backend, the adaptive
-        filter, the first event, an input or reading the filter refuses, an event its kernel
-        hands back or resets on)."""
-        if backend() != "numba" or not self._initialised:
+        event map's output over horizon - 1 more events with u held), as one kernel call
+        (ecu_event): the same state, counters and numbers as those calls. None (nothing
+        changed): make them instead (the adaptive filter, an SDKF that solves the DARE, the
+        first event, an input or reading the filter refuses, an event its kernel hands back or
+        resets on)."""
+        kind = self._ecu_kind
+        if kind is None or not self._initialised:
             return None
-        run = self._ecu_run
-        if run is None:
-            if self._ecu_checked or not self._prepare_ecu_event():
-                return None
-            run = self._ecu_run
         gr = self._gated_run
         xo = np.empty((3, len(self.x)))
         Po = np.empty((2, len(self.x), len(self.x)))
         try:
-            code, cac, cac6 = run(self._ecu_kind, self.x, self.P, self.P_post, xo, Po,
-                                  self._ecu_consts, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool,
-                                  y0, y1, y2, gr[0], gr[1], gr[2], self.events >= 1, horizon)
+            code, cac, cac6 = ecu_event(kind, self.x, self.P, self.P_post, xo, Po,
+                                        self._ecu_consts, u.ta_sp, u.n_rpm, u.p_a, u.t_a,
+                                        u.t_cool, y0, y1, y2, gr[0], gr[1], gr[2],
+                                        self.events >= 1, horizon)
         except (FloatingPointError, ValueError, ZeroDivisionError, np.linalg.LinAlgError):
             return None  # step() runs the event again and decides (a reset)
         if code & (FALLBACK | DIVERGED | NOT_TAKEN):
@@ -286,27 +286,16 @@ class CompiledEvents:
         self._commit_event(xo, Po, u)
         return cac, cac6
 
-    _ecu_run: Any = None  # ecu_event's dispatcher once prepared
-    _ecu_kind: int | None = None
-    _ecu_checked = False
-    _ecu_consts: np.ndarray
+    _ecu_kind: int | None = None  # ecu_event's kind for this filter (None: it has none)
+    _kc: np.ndarray | None = None
 
-    def _prepare_ecu_event(self) -> bool:
-        """First use of event_cac: the kernel's kind and packed constants (False: none)."""
-        self._ecu_checked = True
-        kind = kernel_kind(self)
-        if kind is None:
-            return False
-        tables = numba_tables(self.params)
-        if tables is None:
-            return False
-        self._ecu_consts = pack_constants(
-            filter_constants(self.config, ALPHA_SDC_MIN), self.Q, np.array([FD_ALPHA, FD_REL]),
-            tables, limits(self.config))
-        prepare(self._ecu_consts)
-        self._ecu_kind = kind
-        self._ecu_run = ecu_event.compiled
-        return True
+    @property
+    def _ecu_consts(self) -> np.ndarray:
+        """ecu_event's packed constants (computed on first use)."""
+        if self._kc is None:
+            fc, Q, fd, *tables = self._kargs
+            self._kc = pack_constants(fc, Q, fd, tuple(tables), limits(self.config))
+        return self._kc
 
     def _count_gated(self, code: int, chans: list[int]) -> None:
         """The gated / gated-in-a-row counters of the channels used, from a kernel's code."""
@@ -325,26 +314,6 @@ class CompiledEvents:
         self.P, self.P_post = Po[0], Po[1]
         self.last_prediction = (u, xo[2])
 
-    def _prepare_kernel(self) -> tuple | None:
-        self._kernel_args_ready = True
-        tables = numba_tables(self.params)
-        if tables is None:
-            return None
-        prepare_events()
-        fd = np.array([FD_ALPHA, FD_REL])
-        self._kernel_args = (filter_constants(self.config, ALPHA_SDC_MIN), self.Q, fd, *tables)
-        return self._kernel_args
-
-    def _block_ready(self) -> bool:
-        """Whole runs of events may go through filter_events."""
-        if getattr(self.config, "riccati", "iterate") != "iterate" or not self._initialised:
-            return False
-        if sdkf_event.impl() is sdkf_event.py:
-            return False
-        if self._kernel_args is not None:
-            return True
-        return not self._kernel_args_ready and self._prepare_kernel() is not None
-
     def run_events(self, ys: np.ndarray, us: np.ndarray) -> np.ndarray:
         """step(ys[n], EngineInput(*us[n])) for every event n; the posteriors (events x states;
         their variances, the diagonal of P_post, in `self.run_variances` afterwards).
@@ -358,8 +327,9 @@ class CompiledEvents:
         xs = np.empty((n_ev, len(self.x)))
         vs = np.empty((n_ev, len(self.x)))
         n = 0
+        block = getattr(self.config, "riccati", "iterate") == "iterate"
         while n < n_ev:
-            if self._block_ready():
+            if block and self._initialised:
                 n = self._run_block(ys, us, n, xs, vs)
                 if n >= n_ev:
                     break
@@ -371,16 +341,15 @@ class CompiledEvents:
 
     def _run_block(self, ys: np.ndarray, us: np.ndarray, start: int, xs: np.ndarray,
                    vs: np.ndarray) -> int:
-        args = self._kernel_args
-        assert args is not None
+        args = self._kargs
         lim = limits(self.config)
         x, P, P_post = self.x.copy(), self.P.copy(), self.P_post.copy()
         gr = np.array(self._gated_run, dtype=np.int64)
         gated = np.zeros(3, dtype=np.int64)
         last_pred = np.empty(len(x))
-        kind = KINDS[self.name]
+        kind = self._KIND
         ac = args[3] if kind == 2 else _NO_AC
-        stop = filter_events.compiled(kind, x, P, P_post, ys, us, start, self.events, gr, gated,
+        stop = filter_events(kind, x, P, P_post, ys, us, start, self.events, gr, gated,
                                       xs, vs, last_pred, lim, args[0], args[1], args[2], ac,
                                       *args[-6:])
         if stop == start:
