@@ -118,12 +118,13 @@ def run_filter(name: str, trace: ManifoldTrace, inputs: list[EngineInput],
         xs[n] = step(ys[n], inputs[n])
         elapsed += clock() - t0
         vs[n] = np.diag(flt.P_post)
-    flt.run_variances = vs  # as CompiledEvents.run_events
+    flt.run_variances = vs  # as FilterRuns.run_events
     return xs, elapsed, flt
 
 
 def direct_states(trace: ManifoldTrace) -> np.ndarray:
-    """cac_predict.direct_state at every event (the readings; event 0 uses itself as n-1)."""
+    """x_n from the readings alone at every event: (TA_SP,n-1, TA_n, TA_n-1, P_n, T_out,n,
+    T_out,n) (event 0 uses itself as n-1)."""
     y = trace.y
     k = np.maximum(np.arange(len(y)) - 1, 0)
     return np.column_stack([trace.ta_sp[k], y[:, 0], y[k, 0], y[:, 1], y[:, 2], y[:, 2]])

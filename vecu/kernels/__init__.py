@@ -162,7 +162,7 @@ class Kernel:
         self.py = fn
         self._options = options
         self._compiled: Callable[..., Any] | None = None
-        self._signature: tuple | None = None
+        self._signature: tuple | Callable[[], tuple] | None = None
 
     @property
     def compiled(self) -> Callable[..., Any]:

@@ -84,27 +84,6 @@ def actuator_coeffs(
     return a1, a2, b1, b2
 
 
-def actuator_coeffs_printed(
-    ts: float, params: ManifoldParams = V8_5L7,
-) -> tuple[float, float, float, float]:
-    """(a1, a2, b1, b2) exactly as printed under eq. 1 (wrong; kept as evidence for docs/tests)."""
-    zw = params.zeta * params.omega0
-    w_et = params.omega0 * math.sqrt(1.0 - params.zeta * params.zeta)
-    a = math.exp(-zw * ts)
-    b = math.cos(w_et * ts)
-    g = math.sin(w_et * ts)
-    return -2.0 * a * a * b, a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / (w_et - b))
-
-
-def actuator_matrices(
-    ts: float, params: ManifoldParams = V8_5L7,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(A_ET, B_ET, C_ET) of eq. 1 for x_ET = (u_prev, alpha, alpha_prev); recompute every event."""
-    a1, a2, b1, b2 = actuator_coeffs(ts, params)
-    a_et = np.array([[0.0, 0.0, 0.0], [b2, a1, a2], [0.0, 1.0, 0.0]])
-    return a_et, np.array([1.0, b1, 0.0]), np.array([0.0, 1.0, 0.0])
-
-
 # ------------------------------------------------------------------------- throttle flow, eq. 2-4
 
 @kernel
@@ -125,7 +104,7 @@ def flow_function_of(pr, c):
 
 @kernel
 def discharge_of(pr, alpha, c, cd_alpha, cd_table, prs):
-    """(C_d, dC_d/dpr) by bilinear lookup (see discharge_coefficient) on the tables."""
+    """(C_d, dC_d/dpr) by bilinear lookup on the tables (eq. 2-3 text), pr clamped to the table."""
     a = 0.0 if 0.0 > alpha else alpha  # noqa: FURB136 (min/max with Python's NaN behaviour)
     a_deg = math.degrees(c[26] if c[26] < a else a)  # noqa: FURB136 (as above)
     n = len(prs)
@@ -151,20 +130,6 @@ def throttle_flow_of(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs):
     a = c[26] if c[26] < a else a  # noqa: FURB136 (as above)
     xi0 = math.pi * c[27] * c[27] * (1.0 - math.cos(a)) * (1000.0 * p_a) / math.sqrt(c[1] * t_a)
     return xi0 * cd * psi, xi0 * (dcd * psi + cd * dpsi) / p_a
-
-
-def throttle_area(alpha: float, params: ManifoldParams = V8_5L7) -> float:
-    """Eq. 4, A_th = pi R_th^2 (1 - cos alpha) in m^2, alpha clipped to the stops [0, alpha_max]."""
-    a = min(max(alpha, 0.0), params.alpha_max_rad)
-    return math.pi * params.r_th_m * params.r_th_m * (1.0 - math.cos(a))
-
-
-def discharge_coefficient(
-    pr: float, alpha: float, params: ManifoldParams = V8_5L7,
-) -> tuple[float, float]:
-    """C_d(pr, alpha) by bilinear lookup (eq. 2-3 text): (C_d, dC_d/dpr); pr clamped to [0, 1]."""
-    c, cd_alpha, cd_table, prs, _, _ = tables(params)
-    return discharge_of(pr, alpha, c, cd_alpha, cd_table, prs)
 
 
 def critical_pressure_ratio(kappa: float) -> float:
@@ -257,79 +222,22 @@ def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V
 
 # ------------------------------------------------------------------------- manifold, eq. 5-6
 
-def _rhs(p: float, t: float, alpha: float, u: EngineInput,
-         prm: ManifoldParams) -> tuple[float, float, float, float]:
-    """(dP/dt, dT/dt, d(dP/dt)/dP, d(dT/dt)/dT) of the continuous model behind eq. 5-6."""
-    k = prm.kappa
-    r = prm.r_air
-    v = prm.v_im_dm3
-    mdot, dmdot = throttle_flow(alpha, p, u.p_a, u.t_a, prm)
-    eta, deta = volumetric_efficiency(u.n_rpm, p, prm)
-    k_pump = u.n_rpm * prm.v_d_dm3 / (120.0 * v)  # mdot_ac R T / (V_im eta P), 1/s
-    q = heat_flow(t, u.t_a, u.t_cool, prm)
-    pv = max(p, P_FLOOR_KPA) * v
-    dp = k * r * u.t_a * mdot / v - k * k_pump * eta * p + (k - 1.0) * q / v
-    dt = (r * t * mdot * (k * u.t_a - t) + (k - 1.0) * t * q) / pv - (k - 1.0) * k_pump * eta * t
-    jpp = k * r * u.t_a * dmdot / v - k * k_pump * (eta + p * deta)
-    hsum = prm.h1_w_per_k + prm.h2_w_per_k
-    jtt = ((r * mdot * (k * u.t_a - 2.0 * t) + (k - 1.0) * (q - hsum * t)) / pv
-           - (k - 1.0) * k_pump * eta)
-    return dp, dt, jpp, jtt
-
-
-def manifold_rhs(p_im: float, t_im: float, alpha: float, u: EngineInput,
-                 params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """Continuous eq. 5-6: (dP_im/dt in kPa/s, dT_im/dt in K/s) at throttle angle alpha.
-
-    dP/dt = kappa R (T_a mdot_at - T_im mdot_ac) / V_im + (kappa - 1) Q_ext / V_im
-    dT/dt = T_im / (P_im V_im) [R mdot_at (kappa T_a - T_im) - (kappa - 1) R T_im mdot_ac
-                                + (kappa - 1) Q_ext]
-    One Euler step of length T_s = 120/(8N) gives eq. 5-6 with V_cyl = V_d/8 in the pumping terms.
-    """
-    dp, dt, _, _ = _rhs(p_im, t_im, alpha, u, params)
-    return dp, dt
-
-
-def euler_event(p_im: float, t_im: float, alpha: float, u: EngineInput,
-                params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """Eq. 5-6 as printed (one explicit Euler step over T_s), with V_cyl = V_d/8. Unstable at large
-    openings; for comparison only."""
-    ts = sample_time(u.n_rpm, params.n_cyl)
-    dp, dt, _, _ = _rhs(p_im, t_im, alpha, u, params)
-    return p_im + ts * dp, t_im + ts * dt
-
-
-def substeps_for(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
-                 params: ManifoldParams = V8_5L7) -> int:
-    """Sub-steps M for one interval dt (see integrate_manifold)."""
-    dp, dtt, jpp, jtt = _rhs(p_im, t_im, alpha, u, params)
-    return _substeps(dp, dtt, jpp, jtt, dt, params)
-
-
-def _substeps(dp: float, dtt: float, jpp: float, jtt: float, dt: float, prm: ManifoldParams) -> int:
-    """Smallest M with h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and
-    |h dT/dt| <= dt_step_max (h = dt/M), clamped to [1, max_substeps]."""
-    m = max(
-        dt * (abs(jpp) + abs(jtt)) / prm.lam_dt_max,
-        dt * abs(dp) / prm.dp_step_max_kpa,
-        dt * abs(dtt) / prm.dt_step_max_k,
-    )
-    return min(max(math.ceil(m), 1), prm.max_substeps)
-
-
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
     """Advance (P_im, T_im) by dt with alpha and u held (zero-order hold over the event).
 
-    M sub-steps (chosen once per event from the stiffness and the rates, `_substeps`), each a
-    two-stage Rosenbrock step (ROS2, gamma = 1 + 1/sqrt 2; second order for any W) with the
-    diagonal Jacobian W = diag(min(J_PP, 0), min(J_TT, 0)) of `_rhs`:
+    M sub-steps (chosen once per event from the stiffness and the rates: the smallest M with
+    h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and |h dT/dt| <= dt_step_max,
+    h = dt/M, clamped to [1, max_substeps]), each a two-stage Rosenbrock step (ROS2, gamma =
+    1 + 1/sqrt 2; second order for any W) with the diagonal Jacobian W = diag(min(J_PP, 0),
+    min(J_TT, 0)) of eq. 5-6's right-hand side:
         k1 = f(x) / (1 - gamma h W),  k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W),
         x += h (1.5 k1 + 0.5 k2).
     The throttle-flow pole (up to ~5000 1/s near pr = 1) is then damped for any h, and the
     steady state of eq. 5-6 is an exact fixed point. Returns (P_im, T_im, M).
     Implemented in vecu.models.manifold_integrator (per-event constants hoisted, loop inlined;
-    bit-identical to the same steps written with `_rhs`).
+    bit-identical to the same steps written plainly on throttle_flow, volumetric_efficiency and
+    heat_flow: vecu.bench.estimators.integrate_manifold_reference).
     """
     return _integrate_fast(p_im, t_im, alpha, u, dt, params)
 

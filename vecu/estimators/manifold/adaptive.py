@@ -34,10 +34,10 @@ from vecu.estimators.manifold.event import (
     FD_ALPHA,
     FD_REL,
     filter_constants,
-    kernel_tables,
 )
 from vecu.estimators.manifold.filters import ManifoldFilterConfig, _ManifoldKF
 from vecu.estimators.manifold.model import q_matrix
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import EngineInput
 
 ETA_FD = 1e-6  # finite-difference step in c
@@ -85,7 +85,7 @@ class ManifoldAdaptive(_ManifoldKF):
         self._kargs = (filter_constants(c, ALPHA_SDC_MIN), self.Q, np.array([FD_ALPHA, FD_REL]),
                       np.array([c.eta_box[0], c.eta_box[1], ETA_FD, c.eta_pr_freeze,
                                 c.eta_alpha_gate, *c.ta_gain_box, *c.act_box, ACT_FD]),
-                      *kernel_tables(self.params))
+                      *tables(self.params))
         self.reset(count=False)
 
     @property

@@ -94,7 +94,6 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     map with eta scaled by c, the throttle flow by c_th and the actuator's (zeta, omega0) by
     (k_zeta, k_omega), its Jacobian (one-sided differences) and P = sym(F P F^T + Q). Writes
     xo (3 x 11), Po (2 x 11 x 11); returns the gated channels | DIVERGED | FALLBACK."""
-    cst = K.const_tuple(c)
     n = x.shape[0]
     xp = xo[1]
     Pp = Po[1]
@@ -149,9 +148,9 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     ev = eta_val * xp[I_C]
     cdt = cd_table * xp[I_CTH]
     p_n, t_n, m = K.integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), p_a, t_a, t_cool,
-                                    n_rpm, ts, cst, cd_alpha, cdt, prs, eta_rpm, ev)
+                                    n_rpm, ts, c, cd_alpha, cdt, prs, eta_rpm, ev)
     F = np.zeros((n, n))
-    K.jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, cst,
+    K.jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, c,
                 cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val)
     # the actuator row's columns k_zeta, k_omega (eq. 1 is linear in alpha, not in them)
     alpha_n = co[0] * xp[1] + co[1] * xp[2] + co[2] * sp + co[3] * xp[0]

@@ -35,9 +35,7 @@ from vecu.estimators.manifold.event import (
     F_NCYL,
     F_VCYL,
     coefficients,
-    const_tuple,
     integrate_event,
-    kernel_tables,
     model_constants,
     sdc_matrix,
     signature_types,
@@ -48,7 +46,6 @@ from vecu.models.manifold import air_charge_of, efficiency_of, event_map
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 HORIZON = 6
-METHODS = ("direct", "direct_ol", "ekf", "sdkf")
 
 
 @dataclass(frozen=True)
@@ -56,17 +53,6 @@ class CacPredictionConfig:
     horizon: int = HORIZON
     known_setpoint: bool = True  # the setpoints of the horizon are known (delayed pedal)
     stride: int = 1  # predict at every stride-th event (the sums are scaled back by stride)
-
-
-def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: ManifoldParams = V8_5L7,
-                   config: CacPredictionConfig = CacPredictionConfig()) -> list[EngineInput]:
-    """EngineInputs for events n..n+horizon-1: known (or held) setpoints, N_n held."""
-    last = len(ta_sp) - 1
-    out = []
-    for k in range(config.horizon):
-        sp = ta_sp[min(n + k, last)] if config.known_setpoint else ta_sp[n]
-        out.append(EngineInput(float(sp), n_rpm, params.p_a_kpa, params.t_a_k, params.t_cool_k))
-    return out
 
 
 # id(params) -> (params, (model constants, kernel tables))
@@ -78,7 +64,7 @@ def _args(params: ManifoldParams, eta_scale: float = 1.0) -> tuple:
     the eta_N table (the adaptive filter's c)."""
     hit = _ARGS.get(id(params))
     if hit is None or hit[0] is not params:
-        hit = (params, (model_constants(params), *kernel_tables(params)))
+        hit = (params, (model_constants(params), *mi.tables(params)))
         _ARGS[id(params)] = hit
     args = hit[1]
     if eta_scale != 1.0:
@@ -118,11 +104,6 @@ def predict_cac(x: np.ndarray, inputs: Sequence[EngineInput],
     """Predicted CAC (kg per cylinder event) after the inputs, at the last input's speed;
     eta_scale multiplies the calibrated eta (the adaptive filter's correction)."""
     return _prediction(x, inputs, params, eta_scale)[1]
-
-
-def direct_state(y: Sequence[float], y_prev: Sequence[float], sp_prev: float) -> np.ndarray:
-    """x_n from the readings alone: (TA_SP,n-1, TA_n, TA_n-1, P_n, T_out,n, T_out,n)."""
-    return np.array([sp_prev, y[0], y_prev[0], y[1], y[2], y[2]], dtype=float)
 
 
 def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
@@ -173,7 +154,6 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
     """x after `count` events through the event map (cac_predict.predict_state) into out;
     returns the CAC (kg) there at the last input's speed (predict_cac). u: rows (TA_SP, N, P_a,
     T_a, T_cool); event i uses row min(i, len(u) - 1) (one row: input held)."""
-    cst = const_tuple(c)
     u_prev, alpha, alpha_prev = float(x[0]), float(x[1]), float(x[2])  # plain floats in Python
     p, t, tm = float(x[3]), float(x[4]), float(x[5])
     ts_prev = math.nan
@@ -188,7 +168,7 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
         if ts != ts_prev:
             co = coefficients(ts, fc)
             ts_prev = ts
-        p_n, t_n, _ = integrate_event(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+        p_n, t_n, _ = integrate_event(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, c, cd_alpha,
                                       cd_table, prs, eta_rpm, eta_val)
         alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, sp, t, tm)
         u_prev, alpha, alpha_prev, p, t, tm = sp, alpha_n, alpha, p_n, t_n, tm_n
@@ -197,7 +177,7 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
 
 
 @kernel
-def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, cst, cd_alpha, cd_table, prs, eta_rpm,
+def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, c, cd_alpha, cd_table, prs, eta_rpm,
                   eta_val, out):
     """The open-loop observer over the events (open_loop_temperatures): out[n] = T_im,n; amb[n]
     the event's (P_a, T_a, T_coolant)."""
@@ -210,7 +190,7 @@ def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, cst, cd_alpha, cd_table, pr
             continue
         alpha = a
         ts = 120.0 / (ncyl * n_rpm[n])
-        p, t, _ = integrate_event(p, t, a, amb[n][0], amb[n][1], amb[n][2], n_rpm[n], ts, cst,
+        p, t, _ = integrate_event(p, t, a, amb[n][0], amb[n][1], amb[n][2], n_rpm[n], ts, c,
                                   cd_alpha, cd_table, prs, eta_rpm, eta_val)
 
 

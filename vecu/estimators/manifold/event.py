@@ -8,10 +8,11 @@ DARE modes solve eq. 14 in Python and pass its P), gating and the measurement up
 plant's integrator of eq. 5-6, vecu.models.manifold_integrator). `ekf_event` is the EKF event:
 the same update, then F = df/dx at x_n|n (analytic rows of eq. 1 and 9, one-sided differences
 of the integrator: `jacobian`) and P = F P F^T + Q. The adaptive filter's event
-(manifold.adaptive) and the runs of events (manifold.runs) call these pieces.
+(manifold.adaptive) and the runs of events (manifold.sequences) call these pieces.
 
 Each function is a `vecu.kernels.kernel`: numba-compiled under the numba backend, the same
-Python function under the python backend, on the same arguments (`kernel_tables`), so every
+Python function under the python backend, on the same arguments (the integrator's tables,
+manifold_integrator.tables), so every
 path computes an event the same way. A
 kernel returns a status word: bits 0-2 the channels gated, DIVERGED (reset the filter), FALLBACK
 (the innovation covariance S is not positive definite or not finite: the filter factors it with
@@ -66,14 +67,6 @@ def input_fault(sp, n_rpm, p_a, t_a, t_cool, n_lo, n_hi):
     if not (50.0 <= p_a <= 120.0 and 200.0 <= t_a <= 450.0 and 200.0 <= t_cool <= 450.0):
         return INPUT_AMBIENT
     return INPUT_OK
-
-
-@kernel
-def const_tuple(c):
-    """The integrator's 29 per-parameter-set constants as the tuple it takes."""
-    return (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
-            c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24],
-            c[25], c[26], c[27], c[28])
 
 
 @kernel
@@ -233,7 +226,7 @@ def update(x, Pn, xp, Pp, yv, runs, chans, fc):
 
 
 @kernel
-def jacobian(F, xp, p_n, t_n, m, co, fd, fd_c, ncol, p_a, t_a, t_cool, n_rpm, ts, cst,
+def jacobian(F, xp, p_n, t_n, m, co, fd, fd_c, ncol, p_a, t_a, t_cool, n_rpm, ts, c,
              cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val):
     """F = df/dx at the posterior xp into F (zeros on entry): the analytic rows of eq. 1 and 9,
     identity rows for parameter states beyond the sixth, and one-sided differences of the event
@@ -262,7 +255,7 @@ def jacobian(F, xp, p_n, t_n, m, co, fd, fd_c, ncol, p_a, t_a, t_cool, n_rpm, ts
             t_ = t + sign * d if j == 2 else t
             e_ = eta_val * (xp[6] + sign * d) if j == 3 else ev
             c_ = cd_table * (xp[7] + sign * d) if j == 4 else cdt
-            pp, tt, mm = integrate_event(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+            pp, tt, mm = integrate_event(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, c, cd_alpha,
                                          c_, prs, eta_rpm, e_)
             if mm == m:
                 break
@@ -309,7 +302,7 @@ def sdkf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, c, cd_alpha,
     if not in_bounds(xp, Po[1], fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
     p_n, t_n, _ = integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), p_a, t_a, t_cool,
-                                  n_rpm, ts, const_tuple(c), cd_alpha, cd_table, prs, eta_rpm,
+                                  n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm,
                                   eta_val)
     map_out(xo, xp, sp, p_n, t_n, coefficients(ts, fc), fc)
     if not in_bounds(xo[0], Po[0], fc[F_MAX_TRACE], fc[F_MAX_ABS]):
@@ -351,12 +344,11 @@ def ekf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, Q, fd, c, cd_
     clamp(xp, fc)
     if not in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
-    cst = const_tuple(c)
     co = coefficients(ts, fc)
     p_n, t_n, m = integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), p_a, t_a, t_cool,
-                                  n_rpm, ts, cst, cd_alpha, cd_table, prs, eta_rpm, eta_val)
+                                  n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm, eta_val)
     F = np.zeros((6, 6))
-    jacobian(F, xp, p_n, t_n, m, co, fd, 0.0, 3, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+    jacobian(F, xp, p_n, t_n, m, co, fd, 0.0, 3, p_a, t_a, t_cool, n_rpm, ts, c, cd_alpha,
              cd_table, prs, eta_rpm, eta_val, cd_table, eta_val)
     map_out(xo, xp, sp, p_n, t_n, co, fc)
     if not propagate(F, Pp, Q, xo, Po, fc):
@@ -398,21 +390,6 @@ def model_constants(prm: Any) -> np.ndarray:
     return out
 
 
-_KERNEL_TABLES: dict[int, tuple[Any, tuple]] = {}  # id(params) -> (params, kernel_tables)
-
-
-def kernel_tables(params: Any) -> tuple:
-    """(constants array, C_d alpha, C_d table, C_d pr, eta_N rpm, eta_N values): the
-    integrator's tables (manifold_integrator.tables, cached) as the event kernels take them;
-    ValueError for a parameter set the kernels cannot take."""
-    hit = _KERNEL_TABLES.get(id(params))
-    if hit is None or hit[0] is not params:
-        tab = mi.tables(params)
-        hit = (params, (np.array(tab[0], dtype=np.float64), *tab[1:]))
-        _KERNEL_TABLES[id(params)] = hit
-    return hit[1]
-
-
 def signature_types() -> tuple[Any, Any, Any, Any, Any, tuple]:
     """numba's (types, float64, int64, contiguous vector, contiguous matrix, the integrator's
     tables: c, cd_alpha, cd_table, prs, eta_rpm, eta_val) for the kernels' one signatures."""
@@ -420,7 +397,7 @@ def signature_types() -> tuple[Any, Any, Any, Any, Any, tuple]:
 
     f8, i8 = types.float64, types.int64
     v, m = f8[::1], f8[:, ::1]
-    return types, f8, i8, v, m, (v, v, m, v, v, v)
+    return types, f8, i8, v, m, (types.UniTuple(f8, mi.N_CONSTS), v, m, v, v, v)
 
 
 def _sdkf_signature() -> tuple:
