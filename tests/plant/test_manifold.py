@@ -62,7 +62,7 @@ def _step(x: np.ndarray, u: EngineInput, dt: float | None = None) -> None:
 
 
 def _stepped(profile, seed, params, config) -> ManifoldTrace:
-    """simulate event by event in Python (the oracle of simulate_events): the profile's own
+    """simulate event by event in Python (the oracle of truth_events): the profile's own
     lookup, the measurement and plant_step per event, the stream's noise rows in blocks."""
     rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
     n0, sp0 = profile.at(0.0)
@@ -401,7 +401,7 @@ def test_any_noise_scale_the_parameter_tree_admits_stays_finite():
 
 
 def test_simulation_is_the_event_by_event_loop(backend):
-    """simulate's loop as one kernel (plant.manifold.simulate_events) gives the event-by-event
+    """simulate's loop as one kernel (plant.manifold.truth_events) gives the event-by-event
     loop of the plant's kernels (_stepped) bit for bit, with a perturbed engine and sensor gain
     errors."""
     p = us06_like(2)

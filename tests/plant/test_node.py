@@ -78,10 +78,10 @@ def test_parse_kind_accepts_cli_spellings_and_rejects_unknown():
 
 
 def test_manifold_events_computed_ahead_are_the_same_under_both_backends():
-    """ManifoldPart computes its events ahead in blocks (EventsAhead: advance_events, compiled
+    """ManifoldPart computes its events ahead in blocks (EventsAhead: truth_events, compiled
     or as Python): the same frames, times and truth under both backends, across block refills,
     noise blocks and the switches to the next legs of the drive (vecu.plant.drive: one profile
-    per manoeuvre). simulate_events against the event-by-event loop: tests/plant/test_manifold.py."""
+    per manoeuvre). truth_events against the event-by-event loop: tests/plant/test_manifold.py."""
     pytest.importorskip("numba")
     from vecu.codec import shared_codec
     from vecu.kernels import using

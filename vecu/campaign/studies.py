@@ -54,7 +54,7 @@ def metric_names(spec: CampaignSpec) -> tuple[str, ...]:
 
 def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
                    engine: str = "batch") -> dict[str, Any]:
-    """One Table 3 run: the plant's simulate_events, the open-loop observer and all predictions
+    """One Table 3 run: the plant's truth_events, the open-loop observer and all predictions
     in one kernel call each; the filters' events in runs (engine "batch": run_events) or
     event by event as the ECU steps them ("scalar": filter.step()). Same seeds, same numbers
     (tests/campaign/test_batch.py)."""

@@ -37,7 +37,8 @@ N_ADAPT_CONSTS = 10
 ZETA_MAX = 0.99
 
 
-def _consider_py(x, P, xp, Pp, lo, hi):
+@kernel
+def _consider(x, P, xp, Pp, lo, hi):
     """Undo the update of states lo..hi-1 in (xp, Pp) from the prior (x, P): the Schmidt
     (consider) filter's result, for which the other states' update is unchanged (their gain,
     and so their cross-covariance with the considered states, is the optimal update's)."""
@@ -48,7 +49,8 @@ def _consider_py(x, P, xp, Pp, lo, hi):
             Pp[i, j] = P[i, j] if lo <= j < hi else Pp[j, i]
 
 
-def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
+@kernel
+def _angle_update(x, P, xp, Pp, y0, run0, fc):
     """The TA channel's EKF update with the measurement TA = g alpha (H: g in the alpha
     column, alpha in g's), gated as event.update. Returns 1 (gated), 0 or FALLBACK."""
     n = x.shape[0]
@@ -74,16 +76,12 @@ def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
     return 0
 
 
-def _actuator_coeffs_py(ts, fc, kz, kw):
+@kernel
+def _actuator_coeffs(ts, fc, kz, kw):
     """event.coefficients with zeta and omega0 scaled by k_zeta, k_omega (zeta kept below
     ZETA_MAX: eq. 1's discretisation is the underdamped one)."""
     z = fc[F_ZETA] * kz
     return event_coefficients(ts, z if z < ZETA_MAX else ZETA_MAX, fc[F_OMEGA0] * kw, fc[F_TAU])
-
-
-_consider = kernel(_consider_py)
-_angle_update = kernel(_angle_update_py)
-_actuator_coeffs = kernel(_actuator_coeffs_py)
 
 
 @kernel

@@ -77,13 +77,7 @@ def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldPa
     """(x after the inputs, CAC there at the last input's speed): predict_events. eta_scale
     multiplies the eta_N table (the adaptive filter's c). x: the first six states are used."""
     xa = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:6])
-    u0 = inputs[0]
-    held = True
-    for u in inputs:
-        if u is not u0:
-            held = False
-            break
-    rows = inputs[:1] if held else inputs
+    rows = inputs[:1] if all(u is inputs[0] for u in inputs) else inputs  # held: one row
     ua = np.array([(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool) for u in rows], dtype=np.float64)
     out = np.empty(6)
     cac = predict_events(xa, ua, len(inputs), out, *_args(params, eta_scale))
