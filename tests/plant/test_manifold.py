@@ -10,9 +10,9 @@ import pytest
 
 from vecu.bench.estimators import euler_event, manifold_rhs
 from vecu.models.manifold import (
-    actuator_coeffs,
     critical_pressure_ratio,
     cylinder_air_charge,
+    event_coefficients,
     f,
     flow_function,
     integrate_manifold,
@@ -42,6 +42,11 @@ P = V8_5L7
 SEEDS = (0, 1, 2)
 DEG = math.pi / 180.0
 NOISE_FREE = ManifoldPlantConfig(noise_scale=0.0)
+
+
+def actuator_coeffs(ts: float) -> tuple[float, float, float, float]:
+    """(a1, a2, b1, b2) of the corrected eq. 1."""
+    return event_coefficients(ts, P.zeta, P.omega0, P.tau_temp_s)[:4]
 
 
 def actuator_coeffs_printed(ts: float, params=P) -> tuple[float, float, float, float]:

@@ -341,13 +341,12 @@ def f_manifold_reference(x: Any, u: Any, ts: float, prm: Any = None) -> Any:
     """The event map of eq. 10 (vecu.models.manifold.f) through integrate_manifold_reference."""
     import numpy as np
 
-    from vecu.models.manifold import actuator_coeffs, iat_coeffs
     from vecu.models.manifold_params import V8_5L7
 
     prm = V8_5L7 if prm is None else prm
     u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
-    a1, a2, b1, b2 = actuator_coeffs(ts, prm)
-    a_t, b_t = iat_coeffs(ts, prm)
+    a1, a2, b1, b2, a_t, b_t = manifold.event_coefficients(ts, prm.zeta, prm.omega0,
+                                                           prm.tau_temp_s)
     p_n, t_n, _ = integrate_manifold_reference(p, t, alpha, u, ts, prm)
     return np.array([u.ta_sp, a1 * alpha + a2 * alpha_prev + b1 * u.ta_sp + b2 * u_prev, alpha,
                      p_n, t_n, a_t * tm + b_t * t])

@@ -48,8 +48,12 @@ def sample_time(n_rpm: float, n_cyl: int = 8) -> float:
 
 @kernel
 def event_coefficients(ts, zeta, omega0, tau):
-    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts: the corrected eq. 1 for the actuator
-    (zeta, omega0) and eq. 9 for the IAT sensor (tau); see actuator_coeffs and iat_coeffs."""
+    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts. The corrected eq. 1 for the actuator
+    (zeta, omega0), alpha_{n+1} = a1 alpha_n + a2 alpha_{n-1} + b1 u_n + b2 u_{n-1}: the exact
+    zero-order-hold discretisation of alpha'' = w0^2 (u - alpha) - 2 zeta w0 alpha', a1 = 2 a b,
+    a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b), a =
+    exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2); eq. 9 for
+    the IAT sensor (tau): a_T = exp(-ts / tau), b_T = 1 - a_T."""
     zw = zeta * omega0
     w_et = omega0 * math.sqrt(1.0 - zeta * zeta)
     a = math.exp(-zw * ts)
@@ -67,21 +71,6 @@ def event_map(co, u_prev, alpha, alpha_prev, sp, t, tm):
     one copy: the plant, the filters' event map and the CAC prediction call it."""
     a1, a2, b1, b2, a_t, b_t = co
     return a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, a_t * tm + b_t * t
-
-
-def actuator_coeffs(
-    ts: float, params: ManifoldParams = V8_5L7,
-) -> tuple[float, float, float, float]:
-    """(a1, a2, b1, b2) of the corrected eq. 1:
-    alpha_{n+1} = a1 alpha_n + a2 alpha_{n-1} + b1 u_n + b2 u_{n-1}.
-
-    Exact zero-order-hold discretisation of alpha'' = w0^2 (u - alpha) - 2 zeta w0 alpha' at ts:
-    a1 = 2 a b, a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b),
-    a = exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2).
-    """
-    a1, a2, b1, b2, _, _ = event_coefficients(ts, params.zeta, params.omega0,
-                                                 params.tau_temp_s)
-    return a1, a2, b1, b2
 
 
 # ------------------------------------------------------------------------- throttle flow, eq. 2-4
@@ -265,13 +254,6 @@ def steady_state(
     p = brentq(gap, p_lo, u.p_a, xtol=1e-10, rtol=1e-12)
     mdot, _ = throttle_flow(alpha, p, u.p_a, u.t_a, params)
     return p, temp(mdot)
-
-
-# ------------------------------------------------------------------------- IAT sensor, eq. 9
-
-def iat_coeffs(ts: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """(a_T, 1 - a_T) of eq. 9, a_T = exp(-T_s / tau_Temp)."""
-    return event_coefficients(ts, params.zeta, params.omega0, params.tau_temp_s)[4:]
 
 
 # ------------------------------------------------------------------------- augmented model

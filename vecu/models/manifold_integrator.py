@@ -2,9 +2,10 @@
 
 It is the hot loop of every run: the plant steps it once per engine event, the ECU's filter once
 and the 6-event air-charge prediction six times, each event ~15 sub-steps of two right-hand
-sides. It computes exactly what the reference functions of vecu.models.manifold compute
-(`_rhs` = `throttle_flow` + `volumetric_efficiency` + `heat_flow`), in the same floating-point
-operations and order (bit-identical results, tests/estimators/manifold/test_fast_paths.py), but:
+sides. It computes exactly what the model's functions (`throttle_flow`, `volumetric_efficiency`,
+`heat_flow`) compute, in the same floating-point operations and order (bit-identical to the
+plain steps, vecu.bench.estimators.integrate_manifold_reference; tests/estimators/manifold/
+test_fast_paths.py), but:
 - everything that is constant over one event is computed once per call: the throttle area and
   the C_d table column at the held angle alpha, Xi's factor, eta_N(N) and the pumping constant of
   the held input u, and the parameter set's constants (cached per ManifoldParams object);
