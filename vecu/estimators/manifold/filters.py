@@ -273,14 +273,12 @@ class _ManifoldKF:
             us[0, 0], us[0, 1], us[0, 2], us[0, 3], us[0, 4] = (u.ta_sp, u.n_rpm, u.p_a, u.t_a,
                                                                 u.t_cool)
             try:
-                done = self._run_block(ys, us, 0, xs, vs, horizon, cacs)
+                done = self._run_block(ys, us, 0, xs, vs, horizon, cacs, u)
             except (FloatingPointError, ValueError, ZeroDivisionError, np.linalg.LinAlgError):
                 done = 0  # step() runs the event again and decides (a reset)
             if done:
-                self._last_u = u
-                self.last_prediction = (u, self.last_prediction[1])  # type: ignore[index]
-                return (self.x_post.tolist(), float(cacs[0, 0]), float(cacs[0, 1]), 1.0, lap(),
-                        0.0)
+                c = cacs[0].tolist()
+                return self.x_post.tolist(), c[0], c[1], 1.0, lap(), 0.0
         x = self.step((y0, y1, y2), u).tolist()
         filter_s = lap()
         scale = 1.0
@@ -296,6 +294,7 @@ class _ManifoldKF:
 
     _runs = True  # whole runs of events go through filter_events (not the DARE modes)
     _lim: np.ndarray | None = None  # the plausibility limits (limits(config)), on first use
+    _counts: np.ndarray
     _bufs: tuple | None = None
 
     @property
@@ -349,33 +348,33 @@ class _ManifoldKF:
         return xs
 
     def _run_block(self, ys: np.ndarray, us: np.ndarray, start: int, xs: np.ndarray,
-                   vs: np.ndarray, horizon: int, cacs: np.ndarray) -> int:
-        """filter_events from event start; the state, counters and last inputs taken from the
-        events it ran. Returns the first event it did not run."""
+                   vs: np.ndarray, horizon: int, cacs: np.ndarray,
+                   u: EngineInput | None = None) -> int:
+        """filter_events from event start; the state, counters and last inputs (u: the last
+        event's, as given) taken from the events it ran. Returns the first event not run."""
         args = self._kargs
         if self._lim is None:
             self._lim = limits(self.config)
-        lim = self._lim
+            self._counts = np.zeros((2, 3), dtype=np.int64)  # gated in a row, gated
+        gr, gated = self._counts
+        gr[0], gr[1], gr[2] = self._gated_run
+        gated[0] = gated[1] = gated[2] = 0
         x, P, P_post = self.x.copy(), self.P.copy(), self.P_post.copy()
-        gr = np.array(self._gated_run, dtype=np.int64)
-        gated = np.zeros(3, dtype=np.int64)
         last_pred = np.empty(len(x))
         kind = self._KIND
-        ac = args[3] if kind == 2 else _NO_AC
         stop = filter_events(kind, x, P, P_post, ys, us, start, self.events, gr, gated, xs, vs,
-                             last_pred, lim, args[0], args[1], args[2], ac, *args[-6:], horizon,
-                             cacs)
+                             last_pred, self._lim, args[0], args[1], args[2],
+                             args[3] if kind == 2 else _NO_AC, *args[-6:], horizon, cacs)
         if stop == start:
             return start
         self.events += stop - start
         self.x, self.P, self.P_post = x, P, P_post
         self.x_post = xs[stop - 1].copy()
-        self._gated_run = [int(v) for v in gr]
-        for i in range(3):
-            self.gated[i] += int(gated[i])
+        self._gated_run = gr.tolist()
+        g = self.gated
+        g[0], g[1], g[2] = g[0] + int(gated[0]), g[1] + int(gated[1]), g[2] + int(gated[2])
         self._last_y = ys[stop - 1].tolist()
-        u = EngineInput(*us[stop - 1].tolist())
-        self._last_u = u
+        self._last_u = u = EngineInput(*us[stop - 1].tolist()) if u is None else u
         self.last_prediction = (u, last_pred)
         return stop
 
