@@ -376,10 +376,10 @@ class PlainManifoldSDKF:
     def step(self, y: Any, u: Any) -> Any:
         """One event: update with y (all three channels), then predict; returns x_n|n."""
         from vecu.estimators.common.covariance import cholesky_lower, symmetrise
-        from vecu.estimators.manifold.model import event_dt, sdc_matrices
+        from vecu.estimators.manifold.model import sdc_matrices
 
         np, c = self.np, self.cfg
-        ts = event_dt(u, c.params)
+        ts = manifold.sample_time(u.n_rpm, c.params.n_cyl)
         yv = np.array([float(v) for v in y])
         if self.x is None:
             self.x = np.array([yv[0], yv[0], yv[0], yv[1], yv[2], yv[2]])
@@ -406,7 +406,6 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
     times. Same profile, same run."""
     from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
     from vecu.estimators.manifold.factory import make_filter
-    from vecu.estimators.manifold.model import event_dt
     from vecu.eval.manifold import trace_inputs
     from vecu.models.manifold import cylinder_air_charge
     from vecu.plant.drive_profile import DriveProfile, us06_like
@@ -432,7 +431,7 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
         watch = Stopwatch()
         for y, u in zip(ys, inputs):
             x = flt.step(y, u)
-            ts = event_dt(u)
+            ts = manifold.sample_time(u.n_rpm)
             for _ in range(HORIZON):
                 x = f_manifold_reference(x, u, ts)
             cylinder_air_charge(float(x[3]), float(x[4]), u.n_rpm)

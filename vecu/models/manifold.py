@@ -9,12 +9,10 @@ State of one event n (the augmented x_n of eq. 10, 6 entries):
 where (u_prev, alpha, alpha_prev) is the non-minimal actuator state x_ET of eq. 1.
 Input: EngineInput (throttle setpoint TA_SP in rad, N, P_a, T_a, T_coolant).
 
-Layers:
-- pure model functions (actuator coefficients, eq. 2-4 flow, eq. 5-6 right-hand side, eq. 8, eq. 9,
-  steady state), usable by filters;
-- `integrate_manifold`: one event of eq. 5-6 in sub-steps of a two-stage Rosenbrock method with
-  the diagonal Jacobian (the printed single Euler step diverges at large openings);
-- `f`/`h`: the noise-free event map and output of the augmented model;
+Layers: the model's kernels (eq. 1 and 9 coefficients and event map, eq. 2-4 flow, eq. 8) and
+their functions on a parameter set; `integrate_manifold`, one event of eq. 5-6 in ROS2 sub-steps
+(vecu.models.manifold_integrator; the printed single Euler step diverges at large openings);
+`f`/`h`, the noise-free event map and output of the augmented model; steady states.
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ from vecu.models.manifold_params import (
     ManifoldNoise,
     ManifoldParams,
 )
-from vecu.plant.drive_profile import DriveProfile
+from vecu.plant.drive_profile import DriveProfile, profile_at
 from vecu.rng import rng_streams
 
 # ------------------------------------------------------------------------- stochastic plant
@@ -69,20 +69,6 @@ class ManifoldPlantConfig:
  C_SR0, C_SR1, C_SR2, C_G0, C_G1, C_G2, C_PMIN, C_PMAX, C_TMIN, C_TMAX, C_DURATION,
  C_DT) = range(24)
 N_PLANT_CONSTS = 24
-
-
-@kernel
-def profile_at(prof_n, prof_sp, dt_p, time):
-    """DriveProfile.at(time): (N interpolated linearly, the setpoint held)."""
-    last = len(prof_n) - 1
-    fx = time / dt_p
-    fx = 0.0 if 0.0 > fx else fx
-    fx = float(last) if float(last) < fx else fx
-    i = int(fx)
-    i = last - 1 if last - 1 < i else i
-    frac = fx - i
-    n = prof_n[i] + frac * (prof_n[i + 1] - prof_n[i])
-    return n, prof_sp[i if frac < 1.0 else i + 1]
 
 
 @kernel

@@ -29,13 +29,12 @@ from vecu.estimators.manifold.filters import (
 from vecu.estimators.manifold.model import (
     C_MATRIX,
     N_X,
-    event_dt,
     q_matrix,
     r_matrix,
     sdc_matrices,
 )
 from vecu.eval.manifold import evaluate_manifold, trace_inputs
-from vecu.models.manifold import f, nominal_input, steady_state_vector
+from vecu.models.manifold import f, nominal_input, sample_time, steady_state_vector
 from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import V8_5L7, EngineInput
 from vecu.plant.drive_profile import DriveProfile, us06_like
@@ -49,7 +48,7 @@ POINTS = [(15, 2000, 3.0, 5.0), (30, 3000, -10.0, -8.0), (60, 1500, 5.0, 3.0),
 
 def f_and_jacobian(x, u, params=V8_5L7, dt=None):
     """(f(x), df/dx) as the EKF's event computes them (event.jacobian)."""
-    ts = event_dt(u, params) if dt is None else dt
+    ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     xp = np.array([float(v) for v in x])
     fc = model_constants(params)
     c, cd_alpha, cd_table, prs, eta_rpm, eta_val = tables(params)

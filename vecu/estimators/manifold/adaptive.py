@@ -67,7 +67,7 @@ def eta_scale_used(c: Any, var: Any, p_drift: float, slab_sd: float) -> Any:
 
 
 class ManifoldAdaptive(_ManifoldKF):
-    """The adaptive EKF (see module). eta_scale / eta_sigma: c and its standard deviation."""
+    """The adaptive EKF (see module): c is x_post[6], its variance P_post[6, 6]."""
 
     name = "adaptive"
 
@@ -87,16 +87,6 @@ class ManifoldAdaptive(_ManifoldKF):
                                 c.eta_alpha_gate, *c.ta_gain_box, *c.act_box, ACT_FD]),
                       *tables(self.params))
         self.reset(count=False)
-
-    @property
-    def eta_scale(self) -> float:
-        """c of the posterior: eta_true / eta_calibrated (the filter's; the CAC uses
-        eta_used(c, its variance))."""
-        return float(self.x_post[6])
-
-    @property
-    def eta_sigma(self) -> float:
-        return float(math.sqrt(max(float(self.P_post[6, 6]), 0.0)))
 
     def eta_used(self, c: Any, var: Any) -> Any:
         """eta_scale_used with this filter's eta_drift_prior and eta_slab_sd."""

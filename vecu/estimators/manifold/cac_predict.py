@@ -86,7 +86,7 @@ def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldPa
 
 def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
                   params: ManifoldParams = V8_5L7) -> np.ndarray:
-    """x_n+len(inputs) from x_n through the noise-free event map of eq. 10 (model.f;
+    """x_n+len(inputs) from x_n through the noise-free event map of eq. 10 (models.manifold.f;
     predict_events)."""
     if not inputs:
         return np.array(np.asarray(x, dtype=float)[:6])

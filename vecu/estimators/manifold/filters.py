@@ -8,7 +8,7 @@ step(y, u) at event n: update with y_n (the measurement of x_n), store the poste
 (returned), then predict x_n+1|n with the event's input u_n (setpoint TA_SP,n, N_n, P_a, T_a, T_cool).
 
 - `ManifoldEKF`: recursive EKF; mean through the plant's sub-stepped event map f, F = df/dx at the
-  posterior (model.f_and_jacobian; event.ekf_event), P = F P F^T + Q.
+  posterior (event.jacobian, in event.ekf_event), P = F P F^T + Q.
 - `ManifoldSDKF`: eq. 12-14. Gain K_n = P_n C^T (C P_n C^T + R)^-1 with P_n from the Riccati
   equation of the SDC matrix A_n = A(x_n|n-1) (event.sdc_matrix). `riccati` selects
   how P_n is obtained:
@@ -69,14 +69,18 @@ from vecu.estimators.manifold.model import (  # noqa: F401 (RICCATI_MODES, dare_
     Y_INDEX,
     ManifoldFilterConfig,
     dare_doubling,
-    event_dt,
     input_problem,
     q_matrix,
     r_matrix,
     sdc_matrices,
 )
 from vecu.estimators.manifold.sequences import filter_events, limits
-from vecu.models.manifold import cylinder_air_charge, nominal_input, steady_state_vector
+from vecu.models.manifold import (
+    cylinder_air_charge,
+    nominal_input,
+    sample_time,
+    steady_state_vector,
+)
 from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import (
     EngineInput,
@@ -387,7 +391,7 @@ class _ManifoldKF:
         self.events += 1
         self.last_prediction = None
         u = self._check_input(u)
-        ts = event_dt(u, self.params)
+        ts = sample_time(u.n_rpm, self.params.n_cyl)
         chans = self._valid_channels(y)
         self._initialise(y, chans)
         self._event(y, u, ts, chans)

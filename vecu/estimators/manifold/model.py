@@ -65,11 +65,6 @@ def r_matrix(noise: ManifoldNoise = PAPER_NOISE) -> np.ndarray:
     return np.diag(np.array(noise.r_diag(), dtype=float))
 
 
-def event_dt(u: EngineInput, params: ManifoldParams = V8_5L7) -> float:
-    """T_s = 120 / (8 N) for this event's engine speed."""
-    return sample_time(u.n_rpm, params.n_cyl)
-
-
 def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
                  dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(A(x), B(x)) of eq. 10 with the paper's SDC factorisation (eq. 7), per event.
@@ -80,7 +75,7 @@ def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
     pi = kappa eta N V_d T_s / (120 V_im) (= kappa V_cyl eta / V_im at T_s = 120/(8N)).
     B_IM C_ET goes into the alpha column of A (eq. 10); alpha >= ALPHA_SDC_MIN in the division.
     """
-    ts = event_dt(u, params) if dt is None else dt
+    ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     fc = model_constants(params)
     A = np.zeros((N_X, N_X))
     co = coefficients(ts, fc)

@@ -1,16 +1,10 @@
-"""Filtering a sequence of engine events: the ECU's event with its air charge, a study's drive.
+"""Filtering a sequence of engine events (`filter_events`): the filters' `estimate` (the ECU's
+event with its air charge and 6-event prediction) and `run_events` (a study's drive) call it.
 
-`filter_events` runs the events of the "iterate" SDKF, the EKF or the adaptive EKF from start on,
-each event the one-event kernel step() calls (event.sdkf_event, event.ekf_event,
+Each event is the one-event kernel step() calls (event.sdkf_event, event.ekf_event,
 adaptive_event.adaptive_event), so a run gives bit for bit what stepping gives
-(tests/estimators/manifold/test_runs.py). It runs only the events the kernels decide alone: it
-stops at the first event with an implausible input, a rejected reading, a fallback or a
-divergence; the filter's step() takes that event, the next run starts after it. With a horizon
-it also computes each event's cylinder air charge and its prediction (predict_cac's numbers).
-
-The filters drive it (vecu.estimators.manifold.filters): `estimate`, the ECU's event (one
-filter_events call over that event with the 6-event horizon, or step() and predict_cac), and
-`run_events`, a drive's events in runs (the campaign's manifold study).
+(tests/estimators/manifold/test_runs.py). It stops at the first event the kernels cannot decide
+alone (an implausible input, a rejected reading, a fallback, a divergence): step() takes it.
 """
 
 from __future__ import annotations
