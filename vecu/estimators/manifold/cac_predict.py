@@ -192,7 +192,7 @@ def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, c, cd_alpha, cd_table, prs,
 def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb, eta_scale,
                       pred, fc, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
     """cac_predict.prediction_errors' predictions: pred[j] = CAC_pred(idx[j]) (kg) from
-    states[idx[j]] over the horizon (horizon_inputs: known or held setpoints, N held), the
+    states[idx[j]] over the horizon (the known setpoints, or the one held; N held), the
     eta_N table scaled by eta_scale[idx[j]] (1: the calibration as it is)."""
     last = len(ta_sp) - 1
     u = np.empty((horizon, 5))
