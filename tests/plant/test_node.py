@@ -77,32 +77,29 @@ def test_parse_kind_accepts_cli_spellings_and_rejects_unknown():
         parse_kind("explode")
 
 
-def test_manifold_events_computed_ahead_send_what_stepping_sends():
-    """Under numba ManifoldPart computes its events ahead in blocks (EventsAhead): the same
-    frames, times and truth as stepping ManifoldPlant, across block refills, noise blocks and
-    the switches to the next legs of the drive (vecu.plant.drive: one profile per manoeuvre)."""
+def test_manifold_events_computed_ahead_are_the_same_under_both_backends():
+    """ManifoldPart computes its events ahead in blocks (EventsAhead: truth_events, compiled
+    or as Python): the same frames, times and truth under both backends, across block refills,
+    noise blocks and the switches to the next legs of the drive (vecu.plant.drive: one profile
+    per manoeuvre). truth_events against the event-by-event loop: tests/plant/test_manifold.py."""
     pytest.importorskip("numba")
     from vecu.codec import shared_codec
     from vecu.kernels import using
     from vecu.plant.node import ManifoldPart
 
     codec = shared_codec()
-    with using("numba"):
-        ahead = ManifoldPart(codec, seed=3)
-    with using("python"):
-        stepped = ManifoldPart(codec, seed=3)
-    assert ahead._ahead is not None and stepped._ahead is None
     runs = []
-    for part in (ahead, stepped):
-        part.truth_msg = codec["TRUTH_Manifold"]
-        sent: list[tuple[float, int, bytes]] = []
+    for backend in ("numba", "python"):
+        with using(backend):
+            part = ManifoldPart(codec, seed=3)
+            part.truth_msg = codec["TRUTH_Manifold"]
+            sent: list[tuple[float, int, bytes]] = []
 
-        def send(m, sent=sent):
-            sent.append((m.timestamp, m.arbitration_id, bytes(m.data)))
-            return True
+            def send(m, sent=sent):
+                sent.append((m.timestamp, m.arbitration_id, bytes(m.data)))
+                return True
 
-        t_ns, times = 0, []
-        with using("numba" if part is ahead else "python"):
+            t_ns, times = 0, []
             while part._profile_index < 3 or len(times) % 300:  # into the fourth leg
                 times.append(t_ns)
                 t_ns = part.event(t_ns, send)

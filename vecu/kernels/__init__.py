@@ -164,7 +164,7 @@ def kernel_cache_dirs() -> list[Path]:
 class Kernel:
     """A numba-compatible function, compiled on first use under the numba backend."""
 
-    __slots__ = ("_compiled", "_fixed", "_options", "_setup", "py", "small")
+    __slots__ = ("_compiled", "_options", "_setup", "_signature", "py", "small")
 
     def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
         self.py = fn
@@ -172,7 +172,7 @@ class Kernel:
         self._setup: Callable[[], None] | None = options.pop("setup", None)
         self._options = options
         self._compiled: Callable[..., Any] | None = None
-        self._fixed = False
+        self._signature: tuple | Callable[[], tuple] | None = None
 
     @property
     def compiled(self) -> Callable[..., Any]:
@@ -190,6 +190,8 @@ class Kernel:
             else:
                 _drop_stale_cache(compiled, self.py)
             self._compiled = compiled
+            if self._signature is not None:
+                self._fix()
         return self._compiled
 
     def discard_compiled(self) -> None:
@@ -199,23 +201,27 @@ class Kernel:
             if cache is not None:
                 cache.flush()
         self._compiled = None
-        self._fixed = False
 
-    def fix_signature(self, signature: tuple) -> None:
-        """Under the numba backend, compile (or load from numba's cache) this one signature now
-        and switch further compilation off: an int or numpy-scalar argument then converts to it
-        instead of compiling a new specialisation in the middle of a run. Nothing otherwise,
-        nor once fixed."""
-        if backend() != "numba" or self._fixed:
-            return
-        disp = self.compiled
-        disp.compile(signature)
-        disp.disable_compile()
-        self._fixed = True
+    def fix_signature(self, signature: tuple | Callable[[], tuple]) -> None:
+        """Declare this kernel's one signature (numba types, or a function returning them, so
+        that numba is imported only to compile): numba compiles it (or loads it from its cache)
+        when the kernel is first compiled, and no other; an int or numpy-scalar argument then
+        converts to it instead of compiling a new specialisation in the middle of a run."""
+        self._signature = signature
+        if self._compiled is not None:
+            self._fix()
+
+    def _fix(self) -> None:
+        sig = self._signature
+        self._signature = sig = sig() if callable(sig) else sig
+        assert self._compiled is not None and sig is not None
+        self._compiled.compile(sig)  # type: ignore[attr-defined]  # a numba dispatcher
+        self._compiled.disable_compile()  # type: ignore[attr-defined]  # as above
 
     def fix_types(self, *example: Any) -> None:
-        """fix_signature for the types of these example arguments (numba.typeof of each)."""
-        if backend() == "numba" and not self._fixed:
+        """fix_signature for the types of these example arguments (numba.typeof of each), under
+        the numba backend and once (a kernel's signature is declared one time)."""
+        if backend() == "numba" and self._signature is None:
             self.fix_signature(tuple(_import_numba().typeof(a) for a in example))
 
     def impl(self) -> Callable[..., Any]:

@@ -11,26 +11,17 @@ from __future__ import annotations
 import logging
 
 import can
-import numpy as np
 
 from vecu.bus import BusNode
 from vecu.clock import NS_PER_S
 from vecu.codec import DbcCodec
 from vecu.faults import FaultInjector, fault_event_signals
-from vecu.kernels import backend
 from vecu.models.manifold import (
-    cylinder_air_charge,
     nominal_input,
-    sample_time,
     steady_state_vector,
 )
 from vecu.plant.drive import Drive, LongitudinalPart
-from vecu.plant.manifold import (
-    EventsAhead,
-    ManifoldPlant,
-    ManifoldPlantConfig,
-    compiled_tables,
-)
+from vecu.plant.manifold import EventsAhead, ManifoldPlantConfig
 from vecu.plant.part import PlantPart, Send
 from vecu.plant.throttle import ThrottlePart
 from vecu.rng import rng_streams
@@ -64,9 +55,8 @@ class ManifoldPart:
         n0, sp0 = self._profile.at(0.0)
         rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
         x0 = steady_state_vector(nominal_input(sp0, n0, engine), engine)
-        self.plant = ManifoldPlant(engine, config, rng, x0)
-        # under the numba backend the events are computed ahead in blocks (same numbers)
-        self._ahead = self._events_ahead(config, rng, x0)
+        self._ahead = EventsAhead(engine, config, rng, x0)  # the events, in blocks
+        self._ahead.start_profile(self._profile)
         self._rows: list[list[float]] = []
         self._times: list[int] = []
         self._i = 0
@@ -75,58 +65,22 @@ class ManifoldPart:
         # truth of the events so far (absolute event index -> P_im kPa, T_im K, CAC kg)
         self.truth: dict[int, tuple[float, float, float]] = {}
 
-    def _events_ahead(self, config: ManifoldPlantConfig, rng: np.random.Generator,
-                      x0: np.ndarray) -> EventsAhead | None:
-        if backend() != "numba" or not EventsAhead.usable(self._profile):
-            return None
-        tables = compiled_tables(self._engine)
-        if tables is None:
-            return None
-        ahead = EventsAhead(self._engine, config, rng, x0, tables)
-        ahead.start_profile(self._profile)
-        return ahead
-
     def _next_profile(self) -> None:
         """The next leg's profile, continuing from the current state, where the last one ended."""
         self._profile_index += 1
         leg = self.drive.leg(self._profile_index)
         self._profile = leg.profile
         self._t0_ns = leg.start * round(self.drive.dt_s * NS_PER_S)
-        if self._ahead is not None:
-            if EventsAhead.usable(self._profile):
-                self._ahead.start_profile(self._profile)
-            else:  # (not for drive profiles) go on stepping ManifoldPlant from here
-                self.plant.x = self._ahead.state.tolist()
-                self._ahead = None
-
-    def _step(self, t_ns: int) -> tuple[float, ...]:
-        """One event stepped by ManifoldPlant: (N, TA_SP, the TA, P_im and T_im.out readings,
-        the truth's P_im, T_im and CAC, the next event's time)."""
-        t_s = (t_ns - self._t0_ns) / NS_PER_S
-        while t_s >= self._profile.duration_s:
-            self._next_profile()
-            t_s = (t_ns - self._t0_ns) / NS_PER_S
-        n, sp = self._profile.at(t_s)
-        plant = self.plant
-        ta, p_kpa, t_meas = plant.measure()
-        p_true, t_true = plant.p_im, plant.t_im
-        cac_true = cylinder_air_charge(p_true, t_true, n, self._engine)
-        dt = sample_time(n, self._engine.n_cyl)
-        plant.step(nominal_input(sp, n, self._engine), dt)
-        return (n, sp, ta, p_kpa, t_meas, p_true, t_true, cac_true,
-                t_ns + max(1, round(dt * NS_PER_S)))
+        self._ahead.start_profile(self._profile)
 
     def _from_ahead(self, t_ns: int) -> tuple[float, ...]:
         """The event at t_ns from the events computed ahead (EventsAhead), refilled as needed."""
         ahead = self._ahead
-        assert ahead is not None
         i = self._i
         if i >= len(self._rows):
             k = ahead.fill(t_ns, self._t0_ns)
             while k == 0:  # the profile ends before t_ns
                 self._next_profile()
-                if self._ahead is None:
-                    return self._step(t_ns)
                 k = ahead.fill(t_ns, self._t0_ns)
             self._rows = ahead.out[:k].tolist()
             self._times = [*ahead.times[:k].tolist(), ahead.next_ns]
@@ -139,8 +93,7 @@ class ManifoldPart:
 
     def event(self, t_ns: int, send: Send) -> int:
         """One engine event at t_ns; returns the time of the next one."""
-        n, sp, ta, p_kpa, t_meas, p_true, t_true, cac_true, next_ns = (
-            self._from_ahead(t_ns) if self._ahead is not None else self._step(t_ns))
+        n, sp, ta, p_kpa, t_meas, p_true, t_true, cac_true, next_ns = self._from_ahead(t_ns)
         k = self.events
         self.truth[k] = (p_true, t_true, cac_true)
         self.truth.pop(k - 64, None)  # bounded: probes look back a few events only
