@@ -26,6 +26,13 @@ mechanism for every kernel, no module keeps a guard of its own.
 Plain-Python hot paths call `k.py` directly: a compiled call from Python costs more than a tiny
 kernel.
 
+A numpy form (`@kernel(python=numpy_fn)`): the python backend runs numpy_fn instead of the loops
+(the numba backend still compiles fn). A kernel may carry a numpy form only when its loops as
+plain Python would make the python backend unusable (per-particle loops: the throttle particle
+filter's step and resampling, vecu.estimators.throttle.pf); both forms are tested against each
+other (same draws and decisions, results equal to rounding). The choice stays here: callers
+call `k(...)` under either backend.
+
 Same seed, same backend -> bit-identical output. The two backends agree to rounding (a few ulp:
 numba's vector reductions and libm calls may round differently from numpy's); for kernels that
 only do scalar IEEE arithmetic and libm calls the outputs are bit-identical (tested per kernel).
@@ -156,10 +163,12 @@ def kernel_cache_dirs() -> list[Path]:
 class Kernel:
     """A numba-compatible function, compiled on first use under the numba backend."""
 
-    __slots__ = ("_compiled", "_options", "py")
+    __slots__ = ("_compiled", "_options", "plain", "py")
 
-    def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
+    def __init__(self, fn: Callable[..., Any], options: dict[str, Any],
+                 python: Callable[..., Any] | None = None) -> None:
         self.py = fn
+        self.plain = fn if python is None else python  # what the python backend runs
         self._options = options
         self._compiled: Callable[..., Any] | None = None
 
@@ -197,11 +206,13 @@ class Kernel:
 
     def impl(self) -> Callable[..., Any]:
         """The function for the active backend (hot callers fetch it once per call site)."""
-        return self.compiled if backend() == "numba" else self.py
+        return self.compiled if backend() == "numba" else self.plain
 
     def __call__(self, *args: Any) -> Any:
         if _active == "python":  # the common case first: a kernel calling kernels in Python
-            return self.py(*args)
+            return self.plain(*args)
+        if _active == "numba" and self._compiled is not None:
+            return self._compiled(*args)
         return self.impl()(*args)
 
 
@@ -245,6 +256,8 @@ def _module_key(module: ModuleType) -> bytes:
             h.update(name.encode() + repr(v).encode())
         elif type(v).__name__ == "ndarray":
             h.update(name.encode() + str((v.dtype, v.shape)).encode() + v.tobytes())
+        elif type(v).__module__ == "numpy.dtypes":  # a record layout kernels view arrays as
+            h.update(name.encode() + repr(v.descr).encode())
     key = h.digest()
     _module_keys[module.__name__] = (module, key)
     return key
@@ -319,11 +332,13 @@ def _drop_stale_cache(compiled: Any, fn: Callable[..., Any]) -> None:
         pass
 
 
-def kernel(fn: Callable[..., Any] | None = None, **options: Any) -> Any:
+def kernel(fn: Callable[..., Any] | None = None, *, python: Callable[..., Any] | None = None,
+           **options: Any) -> Any:
     """Decorator: `@kernel` or `@kernel(error_model="numpy")`; numba options pass through
-    (never fastmath: it would break the agreement with the Python path)."""
+    (never fastmath: it would break the agreement with the Python path). python: the numpy
+    form the python backend runs instead of fn (see the module: only for per-element loops)."""
     if "fastmath" in options:
         raise ValueError("fastmath is not allowed in vecu kernels")
     if fn is None:
-        return lambda f: Kernel(f, options)
-    return Kernel(fn, options)
+        return lambda f: Kernel(f, options, python)
+    return Kernel(fn, options, python)
