@@ -190,7 +190,7 @@ SPEC = EcuFunctionSpec(
         ("vecu.plant.throttle", "ThrottlePlant", "step", "plant: throttle model step"),
         ("vecu.plant.throttle", "InputGenerator", "next", "plant: throttle input generator"),
         ("vecu.ecu.throttle_function", "ThrottleFunction", "run", "ecu: throttle function"),
-        ("vecu.estimators.throttle.production", "ThrottleParticleFilter", "step",
+        ("vecu.estimators.throttle.pf.filter", "ThrottleParticleFilter", "step",
          "estimator: throttle production PF/KF"),
         ("vecu.functions.throttle", "ThrottleProbe", "tick", "probes"),
     ),
