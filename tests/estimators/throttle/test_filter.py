@@ -16,7 +16,7 @@ import pytest
 
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.estimators.throttle.pf.filter import ThrottleParticleFilter, make_production_estimator
-from vecu.estimators.throttle.pf.kalman_stretch import ModeThreeKalman
+from vecu.estimators.throttle.pf.kalman_stretch import ModeThreeKalman, mode3_predict, mode3_update
 from vecu.estimators.throttle.pf.model import class_matrix_stack
 from vecu.models.throttle import TABLE_I, step_mean
 from vecu.plant.throttle import simulate
@@ -128,24 +128,21 @@ def test_kalman_moments_match_numpy():
     mean = np.array([50.0, 1.0, 3.0])
     kf = ModeThreeKalman(0.35, 0.18)
     kf.load(mean, cov)
-    kf.predict(5.0)
+    x = mode3_predict(tuple(kf.x.tolist()), kf.coef, 0.35, 0.18, 5.0)
     pp = a @ cov @ a.T + q
-    got = np.array([[kf.p00, kf.p01, kf.p02], [kf.p01, kf.p11, kf.p12],
-                    [kf.p02, kf.p12, kf.p22]])
-    np.testing.assert_allclose(got, pp, rtol=1e-12)
+
+    def cov_of(x):
+        return np.array([[x[3], x[4], x[5]], [x[4], x[6], x[7]], [x[5], x[7], x[8]]])
+
+    np.testing.assert_allclose(cov_of(x), pp, rtol=1e-12)
     th, rh, ci = step_mean(50.0, 1.0, 3.0, 5.0)
     rh += p.c1 * (math.erf(1.0 / math.sqrt(2.0 * cov[1, 1])) - 1.0)  # E[sgn rho], not sgn
-    assert abs(kf.th - th) < 1e-12 and abs(kf.ci - ci) < 1e-12 and abs(kf.rh - rh) < 1e-12
-    r, s = kf.innovation(10.0)
-    mi, vi = kf.ci, kf.p22
-    assert math.isclose(s, 4 * mi * mi * vi + 2 * vi * vi + 1.0)
-    before = got.copy()
-    kf.update(r, s)
-    k = 2 * mi * before[:, 2] / s
-    after = before - np.outer(k, k) * s
-    got = np.array([[kf.p00, kf.p01, kf.p02], [kf.p01, kf.p11, kf.p12],
-                    [kf.p02, kf.p12, kf.p22]])
-    np.testing.assert_allclose(got, after, rtol=1e-9, atol=1e-12)
+    assert abs(x[0] - th) < 1e-12 and abs(x[2] - ci) < 1e-12 and abs(x[1] - rh) < 1e-12
+    mi, vi = x[2], x[8]
+    s = 4 * mi * mi * vi + 2 * vi * vi + 1.0  # Var[i^2] + R under N(mi, vi)
+    k = 2 * mi * pp[:, 2] / s
+    np.testing.assert_allclose(cov_of(mode3_update(x, 10.0 - mi * mi - vi, s)),
+                               pp - np.outer(k, k) * s, rtol=1e-9, atol=1e-12)
 
 
 def test_bad_measurements_are_rejected_and_never_nan():

@@ -142,8 +142,7 @@ mode3_tick = kernel(_mode3_tick, python=_tick_on_floats)
 
 class ModeThreeKalman:
     """The Kalman filter of the stretches on a state record's kf_* fields (its own record
-    unless one is given): load, predict, innovation, update, cholesky; the tick runs
-    mode3_tick on the same fields (pf.recursion)."""
+    unless one is given); the tick runs mode3_tick on the same fields (pf.recursion)."""
 
     __slots__ = ("coef", "prm", "q_i", "q_th", "r", "x")
 
@@ -174,19 +173,6 @@ class ModeThreeKalman:
     def load(self, mean: np.ndarray, cov: np.ndarray) -> None:
         self.x[:] = (mean[0], mean[1], mean[2], cov[0, 0], cov[0, 1], cov[0, 2], cov[1, 1],
                      cov[1, 2], cov[2, 2])
-
-    def predict(self, u: float) -> None:
-        """mode3_predict."""
-        self.x[:] = mode3_predict(tuple(self.x.tolist()), self.coef, self.q_th, self.q_i, u)
-
-    def innovation(self, y: float) -> tuple[float, float]:
-        """(y - E[y], Var[y]) under the current Gaussian (eq. 4 moments)."""
-        m, s2 = self.ci, self.p22
-        return y - (m * m + s2), 4.0 * m * m * s2 + 2.0 * s2 * s2 + self.r
-
-    def update(self, r: float, s: float) -> None:
-        """mode3_update."""
-        self.x[:] = mode3_update(tuple(self.x.tolist()), r, s)
 
     def cholesky(self) -> tuple[float, float, float, float, float, float]:
         """Lower Cholesky factor (l00, l10, l11, l20, l21, l22) of P (pivots floored at 1e-12:

@@ -246,46 +246,39 @@ def pf_step(FB, cur, mats, s, ztab, u, lo_prev, hi_prev, o1, o2, mode, yc, extre
     c_hi = (1 if hi_prev > k0 else 0) + (1 if hi_prev > k1 else 0) + (1 if hi_prev > k2 else 0)
     # eq. (3): th = mats row 3c . [theta, rho, i, 1, sgn rho] (+ noise, clipped), likewise rho
     # and the predicted current m (into row ci; its constant column is b_c u). Every particle's
-    # class lies between those of lo_prev and hi_prev: one class, one pass per row (class c
-    # overwriting the particles above its lower bound); several, one pass per row with the
-    # class picked per particle (eq3_row, the same arithmetic); NaN theta: the lowest class.
+    # class lies between those of lo_prev and hi_prev (NaN theta: the lowest): one class, one
+    # plain pass per row; several, one pass per row with the class picked per particle
+    # (eq3_row, the same arithmetic). One output row per loop: few enough arrays for LLVM's
+    # alias checks, so every loop vectorises.
     c_end = 3 if (c_lo == 3 or c_hi < c_lo) else c_hi  # c_hi < c_lo: hi_prev NaN
-    if c_end > c_lo:  # several classes: one pass per row, the class picked per particle
-        # (slot s = the bounds below theta -> class clamp(s, c_lo, c_end))
+    if c_end > c_lo:  # slot s = the bounds below theta -> class clamp(s, c_lo, c_end)
         s1 = c_lo if c_lo > 1 else (1 if c_end > 1 else c_end)
         s2 = c_lo if c_lo > 2 else (2 if c_end > 2 else c_end)
         eq3_row(th, th0, rh0, ci0, mats, s, u, 0, c_lo, s1, s2, c_end, zth, True)
         eq3_row(rh, th0, rh0, ci0, mats, s, u, 1, c_lo, s1, s2, c_end, zth, False)
         eq3_row(ci, th0, rh0, ci0, mats, s, u, 2, c_lo, s1, s2, c_end, zth, False)
-        c_end = -1  # done
-    for c in range(c_lo, c_end + 1):
-        r = 3 * c
+    else:
+        r = 3 * c_lo
         a0, a1, a2, a3, a4 = mats[r, 0], mats[r, 1], mats[r, 2], mats[r, 3], mats[r, 4]
         b0, b1, b2, b3, b4 = (mats[r + 1, 0], mats[r + 1, 1], mats[r + 1, 2], mats[r + 1, 3],
                               mats[r + 1, 4])
-        d0, d1, d2, d3, d4 = (mats[r + 2, 0], mats[r + 2, 1], mats[r + 2, 2], cb[c] * u,
+        d0, d1, d2, d3, d4 = (mats[r + 2, 0], mats[r + 2, 1], mats[r + 2, 2], cb[c_lo] * u,
                               mats[r + 2, 4])
-        first = c == c_lo
-        kb = bnd[c - 1] if c > 0 else 0.0  # class >= c: theta > kb
-        # one output row per loop: few enough arrays for LLVM's alias checks, so it vectorises
         for j in range(n):
             x1 = rh0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)  # NaN rho: all rows NaN anyway
             t = a0 * th0[j] + a1 * x1 + a2 * ci0[j] + a3 + a4 * sg
             t = t + zth[j]
             t = 90.0 if t > 90.0 else t
-            t = 0.0 if t < 0.0 else t  # numpy clips all at 0 if the minimum is below: same
-            th[j] = t if (first or th0[j] > kb) else th[j]
+            th[j] = 0.0 if t < 0.0 else t  # numpy clips all at 0 if the minimum is below: same
         for j in range(n):
             x1 = rh0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            t = b0 * th0[j] + b1 * x1 + b2 * ci0[j] + b3 + b4 * sg
-            rh[j] = t if (first or th0[j] > kb) else rh[j]
+            rh[j] = b0 * th0[j] + b1 * x1 + b2 * ci0[j] + b3 + b4 * sg
         for j in range(n):
             x1 = rh0[j]
             sg = 1.0 if x1 > 0.0 else (-1.0 if x1 < 0.0 else 0.0)
-            t = d0 * th0[j] + d1 * x1 + d2 * ci0[j] + d3 + d4 * sg
-            ci[j] = t if (first or th0[j] > kb) else ci[j]
+            ci[j] = d0 * th0[j] + d1 * x1 + d2 * ci0[j] + d3 + d4 * sg
     inv_c2, kappa, neg_k2, neg_four_s2 = s.inv_c2, s.kappa, s.neg_k2, s.neg_four_s2
     if mode == PRIOR:  # prior current, weights unchanged
         for j in range(n):
