@@ -365,6 +365,7 @@ class BusNode:
         self.tap = tap
         self.rx_budget = rx_budget
         self.rx_shed = 0  # frames read past rx_budget.frames_per_tick and dropped undecoded
+        self.rx_peak = 0  # the most frames read in one tick (at most the budget's two parts)
         self.handler_errors: dict[str, int] = {}  # by handler: requests whose handling raised
         self._log = logging.getLogger(f"vecu.{name}")
 
@@ -374,12 +375,16 @@ class BusNode:
         bus: the tick's receive work is bounded whatever arrives. The first shed is logged."""
         recv = self.bus.recv
         before = self.rx_shed
-        for _ in range(self.rx_budget.shed_per_tick):
+        n = 0
+        for n in range(self.rx_budget.shed_per_tick):  # noqa: B007 (n: how many were read)
             msg = recv(0.0)
             if msg is None:
                 break
             if keep is None or not keep(msg):
                 self.rx_shed += 1
+        else:
+            n = self.rx_budget.shed_per_tick
+        self.rx_peak = max(self.rx_peak, self.rx_budget.frames_per_tick + n)
         if before == 0 and self.rx_shed:
             self._log.warning("%s: receive flood: frames beyond %d per tick are shed and counted "
                               "(rx_shed)", self.node_name, self.rx_budget.frames_per_tick)
@@ -388,12 +393,13 @@ class BusNode:
         """The boundary of a command handler or periodic sampler (XCP, UDS, FI / RB commands):
         its error is counted by handler and logged once with its traceback; the node goes on
         ticking. Only what a client can provoke goes through here; a function's own error is a
-        bug and propagates."""
-        n = self.handler_errors.get(handler, 0) + 1
-        self.handler_errors[handler] = n
+        bug and propagates. Counted as "handler: ExceptionType"."""
+        kind = f"{handler}: {type(exc).__name__}"
+        n = self.handler_errors.get(kind, 0) + 1
+        self.handler_errors[kind] = n
         if n == 1:
             self._log.error("%s: %s failed (counted in handler_errors; further ones not logged)",
-                            self.node_name, handler, exc_info=exc)
+                            self.node_name, kind, exc_info=exc)
 
     def send(self, msg: can.Message) -> bool:
         """Send one frame; True when the bus took it (a failure is counted and logged)."""

@@ -60,6 +60,7 @@ def test_a_tick_takes_its_budget_sheds_the_next_and_leaves_the_rest_in_the_bus(s
         ecu.tick(k * NS_PER_MS)
     assert (rx.received, rx.unknown_id, rx.shed) == (100, 36, 64)
     assert rx.received == rx.accepted + rx.ignored + rx.rejected + rx.diagnostic + rx.shed
+    assert ecu.rx_peak == 24  # the most frames read in one tick: the budget's two parts
     # every 1 ms a throttle estimate, flood or not
     assert sum(m.arbitration_id == 0x200 for m in _drain(tester)) == 5
 
@@ -130,7 +131,7 @@ def test_a_service_that_raises_answers_general_reject_and_the_node_goes_on(setup
     response = Response.from_payload(bytes(answers[0].data[1:1 + answers[0].data[0]]))
     assert not response.positive and response.code == Response.Code.GeneralReject
     assert uds.stats.handler_errors == 1
-    assert ecu.handler_errors == {"uds service 0x22": 1}
+    assert ecu.handler_errors == {"uds service 0x22: ZeroDivisionError": 1}
     assert sum(m.arbitration_id == 0x200 for m in sent) == 5
 
 
@@ -145,7 +146,7 @@ def test_a_diagnostic_server_whose_tick_raises_is_counted_and_the_node_goes_on(s
     monkeypatch.setattr(uds, "tick", broken)
     for k in range(10):
         ecu.tick(k * NS_PER_MS)
-    assert ecu.handler_errors == {"UdsServer.tick": 10}
+    assert ecu.handler_errors == {"UdsServer.tick: RuntimeError": 10}
     assert sum(m.arbitration_id == 0x200 for m in _drain(tester)) == 10
 
 

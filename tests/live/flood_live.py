@@ -20,6 +20,7 @@ from udsoncan.connections import PythonIsoTpConnection
 from udsoncan.exceptions import TimeoutException
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from tests.live.pair import start_ecu_and_plant
 from tests.uds.sim import CLIENT_CONFIG
 from vecu.live.scenario import stop_all
 
@@ -30,14 +31,6 @@ FLOOD = 100_000
 FLOOD_FRAMES = (can.Message(arbitration_id=0x100, data=bytes(4), is_extended_id=False),
                 can.Message(arbitration_id=0x101, data=bytes(3), is_extended_id=False),
                 can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False))
-
-
-def _wait(path: Path, what: str) -> None:
-    for _ in range(900):
-        if path.exists():
-            return
-        time.sleep(0.1)
-    raise RuntimeError(f"{what} did not get ready")
 
 
 def _listen(stop: threading.Event, seen: list[float]) -> None:
@@ -54,22 +47,13 @@ def _listen(stop: threading.Event, seen: list[float]) -> None:
 
 
 def main(out: Path) -> dict:
-    vecu = [sys.executable, "-m", "vecu"]
     procs: list[subprocess.Popen] = []
     res: dict = {}
     stop = threading.Event()
     seen: list[float] = []
     try:
-        procs.append(subprocess.Popen(
-            [*vecu, "ecu", *BUS, "--ready-file", str(out / "ecu.ready"), "--sync-timeout", "30",
-             "--duration", "120", "--summary", str(out / "ecu.json"), "--quiet"],
-            stderr=open(out / "ecu.err", "w")))  # noqa: SIM115 - the child holds it
-        _wait(out / "ecu.ready", "vecu ecu")
-        procs.append(subprocess.Popen(
-            [*vecu, "plant", *BUS, "--duration", "110", "--quiet", "--ready-file",
-             str(out / "plant.ready"), "--summary", str(out / "plant.json")],
-            stderr=open(out / "plant.err", "w")))  # noqa: SIM115 - the child holds it
-        _wait(out / "plant.ready", "vecu plant")
+        procs = start_ecu_and_plant(out, BUS, plant_s=110,
+                                    plant_args=("--summary", str(out / "plant.json")))
         listener = threading.Thread(target=_listen, args=(stop, seen), daemon=True)
         listener.start()
         time.sleep(2.0)  # the ECU runs on the plant's frames

@@ -19,6 +19,7 @@ from udsoncan.connections import PythonIsoTpConnection
 from udsoncan.exceptions import TimeoutException
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from tests.live.pair import start_ecu_and_plant
 from tests.uds.sim import CLIENT_CONFIG
 from vecu.live.scenario import stop_all
 
@@ -32,21 +33,7 @@ def main(out: Path) -> dict:
     procs = []
     res: dict = {}
     try:
-        procs.append(subprocess.Popen(
-            [*vecu, "ecu", *BUS, "--ready-file", str(out / "ecu.ready"), "--sync-timeout", "20",
-             "--duration", "120", "--summary", str(out / "ecu.json"), "--quiet",
-             "--tps-timeout-cycles=100"], stderr=open(out / "ecu.err", "w")))  # noqa: SIM115 - the child holds it
-        for _ in range(600):
-            if (out / "ecu.ready").exists():
-                break
-            time.sleep(0.1)
-        procs.append(subprocess.Popen(
-            [*vecu, "plant", *BUS, "--duration", "90", "--quiet", "--ready-file",
-             str(out / "plant.ready")], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 - the child holds it
-        for _ in range(600):
-            if (out / "plant.ready").exists():
-                break
-            time.sleep(0.1)
+        procs += start_ecu_and_plant(out, BUS, ("--tps-timeout-cycles=100",))
         bus = can.Bus(interface=INTERFACE, channel=CHANNEL)
         stack = isotp.CanStack(bus, address=isotp.Address(
             isotp.AddressingMode.Normal_11bits, txid=0x7E0, rxid=0x7E8))

@@ -74,3 +74,41 @@ class XcpSim(SimRun):
         if "error" in out:
             raise out["error"]
         return out["result"]
+
+
+class RawMaster:
+    """Raw XCP frames on the run's channel, the simulated clock stepped by hand: send CTOs,
+    step, and read what came back (the slave's packets) and which ticks the ECU broadcast its
+    throttle estimate in (decoded from the bus)."""
+
+    def __init__(self, sim: XcpSim) -> None:
+        self.sim = sim
+        self.bus = sim.bus()
+        cfg = sim.config.params.ecu.xcp
+        self.master_id, self.slave_id = cfg.master_id, cfg.slave_id
+        self.estimate = sim.codec["ECU_ThrottleEstimate"]
+        self.estimates: list[dict[str, float]] = []  # every ECU_ThrottleEstimate, decoded
+
+    def send(self, *ctos: bytes) -> None:
+        import can
+
+        for cto in ctos:
+            self.bus.send(can.Message(arbitration_id=self.master_id, data=cto,
+                                      is_extended_id=False))
+
+    def step(self, ticks: int = 1) -> list[bytes]:
+        """Step the clock; the slave's packets sent meanwhile (DTOs included)."""
+        out = []
+        for _ in range(ticks):
+            self.sim.step()
+            while (msg := self.bus.recv(0.0)) is not None:
+                if msg.arbitration_id == self.slave_id:
+                    out.append(bytes(msg.data))
+                elif msg.arbitration_id == self.estimate.frame_id:
+                    self.estimates.append(self.estimate.decode(msg.data))
+        return out
+
+    def ask(self, cto: bytes, ticks: int = 1) -> list[bytes]:
+        """One command, the clock stepped `ticks`: the slave's packets (DTOs included)."""
+        self.send(cto)
+        return self.step(ticks)

@@ -173,6 +173,7 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
         "rx": ecu.rx.as_dict(),  # rx.shed: frames past ecu.rx.frames_per_tick, dropped (a flood)
         # requests a diagnostic server could not handle (counted, answered or dropped; docs/live.md)
         "handler_errors": ecu.handler_errors,
+        "rx_peak_per_tick": ecu.rx_peak,  # the most frames read in one tick (ecu.rx.* bound it)
         # what the host did (issue 29): this ECU not running, and what the sensor frames'
         # sender reported of its own skipped / late ticks (PLANT_Host)
         # every DTC confirmation, per monitored sensor: epoch seconds (bench: false DTCs)

@@ -386,6 +386,8 @@ class EcuNode(BusNode):
             if not n:
                 self._shed(t_ns)
                 break
+        else:
+            self.rx_peak = max(self.rx_peak, self.rx_budget.frames_per_tick - n)
         send = self._app_send
         for fn in self._armed:
             if t_ns % fn.period_ns == 0:
