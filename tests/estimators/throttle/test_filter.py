@@ -16,8 +16,9 @@ import pytest
 
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.estimators.throttle.pf.filter import ThrottleParticleFilter, make_production_estimator
-from vecu.estimators.throttle.pf.kalman_stretch import ModeThreeKalman, mode3_predict, mode3_update
+from vecu.estimators.throttle.pf.kalman_stretch import mode3_predict, mode3_update, set_constants
 from vecu.estimators.throttle.pf.model import class_matrix_stack
+from vecu.estimators.throttle.pf.state import new_state
 from vecu.models.throttle import TABLE_I, step_mean
 from vecu.plant.throttle import simulate
 
@@ -118,7 +119,7 @@ def test_class_matrices_are_table_i():
 
 
 def test_kalman_moments_match_numpy():
-    """ModeThreeKalman's unrolled algebra equals A P A^T + Q and the Gaussian i^2 update."""
+    """The Kalman stretch's unrolled algebra equals A P A^T + Q and the Gaussian i^2 update."""
     p = TABLE_I[2]
     a = np.array([[1.0, p.a12, 0.0], [p.a21, p.a22, p.a23], [0.0, p.a32, p.a33]])
     q = np.diag([0.35, 0.0, 0.18])
@@ -126,9 +127,10 @@ def test_kalman_moments_match_numpy():
     m = rng.normal(size=(3, 3))
     cov = m @ m.T + np.eye(3)
     mean = np.array([50.0, 1.0, 3.0])
-    kf = ModeThreeKalman(0.35, 0.18)
-    kf.load(mean, cov)
-    x = mode3_predict(tuple(kf.x.tolist()), kf.coef, 0.35, 0.18, 5.0)
+    s = new_state()[1]
+    set_constants(s, 0.35, 0.18)
+    x0 = (*mean, cov[0, 0], cov[0, 1], cov[0, 2], cov[1, 1], cov[1, 2], cov[2, 2])
+    x = mode3_predict(x0, tuple(s.kf_coef.tolist()), 0.35, 0.18, 5.0)
     pp = a @ cov @ a.T + q
 
     def cov_of(x):

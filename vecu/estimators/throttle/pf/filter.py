@@ -1,9 +1,6 @@
-"""The production throttle-angle estimator: particle filter + Kalman stretches.
-
-Model (Vargas et al. 2015): the piecewise-affine eq. (3) with Table I, state x = [theta, rho, i],
-theta in degrees and clipped to the stops [0, 90] after every step, process noise alpha*F with
-F = diag(sqrt 0.35, 0, sqrt 0.18) per 1 ms step; wattmeter eq. (4) y = i^2 + v, v ~ N(0, 1)
-(vecu.models.throttle; docs/models.md, "Production throttle estimator").
+"""The production throttle-angle estimator: particle filter + Kalman stretches on eq. (3) /
+eq. (4) of Vargas et al. 2015 (vecu.models.throttle; docs/models.md, "Production throttle
+estimator"), theta in degrees, clipped to the stops [0, 90] after every step.
 
 Why particles: y carries |i| only, theta is inferred through the dynamics, and near the mode
 switches at 8 / 16 deg (rho flips its sign convention between mode 1 and modes 2/3; a mode-2 ->
@@ -32,27 +29,9 @@ import math
 
 import numpy as np
 
-from vecu.estimators.throttle.pf.kalman_stretch import ModeThreeKalman, draw_from, moment_match
-from vecu.estimators.throttle.pf.model import (
-    CLASS_BOUNDS_DEG,
-    Y_MAX_W,
-    Y_MIN_W,
-    class_b,
-    class_bounds,
-    class_matrix_stack,
-    report,
-    reported_std,
-    theta_moments,
-)
-from vecu.estimators.throttle.pf.recursion import (
-    CAREFUL_RUN,
-    LEAVE_KF,
-    LOST,
-    NEED_OFFS,
-    REJECTED,
-    RESAMPLE,
-    filter_tick,
-)
+from vecu.estimators.throttle.pf import kalman_stretch as ks
+from vecu.estimators.throttle.pf import model as md
+from vecu.estimators.throttle.pf import recursion as rc
 from vecu.estimators.throttle.pf.resample import pf_resample
 from vecu.estimators.throttle.pf.state import Bank, Frame, new_state
 from vecu.estimators.throttle.pf.update import StepWork, frame_moments, set_step_constants
@@ -76,13 +55,9 @@ KF_CHECK_EVERY = 8  # steps between checks of the KF_ENTER condition
 KF_STEADY_SD_PER_ALPHA = 5.9  # measured steady-state Kalman theta std in mode 3, per unit alpha
 KF_GATE = 49.0  # Kalman innovation outlier gate (r^2 / S, 7 sigma)
 DEFAULT_STD_INFLATION = 1.2  # theta_std_deg = 1.2 x posterior std (calibration, docs/models.md)
-# Stuck below the mode-3 bound (docs/models.md "Consistency"): while the estimate is at or
-# below b2 + LOCK_MARGIN_DEG and the command u exceeds LOCK_U_V, the filter sometimes misses a
-# mode-2 -> mode-3 throw of the truth and its particles stay parked below b2 with a posterior
-# std of ~1 deg while the throttle is at 60-90 deg (the 1 h soak, seed 2026: errors of 50-80
-# deg for 300-500 ms, twice). There (1.4 % of the time) the reported variance gets
-# LOCK_STD_DEG^2 added: the error there is 13.3 deg rms against a reported 6.6 deg (NEES 44-500
-# by angle), 12 deg brings it to about 1. The estimate itself is unchanged.
+# Stuck below the mode-3 bound (docs/models.md "Consistency"): at or below b2 + LOCK_MARGIN_DEG
+# with u > LOCK_U_V the particles can stay parked below b2 after a mode-2 -> mode-3 throw of the
+# truth; there the reported variance gets LOCK_STD_DEG^2 added (NEES ~1; the estimate is kept).
 LOCK_U_V = 3.0
 LOCK_MARGIN_DEG = 1.5
 LOCK_STD_DEG = 12.0
@@ -121,12 +96,12 @@ class ThrottleParticleFilter:
         f_diag = model.f_diag
         self._s_th = max(a * f_diag[0], 1e-3)
         self._s_i = s_i = max(a * f_diag[2], 1e-3)  # prior std of the current's step noise
-        self._cb = cb = class_bounds(model)
-        shift = cb[2] - CLASS_BOUNDS_DEG[2]  # the angle thresholds follow the mode-3 bound
+        self._cb = cb = md.class_bounds(model)
+        shift = cb[2] - md.CLASS_BOUNDS_DEG[2]  # the angle thresholds follow the mode-3 bound
         self._n_high, self._n_low = int(n_high), int(n_low)
         self._S, s = new_state()
         self._s = s  # the named state (pf.state.STATE), a view of _S
-        set_step_constants(s, s_i, class_b(model), model.h_wattmeter * model.h_wattmeter, cb)
+        set_step_constants(s, s_i, md.class_b(model), model.h_wattmeter * model.h_wattmeter, cb)
         s.low_enter, s.low_exit = LOW_ENTER_DEG + shift, LOW_EXIT_DEG + shift
         s.kf_enter[:] = (KF_ENTER[0] + shift, *KF_ENTER[1:])
         s.n_low, s.n_high = self._n_low, self._n_high
@@ -134,9 +109,9 @@ class ThrottleParticleFilter:
         s.use_kf, s.kf_every = float(self.use_kalman), KF_CHECK_EVERY
         s.lock_below, s.lock_u = cb[2] + LOCK_MARGIN_DEG, LOCK_U_V
         s.lock_var = float(lock_std_deg) ** 2  # 0: the posterior's std alone
-        self._kf = ModeThreeKalman(self._s_th ** 2, s_i * s_i, model, KF_GATE, s)
+        ks.set_constants(s, self._s_th ** 2, s_i * s_i, model, KF_GATE)
         s.kf_cfg[:] = (KF_EXIT[0] + shift, *KF_EXIT[1:], self.std_inflation)
-        self._mats = class_matrix_stack(model)
+        self._mats = md.class_matrix_stack(model)
         self._banks = {n: Bank(n, s) for n in {self._n_high, self._n_low}}
         self._work = [StepWork(b.FB, self._mats, s) for b in self._banks.values()]
         self.resets = self.rejected = self.resamples = self.resizes = self.careful_updates = 0
@@ -199,9 +174,9 @@ class ThrottleParticleFilter:
         s = self._s
         s.lo, s.hi = float(f.th.min()), float(f.th.max())
         sw, s_th, s_th2, s_w2 = frame_moments(f.F)
-        ok, th, var = theta_moments(sw, s_th, s_th2)
+        ok, th, var = md.theta_moments(sw, s_th, s_th2)
         if ok:
-            self._theta, self._std = report(th, var, self.std_inflation)
+            self._theta, self._std = md.report(th, var, self.std_inflation)
             self._std_post = self._std
             s.sw, s.sw2 = sw, s_w2
 
@@ -216,7 +191,7 @@ class ThrottleParticleFilter:
             yk = float(y)
             if yk != yk:  # a NaN reading is rejected, not missing
                 yk = math.inf
-        code, th, sd = filter_tick(self._S, self._b.FB, self._mats, self._ztab, u, yk)
+        code, th, sd = rc.filter_tick(self._S, self._b.FB, self._mats, self._ztab, u, yk)
         if code:
             th, sd = self._events(code, th, sd, u, yk)
         self._theta, self._std = th, sd
@@ -225,31 +200,31 @@ class ThrottleParticleFilter:
                 ) -> tuple[float, float]:
         """The rare outcomes of filter_tick: (theta, reported std)."""
         s = self._s
-        if code & NEED_OFFS:  # the next block of window offsets (pairs)
+        if code & rc.NEED_OFFS:  # the next block of window offsets (pairs)
             s.offs[:] = self._rng.integers(0, NORMAL_TABLE, size=s.offs.size)
             s.koff = 0.0
-            code, th, sd = filter_tick(self._S, self._b.FB, self._mats, self._ztab, u, yk)
+            code, th, sd = rc.filter_tick(self._S, self._b.FB, self._mats, self._ztab, u, yk)
             if not code:
                 return th, sd
-        if code & REJECTED:
+        if code & rc.REJECTED:
             self.rejected += 1
-        elif code & CAREFUL_RUN:
+        elif code & rc.CAREFUL_RUN:
             self.careful_updates += 1
         act = code & 3
-        if not (act or code & LEAVE_KF):
+        if not (act or code & rc.LEAVE_KF):
             return th, sd  # the reported std already
         self._theta, self._std_post = th, sd
-        if code & LEAVE_KF:
+        if code & rc.LEAVE_KF:
             self._from_kalman(int(s.o1))
-        elif act == LOST:
-            self._lost(yk if Y_MIN_W < yk < Y_MAX_W else None)
-        elif act == RESAMPLE:
+        elif act == rc.LOST:
+            self._lost(yk if md.Y_MIN_W < yk < md.Y_MAX_W else None)
+        elif act == rc.RESAMPLE:
             self._resample(int(s.target))
         else:  # to the Kalman filter
             floor = (KF_STEADY_SD_PER_ALPHA * self.noise_scale) ** 2
-            moment_match(self._b.cur, float(s.sw), self._kf, floor)
+            ks.moment_match(self._b.cur, float(s.sw), s.kf_x, floor)
             s.in_kf = 1.0
-        return self._theta, reported_std(self._theta, self._std_post, u, s.lock_below,
+        return self._theta, md.reported_std(self._theta, self._std_post, u, s.lock_below,
                                          s.lock_var, s.lock_u)
 
     def _resample(self, n_new: int) -> None:
@@ -278,16 +253,16 @@ class ThrottleParticleFilter:
 
     def _from_kalman(self, o1: int) -> None:
         """Back to particles: draw them from the Kalman Gaussian (restart if it is broken)."""
-        kf = self._kf
-        self._s.in_kf = 0.0
-        if not kf.usable():
+        s = self._s
+        s.in_kf = 0.0
+        if not ks.usable(s.kf_x):
             self._lost(None)
             return
-        low = kf.th - 3.0 * math.sqrt(kf.p00) < self._s.low_enter
+        low = s.kf_x[0] - 3.0 * math.sqrt(s.kf_x[3]) < s.low_enter
         b = self._banks[self._n_low if low else self._n_high]
         n, z = b.n, self._normals
         o2, o3 = (o1 + 7919) % NORMAL_TABLE, (o1 + 15859) % NORMAL_TABLE
-        draw_from(kf, b.cur, z[o1:o1 + n], z[o2:o2 + n], z[o3:o3 + n])
+        ks.draw_from(s.kf_x, b.cur, z[o1:o1 + n], z[o2:o2 + n], z[o3:o3 + n])
         self._b = b
         self._adopt(b.cur)
 

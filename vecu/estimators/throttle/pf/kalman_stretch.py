@@ -22,7 +22,7 @@ import numpy as np
 
 from vecu.estimators.common.small_linalg import chol3_floored
 from vecu.estimators.throttle.pf.model import HIGH_CLASS, U_COL, class_b, class_rows, report
-from vecu.estimators.throttle.pf.state import Frame, new_state
+from vecu.estimators.throttle.pf.state import Frame
 from vecu.kernels import kernel
 from vecu.models.throttle import PAPER_THROTTLE, THETA_MAX_DEG, THETA_MIN_DEG, ThrottleModel
 
@@ -140,53 +140,25 @@ def _tick_on_floats(x: Any, coef: Any, prm: Any, u: float, y: float, may_gate: b
 mode3_tick = kernel(_mode3_tick, python=_tick_on_floats)
 
 
-class ModeThreeKalman:
-    """The Kalman filter of the stretches on a state record's kf_* fields (its own record
-    unless one is given); the tick runs mode3_tick on the same fields (pf.recursion)."""
-
-    __slots__ = ("coef", "prm", "q_i", "q_th", "r", "x")
-
-    def __init__(self, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE,
-                 gate: float = 49.0, s: Any = None) -> None:
-        if s is None:
-            s = new_state()[1]
-        rows = class_rows(HIGH_CLASS, model)  # eq. (3) in mode 3, sgn(theta - 1) = 1
-        rows[2][U_COL] = class_b(model)[HIGH_CLASS]  # this row's constant is b u
-        self.coef = tuple(v for row in rows for v in row)
-        self.q_th, self.q_i = q_th, q_i
-        self.r = model.h_wattmeter * model.h_wattmeter
-        self.prm = (q_th, q_i, self.r, float(gate))
-        self.x = s.kf_x  # th, rh, ci, p00, p01, p02, p11, p12, p22
-        s.kf_coef[:], s.kf_prm[:] = self.coef, self.prm
-        s.kf_cfg[:] = (-math.inf, math.inf, -math.inf, 1.0)
-
-    th = property(lambda self: float(self.x[0]))
-    rh = property(lambda self: float(self.x[1]))
-    ci = property(lambda self: float(self.x[2]))
-    p00 = property(lambda self: float(self.x[3]))
-    p01 = property(lambda self: float(self.x[4]))
-    p02 = property(lambda self: float(self.x[5]))
-    p11 = property(lambda self: float(self.x[6]))
-    p12 = property(lambda self: float(self.x[7]))
-    p22 = property(lambda self: float(self.x[8]))
-
-    def load(self, mean: np.ndarray, cov: np.ndarray) -> None:
-        self.x[:] = (mean[0], mean[1], mean[2], cov[0, 0], cov[0, 1], cov[0, 2], cov[1, 1],
-                     cov[1, 2], cov[2, 2])
-
-    def cholesky(self) -> tuple[float, float, float, float, float, float]:
-        """Lower Cholesky factor (l00, l10, l11, l20, l21, l22) of P (pivots floored at 1e-12:
-        a tiny jitter if needed; common.small_linalg.chol3_floored)."""
-        return chol3_floored(tuple(self.x[3:].tolist()), 1e-12)
-
-    def usable(self) -> bool:
-        """Mean and covariance finite, variances of theta and i positive, of rho >= 0."""
-        return (math.isfinite(self.th + self.rh + self.ci + self.p00 + self.p11 + self.p22)
-                and self.p00 > 0.0 and self.p11 >= 0.0 and self.p22 > 0.0)
+def set_constants(s: Any, q_th: float, q_i: float, model: ThrottleModel = PAPER_THROTTLE,
+                  gate: float = 49.0) -> None:
+    """The stretch's constants in the state record s: eq. (3)'s class-3 rows (sgn(theta - 1) =
+    1; the i row's constant is b u), (q_th, q_i, R, gate); leave thresholds off until set."""
+    rows = class_rows(HIGH_CLASS, model)
+    rows[2][U_COL] = class_b(model)[HIGH_CLASS]
+    s.kf_coef[:] = [v for row in rows for v in row]
+    s.kf_prm[:] = (q_th, q_i, model.h_wattmeter * model.h_wattmeter, float(gate))
+    s.kf_cfg[:] = (-math.inf, math.inf, -math.inf, 1.0)
 
 
-def moment_match(f: Frame, sw: float, kf: ModeThreeKalman, theta_var_floor: float) -> None:
-    """Hand the particles of frame f (weight sum sw) to the Kalman filter: their weighted mean
+def usable(x: np.ndarray) -> bool:
+    """The state x can seed particles: finite, variances of theta and i > 0, of rho >= 0."""
+    th, rh, ci, p00, _, _, p11, _, p22 = x.tolist()
+    return math.isfinite(th + rh + ci + p00 + p11 + p22) and p00 > 0.0 and p11 >= 0.0 and p22 > 0.0
+
+
+def moment_match(f: Frame, sw: float, x: np.ndarray, theta_var_floor: float) -> None:
+    """Hand the particles of frame f (weight sum sw) to the Kalman state x: their weighted mean
     and covariance, the covariance scaled up to theta_var_floor if theta's is below it (a
     freshly collapsed cloud, e.g. right after a mode-2 -> 3 throw, can be narrower than the
     truth's spread)."""
@@ -196,15 +168,17 @@ def moment_match(f: Frame, sw: float, kf: ModeThreeKalman, theta_var_floor: floa
     cov = (d * w).dot(d.T)
     if cov[0, 0] < theta_var_floor:
         cov *= theta_var_floor / max(float(cov[0, 0]), 1e-12)
-    kf.load(mean, cov)
+    x[:] = (mean[0], mean[1], mean[2], cov[0, 0], cov[0, 1], cov[0, 2], cov[1, 1], cov[1, 2],
+            cov[2, 2])
 
 
-def draw_from(kf: ModeThreeKalman, f: Frame, z0: np.ndarray, z1: np.ndarray,
-              z2: np.ndarray) -> None:
-    """Particles of frame f (weights 1) from the Kalman Gaussian, x = mean + L z with L the
-    Cholesky factor and the standard normals z0, z1, z2; theta clipped to the stops."""
-    l00, l10, l11, l20, l21, l22 = kf.cholesky()
-    np.clip(kf.th + l00 * z0, THETA_MIN_DEG, THETA_MAX_DEG, out=f.th)
-    f.rh[:] = kf.rh + l10 * z0 + l11 * z1
-    f.ci[:] = kf.ci + l20 * z0 + l21 * z1 + l22 * z2
+def draw_from(x: np.ndarray, f: Frame, z0: np.ndarray, z1: np.ndarray, z2: np.ndarray) -> None:
+    """Particles of frame f (weights 1) from the Kalman state x's Gaussian, mean + L z with L
+    the Cholesky factor of P (pivots floored at 1e-12, chol3_floored) and the standard normals
+    z0, z1, z2; theta clipped to the stops."""
+    th, rh, ci = x[:3].tolist()
+    l00, l10, l11, l20, l21, l22 = chol3_floored(tuple(x[3:].tolist()), 1e-12)
+    np.clip(th + l00 * z0, THETA_MIN_DEG, THETA_MAX_DEG, out=f.th)
+    f.rh[:] = rh + l10 * z0 + l11 * z1
+    f.ci[:] = ci + l20 * z0 + l21 * z1 + l22 * z2
     f.w.fill(1.0)

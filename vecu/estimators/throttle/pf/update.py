@@ -1,19 +1,12 @@
-"""The particle step of the throttle filter: eq. (3) prediction, then the prior current or the
-linearised optimal proposal with its predictive-likelihood weights (eq. 4), and the moments.
+"""The particle step: eq. (3) prediction, then the prior current or the linearised optimal
+proposal with its predictive-likelihood weights (eq. 4), and the moments.
 
-`pf_step` is written as loops (compiled under numba: branch-free passes that LLVM vectorises,
-the likelihoods' exp included: vecu.kernels.exp.exp_poly, plain arithmetic, not a libm call per
-particle; only the careful update's log and the sequential sums stay scalar). Its numpy form
-`numpy_step` is what the python backend runs (vecu.kernels: the loops as plain Python would make
-that backend unusable). Both read the same normal table at the same offsets and decide alike,
-so they make the same random draws; the prediction is the same arithmetic operation by
-operation (no fastmath, no FMA contraction); the update computes 1 / h^2 once (numpy: two
-divisions) and exp_poly (<= 1 ulp), and the moments are sequential sums against BLAS's gemv, so
-their results agree to rounding (tests/estimators/throttle/test_update.py). The CAN golden log
-is bit-identical under both backends (tests/test_golden_run.py).
-
-Frames: F rows theta, rho, i, 1, sgn rho, theta^2, weight (pf.state.Frame); s: the filter's
-state record (its step constants: y_shift, inv_c2 .. clip_hi, class_b, bounds).
+`pf_step` is loops (compiled: branch-free passes that LLVM vectorises, exp_poly instead of a
+libm exp); its numpy form `numpy_step` is what the python backend runs (vecu.kernels). Same
+normal-table windows, same decisions, the prediction the same arithmetic; the update (one
+division, exp_poly) and the moments (sequential sums vs BLAS) agree to rounding
+(tests/estimators/throttle/test_update.py). Frames: F rows theta, rho, i, 1, sgn rho, theta^2,
+weight (pf.state.Frame); s: the state record (its step constants).
 """
 
 # The explicit `a if a < b else b` selects keep numpy's NaN semantics (np.minimum / np.clip
@@ -45,10 +38,9 @@ _max = np.maximum.reduce
 
 def set_step_constants(s: Any, s_i: float, class_b: tuple[float, ...], r_watt: float,
                        bounds: tuple[float, float, float]) -> None:
-    """Fill the state's step constants (s_i: the current's step noise std, r_watt: the
-    wattmeter noise variance HH^T, bounds: the class bounds 1, b1, b2 in deg):
-    S = R + (2 s m)^2 = (2 s)^2 h^2 with h^2 = R / (2s)^2 + m^2, q = kappa / h = sqrt(0.5 / S),
-    -0.5 / S = neg_k2 / h^2; r = y - s^2 - m^2 = y + y_shift - h^2."""
+    """Fill the state's step constants (s_i: the current's step noise std, r_watt: HH^T):
+    S = (2 s)^2 h^2 with h^2 = R / (2s)^2 + m^2, q = kappa / h = sqrt(0.5 / S), -0.5 / S =
+    neg_k2 / h^2, r = y - s^2 - m^2 = y + y_shift - h^2."""
     inv_c = 1.0 / (2.0 * s_i)
     kappa = np.sqrt(0.5) * inv_c
     s2 = s_i * s_i
@@ -61,11 +53,9 @@ def set_step_constants(s: Any, s_i: float, class_b: tuple[float, ...], r_watt: f
 
 @kernel(error_model="numpy")
 def eq3_row(out, th0, rh0, ci0, mats, s, u, r, c0, c1, c2, c3, z, theta_row):
-    """Row r (0 theta, 1 rho, 2 i) of eq. (3) for every particle into out, each with its own
-    class: c_s for the slot s = the number of class bounds (1, b1, b2) below its theta (NaN:
-    slot 0), picked by selects (no branch, vectorises); the same arithmetic as pf_step's
-    per-class passes (the i row's constant b_c u); theta_row: + the noise z, clipped to
-    [0, 90]. pf_step's pass when several classes are present."""
+    """Row r (0 theta, 1 rho, 2 i) of eq. (3) for every particle into out, each with class c_s
+    for s = the number of class bounds below its theta (NaN: 0), picked by selects (vectorises);
+    theta_row: + the noise z, clipped to [0, 90]."""
     n = th0.shape[0]
     bnd, cb = s.bounds, s.class_b
     k0, k1, k2 = bnd[0], bnd[1], bnd[2]
@@ -95,9 +85,8 @@ def eq3_row(out, th0, rh0, ci0, mats, s, u, r, c0, c1, c2, c3, z, theta_row):
 
 
 class StepWork:
-    """numpy_step's buffers and views for one bank FB (the filter keeps it with the bank;
-    numpy_step finds it by FB): the frames' rows, the constants pre-broadcast to length n
-    (numpy is ~40 % slower with a Python-float operand), the class tables."""
+    """numpy_step's buffers for one bank FB (kept by the filter, found by FB): row views, the
+    constants pre-broadcast (numpy is ~40 % slower with a float operand), the class tables."""
 
     def __init__(self, FB: np.ndarray, mats: np.ndarray, s: Any) -> None:
         n = FB.shape[2]
@@ -185,14 +174,10 @@ def numpy_step(FB, cur, mats, s, ztab, u, lo_prev, hi_prev, o1, o2, mode, yc, ex
 
 
 def _proposal(wk: StepWork, w0, m, w, zq, yc, careful: bool) -> None:
-    """Linearised optimal proposal for i and predictive-likelihood weights (eq. 4).
-
-    Prior i ~ N(m, s^2); y ~ N(m^2 + s^2, S), S = 1 + 4 m^2 s^2 (eq. 4 linearised at m);
-    proposal i = m (1 + 2 s^2 r / S) + s z / sqrt(S), r = y - m^2 - s^2; new weight
-    w N(y; m^2 + s^2, S). careful (y far from every particle): the linearisation overshoots
-    (sqrt(m^2 + r) < m + r / 2m), so the relative correction is clamped to [-1/2, 1] and the
-    likelihoods are scaled to a maximum of 1 in the log domain (no underflow).
-    """
+    """Linearised optimal proposal for i and predictive-likelihood weights (eq. 4): prior
+    i ~ N(m, s^2), y ~ N(m^2 + s^2, S), S = 1 + 4 m^2 s^2; i = m (1 + 2 s^2 r / S) + s z / sqrt(S),
+    r = y - m^2 - s^2; weight w N(y; m^2 + s^2, S). careful (y far from every particle): the
+    correction clamped to [-1/2, 1], likelihoods scaled to a maximum of 1 (log domain)."""
     t1, t2, t3 = wk.tmp
     np.multiply(m, m, out=t1)
     np.add(t1, wk.inv_c2, out=t1)  # h^2 = 1/(2s)^2 + m^2 = S / (2s)^2
@@ -224,14 +209,12 @@ def pf_step(FB, cur, mats, s, ztab, u, lo_prev, hi_prev, o1, o2, mode, yc, extre
     """One particle step of the bank FB from frame src = FB[cur] into frame dst = FB[1 - cur]
     (rows 0-2 and 6 written; FB[2]: scratch rows).
 
-    mats: the 12x5 class matrices (rows 3c..3c+2; the b*u entries are taken from s instead),
-    s: the state record (step constants), ztab: rows theta noise / prior current noise /
-    proposal noise of the normal table, lo_prev / hi_prev: the set's extent
-    (the classes from lo_prev's to hi_prev's are evaluated; only the class of lo_prev if it is
-    mode 3), yc = y + y_shift. Returns (sum w, sum w theta, sum w theta^2, sum w^2, min theta,
-    max theta, min i); min / max are NaN if any value is NaN (as numpy's reductions); the max
-    theta is needed only while min theta <= b2, max theta and min i otherwise only with
-    extremes (the numpy form computes them only then).
+    mats: the 12x5 class matrices (the b u entries from s.class_b), ztab: the normal table's
+    rows (theta noise, prior current noise, proposal noise), lo_prev / hi_prev: the set's extent
+    (its classes are evaluated; mode 3: that class only), yc = y + y_shift. Returns (sum w,
+    sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i), NaN-propagating as
+    numpy's reductions; max theta is read only while min theta <= b2, both extremes otherwise
+    only with `extremes` (the numpy form computes them only then).
     """
     src, dst, tmp = FB[cur], FB[1 - cur], FB[2]
     n = src.shape[1]
@@ -300,40 +283,25 @@ def pf_step(FB, cur, mats, s, ztab, u, lo_prev, hi_prev, o1, o2, mode, yc, extre
             tj = tj + m
             ci[j] = tj + qj * zq[j]
     else:  # careful: the correction clamped, likelihoods scaled to a maximum of 1 (log domain)
-        for j in range(n):
-            m = ci[j]
-            h2 = m * m
-            h2 = h2 + inv_c2
-            inv = 1.0 / h2
-            q[j] = kappa * math.sqrt(inv)
-            tj = neg_k2 * inv
-            rr = yc - h2
-            tj = rr * tj
-            t3[j] = tj
-            t1[j] = rr * tj
         clip_lo, clip_hi = s.clip_lo, s.clip_hi
         for j in range(n):
-            tj = t3[j]
+            m = ci[j]
+            h2 = m * m + inv_c2
+            inv = 1.0 / h2
+            q[j] = kappa * math.sqrt(inv)
+            rr = yc - h2
+            tj = rr * (neg_k2 * inv)
+            t1[j] = rr * tj + math.log(q[j])
             t3[j] = clip_lo if tj < clip_lo else (clip_hi if tj > clip_hi else tj)
-        for j in range(n):
-            t1[j] = t1[j] + math.log(q[j])
         mx = t1[0]
         for j in range(1, n):
             v = t1[j]
             if not math.isnan(mx) and (v > mx or math.isnan(v)):
                 mx = v
         for j in range(n):
-            t1[j] = t1[j] - mx
-        for j in range(n):
-            t1[j] = exp_poly(t1[j])
-        for j in range(n):
-            w[j] = w0[j] * t1[j]
-        for j in range(n):
+            w[j] = w0[j] * exp_poly(t1[j] - mx)
             m = ci[j]
-            tj = t3[j] * m
-            tj = tj * neg_four_s2
-            tj = tj + m
-            ci[j] = tj + q[j] * zq[j]
+            ci[j] = (t3[j] * m * neg_four_s2 + m) + q[j] * zq[j]
     # moments (sequential sums) and extremes, branch-free (a NaN theta makes s_th NaN; theta
     # is never infinite after the clip; ci_chk is NaN if some i is NaN or infinite)
     lo = th[0]
