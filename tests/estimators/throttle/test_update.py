@@ -154,6 +154,10 @@ def test_state_view_is_the_record_in_the_same_memory():
     assert ctypes.sizeof(StateView) == STATE.itemsize
     S, s = new_state()
     rec = S.view(STATE)[0]
+    for name in STATE.names:  # every array field a view of its own place in S
+        if STATE.fields[name][0].shape:
+            assert np.shares_memory(getattr(s, name), rec[name])
+            assert getattr(s, name).__array_interface__["data"] == rec[name].__array_interface__["data"]
     s.lo, s.offs[5], s.kf_x[8] = 1.5, 7.0, -2.0
     assert rec["lo"] == 1.5 and rec["offs"][5] == 7.0 and rec["kf_x"][8] == -2.0
     rec["steps"] = 3.0

@@ -52,12 +52,20 @@ STATE: Any = np.dtype([
 
 
 class StateView(ctypes.Structure):
-    """STATE in Python: its scalar fields as ctypes doubles, its array fields (numpy views of
-    the same memory) set by new_state."""
+    """STATE in Python: its scalar fields as ctypes doubles, its array fields numpy views of the
+    same memory (set by new_state)."""
 
     _fields_ = [(name, ctypes.c_double) if not STATE.fields[name][0].shape
                 else (f"_{name}", ctypes.c_double * STATE.fields[name][0].shape[0])
                 for name in STATE.names]
+    kf_enter: np.ndarray
+    class_b: np.ndarray
+    bounds: np.ndarray
+    kf_x: np.ndarray
+    kf_coef: np.ndarray
+    kf_prm: np.ndarray
+    kf_cfg: np.ndarray
+    offs: np.ndarray
 
 
 _views: dict[int, Any] = {}  # id(S) -> weak reference to its StateView
@@ -68,10 +76,10 @@ def new_state() -> tuple[np.ndarray, Any]:
     in Python, alive as long as the caller keeps it)."""
     S = np.zeros(STATE.itemsize // 8)
     s = StateView.from_buffer(S)  # type: ignore[arg-type]
-    rec = S.view(STATE)[0]
-    for name in STATE.names:
-        if STATE.fields[name][0].shape:
-            setattr(s, name, rec[name])
+    r = S.view(STATE)[0]
+    s.kf_enter, s.class_b, s.bounds = r["kf_enter"], r["class_b"], r["bounds"]
+    s.kf_x, s.kf_coef, s.kf_prm, s.kf_cfg = r["kf_x"], r["kf_coef"], r["kf_prm"], r["kf_cfg"]
+    s.offs = r["offs"]
     _views[id(S)] = weakref.ref(s)
     weakref.finalize(s, _views.pop, id(S), None)
     return S, s
