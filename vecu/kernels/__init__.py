@@ -30,8 +30,10 @@ A numpy form (`@kernel(python=numpy_fn)`): the python backend runs numpy_fn inst
 (the numba backend still compiles fn). A kernel may carry a numpy form only when its loops as
 plain Python would make the python backend unusable (per-particle loops: the throttle particle
 filter's step and resampling, vecu.estimators.throttle.pf); both forms are tested against each
-other (same draws and decisions, results equal to rounding). The choice stays here: callers
-call `k(...)` under either backend.
+other (same draws and decisions, results equal to rounding). The same option carries a kernel
+on arrays that the python backend runs on their Python lists or a view of them (the same
+function; numpy's element access would double a small kernel's time in plain Python). The
+choice stays here: callers call `k(...)` under either backend.
 
 Same seed, same backend -> bit-identical output. The two backends agree to rounding (a few ulp:
 numba's vector reductions and libm calls may round differently from numpy's); for kernels that
