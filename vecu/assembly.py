@@ -14,14 +14,15 @@ import can
 from vecu import functions
 from vecu.clock import NS_PER_MS
 from vecu.codec import DbcCodec
-from vecu.config import RunConfig
+from vecu.config import RunConfig, check_ecu_ids
 from vecu.ecu.node import EcuFunction, EcuNode
 from vecu.ecu.throttle_function import ThrottleFunction
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.faults import FaultInjector
 from vecu.plant.drive import Drive
-from vecu.plant.node import PlantNode, PlantPart
+from vecu.plant.node import PlantNode
+from vecu.plant.part import PlantPart
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 
@@ -87,7 +88,11 @@ def build_functions(config: RunConfig, codec: DbcCodec,
                     make_estimator: EstimatorFactory = make_throttle_estimator) -> EcuFunctions:
     """The ECU's functions (vecu.functions), each built from its half of the parameter tree (its
     calibration) only; make_estimator(name, noise_scale=..., model=...) builds the throttle
-    estimator (a seam for benches)."""
+    estimator (a seam for benches). codec: the one of config's ECU instance (vecu.instances)."""
+    if codec.instance != config.params.ecu.instance:
+        raise ValueError(f"a codec of ECU instance {codec.instance} for a run of instance "
+                         f"{config.params.ecu.instance}")
+    check_ecu_ids(config.params.ecu, codec)  # the plug-ins' frames too
     seams = {"throttle": make_estimator}
     return EcuFunctions({spec.name: spec.build(config, codec, seams.get(spec.name))
                          for spec in functions.enabled(config)})

@@ -44,7 +44,7 @@ from vecu.block_codec import (
 )
 from vecu.can_message import message
 from vecu.e2e import E2EProtection, own_protection
-from vecu.errors import BadFileError
+from vecu.errors import BadFileError, ConfigError
 from vecu.frame_builders import (
     DecodeParts,
     EncodeParts,
@@ -53,6 +53,7 @@ from vecu.frame_builders import (
     compile_range_check,
     make_framer,
 )
+from vecu.instances import ECU_NODE, ecu_frame_id
 
 DEFAULT_DBC = "vecu.dbc"
 TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
@@ -561,18 +562,20 @@ def _e2e_layout(message: Message) -> E2ELayout | None:
 _SHARED: dict[tuple, DbcCodec] = {}
 
 
-def shared_codec() -> DbcCodec:
-    """The default DbcCodec (vecu's DBC and truth DBC) built once per process while the two
-    files are unchanged (~30 ms a build): runs share it, a codec being read-only once built."""
+def shared_codec(instance: int = 0) -> DbcCodec:
+    """The default DbcCodec (vecu's DBC and truth DBC) of ECU instance N (vecu.instances), built
+    once per process and instance while the two files are unchanged (~30 ms a build): runs share
+    it, a codec being read-only once built."""
     paths = [builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC)]
     try:
-        key = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
+        stamps = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
     except OSError:  # not files on a disk: nothing to tell a change by
-        return DbcCodec(paths)
-    codec = _SHARED.get(key)
+        return DbcCodec(paths, instance=instance)
+    codec = _SHARED.get((stamps, instance))
     if codec is None:
-        _SHARED.clear()
-        codec = _SHARED[key] = DbcCodec(paths)
+        for key in [k for k in _SHARED if k[0] != stamps]:
+            del _SHARED[key]
+        codec = _SHARED[stamps, instance] = DbcCodec(paths, instance=instance)
     return codec
 
 
@@ -580,14 +583,20 @@ class DbcCodec:
     """All messages of one or more DBC files, compiled once; lookup by name or by CAN ID.
 
     The default is vecu's own DBC plus its truth DBC (the ECU knows the truth IDs and ignores them).
+    instance: the ECU instance whose frames this codec sends or reads: every message the DBCs
+    give the ECU node (VECU) as a sender is at its ID moved by vecu.instances.ecu_frame_id (its
+    E2E data ID with it); 0 leaves every ID as the DBC has it.
     """
 
     def __init__(self, paths: Iterable[str | Path] | None = None, strict: bool = True,
-                 fast: bool = True) -> None:
+                 fast: bool = True, instance: int = 0) -> None:
         paths = (list(paths) if paths is not None
                  else [builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC)])
         self.paths = [str(p) for p in paths]
+        self.instance = instance
         self._db = load_database(paths, strict=strict)
+        if instance:
+            _move_ecu_frames(self._db, instance)
         self._by_name = {m.name: FrameCodec(m, fast) for m in self._db.messages}
         self.by_id: dict[tuple[int, bool], FrameCodec] = {
             (c.frame_id, c.is_extended): c for c in self._by_name.values()
@@ -606,3 +615,19 @@ class DbcCodec:
         """(CAN ID, extended) of every message the DBC(s) give `node` as a sender."""
         return {(fc.frame_id, fc.is_extended) for fc in self._by_name.values()
                 if node in fc.senders}
+
+
+def _move_ecu_frames(db: cantools.database.Database, instance: int) -> None:
+    """Put the ECU's messages of db at their IDs on `instance` (ConfigError when one leaves the
+    ID range or lands on another message's ID)."""
+    taken = {(m.frame_id, m.is_extended_frame): m.name for m in db.messages
+             if ECU_NODE not in m.senders}
+    for m in db.messages:
+        if ECU_NODE in m.senders:
+            m.frame_id = ecu_frame_id(m.frame_id, instance, m.is_extended_frame)
+            key = (m.frame_id, m.is_extended_frame)
+            if key in taken:
+                raise ConfigError(f"ECU frame {m.name} of instance {instance} at 0x{m.frame_id:X} "
+                                  f"clashes with {taken[key]}")
+            taken[key] = m.name
+    db.refresh()

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import TYPE_CHECKING
 
 from vecu import params as ptree
 from vecu.bus import RxBudget
@@ -24,6 +25,7 @@ from vecu.errors import ConfigError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
+from vecu.instances import ECU_NODE, MAX_INSTANCE, check_distinct, uds_ids, xcp_ids
 from vecu.models.lateral import VehicleParams
 from vecu.models.sensors import TpsCalibration
 from vecu.plant.driveline import Driveline
@@ -35,6 +37,9 @@ from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
 from vecu.restbus.spec import RestbusConfig
 from vecu.uds.config import UdsConfig, UdsStep
 from vecu.xcp.config import XcpConfig, XcpStep, check_xcp
+
+if TYPE_CHECKING:
+    from vecu.codec import DbcCodec
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,9 @@ class EcuParams:
     speed: SpeedFunctionConfig = field(default_factory=SpeedFunctionConfig)
     steering: SteeringFunctionConfig = field(default_factory=SteeringFunctionConfig)
     manifold: ManifoldFunctionConfig = field(default_factory=ManifoldFunctionConfig)
+    # which of several ECUs on one bus: moves the UDS / XCP IDs and the ECU's frames
+    # (vecu.instances, docs/live.md 'Several ECUs on one bus'); 0: vecu's own IDs
+    instance: int = field(default=0, metadata={"bounds": (0, MAX_INSTANCE)})
     uds: UdsConfig = field(default_factory=UdsConfig)  # diagnostics server (docs/uds.md)
     xcp: XcpConfig = field(default_factory=XcpConfig)  # measurement and calibration (docs/xcp.md)
     rx: RxBudget = field(default_factory=RxBudget)  # receive work per 1 ms tick (docs/live.md)
@@ -81,9 +89,48 @@ class ParamTree:
 
     def set(self, sets: object) -> ParamTree:
         """A new tree with (path, value) pairs or a {path: value} mapping applied, checked."""
-        tree = ptree.apply_sets(self, sets)  # type: ignore[arg-type]  # pairs or a mapping; apply_sets checks each
+        tree = apply_params(self, sets)  # type: ignore[arg-type]  # pairs or a mapping; apply_sets checks each
         validate_tree(tree)
         return tree
+
+
+def apply_params(tree: ParamTree, sets: Mapping[str, object] | Iterable[tuple[str, object]]
+                 ) -> ParamTree:
+    """ptree.apply_sets, then the ECU instance rule (vecu.instances): a UDS / XCP ID that these
+    sets do not name and that still has the old instance's value follows `ecu.instance`."""
+    pairs = list(sets.items()) if isinstance(sets, Mapping) else list(sets)
+    new = ptree.apply_sets(tree, pairs)
+    old_n, new_n = tree.ecu.instance, new.ecu.instance
+    if old_n == new_n:
+        return new
+    named = {path for path, _ in pairs}
+    moved = [(f"ecu.{group}.{leaf}", value)
+             for group, rule in (("uds", uds_ids), ("xcp", xcp_ids))
+             for leaf, value in rule(new_n).items()
+             if f"ecu.{group}.{leaf}" not in named
+             and ptree.get(new, f"ecu.{group}.{leaf}") == rule(old_n)[leaf]]
+    return ptree.apply_sets(new, moved)
+
+
+def check_ecu_ids(ecu: EcuParams, codec: DbcCodec | None = None) -> None:
+    """The ECU's diagnostic IDs and its own frames' IDs on its instance all differ (ParamError
+    naming the two that share one). codec: the one the ECU sends with (default vecu's own DBCs
+    on ecu.instance; assembly.build_functions checks again with the plug-ins' DBCs)."""
+    from vecu.codec import shared_codec
+
+    ids = {}
+    if ecu.uds.enabled:
+        ids.update({f"ecu.uds.{leaf}": getattr(ecu.uds, leaf) for leaf in uds_ids(0)})
+    if ecu.xcp.enabled:
+        ids.update({f"ecu.xcp.{leaf}": getattr(ecu.xcp, leaf) for leaf in xcp_ids(0)})
+    try:
+        if codec is None:
+            codec = shared_codec(ecu.instance)
+        ids.update({f"frame {codec.by_id[key].name}": key[0]
+                    for key in sorted(codec.sent_by(ECU_NODE))})
+        check_distinct(ids)
+    except ConfigError as exc:
+        raise ptree.ParamError(f"the ECU's CAN IDs (ecu.instance = {ecu.instance}): {exc}") from None
 
 
 # Command-line shortcuts: one flag that sets several leaves (both halves of the tree agree).
@@ -124,6 +171,7 @@ def validate_tree(tree: ParamTree) -> None:
         raise ptree.ParamError("parameters 'ecu.uds.request_id', 'response_id', 'functional_id' "
                                f"must differ, got {sorted(ids)}")
     check_xcp(tree.ecu.xcp, ids if uds.enabled else set())
+    check_ecu_ids(tree.ecu)
 
 
 @dataclass(frozen=True)

@@ -4,14 +4,19 @@
   offset, gain, noise, drift, quantisation (`apply(value, t_ns)`).
 - Frame faults act on a message's frames in the plant's send stage: frames stop, dropout, delay,
   wrong alive counter, bad CRC, burst, babbling node, bus error frames (`FrameFault`).
-`make_fault` builds one from its kind and value; every random draw comes from the injector's
-seeded generator.
+
+Each kind is one `FaultKind` member holding its record (`KindSpec`: FI_Kind code, value
+meaning, default, bounds, behaviour), as the restbus disturbances are `KINDS` entries
+(vecu.restbus.disturb); the two share FI_EvKind's 5-bit code space (tests/test_fault_kinds.py).
+`make_fault` builds a signal fault from its kind and value; every random draw comes from the
+injector's seeded generator.
 """
 
 from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
@@ -23,51 +28,209 @@ from vecu.errors import BadArgumentError
 if TYPE_CHECKING:
     from vecu.codec import FrameCodec
 
+# ---------------------------------------------------------------------------- behaviours
+# A signal kind's law maps the healthy value to the faulty one (None: no frame); a frame kind's
+# `frames` turns one outgoing frame into what goes on the bus now, its `per_tick` adds frames
+# each 1 ms tick. Every random draw comes from the fault's (the injector's seeded) generator.
+
+def _dead(f: SignalFault, value: float, t_ns: int) -> float | None:
+    """Open circuit: the input is pulled to 0 (gain G = 0)."""
+    return 0.0
+
+
+def _short_supply(f: SignalFault, value: float, t_ns: int) -> float | None:
+    return f.supply
+
+
+def _stuck(f: SignalFault, value: float, t_ns: int) -> float | None:
+    """Output frozen at the first value seen after activation."""
+    if f.held is None:
+        f.held = value
+    return f.held
+
+
+def _no_frame(f: SignalFault, value: float, t_ns: int) -> float | None:
+    """The sensor stops transmitting (on the part fast path: no frame)."""
+    return None
+
+
+def _offset(f: SignalFault, value: float, t_ns: int) -> float | None:
+    return value + f.value  # in the signal's unit (V for the TPS)
+
+
+def _gain(f: SignalFault, value: float, t_ns: int) -> float | None:
+    """Sensor model Y = G * Y0 with 0 <= G <= 1 (G = 0: dead)."""
+    return f.value * value
+
+
+def _noise(f: SignalFault, value: float, t_ns: int) -> float | None:
+    return value + f.value * float(f.rng.standard_normal())
+
+
+def _drift(f: SignalFault, value: float, t_ns: int) -> float | None:
+    """Offset growing linearly from the activation time: rate per second."""
+    return value + f.value * (t_ns - f.t0_ns) * 1e-9
+
+
+def _quantise(f: SignalFault, value: float, t_ns: int) -> float | None:
+    """Coarse ADC: the value rounded to a multiple of the step."""
+    q = value / f.value
+    return round(q) * f.value if math.isfinite(q) else value  # a step below resolution
+
+
+def _stop_frames(f: FrameFault, msg: can.Message) -> list[can.Message]:
+    return []
+
+
+def _pass(f: FrameFault, msg: can.Message) -> list[can.Message]:
+    """The frame unchanged (delay: the injector holds it back; babble, error frames: per tick)."""
+    return [msg]
+
+
+def _dropout(f: FrameFault, msg: can.Message) -> list[can.Message]:
+    return [] if f.rng.random() < f.value else [msg]
+
+
+def _burst(f: FrameFault, msg: can.Message) -> list[can.Message]:
+    return [msg] * max(1, round(f.value))
+
+
+def _bad_crc(f: FrameFault, msg: can.Message) -> list[can.Message]:
+    if f.value >= 1.0 or f.rng.random() < f.value:
+        data = bytearray(msg.data)
+        data[f.codec.e2e.crc_byte] ^= 0xFF  # type: ignore[union-attr]  # E2E kinds: checked
+        return [with_data(msg, data)]
+    return [msg]
+
+
+def _wrong_counter(f: FrameFault, msg: can.Message) -> list[can.Message]:
+    """The alive counter frozen at its value when the fault began."""
+    fc = f.codec
+    e2e = fc.e2e
+    assert e2e is not None  # E2E kinds: checked by the injector
+    values = fc.decode(msg.data)
+    if f.held_counter is None:
+        f.held_counter = int(values[e2e.counter_signal])
+    values[e2e.counter_signal] = f.held_counter
+    return [with_data(msg, fc.encode(values))]
+
+
+def _babble(f: FrameFault, t_ns: int) -> list[can.Message]:
+    """A babbling node: garbage frames with the message's ID."""
+    fc = f.codec
+    payloads = f.rng.integers(0, 256, size=(_per_tick_count(f.value, t_ns), fc.length),
+                              dtype=np.uint8)
+    return [can.Message(timestamp=t_ns * 1e-9, arbitration_id=fc.frame_id,
+                        is_extended_id=fc.is_extended, data=bytes(p), check=False)
+            for p in payloads]
+
+
+def _error_frames(f: FrameFault, t_ns: int) -> list[can.Message]:
+    return [can.Message(timestamp=t_ns * 1e-9, is_error_frame=True, check=False)
+            for _ in range(_per_tick_count(f.value, t_ns))]
+
+
+# ---------------------------------------------------------------------------- the kinds
+UNBOUNDED = (-math.inf, math.inf)
+
+
+@dataclass(frozen=True)
+class KindSpec:
+    """Every fact of one fault kind: its FI_Kind / FI_EvKind code (vecu/dbc/vecu.dbc), what its
+    value means (symbol: its name in a refusal, default: meaning), default and bounds (open_low:
+    the lower bound itself refused), and its behaviour: a signal law, or a frame kind's
+    `frames` / `per_tick` (e2e: it needs the message's E2E CRC and alive counter)."""
+
+    code: int
+    law: Callable[[SignalFault, float, int], float | None] | None = None
+    frames: Callable[[FrameFault, can.Message], list[can.Message]] | None = None
+    per_tick: Callable[[FrameFault, int], list[can.Message]] | None = None
+    meaning: str = ""
+    symbol: str = ""
+    default: float = 0.0
+    bounds: tuple[float, float] = UNBOUNDED
+    open_low: bool = False
+    e2e: bool = False
+
+
 class FaultKind(enum.IntEnum):
-    """Values match FI_Kind / FI_EvKind in vecu/dbc/vecu.dbc."""
+    """Every fault kind, one record each (KindSpec): the member's value is its FI_Kind code.
+    The restbus disturbances hold FI_EvKind codes 17..29 (vecu.restbus.disturb.KINDS)."""
 
-    CLEAR = 0
-    DEAD = 1
-    STUCK = 2
-    FRAMES_STOP = 3
-    OFFSET = 4
-    GAIN = 5
-    NOISE = 6
-    SHORT_SUPPLY = 7
-    DRIFT = 8
-    QUANTISE = 9
-    DELAY = 10
-    DROPOUT = 11
-    WRONG_COUNTER = 12
-    BAD_CRC = 13
-    BURST = 14
-    BABBLE = 15
-    ERROR_FRAMES = 16
+    _spec: KindSpec
+
+    if not TYPE_CHECKING:  # to a type checker FaultKind(code) is the plain IntEnum look-up
+        def __new__(cls, spec):
+            self = int.__new__(cls, spec.code)  # the enum's own member, as Python's docs build one
+            self._value_ = spec.code
+            self._spec = spec
+            return self
+
+    CLEAR = KindSpec(0)
+    DEAD = KindSpec(1, _dead)
+    STUCK = KindSpec(2, _stuck)
+    FRAMES_STOP = KindSpec(3, _no_frame, _stop_frames)
+    OFFSET = KindSpec(4, _offset, meaning="added offset", default=0.5)
+    GAIN = KindSpec(5, _gain, meaning="gain G in [0, 1]", symbol="G", default=0.5, bounds=(0.0, 1.0))
+    NOISE = KindSpec(6, _noise, meaning="noise sigma", symbol="sigma", default=0.3,
+                     bounds=(0.0, math.inf))
+    SHORT_SUPPLY = KindSpec(7, _short_supply,
+                            meaning="supply level (default: TPS 5 V, else the DBC maximum)")
+    DRIFT = KindSpec(8, _drift, meaning="drift rate per second", default=0.5)
+    QUANTISE = KindSpec(9, _quantise, meaning="quantisation step", symbol="step", default=0.1,
+                        bounds=(0.0, math.inf), open_low=True)
+    DELAY = KindSpec(10, frames=_pass, meaning="delay in ms", default=20.0, bounds=(0.0, 10_000.0))
+    DROPOUT = KindSpec(11, frames=_dropout, meaning="probability a frame is lost", default=0.5,
+                       bounds=(0.0, 1.0))
+    WRONG_COUNTER = KindSpec(12, frames=_wrong_counter, e2e=True)
+    BAD_CRC = KindSpec(13, frames=_bad_crc, meaning="fraction of frames with a bad CRC",
+                       default=1.0, bounds=(0.0, 1.0), e2e=True)
+    BURST = KindSpec(14, frames=_burst, meaning="copies of each frame", default=3.0,
+                     bounds=(1.0, 100.0))
+    BABBLE = KindSpec(15, frames=_pass, per_tick=_babble, meaning="garbage frames per ms",
+                      default=5.0, bounds=(0.0, 100.0))
+    ERROR_FRAMES = KindSpec(16, frames=_pass, per_tick=_error_frames,
+                            meaning="error frames per ms", default=1.0, bounds=(0.0, 100.0))
+
+    @property
+    def spec(self) -> KindSpec:
+        """This kind's record."""
+        return self._spec
+
+    @property
+    def label(self) -> str:
+        """The kind's name in scenarios, commands and messages (FI_Kind's VAL_ name)."""
+        return self.name.lower()
+
+    @property
+    def is_frame(self) -> bool:
+        """A frame kind: it acts on a message's frames in the plant's send stage."""
+        return self.spec.frames is not None
+
+    @property
+    def default(self) -> float:
+        return self.spec.default
+
+    def checked(self, value: float | None) -> float:
+        """`value` (None: the default) if this kind admits it, else BadArgumentError."""
+        spec = self.spec
+        v = spec.default if value is None else value
+        if not math.isfinite(v):
+            raise BadArgumentError(f"{self.label} fault: the value must be a finite number, "
+                                   f"got {v}")
+        lo, hi = spec.bounds
+        if (v <= lo if spec.open_low else v < lo) or v > hi:
+            what = spec.symbol or spec.meaning
+            rule = (f"> {lo:g}" if spec.open_low else f">= {lo:g}") if hi == math.inf \
+                else f"in [{lo:g}, {hi:g}]"
+            raise BadArgumentError(f"{self.label} fault: {what} must be {rule}, got {v}")
+        return v
 
 
-FRAME_KINDS = frozenset({FaultKind.FRAMES_STOP, FaultKind.DELAY, FaultKind.DROPOUT,
-                         FaultKind.WRONG_COUNTER, FaultKind.BAD_CRC, FaultKind.BURST,
-                         FaultKind.BABBLE, FaultKind.ERROR_FRAMES})
-E2E_KINDS = frozenset({FaultKind.WRONG_COUNTER, FaultKind.BAD_CRC})
-
-
-# value meaning per kind (units: the signal's DBC unit, e.g. V for the TPS, deg for the SWA)
-DEFAULT_VALUES = {FaultKind.OFFSET: 0.5, FaultKind.GAIN: 0.5, FaultKind.NOISE: 0.3,
-                  FaultKind.DRIFT: 0.5, FaultKind.QUANTISE: 0.1, FaultKind.DELAY: 20.0,
-                  FaultKind.DROPOUT: 0.5, FaultKind.BAD_CRC: 1.0, FaultKind.BURST: 3.0,
-                  FaultKind.BABBLE: 5.0, FaultKind.ERROR_FRAMES: 1.0}
-VALUE_MEANING = {FaultKind.OFFSET: "added offset", FaultKind.GAIN: "gain G in [0, 1]",
-                 FaultKind.NOISE: "noise sigma", FaultKind.DRIFT: "drift rate per second",
-                 FaultKind.QUANTISE: "quantisation step", FaultKind.DELAY: "delay in ms",
-                 FaultKind.DROPOUT: "probability a frame is lost",
-                 FaultKind.BAD_CRC: "fraction of frames with a bad CRC",
-                 FaultKind.BURST: "copies of each frame", FaultKind.BABBLE: "garbage frames per ms",
-                 FaultKind.ERROR_FRAMES: "error frames per ms",
-                 FaultKind.SHORT_SUPPLY: "supply level (default: TPS 5 V, else the DBC maximum)"}
+# the frame stage's kinds, and those that need the message's E2E protection (views of FaultKind)
+FRAME_KINDS = frozenset(k for k in FaultKind if k.is_frame)
+E2E_KINDS = frozenset(k for k in FaultKind if k.spec.e2e)
 SUPPLY_V = 5.0
-FRAME_VALUE_LIMITS = {FaultKind.DROPOUT: (0.0, 1.0), FaultKind.BAD_CRC: (0.0, 1.0),
-                      FaultKind.DELAY: (0.0, 10_000.0), FaultKind.BURST: (1.0, 100.0),
-                      FaultKind.BABBLE: (0.0, 100.0), FaultKind.ERROR_FRAMES: (0.0, 100.0)}
 
 
 class Fault(Protocol):
@@ -77,106 +240,20 @@ class Fault(Protocol):
 
 
 @dataclass
-class Dead:
-    """Open circuit: the input is pulled to 0 (gain G = 0)."""
+class SignalFault:
+    """A signal fault (or frames stop, for the part fast path): its kind's law on each value."""
 
-    kind: FaultKind = FaultKind.DEAD
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        return 0.0
-
-
-@dataclass
-class ShortToSupply:
-    level: float = SUPPLY_V
-    kind: FaultKind = FaultKind.SHORT_SUPPLY
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        return self.level
-
-
-@dataclass
-class Stuck:
-    """Output frozen at the first value seen after activation."""
-
-    held: float | None = None
-    kind: FaultKind = FaultKind.STUCK
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        if self.held is None:
-            self.held = value
-        return self.held
-
-
-@dataclass
-class FramesStop:
-    """The sensor stops transmitting (a frame fault; on the part fast path: no frame)."""
-
-    kind: FaultKind = FaultKind.FRAMES_STOP
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        return None
-
-
-@dataclass
-class Offset:
-    volts: float  # in the signal's unit (V for the TPS)
-    kind: FaultKind = FaultKind.OFFSET
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        return value + self.volts
-
-
-@dataclass
-class Gain:
-    """Sensor model Y = G * Y0 with 0 <= G <= 1 (G = 0: dead)."""
-
-    gain: float
-    kind: FaultKind = FaultKind.GAIN
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.gain <= 1.0:
-            raise BadArgumentError(f"gain fault: G must be in [0, 1], got {self.gain}")
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        return self.gain * value
-
-
-@dataclass
-class Noise:
-    sigma_v: float
+    kind: FaultKind
+    value: float
     rng: np.random.Generator
-    kind: FaultKind = FaultKind.NOISE
+    t0_ns: int = 0
+    supply: float = SUPPLY_V
+    held: float | None = None
 
     def apply(self, value: float, t_ns: int = 0) -> float | None:
-        return value + self.sigma_v * float(self.rng.standard_normal())
+        return self.kind.spec.law(self, value, t_ns)  # type: ignore[misc]  # signal kinds have a law
 
 
-@dataclass
-class Drift:
-    """Offset growing linearly from the activation time: rate per second."""
-
-    rate: float
-    t0_ns: int
-    kind: FaultKind = FaultKind.DRIFT
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        return value + self.rate * (t_ns - self.t0_ns) * 1e-9
-
-
-@dataclass
-class Quantise:
-    """Coarse ADC: the value rounded to a multiple of `step`."""
-
-    step: float
-    kind: FaultKind = FaultKind.QUANTISE
-
-    def apply(self, value: float, t_ns: int = 0) -> float | None:
-        q = value / self.step
-        return round(q) * self.step if math.isfinite(q) else value  # a step below resolution
-
-
-# ---------------------------------------------------------------------------- frame faults
 @dataclass
 class FrameFault:
     """Transforms one message's outgoing frames; `process` returns what goes on the bus now."""
@@ -185,44 +262,15 @@ class FrameFault:
     value: float
     codec: FrameCodec
     rng: np.random.Generator
-    _held_counter: int | None = field(default=None, repr=False)
+    held_counter: int | None = field(default=None, repr=False)
 
     def process(self, msg: can.Message) -> list[can.Message]:
-        kind = self.kind
-        if kind == FaultKind.FRAMES_STOP:
-            return []
-        if kind == FaultKind.DROPOUT:
-            return [] if self.rng.random() < self.value else [msg]
-        if kind == FaultKind.BURST:
-            return [msg] * max(1, round(self.value))
-        if kind == FaultKind.BAD_CRC:
-            if self.value >= 1.0 or self.rng.random() < self.value:
-                data = bytearray(msg.data)
-                data[self.codec.e2e.crc_byte] ^= 0xFF
-                return [with_data(msg, data)]
-            return [msg]
-        if kind == FaultKind.WRONG_COUNTER:  # counter frozen at its value when the fault began
-            fc = self.codec
-            values = fc.decode(msg.data)
-            if self._held_counter is None:
-                self._held_counter = int(values[fc.e2e.counter_signal])
-            values[fc.e2e.counter_signal] = self._held_counter
-            return [with_data(msg, fc.encode(values))]
-        return [msg]  # DELAY is handled by the injector; BABBLE / ERROR_FRAMES act per tick
+        return self.kind.spec.frames(self, msg)  # type: ignore[misc]  # frame kinds have frames
 
     def per_tick(self, t_ns: int) -> list[can.Message]:
         """Frames a babbling node or a disturbed bus adds each 1 ms tick."""
-        n = _per_tick_count(self.value, t_ns)
-        if self.kind == FaultKind.BABBLE:
-            fc = self.codec
-            payloads = self.rng.integers(0, 256, size=(n, fc.length), dtype=np.uint8)
-            return [can.Message(timestamp=t_ns * 1e-9, arbitration_id=fc.frame_id,
-                                is_extended_id=fc.is_extended, data=bytes(p), check=False)
-                    for p in payloads]
-        if self.kind == FaultKind.ERROR_FRAMES:
-            return [can.Message(timestamp=t_ns * 1e-9, is_error_frame=True, check=False)
-                    for _ in range(n)]
-        return []
+        more = self.kind.spec.per_tick
+        return [] if more is None else more(self, t_ns)
 
 
 def _per_tick_count(rate_per_ms: float, t_ns: int) -> int:
@@ -239,47 +287,14 @@ def with_data(msg: can.Message, data: bytes | bytearray) -> can.Message:
 
 def make_fault(kind: FaultKind, value: float | None, rng: np.random.Generator,
                t_ns: int = 0, supply: float = SUPPLY_V) -> Fault:
-    """Build a signal fault (or FramesStop, for the part fast path); see DEFAULT_VALUES."""
-    if value is None:
-        value = DEFAULT_VALUES.get(kind, 0.0)
-    if not math.isfinite(value):
-        raise BadArgumentError(f"{kind.name.lower()} fault: the value must be a finite number, "
-                               f"got {value}")
-    if kind == FaultKind.DEAD:
-        return Dead()
-    if kind == FaultKind.SHORT_SUPPLY:
-        return ShortToSupply(supply)
-    if kind == FaultKind.STUCK:
-        return Stuck()
-    if kind == FaultKind.FRAMES_STOP:
-        return FramesStop()
-    if kind == FaultKind.OFFSET:
-        return Offset(value)
-    if kind == FaultKind.GAIN:
-        return Gain(value)
-    if kind == FaultKind.NOISE:
-        if value < 0:
-            raise BadArgumentError(f"noise fault: sigma must be >= 0, got {value}")
-        return Noise(value, rng)
-    if kind == FaultKind.DRIFT:
-        return Drift(value, t_ns)
-    if kind == FaultKind.QUANTISE:
-        if not value > 0:
-            raise BadArgumentError(f"quantise fault: step must be > 0, got {value}")
-        return Quantise(value)
-    raise ValueError(f"no signal fault of kind {kind.name.lower()!r}")
+    """A signal fault (or frames stop, for the part fast path) of `kind`, its value checked
+    (None: the kind's default)."""
+    if kind.spec.law is None:
+        raise ValueError(f"no signal fault of kind {kind.label!r}")
+    return SignalFault(kind, kind.checked(value), rng, t_ns, supply)
 
 
 def check_value(kind: FaultKind, value: float | None) -> None:
     """Raise BadArgumentError unless `value` (None: the kind's default) suits `kind`."""
-    if kind in FRAME_KINDS:
-        check_frame_value(kind, DEFAULT_VALUES.get(kind, 0.0) if value is None else value)
-    elif kind != FaultKind.CLEAR:
-        make_fault(kind, value, np.random.default_rng(0))
-
-
-def check_frame_value(kind: FaultKind, value: float) -> None:
-    lo, hi = FRAME_VALUE_LIMITS.get(kind, (-math.inf, math.inf))
-    if not lo <= value <= hi:
-        raise BadArgumentError(f"{kind.name.lower()} fault: {VALUE_MEANING[kind]} must be in "
-                               f"[{lo:g}, {hi:g}], got {value}")
+    if kind != FaultKind.CLEAR:
+        kind.checked(value)

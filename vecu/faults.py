@@ -30,24 +30,14 @@ import numpy as np
 
 from vecu.errors import BadArgumentError
 from vecu.fault_kinds import (  # noqa: F401 (re-exported: the fault library's public names)
-    DEFAULT_VALUES,
     E2E_KINDS,
     FRAME_KINDS,
     SUPPLY_V,
-    VALUE_MEANING,
-    Dead,
-    Drift,
     Fault,
     FaultKind,
     FrameFault,
-    FramesStop,
-    Gain,
-    Noise,
-    Offset,
-    Quantise,
-    ShortToSupply,
-    Stuck,
-    check_frame_value,
+    KindSpec,
+    SignalFault,
     make_fault,
     with_data,
 )
@@ -199,7 +189,7 @@ class FaultInjector:
             raise BadArgumentError(f"fault {kind.name.lower()} on {site.name!r}: message "
                                    f"{site.message} has no E2E CRC/alive counter")
         if kind in FRAME_KINDS:
-            check_frame_value(kind, DEFAULT_VALUES.get(kind, 0.0) if value is None else value)
+            kind.checked(value)
         else:
             if site.signal is None:
                 raise BadArgumentError(f"signal fault {kind.name.lower()} needs MESSAGE.SIGNAL, "
@@ -218,10 +208,9 @@ class FaultInjector:
         key = (fc.frame_id, fc.is_extended)
         part = _part_target(site, kind)
         if part is not None and kind == FaultKind.FRAMES_STOP:
-            self._active[part] = FramesStop()
+            self._active[part] = make_fault(kind, value, self._rng)
         elif kind in FRAME_KINDS:
-            v = DEFAULT_VALUES.get(kind, 0.0) if value is None else value
-            self._frame[key] = FrameFault(kind, v, fc, self._rng)
+            self._frame[key] = FrameFault(kind, kind.checked(value), fc, self._rng)
         else:
             supply = SUPPLY_V if site == SITE_ALIASES["tps"] else fc.ranges[site.signal][1]
             fault = make_fault(kind, value, self._rng, t_ns,
@@ -346,8 +335,7 @@ def fault_event_signals(codec: DbcCodec, site: FaultSite, kind: int, active: int
         names = [s.name for s in fc.signals]
         index = names.index(site.signal) + 1 if site.signal in names else 0
     if value is None:
-        value = DEFAULT_VALUES.get(FaultKind(kind), 0.0) if kind in FaultKind._value2member_map_ \
-            else 0.0
+        value = FaultKind(kind).default if kind in FaultKind._value2member_map_ else 0.0
     return {"FI_EvMessageId": fc.frame_id & 0xFFFF if fc is not None else 0,
             "FI_EvSignal": index, "FI_EvKind": kind, "FI_EvActive": active,
             "FI_EvSource": FAULT_SOURCES.get(source, 3), "FI_EvValue": value}

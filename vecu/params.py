@@ -76,6 +76,8 @@ SOURCES: dict[str, str] = {
     "ecu.manifold.kf.act_q": "vecu decision, docs/models.md 'Adaptive air charge'",
     "ecu.manifold.kf.eta_drift_prior": "vecu decision, docs/models.md 'Adaptive air charge'",
     "ecu.manifold.kf.eta_slab_sd": "Dutka 2006 Table 2 (eta +-4 %); docs/models.md 'Adaptive air charge'",
+    "ecu.instance": "ISO 15765-4 (OBD CAN IDs 0x7E0-0x7EF); vecu decision, docs/live.md "
+                    "'Several ECUs on one bus'",
     "ecu.uds": "ISO 14229-1 (UDS), ISO 15765-2 (ISO-TP); vecu decision, docs/uds.md",
     "ecu.xcp": "ASAM MCD-1 XCP 1.5 on CAN; vecu decision, docs/xcp.md",
 }

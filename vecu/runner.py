@@ -135,7 +135,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
 def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimator) -> None:
     """Open the buses and make every node of p.config's run, each with its hooks."""
     config = p.config
-    codec = functions.function_codec()  # built once per process
+    codec = functions.function_codec(config.params.ecu.instance)  # built once per process
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     n_ticks = p.n_ticks

@@ -112,3 +112,21 @@ def test_bench_quick_campaign_group():
     """--only campaign (not in the default set: minutes at full size) on a real LocalCluster."""
     out = _bench("--only", "campaign", timeout=GROUP_TIMEOUT_S)
     assert re.search(CAMPAIGN, out), out
+
+
+GATEWAY = [rf"RDBI 0x0100 through the gateway \(doipclient\)\s+p50 {NUM} / p99 {NUM}",
+           (rf"the same directly on CAN \(can-isotp\)\s+p50 {NUM} / p99 {NUM} / max {NUM} ms: "
+            rf"gateway / direct {NUM}x p50, {NUM}x p99"),
+           rf"requests per second through the gateway: 1 tester {NUM}/s, 4 testers {NUM}/s",
+           r"gateway process: .* bad inputs 0"]
+
+
+def test_bench_quick_gateway_group():
+    """--only gateway (not in the default set: live processes in a namespace): two ECUs and the
+    gateway, the same request through DoIP and directly on CAN in one run."""
+    out = _bench("--only", "gateway", timeout=GROUP_TIMEOUT_S)
+    if namespace_prefix()[0] is None:
+        assert "Gateway (DoIP -> CAN): skipped" in out
+        return
+    missing = [p for p in GATEWAY if not re.search(p, out)]
+    assert not missing, "\n".join(missing) + "\n" + out

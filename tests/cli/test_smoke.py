@@ -69,6 +69,7 @@ SMOKE: list[tuple[list[str], str]] = [
     (["inject", "--help"], r"usage: vecu inject.*--target"),
     (["plant", "--help"], r"usage: vecu plant"),
     (["ecu", "--help"], r"usage: vecu ecu"),
+    (["gateway", "--print-config"], r"logical_address = 0x1000.*\[\[ecu\]\]"),
     (["params", "ecu.manifold.kf.params.omega0"], r"ecu\.manifold\.kf\.params\.omega0 +50\.0 +rad/s"),
     (["run", "--duration", "0.3", "--set", "plant.manifold.engine.zeta=0.7"], r"300 ticks"),
     (["run", "--duration", "0.2"], r"fixed-lag smoother: no output yet.*\noutputs: add --plot"),
@@ -108,6 +109,8 @@ USER_MISTAKES = [
     (["eval", "consistency", "--estimators", "brakes"], "--estimators: expected names from"),
     (["inject", "--target", "brakes", "--kind", "dead"], "unknown target 'brakes'"),
     (["ecu", "--log", "x.bogus"], "x.bogus: cannot write log"),  # and no bus-not-shut-down warning
+    (["gateway", "--config", "nope.toml"], "nope.toml"),
+    (["gateway", "--doip-port", "70000"], "--doip-port"),
 ]
 
 

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 
 def _await(path: Path, timeout_s: float = 60.0) -> None:
@@ -19,15 +20,20 @@ def _await(path: Path, timeout_s: float = 60.0) -> None:
 
 def start_ecu_and_plant(out: Path, bus: list[str], ecu_args: tuple[str, ...] = (),
                         ecu_s: float = 120, plant_s: float = 90,
-                        plant_args: tuple[str, ...] = ()) -> list[subprocess.Popen]:
-    """[ecu, plant], both ready; the ECU's summary goes to OUT/ecu.json. The caller stops them
+                        plant_args: tuple[str, ...] = (),
+                        more_ecus: tuple[tuple[str, ...], ...] = ()) -> list[subprocess.Popen]:
+    """[ecu, more ECUs..., plant], all ready; the ECU's summary goes to OUT/ecu.json, the k-th
+    more ECU's (its own arguments, e.g. --instance 1) to OUT/ecu<k>.json. The caller stops them
     (vecu.live.scenario.stop_all)."""
     vecu = [sys.executable, "-m", "vecu"]
-    procs = [subprocess.Popen(
-        [*vecu, "ecu", *bus, "--ready-file", str(out / "ecu.ready"), "--sync-timeout", "20",
-         "--duration", f"{ecu_s:g}", "--summary", str(out / "ecu.json"), "--quiet", *ecu_args],
-        stderr=open(out / "ecu.err", "w"))]  # noqa: SIM115 (the child owns it)
-    _await(out / "ecu.ready")
+    procs = []
+    for name, args in (("ecu", ecu_args),
+                       *((f"ecu{k}", more) for k, more in enumerate(more_ecus, 1))):
+        procs.append(subprocess.Popen(
+            [*vecu, "ecu", *bus, "--ready-file", str(out / f"{name}.ready"), "--sync-timeout",
+             "20", "--duration", f"{ecu_s:g}", "--summary", str(out / f"{name}.json"), "--quiet",
+             *args], stderr=open(out / f"{name}.err", "w")))  # noqa: SIM115 (the child owns it)
+        _await(out / f"{name}.ready")
     procs.append(subprocess.Popen(
         [*vecu, "plant", *bus, "--duration", f"{plant_s:g}", "--quiet", "--ready-file",
          str(out / "plant.ready"), *plant_args], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 (the child owns it)
@@ -41,3 +47,16 @@ def ecu_summary(out: Path) -> tuple[dict, float]:
     summary = json.loads(path.read_text()) if path.exists() else {}
     ticks = summary.get("ticks", {}).get("ecu", {})
     return summary, ticks.get("runs", 0) / max(ticks.get("releases", 1), 1)
+
+
+def await_ecu(client: Any, attempts: int = 60) -> None:
+    """TesterPresent until the ECU answers (a live ECU ticks once it has synced to the plant's
+    first frames); a udsoncan Client."""
+    from udsoncan.exceptions import TimeoutException
+
+    for _ in range(attempts):
+        try:
+            client.tester_present()
+            return
+        except TimeoutException:
+            continue

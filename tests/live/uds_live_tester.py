@@ -16,10 +16,9 @@ import can
 import isotp
 from udsoncan.client import Client
 from udsoncan.connections import PythonIsoTpConnection
-from udsoncan.exceptions import TimeoutException
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from tests.live.pair import start_ecu_and_plant
+from tests.live.pair import await_ecu, start_ecu_and_plant
 from tests.uds.sim import CLIENT_CONFIG
 from vecu.live.scenario import stop_all
 
@@ -39,12 +38,7 @@ def main(out: Path) -> dict:
             isotp.AddressingMode.Normal_11bits, txid=0x7E0, rxid=0x7E8))
         config = {**CLIENT_CONFIG, "dtc_snapshot_did_size": 2}
         with Client(PythonIsoTpConnection(stack), config=config) as c:
-            for _ in range(60):  # until the ECU ticks (it syncs to the plant's first frames)
-                try:
-                    c.tester_present()
-                    break
-                except TimeoutException:
-                    continue
+            await_ecu(c)  # until the ECU ticks (it syncs to the plant's first frames)
             t0 = time.perf_counter()
             res["vin"] = c.read_data_by_identifier(0xF190).service_data.values[0xF190]
             res["latency_ms"] = (time.perf_counter() - t0) * 1e3

@@ -16,7 +16,7 @@ from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.ident.kernels import free_run
 from vecu.models import throttle as mt
 from vecu.models.throttle import PAPER_THROTTLE, TABLE_I, ModeParams, ThrottleModel
-from vecu.plant.throttle_kernel import plant_step
+from vecu.plant.throttle import plant_step
 
 
 def _sgn(v: float) -> float:

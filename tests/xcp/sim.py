@@ -6,15 +6,14 @@ stands on a python-can `virtual` bus of the run's channel."""
 from __future__ import annotations
 
 import logging
-import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
 from pyxcp.config import create_application_from_config
 from pyxcp.master import Master
 
-from tests.uds.sim import SimRun
+from tests.uds.sim import SimRun, run_stepped
+from vecu.assembly import TICK_NS
 from vecu.config import RunConfig
 from vecu.runner import attach_xcp_server
 from vecu.xcp.server import XcpServer
@@ -53,27 +52,13 @@ class XcpSim(SimRun):
               **general: Any) -> Any:
         """Run `work(master)` on a thread while the simulated clock steps 1 ms at a time;
         its result (or its exception)."""
-        out: dict[str, Any] = {}
+        def body() -> Any:
+            with self.master(policy, timeout, **general) as m:
+                return work(m)
 
-        def body() -> None:
-            try:
-                with self.master(policy, timeout, **general) as m:
-                    out["result"] = work(m)
-            except BaseException as exc:  # noqa: BLE001 - handed to the test
-                out["error"] = exc
-
-        thread = threading.Thread(target=body, daemon=True)
-        thread.start()
-        time.sleep(0.05)  # the master's listener thread up before the first response can come
-        end = self.t_ns + round(max_sim_s * 1e9)
-        while thread.is_alive() and self.t_ns < end:
-            self.step()
-            time.sleep(pace_s)
-        thread.join(10.0)
-        assert not thread.is_alive(), "the master did not finish"
-        if "error" in out:
-            raise out["error"]
-        return out["result"]
+        # the master's listener thread up before the first response can come: settle 50 ms
+        return run_stepped(body, self.step, round(max_sim_s * 1e9) // TICK_NS, pace_s,
+                           settle_s=0.05, who="master")
 
 
 class RawMaster:

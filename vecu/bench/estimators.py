@@ -202,8 +202,8 @@ class NumpyReferencePF:
                  th > MODE_BOUNDS_DEG[1]]
         for p, m in zip(PAPER_THROTTLE.rows, modes):  # eq. (3) per mode, on arrays
             tm, rm = th[m], rh[m]
-            new[0, m], new[1, m], new[2, m] = mode_step.py(p, tm, rm, ci[m], u, np.sign(rm),
-                                                           np.sign(tm - 1.0))
+            new[0, m], new[1, m], new[2, m] = mode_step(p, tm, rm, ci[m], u, np.sign(rm),
+                                                       np.sign(tm - 1.0))
         new[0] = np.clip(new[0] + self.s_th * rng.standard_normal(self.n), 0.0, 90.0)
         m = new[2]
         s2 = self.s_i ** 2

@@ -39,7 +39,7 @@ def main(args: argparse.Namespace) -> int:
     config.validate()
     if not config.params.ecu.xcp.enabled:
         raise BadArgumentError("ecu.xcp.enabled is false: the ECU serves no XCP, so no A2L")
-    codec = function_codec()  # vecu's DBCs and the plug-in functions' own (as run, replay)
+    codec = function_codec(config.params.ecu.instance)  # vecu's DBCs and the plug-in functions' own
     bus = SinkBus()
     try:
         node = EcuNode(bus, codec, build_functions(config, codec).enabled())

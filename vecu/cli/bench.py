@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakdown", "kernels",
-          "uds", "restbus", "xcp")
+          "uds", "restbus", "xcp", "gateway")
 
 
 _groups = argtypes.name_list(GROUPS)  # --only: one group or several, comma-separated (pipeline,replay)
@@ -53,6 +53,7 @@ SIZES: dict[str, tuple[Any, Any]] = {
     "log_memory_s": ((60.0, 300.0), (0.5, 1.0)),
     "uds_requests": (200, 20), "restbus_s": (10.0, 1.0),
     "xcp_commands": (200, 20), "xcp_daq_s": (5.0, 0.5),
+    "gateway_requests": (300, 40), "gateway_s": (3.0, 1.0),
 }
 
 
@@ -128,6 +129,10 @@ def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
     if groups is not None and "xcp" in groups:  # needs pyxcp (vecu[test]): only when asked for
         from vecu.bench.xcp import bench_xcp
         out["xcp"] = bench_xcp(commands=int(size("xcp_commands")), daq_s=size("xcp_daq_s"))
+    if groups is not None and "gateway" in groups:  # live processes in a namespace: when asked
+        from vecu.bench.gateway import bench_gateway
+        out["gateway"] = bench_gateway(requests=int(size("gateway_requests")),
+                                       seconds=size("gateway_s"))
     if want("live"):
         from vecu.bench.live import bench_live
         out["live"] = bench_live(size("live_s", live_seconds), size("memory_min", memory_minutes),
@@ -200,6 +205,9 @@ def main(args: argparse.Namespace) -> int:
     if "xcp" in res:
         from vecu.bench.xcp import format_xcp
         print(format_xcp(res["xcp"]))
+    if "gateway" in res:
+        from vecu.bench.gateway import format_gateway
+        print(format_gateway(res["gateway"]))
     if "campaign" in res:
         from vecu.bench.campaign import format_campaign
         print(format_campaign(res["campaign"]))

@@ -14,6 +14,7 @@ from vecu.cli import (
     param_sets,
 )
 from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
+from vecu.instances import FRAME_STRIDE, MAX_INSTANCE
 from vecu.live.args import add_live_arguments, function_switches, live_options
 
 MAX_STATUS_CHANGES = 64
@@ -28,8 +29,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "0x7DF), responses on 0x7E8; --set ecu.uds.request_id=... "
                                    "moves them (docs/uds.md). It is an XCP-on-CAN slave: "
                                    "commands on 0x7F0, responses and DAQ on 0x7F1 (ecu.xcp.*), "
-                                   "described by `vecu a2l` (docs/xcp.md).")
+                                   "described by `vecu a2l` (docs/xcp.md). --instance N moves "
+                                   "all of these IDs and the ECU's frames, so that several "
+                                   "ECUs share a bus (docs/live.md).")
     add_live_arguments(p)
+    p.add_argument("--instance", type=argtypes.bounded(0, MAX_INSTANCE, integer=True), default=None,
+                   metavar="N", help=f"ECU instance 0..{MAX_INSTANCE} (ecu.instance): UDS on "
+                   "0x7E0+N / 0x7E8+N, XCP on 0x7F0+2N / 0x7F1+2N, the ECU's frames at "
+                   f"their DBC ID + N*0x{FRAME_STRIDE:X} (default 0: the DBC's IDs)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.*")
     p.add_argument("--manifold-filter", default=None, choices=ESTIMATORS["manifold"].names,
@@ -69,13 +76,15 @@ def main(args: argparse.Namespace) -> int:
     from vecu.uds.server import attach_uds
 
     sets = param_sets(args, only="ecu.")
+    if args.instance is not None:
+        sets.insert(0, ("ecu.instance", args.instance))
     if args.tps_timeout_cycles is not None:
         sets.append(("ecu.throttle.tps_monitor.timeout_cycles", args.tps_timeout_cycles))
     config = RunConfig(duration_s=args.duration or 1.0, seed=args.seed, kill_tps_at_s=None,
                        **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
                        ).with_params(sets, noise_scale=args.noise_scale, estimator=args.estimator,
                                      manifold_filter=args.manifold_filter)
-    codec = function_codec()  # vecu's DBCs and the plug-in functions' own (as run, replay)
+    codec = function_codec(config.params.ecu.instance)  # vecu's DBCs and the plug-in functions' own
     config.validate()
     fns = build_functions(config, codec)
     proc = LiveProcess(live_options(args, "ecu"), codec, "VECU",
@@ -153,6 +162,7 @@ def main(args: argparse.Namespace) -> int:
 def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
     from vecu.clock import NS_PER_S
     from vecu.ecu.sensor_monitor import DtcState
+    from vecu.instances import ECU_NODE
 
     thr = fns.throttle
     mon = thr.monitor
@@ -163,6 +173,12 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
     lat = proc.bus.latency
     estimates = {f.name: f.estimates_sent for f in fns.enabled()}
     return {
+        # which ECU this is on the bus: its instance and the CAN ID of each of its frames on it
+        # (vecu.instances; the left-out functions' frames too)
+        "instance": ecu.codec.instance,
+        "can_ids": {fc.name: f"0x{fc.frame_id:X}"
+                    for fc in sorted((ecu.codec.by_id[k] for k in ecu.codec.sent_by(ECU_NODE)),
+                                     key=lambda fc: fc.frame_id)},
         "sync": sync.as_dict(),
         "latency_us": {
             **lat.hist.summary(),
@@ -228,7 +244,8 @@ def format_ecu_summary(s: dict[str, Any]) -> str:
     fault = ("none" if th["first_fault_s"] is None
              else f"first {th['detected_as']} at {th['first_fault_s']:.3f} s")
     lines = [
-        (f"vecu ecu: {s['elapsed_s']:.1f} s on {s['interface']} {s['channel']}, stopped by "
+        (f"vecu ecu{' instance ' + str(s['instance']) if s.get('instance') else ''}: "
+         f"{s['elapsed_s']:.1f} s on {s['interface']} {s['channel']}, stopped by "
          f"{s['stopped_by']}; {t['releases']} ticks, {t['overruns']} overruns "
          f"({t['overrun_pct'] or 0:.3f} %), {s['lost_throttle_estimates']} throttle estimates lost"),
         (f"  tick jitter p50 {j['p50_us']} p99 {j['p99_us']} max {j['max_us']} us; frame-in -> "

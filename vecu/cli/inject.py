@@ -36,7 +36,6 @@ def command_values(target: str, kind: str, value: float | None) -> dict[str, flo
 
     from vecu.codec import DbcCodec
     from vecu.faults import (
-        DEFAULT_VALUES,
         FaultInjector,
         FaultKind,
         FaultTarget,
@@ -53,7 +52,7 @@ def command_values(target: str, kind: str, value: float | None) -> dict[str, flo
     if k != FaultKind.CLEAR:  # the plant's own checks, signal and frame faults alike
         FaultInjector(np.random.default_rng(0), DbcCodec()).check(tgt, k, value)
     if value is None:
-        value = DEFAULT_VALUES.get(k, 0.0)
+        value = k.default
     return {"FI_Target": int(tgt), "FI_Kind": int(k), "FI_Value": value}
 
 

@@ -29,7 +29,7 @@ FUNCTIONS: dict[str, str] = {
 OPTIONAL: tuple[str, ...] = ("speed", "steering", "manifold")
 _loaded: dict[str, EcuFunctionSpec] = {}   # FUNCTIONS' specs imported so far
 _plugins: dict[str, EcuFunctionSpec] = {}  # register()ed, after the built-in ones
-_codecs: dict[tuple[str, ...], DbcCodec] = {}  # codecs with plug-ins' DBCs, built once each
+_codecs: dict[tuple, DbcCodec] = {}  # codecs with plug-ins' DBCs, built once per DBCs + instance
 
 __all__ = ["FUNCTIONS", "OPTIONAL", "enabled", "function_codec", "names", "register",
            "registered", "sensors", "spec", "specs", "unregister"]
@@ -92,16 +92,17 @@ def registered(new: EcuFunctionSpec) -> Iterator[EcuFunctionSpec]:
         unregister(new.name)
 
 
-def function_codec() -> DbcCodec:
+def function_codec(instance: int = 0) -> DbcCodec:
     """vecu's codec (its DBC and truth DBC), with the DBCs of registered plug-ins that bring
-    their own messages; the shared codec when none does."""
+    their own messages; the shared codec when none does. instance: the ECU instance whose frames
+    it sends and reads (vecu.instances; 0: the DBCs' IDs)."""
     from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path, shared_codec
 
     extra = tuple(path for s in specs() for path in s.dbc)
     if not extra:
-        return shared_codec()
-    codec = _codecs.get(extra)
+        return shared_codec(instance)
+    codec = _codecs.get((*extra, instance))
     if codec is None:
-        codec = _codecs[extra] = DbcCodec([builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC),
-                                           *extra])
+        codec = _codecs[(*extra, instance)] = DbcCodec(
+            [builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC), *extra], instance=instance)
     return codec

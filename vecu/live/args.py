@@ -1,4 +1,5 @@
-"""Command-line options shared by `vecu plant` and `vecu ecu` (and the bus ones by `vecu inject`)."""
+"""Command-line options shared by `vecu plant` and `vecu ecu` (the process ones by `vecu gateway`,
+the bus ones by `vecu inject`)."""
 
 from __future__ import annotations
 
@@ -19,16 +20,26 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bitrate", type=argtypes.positive_int, help="bitrate for interfaces that need one")
 
 
-def add_live_arguments(p: argparse.ArgumentParser) -> None:
-    add_bus_arguments(p)
+def add_duration_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=argtypes.live_seconds, metavar="S",
                    help=f"run S seconds, {argtypes.TICK_S:g}..{argtypes.RUN_MAX_S:g} (default: until "
                         "Ctrl-C / SIGTERM)")
+
+
+def add_live_arguments(p: argparse.ArgumentParser) -> None:
+    add_bus_arguments(p)
+    add_duration_argument(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed, 0..2**63-1 (default 0)")
     p.add_argument("--noise-scale", type=argtypes.noise_scale, default=None, metavar="A",
                    help="process-noise scale alpha of the throttle model (1 = paper; "
                         f"0..{argtypes.NOISE_SCALE_MAX:g})")
     add_function_switches(p)
+    add_process_arguments(p)
+
+
+def add_process_arguments(p: argparse.ArgumentParser) -> None:
+    """What every live process takes (`vecu plant`, `vecu ecu`, `vecu gateway`): its log,
+    summary, ready file, pacing, status panel, receive filter and buffer, real-time, quiet."""
     p.add_argument("--log", metavar="FILE", help="record every frame on the bus; format by suffix "
                                                  "(.log .asc .blf ...), flushed on every exit")
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary on exit")

@@ -134,7 +134,10 @@ class LiveProcess:
     """One node in its own process: bus, recorder, clock, scheduler, signals, status, summary."""
 
     def __init__(self, opts: LiveOptions, codec: DbcCodec, dbc_node: str,
-                 latency: tuple[str, str] | None = None) -> None:
+                 latency: tuple[str, str] | None = None,
+                 own_ids: set[Key] | None = None) -> None:
+        """own_ids: the CAN IDs this node sends (its echoes dropped), when the DBC does not
+        name them (the gateway's diagnostic requests); default: what the DBC gives dbc_node."""
         self.opts = opts
         self.codec = codec
         self.stop = StopFlag()
@@ -174,7 +177,8 @@ class LiveProcess:
             trig, resp = codec[latency[0]], codec[latency[1]]
             lat = FrameLatency((trig.frame_id, trig.is_extended), (resp.frame_id, resp.is_extended),
                                self.interface in ARRIVAL_TIMESTAMP_INTERFACES)
-        self.bus = LiveBus(raw, sent_ids(codec, dbc_node), self.interface, lat,
+        self.bus = LiveBus(raw, sent_ids(codec, dbc_node) if own_ids is None else own_ids,
+                           self.interface, lat,
                            rcvbuf_bytes=opts.rx_buffer_bytes)
 
     # ----------------------------------------------------------------- setup

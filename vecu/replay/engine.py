@@ -123,12 +123,12 @@ def _brief(config: ReplayConfig) -> ReplayResult:
 
 def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
     """replay(); until_ns: stop after the trace's frames up to this time (a warm-up)."""
-    ecu_codec = registry.function_codec()  # built once per process
+    run_cfg = RunConfig(kill_tps_at_s=None).with_params(
+        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
+    ecu_codec = registry.function_codec(run_cfg.params.ecu.instance)  # built once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
             else identity_map(trace_db))
-    run_cfg = RunConfig(kill_tps_at_s=None).with_params(
-        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
     functions = [f for f in build_functions(run_cfg, ecu_codec).enabled()
                  if f.name not in smap.disabled]
     routes = _routes(config, smap, trace_db, ecu_codec, functions)

@@ -16,12 +16,12 @@ import numpy as np
 
 from vecu import functions
 from vecu.codec import DbcCodec, shared_codec
-from vecu.config import ParamTree, RunConfig, shortcut_sets, validate_tree
+from vecu.config import ParamTree, RunConfig, apply_params, shortcut_sets, validate_tree
 from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.errors import BadFileError, UserError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
-from vecu.params import ParamError, apply_sets, flatten_toml
+from vecu.params import ParamError, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
 from vecu.restbus.node import RestbusNode
 from vecu.restbus.spec import RestbusConfig, build_plans
@@ -194,7 +194,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     params = ParamTree()
     try:
         for key, leaf, value in sets:  # noqa: B007 - `key` names the culprit in the except below
-            params = apply_sets(params, [(leaf, value)])
+            params = apply_params(params, [(leaf, value)])
         key = "set"
         validate_tree(params)
     except ParamError as exc:

@@ -4,15 +4,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from vecu.instances import uds_ids
+
 CAN_ID_BOUNDS = {"bounds": (0, 0x7FF)}
 
 
 @dataclass(frozen=True)
 class UdsConfig:
     enabled: bool = True  # False: the ECU claims no diagnostic ID (a 0x7E0 frame is unknown)
-    request_id: int = field(default=0x7E0, metadata=CAN_ID_BOUNDS)     # physical requests
-    response_id: int = field(default=0x7E8, metadata=CAN_ID_BOUNDS)    # all responses
-    functional_id: int = field(default=0x7DF, metadata=CAN_ID_BOUNDS)  # functional requests
+    # instance 0's IDs (vecu.instances: ecu.instance moves them unless they are set)
+    request_id: int = field(default=uds_ids(0)["request_id"], metadata=CAN_ID_BOUNDS)  # physical
+    response_id: int = field(default=uds_ids(0)["response_id"], metadata=CAN_ID_BOUNDS)  # all
+    functional_id: int = field(default=uds_ids(0)["functional_id"],
+                               metadata=CAN_ID_BOUNDS)  # functional requests
     p2_ms: float = field(default=50.0, metadata={"bounds": (1.0, 65535.0)})
     p2_star_ms: float = field(default=5000.0, metadata={"bounds": (10.0, 655350.0)})
     s3_ms: float = field(default=5000.0, metadata={"bounds": (100.0, 600000.0)})

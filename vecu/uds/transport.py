@@ -92,23 +92,31 @@ class Endpoint:
     """One ISO-TP end: frames in (put()), payloads out (requests()), frames out (drain()).
 
     rx_id: the CAN ID it listens on; tx_id: where it sends (and the flow control of what it
-    receives). Frames it produces wait in a queue until drain() hands them to the bus."""
+    receives). Frames it produces wait in a queue until drain() hands them to the bus.
+    `address`, when given, replaces the normal addressing of rx_id / tx_id (another ISO 15765-2
+    addressing format: normal fixed, extended, as can-isotp's Address has them)."""
 
     def __init__(self, rx_id: int, tx_id: int, now_ns: NowNs, extended: bool = False,
                  errors: Callable[[Exception], None] | None = None,
-                 params: dict[str, Any] | None = None) -> None:
+                 params: dict[str, Any] | None = None,
+                 address: isotp.Address | None = None) -> None:
         mode = isotp.AddressingMode.Normal_29bits if extended else isotp.AddressingMode.Normal_11bits
         self._in: deque[isotp.CanMessage] = deque()
         self.out: deque[isotp.CanMessage] = deque()
         self.layer = ClockedTransport(self._rx, self.out.append,
-                                      isotp.Address(mode, rxid=rx_id, txid=tx_id), now_ns,
-                                      params=params, error_handler=errors)
+                                      address or isotp.Address(mode, rxid=rx_id, txid=tx_id),
+                                      now_ns, params=params, error_handler=errors)
 
     def _rx(self, timeout: float) -> isotp.CanMessage | None:
         return self._in.popleft() if self._in else None
 
     def put(self, msg: can.Message) -> None:
         self._in.append(to_isotp(msg))
+
+    @property
+    def frames_in(self) -> int:
+        """Frames put and not yet taken in by process()."""
+        return len(self._in)
 
     def process(self) -> None:
         """Take in every frame put so far. can-isotp's process() stops at a frame that wants

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
+from vecu.instances import xcp_ids
 from vecu.params import ParamError
 
 CAN_ID_BOUNDS = {"bounds": (0, 0x7FF)}
@@ -13,8 +14,11 @@ CAN_ID_BOUNDS = {"bounds": (0, 0x7FF)}
 @dataclass(frozen=True)
 class XcpConfig:
     enabled: bool = True  # False: the ECU claims no XCP ID
-    master_id: int = field(default=0x7F0, metadata=CAN_ID_BOUNDS)  # CAN_ID_MASTER (commands)
-    slave_id: int = field(default=0x7F1, metadata=CAN_ID_BOUNDS)   # CAN_ID_SLAVE (responses, DAQ)
+    # instance 0's IDs (vecu.instances: ecu.instance moves them unless they are set)
+    master_id: int = field(default=xcp_ids(0)["master_id"],
+                           metadata=CAN_ID_BOUNDS)  # CAN_ID_MASTER (commands)
+    slave_id: int = field(default=xcp_ids(0)["slave_id"],
+                          metadata=CAN_ID_BOUNDS)   # CAN_ID_SLAVE (responses, DAQ)
     # seed & key (GET_SEED / UNLOCK) protects CAL/PAG, DAQ and PGM; off: all unlocked
     seed_key: bool = False
     secret: str = "vecu-xcp"  # the seed & key secret (vecu/xcp/security.py)
