@@ -64,6 +64,25 @@ def test_fastmath_is_refused():
         kernels.kernel(fastmath=True)
 
 
+def _loops(x):
+    return x + 1.0
+
+
+def _vectorised(x):
+    return x + 2.0  # differs on purpose: shows which form ran
+
+
+def test_a_numpy_form_runs_under_python_and_the_loops_compile_under_numba():
+    k = kernels.kernel(_loops, python=_vectorised)
+    with kernels.using("python"):
+        assert k(1.0) == 3.0 and k.impl() is _vectorised
+    if kernels.numba_available():
+        with kernels.using("numba"):
+            assert k(1.0) == 2.0 and k(1.0) == 2.0  # compiled on first call, then cached
+    assert kernels.kernel(python=_vectorised)(_loops).plain is _vectorised
+    assert kernels.kernel(_loops).plain is _loops
+
+
 def test_set_backend_returns_the_previous_one(fresh_backend, monkeypatch):
     pytest.importorskip("numba")
     monkeypatch.setenv(kernels.ENV_VAR, "numba")

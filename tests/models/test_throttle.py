@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from vecu.estimators.throttle.pf_parts import class_b, class_matrix_stack
+from vecu.estimators.throttle.pf.model import class_b, class_matrix_stack
 from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.ident.kernels import free_run
 from vecu.models import throttle as mt

@@ -151,7 +151,7 @@ def nees_of(e: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 # ----------------------------------------------------------------------------- throttle
 def run_throttle(seed: int, sizes: Sizes, mismatch: bool, burn_in: int = 1000,
                  filter_alpha: float = 1.0) -> _Run:
-    from vecu.estimators.throttle.production import make_production_estimator
+    from vecu.estimators.throttle.pf.filter import make_production_estimator
     from vecu.eval.throttle import run_estimator
     from vecu.models.throttle import ThrottleModel
     from vecu.plant.throttle import simulate

@@ -189,7 +189,7 @@ SPEC = EcuFunctionSpec(
         ("vecu.plant.throttle", "ThrottlePlant", "ticks", "plant: throttle model ticks"),
         ("vecu.plant.throttle", "InputGenerator", "take", "plant: throttle input generator"),
         ("vecu.ecu.throttle_function", "ThrottleFunction", "run", "ecu: throttle function"),
-        ("vecu.estimators.throttle.production", "ThrottleParticleFilter", "step",
+        ("vecu.estimators.throttle.pf.filter", "ThrottleParticleFilter", "step",
          "estimator: throttle production PF/KF"),
         ("vecu.functions.throttle", "ThrottleProbe", "tick", "probes"),
     ),

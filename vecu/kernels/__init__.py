@@ -32,6 +32,15 @@ array or a structured array compiled; tuples of Python floats or a dict of named
 as Python); `@kernel(setup=fn)` runs fn once before the
 kernel is first compiled (an external symbol it links, say).
 
+A numpy form (`@kernel(python=numpy_fn)`): the python backend runs numpy_fn instead of the loops
+(the numba backend still compiles fn). A kernel may carry a numpy form only when its loops as
+plain Python would make the python backend unusable (per-particle loops: the throttle particle
+filter's step and resampling, vecu.estimators.throttle.pf); both forms are tested against each
+other (same draws and decisions, results equal to rounding). The same option carries a kernel
+on arrays that the python backend runs on their Python lists or a view of them (the same
+function; numpy's element access would double a small kernel's time in plain Python). The
+choice stays here: callers call `k(...)` under either backend.
+
 Same seed, same backend -> bit-identical output. The two backends agree to rounding (a few ulp:
 numba's vector reductions and libm calls may round differently from numpy's); for kernels that
 only do scalar IEEE arithmetic and libm calls the outputs are bit-identical (tested per kernel).
@@ -164,10 +173,12 @@ def kernel_cache_dirs() -> list[Path]:
 class Kernel:
     """A numba-compatible function, compiled on first use under the numba backend."""
 
-    __slots__ = ("_compiled", "_options", "_setup", "_signature", "py", "small")
+    __slots__ = ("_compiled", "_options", "_setup", "_signature", "plain", "py", "small")
 
-    def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
+    def __init__(self, fn: Callable[..., Any], options: dict[str, Any],
+                 python: Callable[..., Any] | None = None) -> None:
         self.py = fn
+        self.plain = fn if python is None else python  # what the python backend runs
         self.small = bool(options.pop("small", False))
         self._setup: Callable[[], None] | None = options.pop("setup", None)
         self._options = options
@@ -226,11 +237,11 @@ class Kernel:
 
     def impl(self) -> Callable[..., Any]:
         """The function a call from Python runs under the active backend."""
-        return self.compiled if backend() == "numba" and not self.small else self.py
+        return self.compiled if backend() == "numba" and not self.small else self.plain
 
     def __call__(self, *args: Any) -> Any:
         if _active == "python" or self.small:  # first: a kernel calling kernels in Python
-            return self.py(*args)
+            return self.plain(*args)
         return (self._compiled or self.impl())(*args)
 
 
@@ -300,6 +311,8 @@ def _module_key(module: ModuleType) -> bytes:
             h.update(name.encode() + repr(v).encode())
         elif type(v).__name__ == "ndarray":
             h.update(name.encode() + str((v.dtype, v.shape)).encode() + v.tobytes())
+        elif type(v).__module__ == "numpy.dtypes":  # a record layout kernels view arrays as
+            h.update(name.encode() + repr(v.descr).encode())
     key = h.digest()
     _module_keys[module.__name__] = (module, key)
     return key
@@ -374,12 +387,13 @@ def _drop_stale_cache(compiled: Any, fn: Callable[..., Any]) -> None:
         pass
 
 
-def kernel(fn: Callable[..., Any] | None = None, **options: Any) -> Any:
-    """Decorator: `@kernel`, `@kernel(small=True)`, `@kernel(setup=fn)` (module docstring) or
-    `@kernel(error_model="numpy")`; numba options pass through (never fastmath: it would break
-    the agreement with the Python path)."""
+def kernel(fn: Callable[..., Any] | None = None, *, python: Callable[..., Any] | None = None,
+           **options: Any) -> Any:
+    """Decorator: `@kernel`, `@kernel(small=True)`, `@kernel(setup=fn)`, `@kernel(python=fn)`
+    (module docstring) or `@kernel(error_model="numpy")`; numba options pass through (never
+    fastmath: it would break the agreement with the Python path)."""
     if "fastmath" in options:
         raise ValueError("fastmath is not allowed in vecu kernels")
     if fn is None:
-        return lambda f: Kernel(f, dict(options))
-    return Kernel(fn, options)
+        return lambda f: Kernel(f, dict(options), python)
+    return Kernel(fn, options, python)
