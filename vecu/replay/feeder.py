@@ -11,9 +11,8 @@ from itertools import islice
 
 import can
 
-from vecu.block_codec import BlockChecks
 from vecu.clock import WallClock
-from vecu.codec import DbcCodec, FrameCodec
+from vecu.codec import BlockChecks, DbcCodec, FrameCodec
 from vecu.ecu.node import EcuNode, Route
 from vecu.replay.scoring import TruthScorer
 from vecu.replay.source import TraceSource

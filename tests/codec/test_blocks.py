@@ -11,7 +11,7 @@ import struct
 
 import pytest
 
-from tests.dbc_sets import every_message
+from tests.codec.dbc_sets import every_message
 from vecu.codec import DbcCodec, builtin_dbc_path
 
 FRAMES = 300  # random payloads per message, decoded as one block
