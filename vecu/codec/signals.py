@@ -4,6 +4,7 @@ per-message lists of signals that saturate on encode, are range-checked on recei
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from cantools.database.can import Message
@@ -131,7 +132,7 @@ def start_value(sig) -> float:
     return v
 
 
-def mux_selections(tree: list) -> list[dict[str, int]]:
+def mux_selections(tree: Sequence) -> list[dict[str, int]]:
     """Every combination of multiplexer values the signal tree allows (cascades included), each
     a {multiplexer signal: value} dict, in the database's order."""
     out: list[dict[str, int]] = [{}]
@@ -139,7 +140,7 @@ def mux_selections(tree: list) -> list[dict[str, int]]:
         if not isinstance(node, dict):
             continue
         for mux, branches in node.items():
-            options = []
+            options: list[dict[str, int]] = []
             for value, sub in branches.items():
                 options.extend({mux: value, **rest} for rest in mux_selections(sub))
             out = [{**a, **b} for a in out for b in options] if options else out

@@ -26,6 +26,7 @@ import math
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import can
 from cantools.database.can import Message
@@ -75,7 +76,7 @@ class _Field:
     length: int
     signed: bool
     float_bits: int
-    conv: object  # the cantools conversion used
+    conv: Any  # the cantools conversion used
 
 
 def message_source(msg: Message, *, saturate: Sequence[tuple[str, float, float]],
