@@ -1,5 +1,5 @@
 """The replay's feeder: the scheduler task that hands the trace's frames to the ECU (fast mode,
-in blocks: vecu.block_codec) or plays them onto a bus (live mode), and the tally of what became
+in blocks: vecu.codec.blocks) or plays them onto a bus (live mode), and the tally of what became
 of each frame."""
 
 from __future__ import annotations
