@@ -5,16 +5,12 @@ for every instance, the parameter tree's follow rule, the user errors, and two E
 from __future__ import annotations
 
 import re
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import can
 import isotp
 import pytest
-from udsoncan.client import Client
-from udsoncan.connections import PythonIsoTpConnection
 
 from vecu.assembly import TICK_NS, build_functions, build_plant, schedule_ecu, schedule_plant
 from vecu.bus import open_bus
@@ -37,7 +33,7 @@ from vecu.params import ParamError
 from vecu.scheduler import Scheduler
 from vecu.uds.server import attach_uds
 
-from .uds.sim import CLIENT_CONFIG
+from .uds.sim import drive_tester
 
 INSTANCES = range(MAX_INSTANCE + 1)
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "live.md"
@@ -187,26 +183,7 @@ class TwoEcus:
         stack = isotp.CanStack(bus, address=isotp.Address(
             isotp.AddressingMode.Normal_11bits, txid=ids["request_id"], rxid=ids["response_id"]),
             params={"tx_padding": 0xCC, "blocking_send": False})
-        out: dict[str, Any] = {}
-
-        def body() -> None:
-            try:
-                with Client(PythonIsoTpConnection(stack), config=CLIENT_CONFIG) as c:
-                    out["result"] = work(c)
-            except BaseException as exc:  # noqa: BLE001 - handed to the test
-                out["error"] = exc
-
-        thread = threading.Thread(target=body, daemon=True)
-        thread.start()
-        for _ in range(60_000):
-            if not thread.is_alive():
-                break
-            self.step()
-            time.sleep(0.0002)
-        thread.join(10.0)
-        if "error" in out:
-            raise out["error"]
-        return out["result"]
+        return drive_tester(stack, work, self.step, max_ticks=60_000)
 
     def close(self) -> None:
         for bus in self.buses:
@@ -267,3 +244,18 @@ def test_two_ecus_broadcast_their_frames_at_distinct_ids(two_ecus):
     # instance 1's frame is not instance 0's: its CRC fails under instance 0's data ID
     payload = seen[thr[1].frame_id][-1].data
     assert not thr[0].crc_ok(payload)
+
+
+@pytest.mark.parametrize("name", ["uds_tps_dtc", "xcp_tps_debounce"])
+def test_a_shipped_scenario_passes_on_another_instance(tmp_path, name):
+    """The scenario's UDS tester / XCP master and its checks follow `ecu.instance`."""
+    from vecu.scenario.batch import run_scenario
+    from vecu.scenario.loader import load_scenario
+    from vecu.shipped import shipped_files
+
+    path = tmp_path / f"{name}.toml"
+    path.write_text(shipped_files("scenario")[name].read_text() + '\n[set]\n"ecu.instance" = 3\n')
+    scenario = load_scenario(path)
+    assert scenario.config.params.ecu.uds.request_id == 0x7E3
+    outcome = run_scenario(scenario)
+    assert outcome.error is None and outcome.passed, outcome

@@ -8,7 +8,9 @@ cheaper poll (FastVirtualBus, FastUdpMulticastBus). Also here: python-can's own 
 benchmark baseline (open_baseline_virtual_bus), the in-process lane of simulated-clock runs
 (SimLane: python-can Message objects shared between the nodes, copies only for edges such as a
 log writer), the replay sink (SinkBus) and BusNode, the counted, never-raising sender the plant
-and the ECU stand on.
+and the ECU stand on, with the two guards every node shares: bounded receive work per tick
+(RxBudget: a flood cannot stall a tick) and one boundary for command handlers (a client's request
+that makes a handler raise is counted and logged once, never raised out of the tick).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import socket
 import struct
 from collections import deque
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from typing import Any
 
 import can
@@ -334,18 +337,68 @@ class LaneBus(can.BusABC):
 MAX_LOGGED_SEND_ERRORS = 20
 
 
+@dataclass(frozen=True)
+class RxBudget:
+    """A node's receive work per tick (docs/live.md 'Floods'): the first `frames_per_tick`
+    frames read are handled; the next `shed_per_tick` are read and shed (counted, not decoded;
+    a diagnostic request among them still reaches its server); whatever else came stays in the
+    bus (socket or queue) for the next tick. 64 is ~3x what a saturated 1 Mbit/s classic CAN
+    bus carries per 1 ms (~21 frames of 47 bits), and the worst tick then costs ~0.5 ms."""
+
+    frames_per_tick: int = field(default=64, metadata={"bounds": (1, 65535)})
+    shed_per_tick: int = field(default=192, metadata={"bounds": (0, 1_000_000)})
+
+
 class BusNode:
-    """Base of the plant and ECU nodes: send() counts frames and failures instead of raising."""
+    """Base of the plant, ECU and restbus nodes: send() counts frames and failures instead of
+    raising; shed() bounds a tick's receive work; handler_failed() is the boundary a command
+    handler's error stops at."""
 
     def __init__(self, bus: can.BusABC, name: str,
-                 tap: Callable[[can.Message], None] | None = None) -> None:
+                 tap: Callable[[can.Message], None] | None = None,
+                 rx_budget: RxBudget = RxBudget()) -> None:
         """tap, when given, sees every frame sent (replay: scoring and --out)."""
         self.bus = bus
         self.node_name = name
         self.frames_sent = 0
         self.send_errors = 0
         self.tap = tap
+        self.rx_budget = rx_budget
+        self.rx_shed = 0  # frames read past rx_budget.frames_per_tick and dropped undecoded
+        self.rx_peak = 0  # the most frames read in one tick (at most the budget's two parts)
+        self.handler_errors: dict[str, int] = {}  # by handler: requests whose handling raised
         self._log = logging.getLogger(f"vecu.{name}")
+
+    def shed(self, keep: Callable[[can.Message], bool] | None = None) -> None:
+        """After a tick's `frames_per_tick` frames: read up to `shed_per_tick` more and drop
+        them, counted in rx_shed, except those `keep(msg)` takes (True). The rest stays in the
+        bus: the tick's receive work is bounded whatever arrives. The first shed is logged."""
+        recv = self.bus.recv
+        before = self.rx_shed
+        n = 0
+        for n in range(self.rx_budget.shed_per_tick):  # noqa: B007 (n: how many were read)
+            msg = recv(0.0)
+            if msg is None:
+                break
+            if keep is None or not keep(msg):
+                self.rx_shed += 1
+        else:
+            n = self.rx_budget.shed_per_tick
+        self.rx_peak = max(self.rx_peak, self.rx_budget.frames_per_tick + n)
+        if before == 0 and self.rx_shed:
+            self._log.warning("%s: receive flood: frames beyond %d per tick are shed and counted "
+                              "(rx_shed)", self.node_name, self.rx_budget.frames_per_tick)
+
+    def handler_failed(self, handler: str, exc: BaseException) -> None:
+        """The boundary of a command handler or periodic sampler (XCP, UDS, FI / RB commands):
+        its error is counted by handler and logged once with its traceback; the node goes on
+        ticking. Only what a client can provoke goes through here; a function's own error is a
+        bug and propagates."""
+        n = self.handler_errors.get(handler, 0) + 1
+        self.handler_errors[handler] = n
+        if n == 1:
+            self._log.error("%s: %s failed (counted in handler_errors; further ones not logged)",
+                            self.node_name, handler, exc_info=exc)
 
     def send(self, msg: can.Message) -> bool:
         """Send one frame; True when the bus took it (a failure is counted and logged)."""

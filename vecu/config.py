@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import TYPE_CHECKING
 
 from vecu import params as ptree
+from vecu.bus import RxBudget
 from vecu.ecu.manifold_function import ManifoldFunctionConfig
 from vecu.ecu.speed_function import SpeedFunctionConfig
 from vecu.ecu.steering_function import SteeringFunctionConfig
@@ -76,6 +77,7 @@ class EcuParams:
     instance: int = field(default=0, metadata={"bounds": (0, MAX_INSTANCE)})
     uds: UdsConfig = field(default_factory=UdsConfig)  # diagnostics server (docs/uds.md)
     xcp: XcpConfig = field(default_factory=XcpConfig)  # measurement and calibration (docs/xcp.md)
+    rx: RxBudget = field(default_factory=RxBudget)  # receive work per 1 ms tick (docs/live.md)
 
 
 @dataclass(frozen=True)

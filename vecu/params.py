@@ -47,6 +47,7 @@ SOURCES: dict[str, str] = {
     "plant.manifold.noise": "Dutka 2006 Section IV (Q, R)",
     "plant.manifold.noise_scale": "vecu decision (1 = the paper's Q and R)",
     "ecu": "vecu decision, docs/scenarios.md 'Diagnostics'",
+    "ecu.rx": "vecu decision, docs/live.md 'Floods'",
     "ecu.throttle.calibration": "vecu decision, docs/models.md 'TPS transfer law'",
     "ecu.throttle.estimator": "vecu decision, docs/models.md 'Production throttle estimator'",
     "ecu.throttle.noise_scale": "Vargas 2015 Section III-B (alpha scales F)",

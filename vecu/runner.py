@@ -160,7 +160,7 @@ def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimato
         part, fn = plant_part(plant, spec.part_name), fns.get(spec.name)
         if spec.probe is not None and part is not None and fn is not None:
             p.probes[spec.name] = spec.probe(part, fn, config, n_ticks)
-    p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled())
+    p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled(), rx_budget=config.params.ecu.rx)
     p.uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
     p.xcp = attach_xcp_server(ecu, config)
     for _, path, value in config.calibrations:  # a bad one is a user error before the run
@@ -246,7 +246,9 @@ def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:
             send_errors=plant.send_errors + ecu.send_errors, received=ecu.rx.received,
             rejected=ecu.rx.rejected, ecu_rx=ecu.rx.as_dict(),
             logged=p.recorder.frames if p.recorder else None,
-            rejected_fault_commands=p.injector.rejected_commands),
+            rejected_fault_commands=p.injector.rejected_commands,
+            handler_errors={f"{n.node_name}: {h}": c for n in (plant, ecu)
+                            for h, c in n.handler_errors.items()}),
         fault_events=_fault_events(p.injector),
         kernel_load_s=round(kernel_load_s, 3),
         bus="vecu lane" if p.lane is not None else type(ecu.bus).__name__,

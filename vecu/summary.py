@@ -94,6 +94,9 @@ class FrameCounts:
     ecu_rx: dict[str, int]
     logged: int | None
     rejected_fault_commands: int
+    # requests whose handler raised (UDS, XCP, FI_Command), by "node: handler": answered with
+    # the protocol's negative response or dropped, counted; the node kept ticking
+    handler_errors: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """Issue 31's "done when": a pyxcp master that knows only the A2L of `vecu a2l` measures and
 calibrates `vecu ecu` live on udp_multicast (private network namespace): DAQ of the throttle
 estimate at 1 kHz, the TPS plausibility debounce lowered (an implausible TPS confirmed at once),
-an out-of-bounds write refused. Fails on the tree before vecu/xcp (no answer on 0x7F0)."""
+an out-of-bounds write refused. Fails on the tree before vecu/xcp (no answer on 0x7F0).
+And raw XCP frames that used to stop `vecu ecu` (exit 1, no broadcast) leave it running."""
 
 from __future__ import annotations
 
@@ -39,3 +40,26 @@ def test_a_pyxcp_master_measures_and_calibrates_the_live_ecu(tmp_path):
     xcp = out["xcp"]
     assert xcp["calibrations_taken"][0][1:] == ["ecu.throttle.tps_monitor.plaus_debounce", 20]
     assert xcp["refused_writes"] == 1 and xcp["odts_lost"] == 0
+
+
+@pytest.mark.skipif(namespace_prefix()[0] is None, reason=namespace_prefix()[1] or "n/a")
+def test_the_eleven_frames_leave_the_live_ecu_broadcasting_and_answering(tmp_path):
+    """Raw XCP frames against `vecu ecu` (both variants of the sequence that stopped it): each
+    command answered, WRITE_DAQ into the GET_ID area refused, the ECU alive and broadcasting its
+    throttle estimate afterwards, CONNECT and GET_STATUS answered."""
+    res = run_in_namespace([sys.executable, str(HERE / "xcp_kill_live.py"), str(tmp_path)],
+                           timeout=300)
+    assert res.returncode == 0, res.stderr + res.stdout + "".join(
+        p.read_text() for p in tmp_path.glob("*.err"))
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert set(out["variants"]) == {"get_id_1", "get_daq_event_info_0"}
+    for v in out["variants"].values():
+        assert None not in v["answers"], v  # every command answered
+        assert v["answers"][0].startswith("ff") and v["answers"][10].startswith("ff")
+        assert v["answers"][7] == "fe24" and v["answers"][9] == "fe2a"
+        assert v["ecu_alive"] and v["estimates_ok"]
+        # one estimate per ECU tick: at least half the 1000 a second on a loaded host
+        assert v["estimates_per_s"] > 500 * out["ecu_runs_share"]
+        assert v["connect"] == "ff15c00808000101" and v["status"] == "ff0000000000"
+    assert out["exit_codes"][0] == 0  # the ECU stopped on SIGTERM, not on an error
+    assert out["xcp"]["internal_errors"] == {} and out["xcp"]["odts_dropped"] == 0

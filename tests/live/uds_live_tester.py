@@ -16,9 +16,9 @@ import can
 import isotp
 from udsoncan.client import Client
 from udsoncan.connections import PythonIsoTpConnection
-from udsoncan.exceptions import TimeoutException
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from tests.live.pair import await_ecu, start_ecu_and_plant
 from tests.uds.sim import CLIENT_CONFIG
 from vecu.live.scenario import stop_all
 
@@ -32,32 +32,13 @@ def main(out: Path) -> dict:
     procs = []
     res: dict = {}
     try:
-        procs.append(subprocess.Popen(
-            [*vecu, "ecu", *BUS, "--ready-file", str(out / "ecu.ready"), "--sync-timeout", "20",
-             "--duration", "120", "--summary", str(out / "ecu.json"), "--quiet",
-             "--tps-timeout-cycles=100"], stderr=open(out / "ecu.err", "w")))  # noqa: SIM115 - the child holds it
-        for _ in range(600):
-            if (out / "ecu.ready").exists():
-                break
-            time.sleep(0.1)
-        procs.append(subprocess.Popen(
-            [*vecu, "plant", *BUS, "--duration", "90", "--quiet", "--ready-file",
-             str(out / "plant.ready")], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 - the child holds it
-        for _ in range(600):
-            if (out / "plant.ready").exists():
-                break
-            time.sleep(0.1)
+        procs += start_ecu_and_plant(out, BUS, ("--tps-timeout-cycles=100",))
         bus = can.Bus(interface=INTERFACE, channel=CHANNEL)
         stack = isotp.CanStack(bus, address=isotp.Address(
             isotp.AddressingMode.Normal_11bits, txid=0x7E0, rxid=0x7E8))
         config = {**CLIENT_CONFIG, "dtc_snapshot_did_size": 2}
         with Client(PythonIsoTpConnection(stack), config=config) as c:
-            for _ in range(60):  # until the ECU ticks (it syncs to the plant's first frames)
-                try:
-                    c.tester_present()
-                    break
-                except TimeoutException:
-                    continue
+            await_ecu(c)  # until the ECU ticks (it syncs to the plant's first frames)
             t0 = time.perf_counter()
             res["vin"] = c.read_data_by_identifier(0xF190).service_data.values[0xF190]
             res["latency_ms"] = (time.perf_counter() - t0) * 1e3

@@ -25,6 +25,7 @@ from pyxcp.master import Master
 from pyxcp.types import XcpResponseError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from tests.live.pair import ecu_summary, start_ecu_and_plant
 from tests.xcp.sim import master_config
 from vecu.live.scenario import stop_all
 
@@ -70,21 +71,7 @@ def main(out: Path) -> dict:
     subprocess.run([*vecu, "a2l", "--out", str(out / "vecu.a2l")], check=True, timeout=120)
     a2l = from_a2l(out / "vecu.a2l")
     try:
-        procs.append(subprocess.Popen(
-            [*vecu, "ecu", *BUS, "--ready-file", str(out / "ecu.ready"), "--sync-timeout", "20",
-             "--duration", "120", "--summary", str(out / "ecu.json"), "--quiet",
-             "--tps-timeout-cycles=100"], stderr=open(out / "ecu.err", "w")))  # noqa: SIM115 (the child owns it)
-        for _ in range(600):
-            if (out / "ecu.ready").exists():
-                break
-            time.sleep(0.1)
-        procs.append(subprocess.Popen(
-            [*vecu, "plant", *BUS, "--duration", "90", "--quiet", "--ready-file",
-             str(out / "plant.ready")], stderr=open(out / "plant.err", "w")))  # noqa: SIM115 (the child owns it)
-        for _ in range(600):
-            if (out / "plant.ready").exists():
-                break
-            time.sleep(0.1)
+        procs += start_ecu_and_plant(out, BUS, ("--tps-timeout-cycles=100",))
         app = master_config(a2l["CAN_ID_MASTER"], a2l["CAN_ID_SLAVE"], GROUP, timeout=2.0)
         set_application(app)
         daq = Collect([DaqList("throttle", 0, False, True, [
@@ -127,12 +114,10 @@ def main(out: Path) -> dict:
         bus.shutdown()
     finally:
         stop_all(procs, signal.SIGTERM, 30.0)
-    summary = json.loads((out / "ecu.json").read_text()) if (out / "ecu.json").exists() else {}
+    summary, res["ecu_runs_share"] = ecu_summary(out)
     res["xcp"] = summary.get("xcp")
     res["detection"] = summary.get("throttle", {}).get("status_changes")
     res["lost_throttle_estimates"] = summary.get("lost_throttle_estimates")
-    ticks = summary.get("ticks", {}).get("ecu", {})
-    res["ecu_runs_share"] = ticks.get("runs", 0) / max(ticks.get("releases", 1), 1)
     return res
 
 

@@ -220,3 +220,24 @@ def test_a_rerun_is_byte_identical_and_the_log_holds_every_frame(tmp_path, third
         assert res.summary["logged"] == res.summary["frames_sent"] > 0
         logs.append(log.read_bytes().replace(f"rb-rerun-{k}".encode(), b"CH"))
     assert logs[0] == logs[1]
+
+
+def test_every_message_of_every_thirdparty_dbc_is_sent_or_skipped_with_its_reason(thirdparty):
+    """Each message is accounted for: planned, or in `skipped` with a reason (a message with no
+    sender and no cycle time used to vanish from both)."""
+    from vecu.codec import DbcCodec
+
+    reasons: set[str] = set()
+    for path in dbcs(thirdparty):
+        db = DbcCodec([path], strict=False)
+        for default in (None, 25.0):
+            try:
+                plans, skipped, _ = build_plans(RestbusConfig((str(path),),
+                                                              default_cycle_ms=default))
+            except BadFileError:
+                continue
+            planned = {p.name for p in plans}
+            assert not planned & set(skipped), path.name
+            assert planned | set(skipped) == {fc.name for fc in db.by_id.values()}, path.name
+            reasons |= set(skipped.values())
+    assert "no cycle time" in reasons and "no sender and no cycle time" in reasons, reasons

@@ -118,27 +118,48 @@ class SimRun:
         stack = isotp.CanStack(bus, address=isotp.Address(
             isotp.AddressingMode.Normal_11bits, txid=0x7E0, rxid=0x7E8),
             params={"tx_padding": 0xCC, "blocking_send": False})
-        out: dict[str, Any] = {}
-
-        def body() -> None:
-            try:
-                with Client(PythonIsoTpConnection(stack), config=config or CLIENT_CONFIG) as c:
-                    out["result"] = work(c)
-            except BaseException as exc:  # noqa: BLE001 - handed to the test
-                out["error"] = exc
-
-        thread = threading.Thread(target=body, daemon=True)
-        thread.start()
-        end = self.t_ns + round(max_sim_s * NS_PER_S)
-        while thread.is_alive() and self.t_ns < end:
-            self.step()
-            time.sleep(pace_s)
-        thread.join(10.0)
-        assert not thread.is_alive(), "the tester did not finish"
-        if "error" in out:
-            raise out["error"]
-        return out["result"]
+        return drive_tester(stack, work, self.step, config, round(max_sim_s * NS_PER_S) // TICK_NS,
+                            pace_s)
 
     def close(self) -> None:
         for bus in self.buses:
             bus.shutdown()
+
+
+def drive_tester(stack: isotp.CanStack, work: Callable[[Client], Any], step: Callable[[], None],
+                 config: dict[str, Any] | None = None, max_ticks: int = 120_000,
+                 pace_s: float = 0.0002) -> Any:
+    """Run `work(client)` (a udsoncan Client over `stack`) on a thread while step() advances a
+    simulated clock 1 ms at a time (at most max_ticks); its result (or its exception)."""
+    def body() -> Any:
+        with Client(PythonIsoTpConnection(stack), config=config or CLIENT_CONFIG) as c:
+            return work(c)
+
+    return run_stepped(body, step, max_ticks, pace_s, who="tester")
+
+
+def run_stepped(body: Callable[[], Any], step: Callable[[], None], max_ticks: int,
+                pace_s: float, settle_s: float = 0.0, who: str = "tester") -> Any:
+    """body() on a thread (after settle_s, the clock still) while step() advances the simulated
+    clock 1 ms at a time, at most max_ticks; its result, or its exception raised here."""
+    out: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            out["result"] = body()
+        except BaseException as exc:  # noqa: BLE001 - handed to the test
+            out["error"] = exc
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    time.sleep(settle_s)
+    for _ in range(max_ticks):
+        if not thread.is_alive():
+            break
+        step()
+        time.sleep(pace_s)
+    thread.join(10.0)
+    assert not thread.is_alive(), f"the {who} did not finish"
+    if "error" in out:
+        raise out["error"]
+    return out["result"]

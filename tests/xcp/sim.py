@@ -6,15 +6,14 @@ stands on a python-can `virtual` bus of the run's channel."""
 from __future__ import annotations
 
 import logging
-import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
 from pyxcp.config import create_application_from_config
 from pyxcp.master import Master
 
-from tests.uds.sim import SimRun
+from tests.uds.sim import SimRun, run_stepped
+from vecu.assembly import TICK_NS
 from vecu.config import RunConfig
 from vecu.runner import attach_xcp_server
 from vecu.xcp.server import XcpServer
@@ -53,24 +52,48 @@ class XcpSim(SimRun):
               **general: Any) -> Any:
         """Run `work(master)` on a thread while the simulated clock steps 1 ms at a time;
         its result (or its exception)."""
-        out: dict[str, Any] = {}
+        def body() -> Any:
+            with self.master(policy, timeout, **general) as m:
+                return work(m)
 
-        def body() -> None:
-            try:
-                with self.master(policy, timeout, **general) as m:
-                    out["result"] = work(m)
-            except BaseException as exc:  # noqa: BLE001 - handed to the test
-                out["error"] = exc
+        # the master's listener thread up before the first response can come: settle 50 ms
+        return run_stepped(body, self.step, round(max_sim_s * 1e9) // TICK_NS, pace_s,
+                           settle_s=0.05, who="master")
 
-        thread = threading.Thread(target=body, daemon=True)
-        thread.start()
-        time.sleep(0.05)  # the master's listener thread up before the first response can come
-        end = self.t_ns + round(max_sim_s * 1e9)
-        while thread.is_alive() and self.t_ns < end:
-            self.step()
-            time.sleep(pace_s)
-        thread.join(10.0)
-        assert not thread.is_alive(), "the master did not finish"
-        if "error" in out:
-            raise out["error"]
-        return out["result"]
+
+class RawMaster:
+    """Raw XCP frames on the run's channel, the simulated clock stepped by hand: send CTOs,
+    step, and read what came back (the slave's packets) and which ticks the ECU broadcast its
+    throttle estimate in (decoded from the bus)."""
+
+    def __init__(self, sim: XcpSim) -> None:
+        self.sim = sim
+        self.bus = sim.bus()
+        cfg = sim.config.params.ecu.xcp
+        self.master_id, self.slave_id = cfg.master_id, cfg.slave_id
+        self.estimate = sim.codec["ECU_ThrottleEstimate"]
+        self.estimates: list[dict[str, float]] = []  # every ECU_ThrottleEstimate, decoded
+
+    def send(self, *ctos: bytes) -> None:
+        import can
+
+        for cto in ctos:
+            self.bus.send(can.Message(arbitration_id=self.master_id, data=cto,
+                                      is_extended_id=False))
+
+    def step(self, ticks: int = 1) -> list[bytes]:
+        """Step the clock; the slave's packets sent meanwhile (DTOs included)."""
+        out = []
+        for _ in range(ticks):
+            self.sim.step()
+            while (msg := self.bus.recv(0.0)) is not None:
+                if msg.arbitration_id == self.slave_id:
+                    out.append(bytes(msg.data))
+                elif msg.arbitration_id == self.estimate.frame_id:
+                    self.estimates.append(self.estimate.decode(msg.data))
+        return out
+
+    def ask(self, cto: bytes, ticks: int = 1) -> list[bytes]:
+        """One command, the clock stepped `ticks`: the slave's packets (DTOs included)."""
+        self.send(cto)
+        return self.step(ticks)

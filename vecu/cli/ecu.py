@@ -91,7 +91,8 @@ def main(args: argparse.Namespace) -> int:
                        latency=("ETB_Wattmeter", "ECU_ThrottleEstimate"))
     summary: dict[str, Any] | None = None
     try:
-        ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms)
+        ecu = EcuNode(proc.bus, codec, fns.enabled(), host_gap_ms=args.host_gap_ms,
+                      rx_budget=config.params.ecu.rx)
         # a tester's UDS (docs/uds.md); security seeds from the OS's entropy unless asked for
         uds = attach_uds(ecu, config.params.ecu.uds, args.security_seed)
         xcp = attach_xcp_server(ecu, config)  # measurement and calibration (docs/xcp.md)
@@ -184,7 +185,10 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
                                              else "taken from the bus by the ECU")
                          + " -> return of send() of the next ECU_ThrottleEstimate"),
         },
-        "rx": ecu.rx.as_dict(),
+        "rx": ecu.rx.as_dict(),  # rx.shed: frames past ecu.rx.frames_per_tick, dropped (a flood)
+        # requests a diagnostic server could not handle (counted, answered or dropped; docs/live.md)
+        "handler_errors": ecu.handler_errors,
+        "rx_peak_per_tick": ecu.rx_peak,  # the most frames read in one tick (ecu.rx.* bound it)
         # what the host did (issue 29): this ECU not running, and what the sensor frames'
         # sender reported of its own skipped / late ticks (PLANT_Host)
         # every DTC confirmation, per monitored sensor: epoch seconds (bench: false DTCs)

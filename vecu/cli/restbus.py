@@ -94,6 +94,14 @@ def main(args: argparse.Namespace) -> int:
         print(f"vecu restbus: {s['messages']} messages, {s['frames_sent']} frames in "
               f"{s['duration_s']:.3g} s ({s['clock']} clock, {s['wall_s']:.2f} s wall); "
               f"{len(s['disturbances'])} disturbance events; send errors {s['send_errors']}"
-              + (f"; skipped (no cycle time): {', '.join(s['skipped_no_cycle_time'])}"
-                 if s["skipped_no_cycle_time"] else ""))
+              + (f"; not sent: {len(s['skipped'])} ({_reasons(s['skipped'])})"
+                 if s["skipped"] else ""))
     return 0
+
+
+def _reasons(skipped: dict[str, str]) -> str:
+    """'reason: A, B; reason: C' (the summary JSON has each message's own)."""
+    by: dict[str, list[str]] = {}
+    for name, why in skipped.items():
+        by.setdefault(why, []).append(name)
+    return "; ".join(f"{why}: {', '.join(names)}" for why, names in by.items())

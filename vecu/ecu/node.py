@@ -1,10 +1,12 @@
 """Virtual ECU node: receive and validate frames, run its functions, broadcast status.
 
-One 1 ms base task, like an ECU's OS: drain the receive queue (each frame is checked for kind,
+One 1 ms base task, like an ECU's OS: read the receive queue, at most RxBudget frames per tick
+(a flood is shed and counted, never stalls the tick; each frame is checked for kind,
 known ID, DLC, E2E CRC and alive counter, NaN / out-of-range values, and counted when rejected),
 hand validated values to the function that subscribed to the message, run every function whose
 period divides the current time (throttle 1 ms, speed 2 ms), and send ECU_Status at its DBC cycle
-time. Nothing a frame contains can raise out of tick().
+time. Nothing a frame contains can raise out of tick(), nor anything a client makes a diagnostic
+server (UDS, XCP) do: such an error stops at BusNode.handler_failed, counted.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import Protocol
 
 import can
 
-from vecu.bus import BusNode
+from vecu.bus import BusNode, RxBudget
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec, FrameCodec
 from vecu.e2e import AliveCounterCheck
@@ -48,6 +50,7 @@ class RxCounters:
     implausible: int = 0       # of value_errors: in range, refused by the function (not a bin)
     malformed: int = 0         # anything else the decoder refused
     diagnostic: int = 0        # frames on the diagnostic server's IDs (UDS requests, echoes)
+    shed: int = 0              # read past the tick's RxBudget and dropped undecoded (a flood)
 
     @property
     def rejected(self) -> int:
@@ -149,7 +152,8 @@ class EcuNode(BusNode):
                  routes: dict[tuple[int, bool], Route] | None = None,
                  rx_codec: DbcCodec | None = None, arm_on_input: bool = False,
                  tick_ns: int = NS_PER_MS, host_gap_ms: float = 0.0,
-                 tap: Callable[[can.Message], None] | None = None) -> None:
+                 tap: Callable[[can.Message], None] | None = None,
+                 rx_budget: RxBudget = RxBudget()) -> None:
         """codec encodes the ECU's own frames. By default the functions consume their messages
         of that codec; `routes` (trace replay with a signal map) replaces that table, and
         `rx_codec` is the database that tells an ignored (known) ID from an unknown one.
@@ -163,8 +167,10 @@ class EcuNode(BusNode):
         host_gap_ms (live bus): a sensor silence shorter than this while the sender's traffic
         at the sensor's rate stopped too is a stalled sender, not a silent sensor (HostClock;
         0 on the simulated clock).
-        tap (trace replay): sees every frame the node sends."""
-        super().__init__(bus, "ecu", tap)
+        tap (trace replay): sees every frame the node sends.
+        rx_budget: frames taken in per tick, then shed (`ecu.rx.*`; frames handed to receive()
+        directly, as a trace replay does, are never shed)."""
+        super().__init__(bus, "ecu", tap, rx_budget)
         self.codec = codec
         self.rx_codec = rx_codec if rx_codec is not None else codec
         self.functions = functions
@@ -304,7 +310,10 @@ class EcuNode(BusNode):
                 server = self._server_of.get(key)
                 if server is not None:
                     rx.diagnostic += 1
-                    server.on_frame(msg, t_ns)
+                    try:
+                        server.on_frame(msg, t_ns)
+                    except Exception as exc:  # noqa: BLE001 - the handler boundary: counted
+                        self.handler_failed(f"{type(server).__name__}.on_frame", exc)
                     return
                 if key in self.rx_codec.by_id:
                     rx.ignored += 1
@@ -370,8 +379,15 @@ class EcuNode(BusNode):
             host.stalled_ns += t_ns - last - self._tick_ns
         self._last_tick_ns = t_ns
         recv = self.bus.recv
+        n = self.rx_budget.frames_per_tick
         while (msg := recv(0.0)) is not None:
             self.receive(msg, t_ns)
+            n -= 1
+            if not n:
+                self._shed(t_ns)
+                break
+        else:
+            self.rx_peak = max(self.rx_peak, self.rx_budget.frames_per_tick - n)
         send = self._app_send
         for fn in self._armed:
             if t_ns % fn.period_ns == 0:
@@ -384,7 +400,26 @@ class EcuNode(BusNode):
         elif self._diag_dirty:
             self._send_diag(t_ns, on_change=True)
         for server in self.servers:
-            server.tick(t_ns)
+            try:
+                server.tick(t_ns)
+            except Exception as exc:  # noqa: BLE001 - the handler boundary: counted
+                self.handler_failed(f"{type(server).__name__}.tick", exc)
+
+    def _shed(self, t_ns: int) -> None:
+        """The tick's frames past its budget: shed, except diagnostic requests (their server
+        queues them, bounded), so that a tester is still heard during a flood."""
+        server_of, before = self._server_of, self.rx_shed
+
+        def keep(msg: can.Message) -> bool:
+            if (msg.arbitration_id, msg.is_extended_id) not in server_of:
+                return False
+            self.receive(msg, t_ns)
+            return True
+
+        self.shed(keep)
+        rx = self.rx
+        rx.received += self.rx_shed - before
+        rx.shed = self.rx_shed
 
     def _mark_diag(self) -> None:
         self._diag_dirty = True
@@ -403,6 +438,7 @@ class EcuNode(BusNode):
         signals = {"DIAG_Counter": self._diag_counter, "DIAG_BusDtc": int(self.bus_dtc.state),
                    "DIAG_ErrorFrames": min(self.rx.error_frames, 255),
                    "DIAG_RemoteFrames": min(self.rx.remote_frames, 255),
+                   "DIAG_RxShed": min(self.rx.shed, 127),
                    "DIAG_OnChange": int(on_change)}
         confirmations = self.bus_dtc.confirmations
         for name, prefix in (("tps", "Tps"), ("swa", "Swa"), ("wheel", "Wheel")):

@@ -437,16 +437,33 @@ class PlantNode(BusNode):
                     ev.t_ns / NS_PER_S))
 
     def _poll_commands(self, t_ns: int) -> None:
-        """Drain the receive queue; act on FI_Command, ignore everything else."""
+        """Read the receive queue, at most rx_budget frames per tick (the rest shed, FI_Command
+        frames among them kept); act on FI_Command, ignore everything else."""
         recv = self.bus.recv
+        n = self.rx_budget.frames_per_tick
         while (msg := recv(0.0)) is not None:
-            self.frames_received += 1
-            if (msg.arbitration_id, msg.is_extended_id) != self._fi_key:
-                continue
-            if len(msg.data) != self._fi.length or msg.is_remote_frame:
-                self.injector.rejected_commands += 1
-                continue
+            self._take(msg, t_ns)
+            n -= 1
+            if not n:  # past the budget: FI_Command frames still obeyed, the rest shed
+                self.shed(lambda m: self._take(m, t_ns))
+                break
+
+    def _take(self, msg: can.Message, t_ns: int) -> bool:
+        """One received frame (counted): True when it is an FI_Command (obeyed or rejected)."""
+        self.frames_received += 1
+        if (msg.arbitration_id, msg.is_extended_id) != self._fi_key:
+            return False
+        if len(msg.data) != self._fi.length or msg.is_remote_frame:
+            self.injector.rejected_commands += 1
+            return True
+        try:
             values = self._fi.decode(msg.data)
-            if not self.injector.on_command(t_ns, values["FI_Target"], values["FI_Kind"],
-                                            values["FI_Value"]):
-                log.warning("plant: rejected FI_Command %s", values)
+            obeyed = self.injector.on_command(t_ns, values["FI_Target"], values["FI_Kind"],
+                                              values["FI_Value"])
+        except Exception as exc:  # noqa: BLE001 - the handler boundary: counted
+            self.injector.rejected_commands += 1
+            self.handler_failed("FI_Command", exc)
+            return True
+        if not obeyed:
+            log.warning("plant: rejected FI_Command %s", values)
+        return True

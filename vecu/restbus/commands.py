@@ -15,6 +15,7 @@ import struct
 import can
 import numpy as np
 
+from vecu.bus import BusNode, RxBudget
 from vecu.codec import FrameCodec, shared_codec
 from vecu.errors import BadArgumentError
 from vecu.restbus import disturb
@@ -75,20 +76,34 @@ def command_for(databases: tuple[str, ...], target: str, kind: str,
     return command_frame(fc.frame_id, fc.is_extended, index, kind, True, value)
 
 
-class CommandListener:
-    """Reads the restbus's bus every poll (a scheduler task) and applies RB_Command frames."""
+# frames read per 10 ms poll at most (~3x a saturated 1 Mbit/s bus); the rest waits in the bus
+POLL_BUDGET = RxBudget(frames_per_tick=640, shed_per_tick=0)
+
+
+class CommandListener(BusNode):
+    """Reads the restbus's bus every poll (a scheduler task), at most POLL_BUDGET frames, and
+    applies RB_Command frames; a command that makes the handler fail is counted
+    (handler_errors), never raised."""
 
     def __init__(self, node: RestbusNode, bus: can.BusABC) -> None:
+        super().__init__(bus, "restbus", rx_budget=POLL_BUDGET)
         self.node = node
-        self.bus = bus
         self.codec: FrameCodec = shared_codec()["RB_Command"]
         self.applied = 0
         self.rejected = 0
 
     def poll(self, t_ns: int) -> None:
-        while (msg := self.bus.recv(0.0)) is not None:
-            if msg.arbitration_id == self.codec.frame_id and not msg.is_extended_id:
-                self.apply(t_ns, msg)
+        recv, key = self.bus.recv, self.codec.frame_id
+        for _ in range(self.rx_budget.frames_per_tick):
+            msg = recv(0.0)
+            if msg is None:
+                return
+            if msg.arbitration_id == key and not msg.is_extended_id:
+                try:
+                    self.apply(t_ns, msg)
+                except Exception as exc:  # noqa: BLE001 - the handler boundary: counted
+                    self.rejected += 1
+                    self.handler_failed("RB_Command", exc)
 
     def apply(self, t_ns: int, msg: can.Message) -> bool:
         try:

@@ -18,7 +18,7 @@ from vecu.faults import ScheduledFault
 from vecu.recorder import Recorder
 from vecu.restbus.commands import CommandListener
 from vecu.restbus.node import RestbusNode, schedule_disturbances
-from vecu.restbus.spec import RestbusConfig, build_plans
+from vecu.restbus.spec import NO_CYCLE, RestbusConfig, build_plans
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 
@@ -87,6 +87,7 @@ def run_restbus(run: RestbusRun, on_second: Callable[[float], None] | None = Non
             clock=clock)
         node.schedule(sched)
         schedule_disturbances(sched, node, run.disturbances)
+        listener = None
         if run.commands or run.realtime:  # live: drain the bus, obey RB_Command
             listener = CommandListener(node, out)
             sched.every(10_000_000, listener.poll, name="restbus-commands", priority=-2)
@@ -114,9 +115,14 @@ def run_restbus(run: RestbusRun, on_second: Callable[[float], None] | None = Non
             recorder.drain(t, before_ns=t)
         summary = {"databases": list(run.config.databases), "duration_s": t / NS_PER_S,
                    "wall_s": round(wall, 4), "clock": "wall" if run.realtime else "simulated",
-                   "interrupted": interrupted, "skipped_no_cycle_time": skipped,
+                   "interrupted": interrupted,
+                   "skipped_no_cycle_time": [n for n, why in skipped.items() if why == NO_CYCLE],
+                   "skipped": skipped,  # every message of the databases not sent: its reason
                    "send_errors": errors[0], "overruns": sched.overruns,
-                   "logged": recorder.frames if recorder else None, **node.summary()}
+                   "logged": recorder.frames if recorder else None, **node.summary(),
+                   "commands": None if listener is None else {
+                       "applied": listener.applied, "rejected": listener.rejected,
+                       "handler_errors": listener.handler_errors}}
     finally:
         if recorder is not None:
             recorder.close()

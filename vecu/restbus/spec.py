@@ -69,9 +69,13 @@ def _db_label(cfg: RestbusConfig) -> str:
     return ", ".join(cfg.databases)
 
 
-def select_messages(db: DbcCodec, cfg: RestbusConfig) -> tuple[list[FrameCodec], list[str]]:
+NO_CYCLE = "no cycle time"  # the reason of a chosen message that is not sent (--default-cycle)
+
+
+def select_messages(db: DbcCodec, cfg: RestbusConfig) -> tuple[list[FrameCodec], dict[str, str]]:
     """The messages the chosen nodes send (default: every node that sends a message with a
-    cycle time, and sender-less messages with one) and the names skipped for want of a cycle."""
+    cycle time, and sender-less messages with one) and every other message of the databases
+    with the reason it is not sent: each one is accounted for."""
     messages = sorted(db.by_id.values(), key=lambda fc: (fc.frame_id, fc.is_extended))
     known = sorted({n for fc in messages for n in fc.senders})
     for node in cfg.nodes:
@@ -85,7 +89,20 @@ def select_messages(db: DbcCodec, cfg: RestbusConfig) -> tuple[list[FrameCodec],
         cyclic_nodes = {n for fc in timed for n in fc.senders}
         chosen = [fc for fc in messages if set(fc.senders) & cyclic_nodes
                   or (not fc.senders and fc in timed)]
-    chosen = [fc for fc in chosen if (fc.frame_id, fc.is_extended) not in cfg.exclude]
+    skipped: dict[str, str] = {}
+    for fc in messages:
+        if fc in chosen:
+            continue
+        senders = ", ".join(fc.senders)
+        if cfg.nodes:
+            skipped[fc.name] = (f"sent by {senders}, not a chosen --node" if senders
+                                else "no sender (not a chosen --node)")
+        else:
+            skipped[fc.name] = (f"its sender {senders} sends nothing with a cycle time"
+                                if senders else "no sender and no cycle time")
+    excluded = [fc for fc in chosen if (fc.frame_id, fc.is_extended) in cfg.exclude]
+    skipped.update((fc.name, "excluded (an ID vecu's own nodes send)") for fc in excluded)
+    chosen = [fc for fc in chosen if fc not in excluded]
     timed = [fc for fc in chosen if fc.cycle_time_ms or cfg.default_cycle_ms
              or send_type_of(fc) == "on_change"]
     if not timed:
@@ -93,7 +110,7 @@ def select_messages(db: DbcCodec, cfg: RestbusConfig) -> tuple[list[FrameCodec],
         raise BadFileError(_db_label(cfg), f"no message sent by {who} has a cycle time "
                            "(GenMsgCycleTime / ARXML timing): nothing to send periodically; "
                            "give --default-cycle MS to send them anyway")
-    skipped = [fc.name for fc in chosen if fc not in timed]
+    skipped.update((fc.name, NO_CYCLE) for fc in chosen if fc not in timed)
     return timed, skipped
 
 
@@ -215,8 +232,8 @@ def _protection(fc: FrameCodec, e2e: dict[str, E2EProtection], origin: str
     return None, unused
 
 
-def build_plans(cfg: RestbusConfig) -> tuple[list[MessagePlan], list[str], DbcCodec]:
-    """(plans, names skipped for want of a cycle time, the databases) of cfg; raises the
+def build_plans(cfg: RestbusConfig) -> tuple[list[MessagePlan], dict[str, str], DbcCodec]:
+    """(plans, every message not sent with its reason, the databases) of cfg; raises the
     one-line errors."""
     for p in cfg.databases:
         if not Path(p).is_file():

@@ -49,11 +49,13 @@ MAX_BS = 36  # master block mode: DOWNLOAD_NEXT packets of 6 bytes, 216 bytes pe
 
 
 class XcpError(Exception):
-    """A refused command: its XCP error code."""
+    """A refused command: its XCP error code (and the bytes that follow it in the error
+    packet, e.g. DOWNLOAD_NEXT's expected count)."""
 
-    def __init__(self, code: int) -> None:
+    def __init__(self, code: int, extra: bytes = b"") -> None:
         super().__init__(code)
         self.code = code
+        self.extra = extra
 
 
 @dataclass
@@ -65,6 +67,7 @@ class XcpStats:
     calibrations: int = 0       # leaves written and taken
     refused_writes: int = 0     # out of bounds / write protected
     connects: int = 0
+    block_rest_dropped: int = 0  # DOWNLOAD_NEXT packets of a refused block, not answered
 
 
 class CommandProcessor:
@@ -95,6 +98,7 @@ class CommandProcessor:
         self.id_bytes = b""
         self._staged: dict[int, int] = {}  # segment offset -> byte written, leaf not complete
         self._block_left = 0               # master block mode: bytes still to come
+        self._refused_left = 0             # ... of a refused block (dropped, not answered)
         self.t_ns = 0
         self._cmds: dict[int, Callable[[bytes], bytes | list[bytes]]] = {
             0xFF: self._connect, 0xFE: self._disconnect, 0xFD: self._get_status,
@@ -118,8 +122,15 @@ class CommandProcessor:
         self.mta, self.mta_ext = ID_BASE, 0
 
     def entry_reader(self, address: int, size: int, ext: int) -> Callable[[], bytes]:
-        """A DAQ entry's sampler (XcpError for an address the slave cannot read)."""
-        self.read(address, size, ext)
+        """A DAQ entry's sampler: measurements and the calibration segment only (areas of a
+        fixed size); ERR_ACCESS_DENIED elsewhere (the GET_ID area is uploadable, not
+        measurable: its length changes with every GET_ID)."""
+        if ext != 0:
+            raise XcpError(ERR_OUT_OF_RANGE)
+        end = address + size
+        if not (MEAS_BASE <= address and end <= self.meas_end
+                or CAL_BASE <= address and end <= CAL_BASE + self.segment.size):
+            raise XcpError(ERR_ACCESS_DENIED)
         for m in self.meas:
             if m.address == address and m.size == size:
                 return m.pack
@@ -137,12 +148,19 @@ class CommandProcessor:
         if not self.connected and pid != 0xFF:
             stats.ignored += 1
             return []
+        if self._refused_left:  # the rest of a refused block: its one answer was the error
+            if pid == 0xEF and len(cto) >= 2 and cto[1] == self._refused_left:
+                self._refused_left -= min(cto[1], MAX_CTO - 2)
+                stats.block_rest_dropped += 1
+                return []
+            self._refused_left = 0
         stats.commands += 1
         if self._block_left and pid != 0xEF:  # a block broken off: its bytes are dropped
             self._block_left = 0
             self._staged.clear()
             if pid in (0xF0, 0xEE):  # a write instead of the block's DOWNLOAD_NEXT
                 stats.negative += 1
+                self._refused_left = self._block_rest(cto)
                 return [bytes([ERR, ERR_SEQUENCE])]
         fn = self._cmds.get(pid)
         try:
@@ -159,11 +177,20 @@ class CommandProcessor:
             if pid in (0xF0, 0xEF, 0xEE, 0xED):
                 self._block_left = 0
                 self._staged.clear()
-            return [bytes([ERR, exc.code])]
+                self._refused_left = self._block_rest(cto)
+            return [bytes([ERR, exc.code]) + getattr(exc, "extra", b"")]
         stats.positive += 1
         if isinstance(out, list):
             return out
         return [bytes([OK]) + out]
+
+    @staticmethod
+    def _block_rest(cto: bytes) -> int:
+        """Bytes of a master block still to come after this DOWNLOAD / DOWNLOAD_NEXT packet
+        (0: not a block's packet)."""
+        if len(cto) < 2 or cto[0] not in (0xF0, 0xEF) or cto[1] <= MAX_CTO - 2:
+            return 0
+        return cto[1] - (MAX_CTO - 2)
 
     @staticmethod
     def _need(cto: bytes, n: int) -> None:
@@ -172,8 +199,9 @@ class CommandProcessor:
 
     # --------------------------------------------------------------- standard
     def _connect(self, cto: bytes) -> bytes:
-        self._need(cto, 2)
-        if cto[1] not in (0, 1):  # normal, user-defined
+        # a CONNECT without its mode byte (1 byte, as some testers send it) is mode 0 (normal)
+        mode = cto[1] if len(cto) > 1 else 0
+        if mode not in (0, 1):  # normal, user-defined
             raise XcpError(ERR_OUT_OF_RANGE)
         if not self.connected:
             self.stats.connects += 1
@@ -357,8 +385,8 @@ class CommandProcessor:
         self._need(cto, 2)
         n = cto[1]
         if not self._block_left or n != self._block_left:
-            self._block_left = 0
-            raise XcpError(ERR_SEQUENCE)
+            expected, self._block_left = self._block_left, 0
+            raise XcpError(ERR_SEQUENCE, bytes([expected]))  # with the expected count
         chunk = min(n, MAX_CTO - 2)
         self._need(cto, 2 + chunk)
         self._write(self.mta, cto[2:2 + chunk], self.mta_ext, commit=n == chunk)

@@ -6,7 +6,13 @@ A list is sampled at the end of the ECU's tick, after the functions ran (the val
 tick). DTOs: absolute ODT number as PID (1 byte), then, in the first ODT of a list with
 timestamps, the ECU's clock in µs (4 bytes, fixed), then the entries' bytes. At most
 `daq_frames_per_tick` DTOs leave per tick; one more is lost and counted (`odts_lost`), never
-delaying the broadcast.
+delaying the broadcast; an entry whose read raises drops its DTO (`odts_dropped`, the slave's
+boundary), never raising out of the tick.
+
+XCP 1.5 DAQ rules kept: allocation in the order FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY
+(else ERR_SEQUENCE), ALLOC_ODT_ENTRY again on an ODT replaces its entries (and its share of
+`max_odt_entries`); a running or selected list keeps its layout and mode (ERR_DAQ_ACTIVE);
+CLEAR_DAQ_LIST stops the list, and `running` (GET_STATUS) is recomputed.
 """
 
 from __future__ import annotations
@@ -70,6 +76,7 @@ class DaqStats:
     samples: int = 0        # list samples (one per event that fired the list)
     odts_sent: int = 0
     odts_lost: int = 0
+    odts_dropped: int = 0   # an entry could not be read: the DTO is not sent (boundary)
 
 
 class Daq:
@@ -82,6 +89,8 @@ class Daq:
         self.lists: list[DaqList] = []
         self.stats = DaqStats()
         self.reader: Callable[[int, int, int], Callable[[], bytes]] | None = None
+        # an entry's read that raised (the slave's boundary: counted, logged once per kind)
+        self.on_read_error: Callable[[Exception], None] | None = None
         self.on_event_name: Callable[[bytes], None] | None = None
         self._state = "free"  # free -> daq -> odt -> entry (the allocation sequence)
         self._ptr: tuple[int, int, int] | None = None
@@ -138,8 +147,10 @@ class Daq:
         return struct.pack("<BBBI", 0, 0, 1, (self.t_ns // TIMESTAMP_NS) & 0xFFFFFFFF)
 
     # ------------------------------------------------------ allocation
-    def _check_stopped(self) -> None:
-        if self.running or any(d.running for d in self.lists):
+    @staticmethod
+    def _check_idle(dl: DaqList) -> None:
+        """A running or selected list keeps its layout and mode (ERR_DAQ_ACTIVE)."""
+        if dl.running or dl.selected:
             raise DaqError(ERR_DAQ_ACTIVE)
 
     def _free(self, cto: bytes) -> bytes:
@@ -166,6 +177,8 @@ class Daq:
         if self._state not in ("daq", "odt"):
             raise DaqError(ERR_SEQUENCE)
         dl = self._list(cto)
+        for d in self.lists:  # new ODTs renumber the later lists' PIDs
+            self._check_idle(d)
         count = cto[4]
         total = sum(len(d.odts) for d in self.lists) + count
         if total > MAX_PID + 1:
@@ -183,15 +196,18 @@ class Daq:
         if self._state not in ("odt", "entry"):
             raise DaqError(ERR_SEQUENCE)
         dl = self._list(cto)
+        self._check_idle(dl)
         odt = cto[4]
         if odt >= len(dl.odts):
             raise DaqError(ERR_OUT_OF_RANGE)
         count = cto[5]  # 0: an ODT with no entry (the first, holding only the timestamp)
         if count > MAX_DTO - 1:
             raise DaqError(ERR_OUT_OF_RANGE)
-        if self._entries + count > self.cfg.max_odt_entries:
+        # again for the same ODT: its entries are replaced, and so is its share of the budget
+        entries = self._entries - len(dl.odts[odt]) + count
+        if entries > self.cfg.max_odt_entries:
             raise DaqError(ERR_MEMORY_OVERFLOW)
-        self._entries += count
+        self._entries = entries
         dl.odts[odt] = [(0, 0, 0)] * count
         self._state = "entry"
         return b""
@@ -199,16 +215,16 @@ class Daq:
     def _clear_list(self, cto: bytes) -> bytes:
         self._need(cto, 4)
         dl = self._list(cto)
-        dl.running = dl.selected = False
+        dl.running = dl.selected = False  # a cleared list is stopped (GET_STATUS follows)
         dl.odts = [[(0, 0, 0)] * len(odt) for odt in dl.odts]
         dl.compiled = []
+        self.running = any(d.running for d in self.lists)
         return b""
 
     def _set_ptr(self, cto: bytes) -> bytes:
         self._need(cto, 6)
         dl = self._list(cto)
-        if dl.running:
-            raise DaqError(ERR_DAQ_ACTIVE)
+        self._check_idle(dl)
         odt, entry = cto[4], cto[5]
         if odt >= len(dl.odts) or entry >= len(dl.odts[odt]):
             raise DaqError(ERR_OUT_OF_RANGE)
@@ -223,8 +239,7 @@ class Daq:
         address = struct.unpack_from("<I", cto, 4)[0]
         number, odt, entry = self._ptr
         dl = self.lists[number]
-        if dl.running:
-            raise DaqError(ERR_DAQ_ACTIVE)
+        self._check_idle(dl)
         if bit != 0xFF or not 1 <= size <= MAX_DTO - 1:
             raise DaqError(ERR_OUT_OF_RANGE)
         entries = dl.odts[odt]
@@ -242,8 +257,7 @@ class Daq:
     def _set_mode(self, cto: bytes) -> bytes:
         self._need(cto, 8)
         dl = self._list(cto)
-        if dl.running:
-            raise DaqError(ERR_DAQ_ACTIVE)
+        self._check_idle(dl)
         mode = cto[1]
         if mode & (MODE_STIM | MODE_DTO_CTR | MODE_PID_OFF) or mode & ~0x3A:
             raise DaqError(ERR_MODE_NOT_VALID)
@@ -342,8 +356,15 @@ class Daq:
                     if ts is None:
                         ts = struct.pack("<I", (t_ns // TIMESTAMP_NS) & 0xFFFFFFFF)
                     head += ts
-                if send(head + b"".join(r() for r in readers)):
+                budget -= 1
+                try:
+                    dto = head + b"".join(r() for r in readers)
+                except Exception as exc:  # noqa: BLE001 - the boundary: counted, never raised
+                    stats.odts_dropped += 1
+                    if self.on_read_error is not None:
+                        self.on_read_error(exc)
+                    continue
+                if send(dto):
                     stats.odts_sent += 1
                 else:
                     stats.odts_lost += 1
-                budget -= 1

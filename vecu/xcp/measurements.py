@@ -2,6 +2,11 @@
 filter states, the sensor inputs as the ECU sees them, monitor states, DTC states and receive
 counters. Each is read from the live node when it is sampled (UPLOAD or a DAQ event); a value
 the ECU does not have yet (no sensor frame so far) reads NaN.
+
+A value its type cannot hold never raises (it would stop the ECU's tick): it is saturated and
+counted (`PackStats.saturated`, the summary's `xcp.values_saturated`): a float beyond FLOAT32's
+range is sent as +-FLT_MAX (NaN and infinities are FLOAT32 values and pass as they are), an
+integer out of its type's range as the type's limit, NaN (or None) in an integer as 0 (no value).
 """
 
 from __future__ import annotations
@@ -9,12 +14,23 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from vecu.ecu.diagnostics import FLOAT, UBYTE, ULONG
 from vecu.ecu.node import EcuNode
 from vecu.xcp.memory import MEAS_BASE, TYPES
+
+FLT_MAX = float(np.finfo(np.float32).max)
+
+
+@dataclass
+class PackStats:
+    """Measurement values their type could not hold (saturated when packed)."""
+
+    saturated: int = 0
 
 SENSOR_UNITS = {"tps": "deg", "wheel": "km/h", "swa": "deg"}  # the monitors' physical units
 
@@ -29,18 +45,31 @@ class Measurement:
     hi: float
     doc: str
     address: int = 0
+    stats: PackStats = field(default_factory=PackStats, compare=False)
 
     @property
     def size(self) -> int:
         return TYPES[self.code][0]
 
     def pack(self) -> bytes:
+        """The value now in its A2L type (saturated and counted when it does not fit)."""
         value = self.read()
         if self.code == FLOAT:
-            value = math.nan if value is None else float(value)
-        else:
-            value = 0 if value is None else max(0, min(int(value), (1 << (8 * self.size)) - 1))
-        return struct.pack("<" + self.code, value)
+            try:
+                return struct.pack("<f", math.nan if value is None else float(value))
+            except OverflowError:  # finite beyond FLOAT32
+                self.stats.saturated += 1
+                return struct.pack("<f", FLT_MAX if value > 0 else -FLT_MAX)
+        top = (1 << (8 * self.size)) - 1
+        try:
+            number = 0 if value is None else int(value)
+        except (ValueError, OverflowError):  # NaN, +-inf
+            self.stats.saturated += 1
+            number = top if value == math.inf else 0
+        if not 0 <= number <= top:
+            self.stats.saturated += 1
+            number = 0 if number < 0 else top
+        return struct.pack("<" + self.code, number)
 
 
 def ecu_measurements(node: EcuNode) -> list[Measurement]:
@@ -64,16 +93,17 @@ def ecu_measurements(node: EcuNode) -> list[Measurement]:
             f"{name} DTC state")
     add("monitor.bus.dtc", "1", UBYTE, lambda: int(node.bus_dtc.state), 0, 255, "bus DTC state")
     rx = node.rx
-    for field in ("received", "accepted", "rejected", "crc_errors", "counter_errors",
-                  "value_errors"):
-        add(f"rx.{field}", "1", ULONG, _reader(rx, field), 0, 4294967295,
-            f"frames {field.replace('_', ' ')}")
+    for counter in ("received", "accepted", "rejected", "crc_errors", "counter_errors",
+                    "value_errors"):
+        add(f"rx.{counter}", "1", ULONG, _reader(rx, counter), 0, 4294967295,
+            f"frames {counter.replace('_', ' ')}")
     result = []
     address = MEAS_BASE
+    stats = PackStats()  # one count over all of the node's measurements
     for name, unit, code, read, low, high, doc in out:
         size = TYPES[code][0]
         address = -(-address // size) * size
-        result.append(Measurement(name, unit, code, read, low, high, doc, address))
+        result.append(Measurement(name, unit, code, read, low, high, doc, address, stats))
         address += size
     return result
 

@@ -6,6 +6,12 @@ after the functions have broadcast: at most `commands_per_tick` commands are ans
 running DAQ lists whose event fired are sampled (the values of this tick) and sent, at most
 `daq_frames_per_tick` DTOs. Time is the tick's, so on the simulated clock the same commands give
 the same responses, calibrations and samples at the same times.
+
+Nothing a master sends raises out of tick(): the command handler and the DAQ sampler run behind
+one boundary (`Boundary`). A refused command is its XCP error packet (commands.py); an error
+the handler did not foresee is ERR_GENERIC (0x31) to the master, and a DAQ entry that cannot be
+read drops its DTO (`odts_dropped`); either is counted per kind (`xcp.internal_errors` in the
+summary) and logged once per kind, and the node goes on ticking.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from vecu.clock import NS_PER_S
 from vecu.ecu.node import EcuNode
 from vecu.params import ParamError
 from vecu.xcp.calibration import Calibrator
-from vecu.xcp.commands import CommandProcessor
+from vecu.xcp.commands import ERR, ERR_GENERIC, CommandProcessor
 from vecu.xcp.config import XcpConfig
 from vecu.xcp.daq import Daq
 from vecu.xcp.measurements import ecu_measurements
@@ -32,6 +38,22 @@ from vecu.xcp.security import SeedKey
 
 log = logging.getLogger(__name__)
 INBOX_FACTOR = 8  # frames kept waiting: this many ticks' worth of commands
+
+
+class Boundary:
+    """Errors that reached the slave's boundary: counted per kind ("where: ExceptionType"),
+    the first of each kind logged with its traceback (a bug to report), none raised."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, int] = {}
+
+    def caught(self, where: str, exc: BaseException) -> None:
+        kind = f"{where}: {type(exc).__name__}"
+        n = self.counts.get(kind, 0)
+        if not n:
+            log.error("xcp %s: %s (counted in the summary's xcp.internal_errors, logged once)",
+                      kind, exc, exc_info=exc)
+        self.counts[kind] = n + 1
 
 
 class XcpServer:
@@ -55,6 +77,8 @@ class XcpServer:
         self.frames_dropped = 0
         self.echoes = 0
         self.responses = 0
+        self.boundary = Boundary()
+        self.daq.on_read_error = lambda exc: self.boundary.caught("daq sample", exc)
         self._manifold = node.function("manifold")
         self._events_seen = 0
         self._ts = 0.0
@@ -87,7 +111,13 @@ class XcpServer:
         if inbox:
             handle = self.proc.handle
             for _ in range(min(len(inbox), self.cfg.commands_per_tick)):
-                for packet in handle(inbox.popleft(), t_ns):
+                cto = inbox.popleft()
+                try:
+                    packets = handle(cto, t_ns)
+                except Exception as exc:  # noqa: BLE001 - the boundary: answered, never raised
+                    self.boundary.caught(f"command 0x{cto[0]:02X}", exc)
+                    packets = [bytes([ERR, ERR_GENERIC])]
+                for packet in packets:
                     self.responses += self._send(packet)
         man = self._manifold
         engine = False
@@ -95,7 +125,10 @@ class XcpServer:
             self._events_seen = man.events  # type: ignore[attr-defined]  # a family attribute, not on the EcuFunction protocol
             engine = True
         if self.daq.running:
-            self.daq.sample(t_ns, engine, self._send)
+            try:
+                self.daq.sample(t_ns, engine, self._send)
+            except Exception as exc:  # noqa: BLE001 - the boundary: counted, never raised
+                self.boundary.caught("daq sample", exc)
 
     def check_calibration(self, sets: list[tuple[str, Any]]) -> Any:
         """The working tree with (path under ecu., value) pairs, checked; ParamError for a
@@ -113,6 +146,9 @@ class XcpServer:
     def summary(self) -> dict[str, Any]:
         """For the run summary: counters and the calibrations taken."""
         return {**asdict(self.proc.stats), **asdict(self.daq.stats),
+                "values_saturated": self.measurements[0].stats.saturated
+                if self.measurements else 0,
+                "internal_errors": dict(sorted(self.boundary.counts.items())),
                 "responses": self.responses, "frames_dropped": self.frames_dropped,
                 "connected": self.proc.connected,
                 "calibrations_taken": [[t / NS_PER_S, "ecu." + p, v]
