@@ -26,6 +26,8 @@ import math
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
+from types import CodeType
 from typing import Any
 
 import can
@@ -109,10 +111,17 @@ def message_source(msg: Message, *, saturate: Sequence[tuple[str, float, float]]
 def compile_source(source: MessageSource) -> MessageFunctions:
     """The functions of a source text: its one exec."""
     ns = dict(source.namespace)
-    code = compile(source.text, f"<vecu codec {source.name}>", "exec")
-    exec(code, ns)  # noqa: S102 (text generated from the DBC's layout and ranges, no user text)
+    exec(_code(source.text, source.name), ns)  # noqa: S102 (text generated from the DBC's layout and ranges, no user text)
     return MessageFunctions(ns.get("encode"), ns.get("decode"), ns["bad_values"],  # type: ignore[arg-type]
                             ns["decode_checked"], ns["frame"])  # type: ignore[arg-type]
+
+
+@lru_cache(maxsize=1024)
+def _code(text: str, name: str) -> CodeType:
+    """The text compiled (the most of a codec's build time), once per process for each text:
+    a DBC loaded again (another run, replay or instance 0 codec in the same process) gives the
+    same texts; each codec still runs its own exec in its own namespace."""
+    return compile(text, f"<vecu codec {name}>", "exec")
 
 
 class _Writer:
