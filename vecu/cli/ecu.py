@@ -173,7 +173,8 @@ def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:
     lat = proc.bus.latency
     estimates = {f.name: f.estimates_sent for f in fns.enabled()}
     return {
-        # which ECU this is on the bus: its instance and the CAN IDs it sends on (vecu.instances)
+        # which ECU this is on the bus: its instance and the CAN ID of each of its frames on it
+        # (vecu.instances; the left-out functions' frames too)
         "instance": ecu.codec.instance,
         "can_ids": {fc.name: f"0x{fc.frame_id:X}"
                     for fc in sorted((ecu.codec.by_id[k] for k in ecu.codec.sent_by(ECU_NODE)),
