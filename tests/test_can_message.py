@@ -36,15 +36,3 @@ def test_a_codec_frame_is_the_can_message_of_its_encoding():
     assert frames.same_message(tps.frame(values, 0.25), ref)
     assert not frames.same_message(tps.frame(values, 0.26), ref)
 
-
-def test_return_lines_build_what_message_builds():
-    """The written-out message() of generated code (frame builders) gives message()'s frame."""
-    for length, is_fd, ext in ((8, False, False), (3, False, True), (12, True, False), (0, False, False)):
-        lines, names = frames.return_lines("ts", 0x1AB, ext, "buf", length, is_fd)
-        ns = dict(names)
-        exec(compile("def make(ts, buf):\n" + "".join(f"    {line}\n" for line in lines),  # noqa: S102
-                     "<test>", "exec"), ns)
-        data = bytearray(range(length))
-        got = ns["make"](2.5, data)
-        assert frames.same_message(got, frames.message(2.5, 0x1AB, ext, bytearray(data), is_fd))
-        assert frames.same_message(got, frames._reference(2.5, 0x1AB, ext, bytearray(data), is_fd))

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import can
 
-_FIELDS = frozenset({"timestamp", "arbitration_id", "is_extended_id", "is_remote_frame",
+FIELDS = frozenset({"timestamp", "arbitration_id", "is_extended_id", "is_remote_frame",
                      "is_error_frame", "channel", "dlc", "data", "is_fd", "is_rx",
                      "bitrate_switch", "error_state_indicator"})
 _new = object.__new__
@@ -68,11 +68,11 @@ SAMPLES: tuple[dict, ...] = (
 def same_message(a: can.Message, b: can.Message) -> bool:
     """Every field of a and b equal, with the same types."""
     return all(getattr(a, f) == getattr(b, f) and type(getattr(a, f)) is type(getattr(b, f))
-               for f in _FIELDS)
+               for f in FIELDS)
 
 
 def _verified() -> bool:
-    if set(_Message.__slots__) - {"__weakref__"} != _FIELDS:
+    if set(_Message.__slots__) - {"__weakref__"} != FIELDS:
         return False
     try:
         return all(same_message(_direct(**s), _reference(**s)) for s in SAMPLES)
@@ -83,21 +83,3 @@ def _verified() -> bool:
 DIRECT = _verified()
 message = _direct if DIRECT else _reference  # message(timestamp, arbitration_id, ...)
 
-
-def return_lines(timestamp: str, arbitration_id: int, is_extended_id: bool, data: str,
-                 length: int, is_fd: bool) -> tuple[list[str], dict[str, object]]:
-    """Generated code's `return message(timestamp, arbitration_id, is_extended_id, data,
-    is_fd)` for a `data` bytearray of `length` bytes, with _direct's assignments written out
-    (no call; vecu.frame_builders): (lines, the names they use). timestamp and data are
-    expressions; without DIRECT a call of message."""
-    if not DIRECT:
-        call = f"_msg({timestamp}, {arbitration_id}, {is_extended_id}, {data}, {is_fd})"
-        return [f"return {call}"], {"_msg": message}
-    fields = {"timestamp": timestamp, "arbitration_id": arbitration_id,
-              "is_extended_id": is_extended_id, "is_remote_frame": False,
-              "is_error_frame": False, "channel": None, "data": data, "dlc": length,
-              "is_fd": is_fd, "is_rx": True, "bitrate_switch": False,
-              "error_state_indicator": False}
-    assert set(fields) == _FIELDS
-    return (["m = _new(_Message)", *(f"m.{name} = {value}" for name, value in fields.items()),
-             "return m"], {"_new": _new, "_Message": _Message})

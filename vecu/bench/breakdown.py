@@ -35,12 +35,12 @@ COMPONENTS: tuple[tuple[str, str | None, str, str], ...] = (
 )
 
 
-# generated code (no class attribute to look up): the file name's prefix -> row label
-GENERATED: tuple[tuple[str, str], ...] = (
-    ("<vecu framer ", "codec: encode + can.Message"),
-    ("<vecu e2e check ", "codec: E2E CRC check"),
-    ("<vecu range check ", "codec: range check"),
-    ("<vecu decode check ", "codec: decode + range check (receive)"),
+# generated code (no class attribute to look up): (the file name's prefix, the function's name)
+# -> row label; each message's source (vecu.codec.source) is one file "<vecu codec NAME>"
+GENERATED: tuple[tuple[str, str, str], ...] = (
+    ("<vecu codec ", "frame", "codec: encode + can.Message"),
+    ("<vecu codec ", "bad_values", "codec: range check"),
+    ("<vecu codec ", "decode_checked", "codec: decode + range check (receive)"),
 )
 
 FuncKey = tuple[str, int, str]  # pstats' (file, first line, name)
@@ -119,8 +119,8 @@ def breakdown(duration_s: float = 5.0, seed: int = 0) -> dict[str, Any]:
     wall_inst = watch.elapsed()
     stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]  # pstats' stats dict is not in typeshed
     keys = _component_keys()
-    keys.update({func: label for func in stats for prefix, label in GENERATED
-                 if func[0].startswith(prefix)})
+    keys.update({func: label for func in stats for prefix, name, label in GENERATED
+                 if func[0].startswith(prefix) and func[2] == name})
     excl, calls = exclusive_times(stats, keys)
     ticks = plain["ticks"]
     rows: dict[str, dict[str, float]] = {}

@@ -85,8 +85,8 @@ class SteeringFunction:
         self._modulo = e2e.protection.counter_modulo  # P11: 0..14
         self._smoothed = codec["ECU_SteeringSmoothed"]
         self._est_frame = self._est.framer((
-            "STE_CRC", "STE_AliveCounter", "STE_Source", "STE_SwAngle", "STE_SwAngleEst",
-            "STE_SideSlip", "STE_SwaStatus", "STE_Validity"))
+            "STE_CRC", "STE_AliveCounter", "STE_Source", "STE_Validity", "STE_SwAngle",
+            "STE_SwAngleEst", "STE_SideSlip", "STE_SwaStatus"))
         self._smoothed_frame = self._smoothed.framer(
             ("STS_SwAngle", "STS_SideSlip", "STS_LagMs", "STS_Valid", "STS_Validity"))
         self._sigma_frame = codec["ECU_SteeringSigma"].framer(
@@ -156,7 +156,7 @@ class SteeringFunction:
         ts = t_ns / NS_PER_S
         send(self._sigma_frame(ts, std, ukf.side_slip_std_rad * DEG_PER_RAD))
         self.estimates_sent += send(self._est_frame(
-            ts, 0, self._tx_counter, source, angle, est, beta, int(status), validity))
+            ts, 0, self._tx_counter, source, validity, angle, est, beta, int(status)))
         self._tx_counter = (self._tx_counter + 1) % self._modulo
         if lagged is not None:
             lag_ms = round(lagged.lag_steps * self.period_ns / NS_PER_MS)

@@ -86,8 +86,8 @@ class ThrottleFunction:
         assert e2e is not None, "the DBC's safety frame has no E2E layout"
         self._modulo = e2e.protection.counter_modulo  # P11: 0..14
         self._est_frame = self._est.framer((
-            "THR_CRC", "THR_AliveCounter", "THR_Source", "THR_Angle", "THR_AngleEst",
-            "THR_AngleEstStd", "THR_TpsStatus", "THR_Validity"))
+            "THR_CRC", "THR_AliveCounter", "THR_Source", "THR_Validity", "THR_Angle",
+            "THR_AngleEst", "THR_AngleEstStd", "THR_TpsStatus"))
         monitor_cfg = config.tps_monitor
         tps_cycle = self._tps.cycle_time_ms or monitor_cfg.cycle_ms
         if monitor_cfg.cycle_ms != tps_cycle:
@@ -156,8 +156,8 @@ class ThrottleFunction:
         self.validity = validity = (INIT if not self._measured else
                                     DEGRADED if self._runs_without >= STALE_RUNS else VALID)
         self.estimates_sent += send(self._est_frame(
-            t_ns / NS_PER_S, 0, self._tx_counter, source, angle, theta_hat, std, int(status),
-            validity))
+            t_ns / NS_PER_S, 0, self._tx_counter, source, validity, angle, theta_hat, std,
+            int(status)))
         self._tx_counter = (self._tx_counter + 1) % self._modulo
 
     def status_signals(self) -> dict[str, int]:

@@ -1,6 +1,6 @@
 """The replay's feeder: the scheduler task that hands the trace's frames to the ECU (fast mode,
-checked in blocks: FrameCodec.check_block) or plays them onto a bus (live mode), and the tally
-of what became of each frame."""
+checked in blocks: FrameCodec.check_block, vecu.codec.blocks) or plays them onto a bus (live
+mode), and the tally of what became of each frame."""
 
 from __future__ import annotations
 
@@ -10,9 +10,8 @@ from dataclasses import dataclass, field
 
 import can
 
-from vecu.block_codec import BlockChecks
 from vecu.clock import WallClock
-from vecu.codec import DbcCodec, FrameCodec
+from vecu.codec import BlockChecks, DbcCodec, FrameCodec
 from vecu.ecu.node import EcuNode, Route
 from vecu.replay.scoring import TruthScorer
 from vecu.replay.source import TraceSource

@@ -1,18 +1,20 @@
-"""FrameCodec.framer (vecu.frame_builders): make(ts, *values) gives exactly FrameCodec.frame's Message,
-or raises what frame() raises, on every message of vecu's DBCs and the third-party ones."""
+"""The generated frame() (FrameCodec.framer): make(ts, *values) gives exactly FrameCodec.frame's
+Message, or raises what frame() raises, on every message of vecu's DBCs and the third-party ones;
+the generated bad_values and decode_checked against the loop they replace."""
 
 from __future__ import annotations
 
 import math
 import random
 
+import cantools
 import numpy as np
 import pytest
 
-from tests.dbc_sets import every_message
+from tests.codec.dbc_sets import every_message
 from vecu.can_message import same_message
-from vecu.codec import DbcCodec
-from vecu.frame_builders import compile_decode_checked, compile_range_check
+from vecu.codec import DbcCodec, builtin_dbc_path
+from vecu.codec.source import compile_source, message_source
 
 RUNS = 120  # value sets per message
 
@@ -38,7 +40,6 @@ def test_framer_gives_frames_message(with_thirdparty, request):
         names = [s.name for s in fc.signals]
         if not names:
             continue
-        rng.shuffle(names)
         make = fc.framer(names)
         for _ in range(RUNS if not with_thirdparty else RUNS // 4):
             values = [_value(fc.signal(n), rng) for n in names]
@@ -60,6 +61,8 @@ def test_framer_refuses_names_that_are_not_the_signals():
         fc.framer(("TPS_Voltage",))
     with pytest.raises(ValueError):
         fc.framer(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage", "TPS_Voltage"))
+    with pytest.raises(ValueError):  # the values' order is the DBC's
+        fc.framer(("TPS_AliveCounter", "TPS_CRC", "TPS_Voltage"))
 
 
 def _bad_values_reference(checked, values) -> list[str]:
@@ -79,7 +82,7 @@ def test_generated_range_check_is_the_loop():
     rng = random.Random(9)
     checked = [("a", -1.5, 2.0), ("b", None, 10), ("c", 0, None), ("d", None, None),
                ("e", -math.inf, 3.0), ("f", 1.0, 1.0)]
-    bad_values = compile_range_check(checked, "test")
+    bad_values = _generated(checked, decode=None).bad_values
     specials = [math.nan, math.inf, -math.inf, -1.5, 2.0, 10, 0, 1.0, -0.0, 3.0]
     for _ in range(3000):
         values = {n: (rng.choice(specials) if rng.random() < 0.5 else rng.uniform(-20, 20))
@@ -103,6 +106,15 @@ def test_decode_checked_is_decode_then_bad_values():
             assert values == fc.decode_exact(data) or math.isnan(sum(values.values()))
             assert bad == fc.bad_values(fc.decode_exact(data)), (fc.name, data.hex())
     pieces = {"a": 1.0, "b": math.nan}  # an incomplete decoder: its missing signals not checked
-    check = compile_decode_checked(lambda data: dict(pieces), [("a", 0, 2), ("b", 0, 1),
-                                                               ("c", 0, 1)], "t", complete=False)
+    check = _generated([("a", 0, 2), ("b", 0, 1), ("c", 0, 1)],
+                       decode=lambda data: dict(pieces)).decode_checked
     assert check(b"") == (pieces, ["b"])
+
+
+def _generated(checked, decode):
+    """The functions of a source generated for vecu's TPS_Sensor with another range check and
+    (plain=False) another decoder."""
+    db = cantools.database.load_file(str(builtin_dbc_path()))
+    return compile_source(message_source(
+        db.get_message_by_name("TPS_Sensor"), saturate=(), checked=checked, protect=None,
+        decode_fallback=decode, frame_fallback=None, plain=decode is None))

@@ -1,8 +1,8 @@
-"""Block decoding: many payloads of one CAN message at once, with numpy.
+"""Block decoding and encoding: many payloads of one CAN message at once, with numpy.
 
-The bit layout comes from cantools through vecu.codec (FrameCodec.block: start bit, length, byte
-order, sign, float or integer, scale and offset of each signal, taken from cantools' Signal and
-conversion objects once; no DBC text is parsed here). For N payloads of the message's length,
+The bit layout comes from cantools (block_layout: start bit, length, byte order, sign, float or
+integer, scale and offset of each signal, taken from cantools' Signal and conversion objects
+once; no DBC text is parsed here). For N payloads of the message's length,
 check() extracts every signal of every payload with shifts and masks on 64-bit words, applies
 the same conversion with the same IEEE operations as the per-frame decoder (so the values are
 bit for bit FrameCodec.decode's, ints where it gives ints), and checks the E2E CRC and the DBC
@@ -16,7 +16,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from cantools.database.can import Message
+from cantools.database.conversion import (
+    IdentityConversion,
+    LinearConversion,
+    LinearIntegerConversion,
+)
 
+from vecu.codec.e2e_layout import E2ELayout
+from vecu.codec.signals import numeric_conversion, signal_bits
 from vecu.e2e import E2EProtection
 
 MAX_BLOCK_BYTES = 8
@@ -171,3 +179,30 @@ def encode_rows(layout: BlockLayout, columns: Sequence[np.ndarray],
         for row in out:
             protect(row)
     return out, refused
+
+
+def block_layout(message: Message, e2e: E2ELayout | None) -> BlockLayout | None:
+    """The message's BlockLayout from cantools' signals (plain layouts of classic CAN payloads,
+    integer signals up to 32 bits, linear or identity conversions), or None."""
+    n = message.length
+    if n > MAX_BLOCK_BYTES or message.is_container or message.is_multiplexed():
+        return None
+    fields = []
+    for sig in message.signals:
+        placed = signal_bits(sig, n)
+        if placed is None or (not sig.is_float and sig.length > 32):
+            return None
+        conv = numeric_conversion(sig)
+        if type(conv) in (LinearConversion, LinearIntegerConversion):
+            scale, offset = conv.scale, conv.offset
+            integer = not sig.is_float and isinstance(scale, int) and isinstance(offset, int)
+        elif type(conv) is IdentityConversion:
+            scale = offset = None
+            integer = not sig.is_float
+        else:
+            return None
+        fields.append(BlockField(sig.name, placed[0] == "be", placed[1], sig.length,
+                                 sig.is_signed, sig.length if sig.is_float else 0, scale, offset,
+                                 integer, type(conv) in (LinearConversion, IdentityConversion)))
+    return BlockLayout(message.frame_id, n, tuple(fields),
+                       e2e.protection if e2e is not None else None)

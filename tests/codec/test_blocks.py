@@ -1,4 +1,4 @@
-"""Block decoding (vecu.block_codec, FrameCodec.check_block) against the per-frame path: for many
+"""Block decoding (vecu.codec.blocks, FrameCodec.check_block) against the per-frame path: for many
 random payloads of every message of vecu's DBCs and of the third-party DBCs, the CRC verdict,
 every value (type and bits) and the out-of-range names are what crc_ok / decode / bad_values give
 one frame at a time."""
@@ -11,7 +11,7 @@ import struct
 
 import pytest
 
-from tests.dbc_sets import every_message
+from tests.codec.dbc_sets import every_message
 from vecu.codec import DbcCodec, builtin_dbc_path
 
 FRAMES = 300  # random payloads per message, decoded as one block
