@@ -154,6 +154,18 @@ class FrameCodec:
         self.mux_selections: tuple[dict[str, int], ...] = (
             tuple(_mux_selections(message.signal_tree)) if message.is_multiplexed() else ())
         self.arxml_e2e: ArxmlE2E | None = _arxml_e2e(message)
+        # what a signal gateway needs (vecu.gateway.routing): each signal's choices (raw value
+        # -> name), the payload bytes it occupies, and for a multiplexed signal its multiplexer
+        # and the selector values that carry it
+        self.choices: dict[str, dict[int, str]] = {
+            s.name: {int(k): str(v) for k, v in s.choices.items()}
+            for s in message.signals if s.choices}
+        self.signal_bytes: dict[str, frozenset[int]] = {
+            s.name: frozenset(b for b, _ in (_signal_bits(s, message.length) or ("", 0, set()))[2])
+            for s in message.signals}
+        self.mux_of: dict[str, tuple[str, tuple[int, ...]]] = {
+            s.name: (s.multiplexer_signal, tuple(s.multiplexer_ids))
+            for s in message.signals if s.multiplexer_signal is not None and s.multiplexer_ids}
         self._framers: dict[tuple[str, ...], Framer] = {}
         # crc_ok(payload): its E2E CRC byte is right (True without E2E); bad_values(values): the
         # names of signals NaN / inf or outside the DBC's [minimum, maximum]. Generated code
