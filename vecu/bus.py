@@ -334,6 +334,26 @@ class LaneBus(can.BusABC):
         super().shutdown()
 
 
+class MergedEdges(can.BusABC):
+    """The log endpoints (edges) of several lanes read as one bus, as a log writer of a
+    multi-bus run needs: recv() gives the earliest frame of any of them (ties: the first
+    lane's), each frame keeping its lane's channel."""
+
+    def __init__(self, edges: list[LaneBus]) -> None:
+        super().__init__(channel="+".join(e.lane.channel for e in edges))
+        self.edges = edges
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise can.CanOperationError("merged log endpoints only listen")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        best = None
+        for edge in self.edges:
+            if edge.queue and (best is None or edge.queue[0].timestamp < best.queue[0].timestamp):
+                best = edge
+        return (best.queue.popleft() if best is not None else None), False
+
+
 MAX_LOGGED_SEND_ERRORS = 20
 
 

@@ -13,7 +13,7 @@ from dataclasses import replace
 import can
 
 from vecu.assembly import PRIO_ECU, PRIO_RECORD, TICK_NS
-from vecu.bus import LaneBus, SimLane
+from vecu.bus import LaneBus, MergedEdges, SimLane
 from vecu.clock import SimClock
 from vecu.errors import ConfigError
 from vecu.gateway.routes import RoutingConfig
@@ -47,25 +47,6 @@ class GatewayNode:
                 receive(name, msg, now_ns)
         for name, msg in self.engine.tick(now_ns):
             self.endpoints[name].send(msg)
-
-
-class MergedEdges(can.BusABC):
-    """The log endpoints of several lanes read as one bus: recv() gives the earliest frame of
-    any of them (ties: the first lane's), each keeping its lane's channel (the bus name)."""
-
-    def __init__(self, edges: list[LaneBus]) -> None:
-        super().__init__(channel="gateway")
-        self.edges = edges
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        raise can.CanOperationError("the gateway log endpoint only listens")
-
-    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        best = None
-        for edge in self.edges:
-            if edge.queue and (best is None or edge.queue[0].timestamp < best.queue[0].timestamp):
-                best = edge
-        return (best.queue.popleft() if best is not None else None), False
 
 
 def run_with_gateway(config: RunConfig, routing: RoutingConfig,
