@@ -129,3 +129,35 @@ def test_deny_rules_drop_and_count(engine):
         engine.receive("vehicle", can.Message(arbitration_id=can_id, data=b"\x02\x10\x03",
                                               is_extended_id=False), 0)
     assert engine.summary()["denied"] == {"deny[0]": 3}
+
+
+def test_onto_a_third_party_database(tmp_path, thirdparty):
+    """vecu's speed estimate into a database nobody here wrote (cantools' test vehicle.dbc:
+    RT_DL1MK3_Speed, a 29-bit ID, Speed in m/s on 32 bits): every routed value is the source
+    frame's, decoded by cantools on both sides, converted km/h -> m/s."""
+    dbc = thirdparty / "dbc" / "vehicle.dbc"
+    path = write_config(tmp_path, f'''
+[buses.powertrain]
+dbc = ["vecu"]
+[buses.vehicle]
+dbc = ["{dbc}"]
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+target = "RT_DL1MK3_Speed"
+send = "on_change"
+signals = {{ Speed = "ECU_SpeedEstimate.SPD_VehSpeed" }}
+''')
+    engine = RoutingEngine(load_routing_config(path))
+    vehicle = cantools.database.load_file(str(dbc))
+    target = vehicle.get_message_by_name("RT_DL1MK3_Speed")
+    speeds = [0.0, 12.34, 99.99, 250.0, 250.0, 3.21]
+    feed = {ms: [_frame("ECU_SpeedEstimate", {"SPD_VehSpeed": v}, ms * MS)]
+            for ms, v in enumerate(speeds)}
+    sent = _run(engine, feed, len(speeds))
+    assert [ms for ms, _, _ in sent] == [1, 2, 3, 5]  # on change (0 km/h is the start value)
+    for ms, bus, m in sent:
+        assert bus == "vehicle" and m.is_extended_id and m.arbitration_id == target.frame_id
+        src = VECU["ECU_SpeedEstimate"].decode(bytes(feed[ms][0].data))["SPD_VehSpeed"]
+        got = target.decode(bytes(m.data))["Speed"]
+        assert got == pytest.approx(src / 3.6, abs=1e-5)
