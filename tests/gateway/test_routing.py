@@ -5,6 +5,7 @@ limit, timeout substitutes and the firewall."""
 
 from __future__ import annotations
 
+import can
 import cantools
 import e2e as autosar_e2e
 import pytest
@@ -13,7 +14,7 @@ from vecu.codec import DbcCodec
 from vecu.gateway.routes_config import load_routing_config
 from vecu.gateway.routing import RoutingEngine
 
-from .routing_setup import DATA, write_config
+from .routing_setup import DATA, TWO_BUSES, write_config
 
 MS = 1_000_000
 VECU = DbcCodec()
@@ -123,12 +124,62 @@ def test_multiplexed_target_carries_its_selector(engine):
     assert decoded == [{"VEH_Page": 2, "VEH_Yaw": 12.5}, {"VEH_Page": 2, "VEH_Yaw": -3.0}]
 
 
-def test_deny_rules_drop_and_count(engine):
-    import can
-    for can_id in (0x7E0, 0x7DF, 0x7E0):
+def test_deny_rules_drop_before_any_route(tmp_path):
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + """
+[[routes]]
+from = "vehicle"
+to = "powertrain"
+ids = [0x7E0, 0x123]
+[[deny]]
+from = "vehicle"
+ids = [0x7E0, 0x7DF]
+""")))
+    for ms, can_id in enumerate((0x7E0, 0x123, 0x7DF, 0x7E0)):
         engine.receive("vehicle", can.Message(arbitration_id=can_id, data=b"\x02\x10\x03",
-                                              is_extended_id=False), 0)
+                                              is_extended_id=False), ms * MS)
+    sent = [m for ms in range(4) for _, m in engine.tick(ms * MS)]
+    assert [m.arbitration_id for m in sent] == [0x123]  # 0x7E0 is routed, but denied first
     assert engine.summary()["denied"] == {"deny[0]": 3}
+    assert engine.summary()["routes"]["routes[0] vehicle->powertrain"]["in"] == 1
+
+
+def test_a_frame_route_forwards_e2e_untouched(tmp_path):
+    """A protected frame copied by a frame route still passes the receiver's check
+    (autosar-e2e P11, data ID = its CAN ID), counter and CRC as the sender made them."""
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + """
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+messages = ["ECU_ThrottleEstimate"]
+""")))
+    feed = {ms: [_frame("ECU_ThrottleEstimate", {"THR_Angle": ms * 1.5, "THR_AliveCounter": ms},
+                        ms * MS)] for ms in range(15)}
+    sent = _run(engine, feed, 15)
+    assert len(sent) == 15
+    for ms, bus, m in sent:
+        assert bus == "vehicle" and m.arbitration_id == 0x200
+        assert bytes(m.data) == bytes(feed[ms][0].data)
+        assert autosar_e2e.p11.e2e_p11_check(bytearray(m.data), 0x200)
+        assert m.data[1] & 0x0F == ms
+
+
+def test_a_signal_route_min_interval_keeps_the_latest_values(tmp_path):
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + """
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+target = "VEH_Mux"
+send = "on_change"
+min_interval_ms = 10
+signals = { VEH_Yaw = "CHS_Lateral.LAT_YawRate" }
+""")))
+    feed = {ms: [_frame("CHS_Lateral", {"LAT_YawRate": ms + 1.0}, ms * MS)] for ms in range(25)}
+    sent = _run(engine, feed, 25)
+    assert [ms for ms, _, _ in sent] == [0, 10, 20]
+    assert [BODY.decode_message(1296, bytes(m.data))["VEH_Yaw"] for _, _, m in sent] == [
+        1.0, 11.0, 21.0]  # the values of the frames of 0, 10 and 20 ms: the latest then
+    stats = engine.summary()["routes"]["routes[0] powertrain->vehicle"]
+    assert stats["in"] == 25 and stats["out"] == 3
 
 
 def test_onto_a_third_party_database(tmp_path, thirdparty):
