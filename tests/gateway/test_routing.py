@@ -5,6 +5,8 @@ limit, timeout substitutes and the firewall."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import can
 import cantools
 import e2e as autosar_e2e
@@ -212,3 +214,34 @@ signals = {{ Speed = "ECU_SpeedEstimate.SPD_VehSpeed" }}
         src = VECU["ECU_SpeedEstimate"].decode(bytes(feed[ms][0].data))["SPD_VehSpeed"]
         got = target.decode(bytes(m.data))["Speed"]
         assert got == pytest.approx(src / 3.6, abs=1e-5)
+
+
+def test_an_arxml_source_protection_is_checked(tmp_path):
+    """A source message whose ARXML names AUTOSAR P05 (tests/restbus/data/chassis.arxml,
+    BrakeStatus, data ID 0x0B2C): frames autosar-e2e protected pass, a broken CRC is dropped."""
+    arxml = Path(__file__).parents[1] / "restbus" / "data" / "chassis.arxml"
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, f"""
+[buses.chassis]
+dbc = ["{arxml}"]
+[buses.vehicle]
+dbc = ["body.dbc"]
+[[routes]]
+from = "chassis"
+to = "vehicle"
+target = "VEH_Dynamics"
+send = "on_change"
+signals = {{ VEH_Chk = "BrakeStatus.BrakePressure" }}
+""")))
+    brake = cantools.database.load_file(str(arxml)).get_message_by_name("BrakeStatus")
+    sent = []
+    for ms, (pressure, broken) in enumerate(((12.0, False), (30.0, True), (7.0, False))):
+        data = bytearray(brake.encode({"BrakeStatus_Crc": 0, "BrakeStatus_Counter": ms,
+                                       "BrakePressure": pressure, "BrakePedalPressed": 1}))
+        autosar_e2e.p05.e2e_p05_protect(data, data_id=0x0B2C, increment_counter=False)
+        if broken:
+            data[0] ^= 0x01
+        engine.receive("chassis", can.Message(arbitration_id=brake.frame_id, data=data,
+                                              is_extended_id=False), ms * MS)
+        sent += [m for _, m in engine.tick(ms * MS)]
+    assert [BODY.decode_message(1280, bytes(m.data))["VEH_Chk"] for m in sent] == [12, 7]
+    assert engine.summary()["routes"]["routes[0] chassis->vehicle"]["dropped"] == {"e2e": 1}

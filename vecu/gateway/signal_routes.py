@@ -6,8 +6,10 @@ target message (another database), as AUTOSAR Com's signal gateway does (ComGwMa
   signal's range (each clipped value counted), encoded with the target's scale and offset.
   Choices map by name; multiplexed sources give their signals when their selector does, and a
   multiplexed target is sent with the selector value its mapped signals need.
-- E2E: a source message whose database names a protection (vecu.codec's E2E layout) is checked
-  (autosar-e2e through vecu.e2e); a frame that fails is dropped and counted, its values unused.
+- E2E: a source message whose database names a protection (an ARXML's E2E properties, else
+  vecu's `<prefix>_CRC` / `_AliveCounter` layout) is checked (autosar-e2e through vecu.e2e: the
+  CRC and what else the profile's header holds); a frame that fails is dropped and counted, its
+  values unused.
   The target is protected with the route's own profile (AUTOSAR E2E, the gateway as its new
   sender), the counter advancing by one per frame sent.
 - Sending: cyclic (the target's database cycle time), on_change (a frame when a value changed)
@@ -19,13 +21,16 @@ target message (another database), as AUTOSAR Com's signal gateway does (ComGwMa
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 import can
 
 from vecu.can_message import message
 from vecu.codec import DbcCodec, FrameCodec
+from vecu.e2e import E2EConfigError, E2EProtection
 from vecu.gateway.route_stats import RouteStats
 from vecu.gateway.routes import SignalMap, SignalRoute
+from vecu.restbus.spec import arxml_protection
 
 
 class SignalRouter:
@@ -36,9 +41,13 @@ class SignalRouter:
         self.stats = RouteStats()
         self.target = fc = target[route.message]
         self._sources: dict[int, tuple[FrameCodec, list[SignalMap]]] = {}
+        self._checks: dict[int, Callable[[bytes | bytearray], bool]] = {}
         for m in route.signals:
             sfc = source[m.message]
             self._sources.setdefault(sfc.frame_id, (sfc, []))[1].append(m)
+            prot = source_protection(sfc)
+            if prot is not None:
+                self._checks[sfc.frame_id] = prot.checker()
         self._initial = {m.target: fc.start_values[m.target] for m in route.signals}
         self.values: dict[str, float] = dict(fc.start_values)
         self.values.update({name: float(v) for name, v in route.mux})
@@ -92,7 +101,8 @@ class SignalRouter:
         if len(msg.data) != sfc.length:
             self.stats.drop("length")
             return
-        if not sfc.crc_ok(msg.data):
+        check = self._checks.get(msg.arbitration_id)
+        if check is not None and not check(msg.data):
             self.stats.drop("e2e")
             return
         try:
@@ -149,3 +159,15 @@ def _bounds(fc: FrameCodec, name: str) -> tuple[float, float]:
     encode() clips to what the bits hold)."""
     lo, hi = fc.ranges[name]
     return (-float("inf") if lo is None else lo, float("inf") if hi is None else hi)
+
+
+def source_protection(fc: FrameCodec) -> E2EProtection | None:
+    """The protection a source message's database names: its ARXML E2E properties (as the
+    restbus reads them; properties vecu cannot apply: none), else vecu's E2E layout."""
+    try:
+        prot = arxml_protection(fc)
+    except E2EConfigError:
+        prot = None
+    if prot is None and fc.e2e is not None:
+        prot = fc.e2e.protection
+    return prot
