@@ -245,3 +245,22 @@ signals = {{ VEH_Chk = "BrakeStatus.BrakePressure" }}
         sent += [m for _, m in engine.tick(ms * MS)]
     assert [BODY.decode_message(1280, bytes(m.data))["VEH_Chk"] for m in sent] == [12, 7]
     assert engine.summary()["routes"]["routes[0] chassis->vehicle"]["dropped"] == {"e2e": 1}
+
+
+def test_p02_reprotection_with_its_data_id_list(tmp_path):
+    ids = list(range(0x10, 0x20))
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + f"""
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+target = "VEH_Dynamics"
+signals = {{ VEH_Speed = "ECU_SpeedEstimate.SPD_VehSpeed" }}
+e2e = {{ profile = "P02", data_id_list = {ids} }}
+""")))
+    feed = {ms: [_frame("ECU_SpeedEstimate", {"SPD_VehSpeed": ms / 10}, ms * MS)]
+            for ms in range(0, 400, 2)}
+    sent = [m for _, _, m in _run(engine, feed, 400)]
+    assert len(sent) == 20
+    for n, m in enumerate(sent):
+        assert autosar_e2e.p02.e2e_p02_check(bytearray(m.data), bytes(ids), length=0)
+        assert m.data[1] & 0x0F == n % 16  # P02's counter: 0..15

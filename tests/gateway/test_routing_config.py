@@ -94,6 +94,16 @@ id = 0x300
 mask = 0x7F0
 ''', ("key 'routes[1]': a loop with routes[0]: powertrain 0x0300 -> vehicle 0x0300 -> "
      "powertrain 0x0300")),
+    ("ID out of range", TWO_BUSES + '[[routes]]\nfrom = "powertrain"\nto = "vehicle"\n'
+     'messages = ["ECU_SpeedEstimate"]\nid = 0x20000000\n',
+     "key 'routes[0].id': 0x20000000 is outside 0..0x1FFFFFFF"),
+    ("unknown E2E profile", TWO_BUSES + SIGNAL_ROUTE + 'signals = { VEH_Speed = '
+     '"ECU_SpeedEstimate.SPD_VehSpeed" }\ne2e = { profile = "P99" }',
+     "key 'routes[0].e2e': unknown E2E profile 'P99' (known: P01, P02, P04, P05, P07, P11)"),
+    ("two selector values", TWO_BUSES + SIGNAL_ROUTE.replace("VEH_Dynamics", "VEH_Mux")
+     + 'send = "on_change"\nsignals = { VEH_Yaw = "CHS_Lateral.LAT_YawRate", '
+       'VEH_Accel = "ESC_Motion.ESC_LongAccel" }',
+     "key 'routes[0].signals.VEH_Accel': needs VEH_Page in [1], another target needs 2"),
     ("bad send", TWO_BUSES + SIGNAL_ROUTE + 'send = "sometimes"',
      "key 'routes[0].send': expected one of cyclic, on_change, both, got 'sometimes'"),
     ("missing dbc", TWO_BUSES.replace('["body.dbc"]', '["nowhere.dbc"]'), "key 'buses.vehicle.dbc': "),

@@ -16,7 +16,7 @@ from typing import Any
 from vecu.codec import DEFAULT_DBC, TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.e2e import E2EConfigError, E2EProtection
 from vecu.errors import BadFileError
-from vecu.gateway.config import GatewayConfigError, _Check
+from vecu.gateway.config import GatewayConfigError, _Check, _hex
 from vecu.gateway.routes import BusSpec, DenyRule, FrameRoute, RoutingConfig, SignalMap, SignalRoute
 from vecu.gateway.routes_check import check_routes
 from vecu.tomlfile import read_toml
@@ -36,7 +36,8 @@ BUS = {"interface": str, "channel": str, "bitrate": int, "fd": bool, "data_bitra
 ROUTE = {"from": str, "to": str, "messages": list, "ids": list, "id": int, "mask": int,
          "min_interval_ms": float, "target": str, "send": str, "timeout_ms": float,
          "signals": dict, "e2e": dict, "delay_ms": float}
-E2E = {"profile": str, "data_id": int, "data_id_mode": str, "offset": int, "length": int}
+E2E = {"profile": str, "data_id": int, "data_id_list": list, "data_id_mode": str, "offset": int,
+       "length": int}
 DENY = {"from": str, "ids": list}
 
 
@@ -125,6 +126,9 @@ def _frame_route(chk: _Check, item: dict, key: str, src: BusSpec, dst: BusSpec) 
         if not isinstance(can_id, int) or not 0 <= can_id <= 0x1FFFFFFF:
             raise chk.fail(f"{key}.ids", f"expected CAN IDs 0..0x1FFFFFFF, got {can_id!r}")
         ids.add((can_id, can_id > 0x7FF))
+    for name in ("id", "mask"):
+        if not 0 <= item.get(name, 0) <= 0x1FFFFFFF:
+            raise chk.fail(f"{key}.{name}", f"{_hex(item[name])} is outside 0..0x1FFFFFFF")
     id_mask = None
     if "mask" in item:
         id_mask = (item.get("id", 0), item["mask"])
@@ -211,6 +215,7 @@ def _e2e(chk: _Check, item: dict, key: str, fc, maps: tuple[SignalMap, ...]) -> 
     spec = chk.table(item["e2e"], E2E, f"{key}.e2e.")
     if "profile" not in spec:
         raise chk.fail(f"{key}.e2e.profile", "required key missing")
+    spec = {k: tuple(v) if k == "data_id_list" else v for k, v in spec.items()}
     try:
         prot = E2EProtection(**spec)
     except (E2EConfigError, TypeError) as exc:
