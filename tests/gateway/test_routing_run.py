@@ -96,3 +96,15 @@ def test_a_bad_gateway_file_is_one_line_before_the_run(tmp_path):
     assert done.stderr.strip() == (f"vecu: error: {path}: key 'routes[0].to': unknown bus 'b' "
                                    "(buses: a)")
     assert not (tmp_path / "x.log").exists()
+
+
+def test_number_channel_formats_number_the_buses(tmp_path):
+    """ASC and BLF keep channels as numbers: the buses' places in the file, 1 and 2."""
+    routing = load_routing_config(write_config(tmp_path))
+    for suffix in (".asc", ".blf"):
+        log = tmp_path / f"run{suffix}"
+        run_with_gateway(RunConfig(duration_s=0.1, kill_tps_at_s=None, log_path=str(log)), routing)
+        with can.LogReader(str(log)) as reader:
+            ids = {(m.channel, m.arbitration_id) for m in reader}
+        assert (1, 0x220) in ids and (2, 0x500) in ids and (2, 0x220) not in ids
+

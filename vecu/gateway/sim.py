@@ -2,8 +2,9 @@
 simulated clock. The plant and the ECU sit on the first bus the file names; every bus is an
 in-process lane named after its bus (vecu.bus.SimLane), the gateway an endpoint on each, ticking
 each 1 ms after the ECU and before the recorder, so a route's latency is exactly its configured
-delay and a run is deterministic. `--log` holds every bus, each frame's channel its bus name, in
-time order (at one instant: the buses in the file's order)."""
+delay and a run is deterministic. `--log` holds every bus, each frame's channel its bus name (in
+formats whose channels are numbers, ASC and BLF: the bus's place in the file, 1, 2, …), in time
+order (at one instant: the buses in the file's order)."""
 
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from vecu.runner import (
 )
 from vecu.scheduler import Scheduler
 
+CHANNEL_NAME_FORMATS = (".log", ".log.gz")  # candump: a channel is a name; elsewhere a number
 PRIO_GATEWAY = (PRIO_ECU + PRIO_RECORD) // 2  # after the ECU's tick, before the probes / log
 
 
@@ -73,7 +75,9 @@ def run_with_gateway(config: RunConfig, routing: RoutingConfig,
             assert isinstance(first_edge, LaneBus)
             edges = [first_edge] + [lane.bus(edge=True) for lane in list(lanes.values())[1:]]
             p.buses += edges[1:]
-            p.recorder.bus = merged = MergedEdges(edges)
+            named = config.log_path is not None and config.log_path.lower().endswith(
+                CHANNEL_NAME_FORMATS)
+            p.recorder.bus = merged = MergedEdges(edges, numbered=not named)
             p.buses.append(merged)
         node = GatewayNode(RoutingEngine(routing), endpoints)
         schedule(p)
