@@ -96,6 +96,11 @@ def test_a_bad_gateway_file_is_one_line_before_the_run(tmp_path):
     assert done.stderr.strip() == (f"vecu: error: {path}: key 'routes[0].to': unknown bus 'b' "
                                    "(buses: a)")
     assert not (tmp_path / "x.log").exists()
+    done = subprocess.run([sys.executable, "-m", "vecu", "run", "--gateway",
+                           str(write_config(tmp_path)), "--channel", "x"], capture_output=True,
+                          text=True, env=ENV, check=False, timeout=120)
+    assert done.returncode == 2 and done.stderr.strip() == (
+        "vecu: error: --gateway runs the buses its file names: no --interface or --channel")
 
 
 def test_number_channel_formats_number_the_buses(tmp_path):

@@ -107,6 +107,9 @@ def main(args: argparse.Namespace) -> int:
         from vecu.gateway.sim import run_with_gateway
 
         routing = load_routing_config(args.gateway)  # every problem before any bus opens
+        if args.channel or args.interface:
+            raise BadArgumentError("--gateway runs the buses its file names: no --interface or "
+                                   "--channel")
         if not routing.buses:
             raise BadArgumentError(f"--gateway {args.gateway}: names no [buses.NAME] to route")
         result = run_with_gateway(config, routing)
