@@ -98,10 +98,12 @@ def plant_rig():
     from vecu.bus import open_bus
     from vecu.codec import DbcCodec
     from vecu.faults import FaultInjector
-    from vecu.plant.node import LongitudinalPart, PlantNode, ThrottlePart
+    from vecu.plant.drive import LongitudinalPart
+    from vecu.plant.node import PlantNode
     from vecu.plant.throttle import (
         InputConfig,
         InputGenerator,
+        ThrottlePart,
         ThrottlePlant,
         ThrottlePlantConfig,
     )

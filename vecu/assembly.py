@@ -21,7 +21,8 @@ from vecu.estimators.registry import make_throttle_estimator
 from vecu.estimators.throttle.base import ThrottleEstimator
 from vecu.faults import FaultInjector
 from vecu.plant.drive import Drive
-from vecu.plant.node import PlantNode, PlantPart
+from vecu.plant.node import PlantNode
+from vecu.plant.part import PlantPart
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from vecu.kernels import backend, kernel
+from vecu.kernels import kernel
 
 NS_PER_US = 1_000
 COARSE_US = 100  # second-level bins of DurationHistogram (fast percentile queries)
@@ -51,8 +51,8 @@ class RunningStats:
     """Count, mean, standard deviation, RMS and max |x| of a stream of finite values.
 
     add() only keeps the value; every CHUNK values (and before any figure is read) they are
-    folded into the moments in order by `welford` (compiled under the numba backend): the same
-    numbers as folding each value as it comes, in constant memory."""
+    folded into the moments in order by `welford` (vecu.kernels: compiled under numba, plain
+    Python otherwise): the same numbers as folding each value as it comes, in constant memory."""
 
     __slots__ = ("_n", "_mean", "_m2", "_sumsq", "_max_abs", "_non_finite", "_pending")
     CHUNK = 512
@@ -76,13 +76,13 @@ class RunningStats:
         pending = self._pending
         if not pending:
             return
-        if backend() == "numba":
-            xs: Any = np.array(pending, dtype=np.float64)
-            fold = welford.compiled
-        else:
-            xs, fold = pending, welford.py
-        (self._n, self._mean, self._m2, self._sumsq, self._max_abs, self._non_finite) = fold(
-            xs, self._n, self._mean, self._m2, self._sumsq, self._max_abs, self._non_finite)
+        n, mean, m2, sumsq, max_abs, non_finite = welford(
+            np.array(pending, dtype=np.float64), self._n, self._mean, self._m2, self._sumsq,
+            self._max_abs, self._non_finite)
+        # Python numbers whatever ran the fold (round() of a numpy float rounds otherwise)
+        self._n, self._non_finite = int(n), int(non_finite)
+        self._mean, self._m2, self._sumsq, self._max_abs = (
+            float(mean), float(m2), float(sumsq), float(max_abs))
         pending.clear()
 
     @property

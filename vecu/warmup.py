@@ -1,6 +1,6 @@
 """Kernel loading and warm-up before a timed loop, per pipeline: a brief run of the same pipeline
-(the whole plant + ECU run, or the ECU alone on a trace's head for a replay) loads (on a fresh
-install: compiles) the numba kernels it calls, outside the timed loop."""
+(the whole plant + ECU run; for a replay a throw-away ECU on the trace's head, not the replay
+itself) loads (on a fresh install: compiles) the numba kernels it calls, outside the timed loop."""
 
 from __future__ import annotations
 

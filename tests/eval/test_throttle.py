@@ -139,13 +139,13 @@ def test_registry_builds_every_local_estimator() -> None:
 
 
 def test_production_is_lazy(monkeypatch) -> None:
-    monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.production", None)
+    monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.pf.filter", None)
     assert make_throttle_estimator("arm").name == "arm"  # unaffected
     with pytest.raises(EstimatorUnavailableError, match="production"):
         make_throttle_estimator("production")
-    fake = types.ModuleType("vecu.estimators.throttle.production")
+    fake = types.ModuleType("vecu.estimators.throttle.pf.filter")
     fake.make_production_estimator = lambda a: ("fake", a)  # type: ignore[attr-defined]  # a stand-in module for the test
-    monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.production", fake)
+    monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.pf.filter", fake)
     assert make_throttle_estimator("production", 0.3) == ("fake", 0.3)
 
 
@@ -178,7 +178,7 @@ def test_cli_bad_input(monkeypatch, capsys) -> None:
         _cli(["eval", "throttle", "--steps", "1000"])
     with pytest.raises(SystemExit):
         _cli(["eval", "throttle", "--noise-scale", "-1"])
-    monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.production", None)
+    monkeypatch.setitem(sys.modules, "vecu.estimators.throttle.pf.filter", None)
     with pytest.raises(EstimatorUnavailableError, match="production"):
         _cli(["eval", "throttle", "--steps", "2000", "--filters", "production"])
     # Not asked for explicitly: skipped with a warning.

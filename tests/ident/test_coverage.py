@@ -4,7 +4,7 @@ true value in >= 17 of the traces from 180 s on (the length below which the repo
 1-2 intervals indicative); on 60 s traces every mode-3 parameter does (modes 1 and 2 do not: a
 strict xfail), and the 15 % change of mode3.b is recovered within 3 %.
 
-The traces are the plant's own compiled ticks (vecu.plant.throttle_kernel.advance_ticks, as
+The traces are the plant's own compiled ticks (vecu.plant.throttle.ThrottlePlant.ticks, as
 `vecu excite throttle` records them, without the CAN round trip) at the paper's noise (alpha = 1);
 each fit is the full `identify_throttle` without the switching-angle profile (flat on these
 traces: the start's 8, 16 deg are the truth). Needs the numba kernels: under plain Python a fit
@@ -24,8 +24,7 @@ from vecu.ident.throttle import NAMES, identify_throttle
 from vecu.ident.trace import ThrottleData
 from vecu.models.sensors import TpsCalibration
 from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel
-from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlantConfig
-from vecu.plant.throttle_kernel import advance_ticks
+from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig
 from vecu.rng import rng_streams
 
 SECONDS = 60
@@ -43,15 +42,11 @@ def excitation(model: ThrottleModel, seconds: float, seed: int) -> ThrottleData:
     n = int(seconds * 1000)
     rngs = rng_streams(seed, ("throttle.input", "throttle.plant"))
     u = np.asarray(InputGenerator(InputConfig(), rngs["throttle.input"]).take(n), dtype=float)
-    noise = rngs["throttle.plant"].standard_normal((n, 4))
-    cal, cfg = TpsCalibration(), ThrottlePlantConfig(model=model)
-    cst = np.array([model.f_diag[0], model.f_diag[2], model.h_wattmeter, cfg.tps_noise_v,
-                    cal.v_at_0, cal.v_at_90, *model.mode_bounds_deg])
-    out, state = np.empty((n, 3)), np.zeros(3)
+    cal = TpsCalibration()
     with kernels.using("numba"):
-        advance_ticks(state, u, noise, 0, np.array(model.rows), cst, out)
-    theta = np.array([cal.angle(v) for v in out[:, 2]])
-    return ThrottleData(f"seed {seed}", u, out[:, 1].copy(), theta)
+        out = ThrottlePlant(ThrottlePlantConfig(model=model), rngs["throttle.plant"]).ticks(u, cal)
+    theta = np.array([cal.angle(v) for v in out[:, 4]])
+    return ThrottleData(f"seed {seed}", u, out[:, 3].copy(), theta)
 
 
 def truth(name: str) -> float:

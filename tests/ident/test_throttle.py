@@ -29,14 +29,10 @@ TRUE = dataclasses.replace(PAPER_THROTTLE, mode3=dataclasses.replace(PAPER_THROT
 def _bench(model, steps: int, seed: int = 1) -> tuple[ThrottleData, np.ndarray]:
     """(the data a bench records: u, y, TPS angle with 0.036 deg noise; the true angle)."""
     rngs = rng_streams(seed, ("throttle.input", "throttle.plant"))
-    gen = InputGenerator(InputConfig(), rngs["throttle.input"])
+    u = np.array(InputGenerator(InputConfig(), rngs["throttle.input"]).take(steps))
     plant = ThrottlePlant(ThrottlePlantConfig(noise_scale=ALPHA, model=model), rngs["throttle.plant"])
-    u, th, y = np.empty(steps), np.empty(steps), np.empty(steps)
-    for k in range(steps):
-        u[k] = gen.next()
-        th[k] = plant.theta
-        y[k] = plant.wattmeter()
-        plant.step(u[k])
+    rows = plant.ticks(u)
+    th, y = rows[:, 0].copy(), rows[:, 3].copy()
     tps = th + 0.036 * np.random.default_rng(seed).standard_normal(steps)
     return ThrottleData("bench", u, y, tps), th
 

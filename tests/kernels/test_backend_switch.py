@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from vecu import kernels
@@ -61,6 +62,25 @@ def test_unknown_backend_is_a_one_line_cli_error(fresh_backend, monkeypatch, cap
 def test_fastmath_is_refused():
     with pytest.raises(ValueError, match="fastmath"):
         kernels.kernel(fastmath=True)
+
+
+def _loops(x):
+    return x + 1.0
+
+
+def _vectorised(x):
+    return x + 2.0  # differs on purpose: shows which form ran
+
+
+def test_a_numpy_form_runs_under_python_and_the_loops_compile_under_numba():
+    k = kernels.kernel(_loops, python=_vectorised)
+    with kernels.using("python"):
+        assert k(1.0) == 3.0 and k.impl() is _vectorised
+    if kernels.numba_available():
+        with kernels.using("numba"):
+            assert k(1.0) == 2.0 and k(1.0) == 2.0  # compiled on first call, then cached
+    assert kernels.kernel(python=_vectorised)(_loops).plain is _vectorised
+    assert kernels.kernel(_loops).plain is _loops
 
 
 def test_set_backend_returns_the_previous_one(fresh_backend, monkeypatch):
@@ -198,3 +218,46 @@ def test_cold_cache_is_seen_wherever_numba_keeps_it(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     assert res.stdout.split() == ["True", "False"]
     assert list((tmp_path / "nc").rglob("*.nbi"))
+
+
+_setups: list[str] = []
+
+
+@kernels.kernel(small=True)
+def _small_square_sum(a: float, b: float) -> float:
+    return a * a + b * b
+
+
+@kernels.kernel(setup=lambda: _setups.append("linked"))
+def _hypot_sq(a: float, b: float) -> float:
+    """A kernel calling a small one (compiled with it under numba)."""
+    return _small_square_sum(a, b)
+
+
+def test_small_kernels_run_as_python_from_python_and_compiled_inside_kernels(backend):
+    """k(...) is the one call: a small kernel called from Python runs its Python function under
+    every backend; inside a compiled kernel it is compiled; setup runs once before the first
+    compilation (never under python)."""
+    before = list(_setups)
+    assert _small_square_sum.impl() is _small_square_sum.py
+    assert _small_square_sum(3.0, 4.0) == 25.0
+    assert _hypot_sq(3.0, 4.0) == 25.0 == _hypot_sq.py(3.0, 4.0)
+    assert (_hypot_sq.impl() is _hypot_sq.py) == (backend == "python")
+    assert _hypot_sq(1.0, 2.0) == 5.0
+    assert _setups == (["linked"] if backend == "numba" else before)
+
+
+def test_constants_and_records_in_the_backends_fast_form(backend):
+    """constants: a float64 array for numba, tuples of Python floats as Python; record: r[0]
+    ["field"] readable and writable either way, its other fields 0."""
+    cst = kernels.constants([[1, 2.5], [3, 4]])
+    rec = kernels.record(np.dtype([("x", "f8"), ("n", "i8"), ("on", "?")]), x=1.5)
+    if backend == "numba":
+        assert isinstance(cst, np.ndarray) and cst.dtype == np.float64 and cst.flags.c_contiguous
+        assert isinstance(rec, np.ndarray) and rec.shape == (1,)
+    else:
+        assert cst == ((1.0, 2.5), (3.0, 4.0)) and type(cst[0][0]) is float
+        assert type(rec[0]["x"]) is float and type(rec[0]["n"]) is int
+    assert (rec[0]["x"], rec[0]["n"], rec[0]["on"]) == (1.5, 0, False)
+    rec[0]["n"] += 2
+    assert rec[0]["n"] == 2

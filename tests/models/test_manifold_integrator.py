@@ -1,7 +1,7 @@
 """The manifold event integrator as a kernel: under every backend (numba: compiled) it returns
 exactly (==) what the Python backend returns, over random states on every flow branch, on a
 second parameter set and through the SDKF + 6-event CAC prediction; bad input fails with the
-same exception type; the numba stand-in for bisect_right finds the same index as the C one."""
+same exception type; the written-out search finds bisect_right's index."""
 
 from __future__ import annotations
 
@@ -83,36 +83,29 @@ def test_bad_input_fails_with_the_exception_the_python_code_raised(backend):
             integrate_manifold(*args)
 
 
-def test_parameter_sets_numba_cannot_mirror_run_the_python_function(backend):
-    """A negative exhaust pressure makes (P_exh/P)^(1/kappa) complex in Python (the step then
-    fails with TypeError) where numba would return NaN: such a set never gets numba tables and
-    fails alike under every backend."""
-    odd = dataclasses.replace(V8_5L7, p_exh_kpa=-1.0)
-    assert mi._tables(odd)[2] is None and mi._tables(V8_5L7)[2] is not None
+def test_parameter_sets_the_kernels_cannot_take_are_refused(backend):
+    """A negative exhaust pressure makes (P_exh/P)^(1/kappa) complex in Python where numba would
+    return NaN, a ragged C_d table has no array form: such a set is refused alike under every
+    backend, before any event."""
     args = (90.0, 310.0, 0.5, EngineInput(0.5, 3000.0), 0.005)
-    with pytest.raises(TypeError):
-        integrate_manifold(*args, odd)
+    ragged = dataclasses.replace(V8_5L7, cd_table=V8_5L7.cd_table[:2] + ((0.6, 0.7),))
+    for odd in (dataclasses.replace(V8_5L7, p_exh_kpa=-1.0), ragged,
+                dataclasses.replace(V8_5L7, kappa=1.0)):
+        with pytest.raises(ValueError, match="manifold parameters"):
+            integrate_manifold(*args, odd)
+    assert mi.tables(V8_5L7)[1].dtype == np.float64
 
 
-def test_hand_written_search_finds_bisect_rights_index():
+def test_written_out_search_finds_bisect_rights_index(backend):
     rng = np.random.default_rng(3)
     tables = [(0.0, 0.5, 1.0), (0.0,), (1.0, 1.0, 2.0, 2.0, 3.0), tuple(rng.uniform(0, 1, 9)),
               tuple(np.sort(rng.uniform(0, 1, 12)))]
     probes = [-1.0, 0.0, 0.5, 1.0, 2.0, 3.0, 5.0, math.nan, math.inf, -math.inf,
               *rng.uniform(-0.2, 1.2, 40)]
     for xs in tables:
+        arr = np.array(xs)
         for x in probes:
-            assert mi._bisect_right_impl(xs, x) == bisect.bisect_right(xs, x), (xs, x)
-
-
-def test_compiled_search_finds_bisect_rights_index():
-    numba = pytest.importorskip("numba")
-    mi._register_numba_search()
-    search = numba.njit(lambda a, x: bisect.bisect_right(a, x))
-    rng = np.random.default_rng(4)
-    for xs in (np.array([0.0, 0.5, 1.0]), np.array([1.0, 1.0, 2.0, 2.0]), rng.uniform(0, 1, 9)):
-        for x in (-1.0, 0.5, 1.0, 2.0, math.nan, *rng.uniform(-0.2, 1.2, 30)):
-            assert search(xs, x) == bisect.bisect_right(xs.tolist(), x), (xs, x)
+            assert mi.search_right(arr, x) == bisect.bisect_right(xs, x), (xs, x)
 
 
 def test_sdkf_and_cac_prediction_give_the_python_reference_bit_for_bit(backend, per_backend):

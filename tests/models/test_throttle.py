@@ -11,12 +11,12 @@ import math
 import numpy as np
 import pytest
 
-from vecu.estimators.throttle.pf_parts import class_b, class_matrix_stack
+from vecu.estimators.throttle.pf.model import class_b, class_matrix_stack
 from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.ident.kernels import free_run
 from vecu.models import throttle as mt
 from vecu.models.throttle import PAPER_THROTTLE, TABLE_I, ModeParams, ThrottleModel
-from vecu.plant.throttle_kernel import plant_step
+from vecu.plant.throttle import plant_step
 
 
 def _sgn(v: float) -> float:

@@ -8,15 +8,14 @@ import math
 import numpy as np
 import pytest
 
+from vecu.bench.estimators import euler_event, manifold_rhs
 from vecu.models.manifold import (
-    actuator_coeffs,
-    actuator_coeffs_printed,
     critical_pressure_ratio,
-    euler_event,
+    cylinder_air_charge,
+    event_coefficients,
     f,
     flow_function,
     integrate_manifold,
-    manifold_rhs,
     nominal_input,
     port_flow,
     psi_choked,
@@ -26,13 +25,75 @@ from vecu.models.manifold import (
     throttle_flow,
     volumetric_efficiency,
 )
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import V8_5L7, EngineInput
-from vecu.plant.drive_profile import DriveProfileConfig, us06_like
-from vecu.plant.manifold import ManifoldPlant, ManifoldPlantConfig, simulate
+from vecu.plant.drive_profile import DriveProfile, DriveProfileConfig, us06_like
+from vecu.plant.manifold import (
+    ManifoldPlantConfig,
+    ManifoldTrace,
+    measure,
+    plant_constants,
+    plant_step,
+    simulate,
+)
+from vecu.rng import rng_streams
 
 P = V8_5L7
 SEEDS = (0, 1, 2)
 DEG = math.pi / 180.0
+NOISE_FREE = ManifoldPlantConfig(noise_scale=0.0)
+
+
+def actuator_coeffs(ts: float) -> tuple[float, float, float, float]:
+    """(a1, a2, b1, b2) of the corrected eq. 1."""
+    return event_coefficients(ts, P.zeta, P.omega0, P.tau_temp_s)[:4]
+
+
+def actuator_coeffs_printed(ts: float, params=P) -> tuple[float, float, float, float]:
+    """(a1, a2, b1, b2) exactly as printed under eq. 1 (wrong; the evidence)."""
+    zw = params.zeta * params.omega0
+    w_et = params.omega0 * math.sqrt(1.0 - params.zeta * params.zeta)
+    a = math.exp(-zw * ts)
+    b = math.cos(w_et * ts)
+    g = math.sin(w_et * ts)
+    return -2.0 * a * a * b, a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / (w_et - b))
+
+
+def _step(x: np.ndarray, u: EngineInput, dt: float | None = None) -> None:
+    """One noise-free event of the truth (plant_step) on x, in place."""
+    ts = sample_time(u.n_rpm, P.n_cyl) if dt is None else dt
+    plant_step(x, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, np.zeros(7),
+               plant_constants(P, NOISE_FREE, 0.0, 0.0), *tables(P))
+
+
+def _stepped(profile, seed, params, config) -> ManifoldTrace:
+    """simulate event by event in Python (the oracle of truth_events): the profile's own
+    lookup, the measurement and plant_step per event, the stream's noise rows in blocks."""
+    rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
+    n0, sp0 = profile.at(0.0)
+    st = steady_state_vector(nominal_input(sp0, n0, params), params)
+    pc = plant_constants(params, config, 0.0, 0.0)
+    rows, xs, ys = [], [], []
+    noise, pos, t = np.empty((0, 7)), 0, 0.0
+    while t < profile.duration_s:
+        if pos == len(noise):
+            noise, pos = rng.standard_normal((config.block, 7)), 0
+        w = noise[pos]
+        pos += 1
+        n, sp = profile.at(t)
+        u = nominal_input(sp, n, params)
+        ts = sample_time(n, params.n_cyl)
+        xs.append(st.copy())
+        ys.append(measure(st, w, pc))
+        flows = (throttle_flow(st[1], st[3], u.p_a, u.t_a, params)[0],
+                 port_flow(st[3], st[4], n, params), cylinder_air_charge(st[3], st[4], n, params))
+        m = plant_step(st, sp, n, u.p_a, u.t_a, u.t_cool, ts, w, pc, *tables(params))
+        rows.append((t, ts, n, sp, *flows, float(m)))
+        t += ts
+    a = np.array(rows)
+    return ManifoldTrace(t=a[:, 0], ts=a[:, 1], n_rpm=a[:, 2], ta_sp=a[:, 3], x=np.array(xs),
+                         y=np.array(ys), mdot_at=a[:, 4], mdot_ac=a[:, 5], cac=a[:, 6],
+                         substeps=a[:, 7].astype(int))
 
 
 def _ss(deg: float, n: float) -> tuple[float, float]:
@@ -223,10 +284,9 @@ def test_step_accepts_a_long_interval():
     u = nominal_input(90 * DEG, 700.0)
     x0 = steady_state_vector(nominal_input(7.5 * DEG, 700.0))
     x0[1] = x0[2] = 90 * DEG  # throttle already open, manifold still at idle pressure
-    plant = ManifoldPlant(P, ManifoldPlantConfig(noise_scale=0.0), np.random.default_rng(0), x0)
-    plant.step(u, dt=0.25)
+    _step(x0, u, dt=0.25)
     p_ss, _ = steady_state(90 * DEG, u)
-    assert plant.p_im == pytest.approx(p_ss, abs=0.05)
+    assert x0[3] == pytest.approx(p_ss, abs=0.05)
 
 
 def test_substepping_agrees_with_a_fine_reference():
@@ -324,55 +384,38 @@ def test_measurement_and_process_noise_match_section_iv(runs):
 def test_f_is_the_noise_free_plant_step():
     u0 = nominal_input(20 * DEG, 2500.0)
     x = steady_state_vector(u0)
-    plant = ManifoldPlant(P, ManifoldPlantConfig(noise_scale=0.0), np.random.default_rng(0), x)
+    st = x.copy()
     for sp_deg, n in ((60.0, 2600.0), (60.0, 2700.0), (10.0, 2800.0), (90.0, 3000.0)):
         u = EngineInput(sp_deg * DEG, n)
         x = f(x, u)
-        plant.step(u)
-        assert np.array_equal(x, np.array(plant.x))
+        _step(st, u)
+        assert np.array_equal(x, st)
     # steady state is a fixed point of the event map
     xs = steady_state_vector(u0)
     assert np.allclose(f(xs, u0), xs, rtol=0, atol=1e-9)
 
 
-class _Head:
-    """The first `duration_s` of a drive profile."""
-
-    def __init__(self, profile, duration_s: float) -> None:
-        self._profile, self.duration_s = profile, duration_s
-
-    def at(self, t: float) -> tuple[float, float]:
-        return self._profile.at(t)
-
-
 def test_any_noise_scale_the_parameter_tree_admits_stays_finite():
     """Issue 14 item 3: plant.manifold.noise_scale up to the tree's bound (1e3) must run; at 300
     the noise drove T_im below 0 K and the event integrator raised on NaN."""
-    tr = simulate(_Head(us06_like(0), 10.0), seed=0, config=ManifoldPlantConfig(noise_scale=1e3))
+    p = us06_like(0)
+    head = DriveProfile(p.dt_s, p.n_rpm[:1001], p.ta_sp[:1001])  # the first 10 s
+    tr = simulate(head, seed=0, config=ManifoldPlantConfig(noise_scale=1e3))
     assert np.all(np.isfinite(tr.x)) and np.all(np.isfinite(tr.y)) and np.all(np.isfinite(tr.cac))
     assert tr.x[:, 3].min() >= 5.0 and 150.0 <= tr.x[:, 4].min() and tr.x[:, 4].max() <= 1000.0
 
 
-def test_compiled_simulation_is_the_python_loop(backend, per_backend):
-    """simulate's loop as one compiled call (plant.manifold.simulate_events) gives the event-by-event
-    ManifoldPlant loop bit for bit, with a perturbed engine and sensor gain errors."""
-    import dataclasses
-
-    from vecu.models.manifold_params import V8_5L7
-    from vecu.plant.drive_profile import DriveProfile, us06_like
-    from vecu.plant.manifold import ManifoldPlantConfig, simulate
-
+def test_simulation_is_the_event_by_event_loop(backend):
+    """simulate's loop as one kernel (plant.manifold.truth_events) gives the event-by-event
+    loop of the plant's kernels (_stepped) bit for bit, with a perturbed engine and sensor gain
+    errors."""
     p = us06_like(2)
     k = round(10.0 / p.dt_s) + 1
     prof = DriveProfile(p.dt_s, p.n_rpm[:k], p.ta_sp[:k])
     eng = dataclasses.replace(V8_5L7, zeta=V8_5L7.zeta * 1.04, h1_w_per_k=V8_5L7.h1_w_per_k * 0.97)
     cfg = ManifoldPlantConfig(engine=eng, sensor_gains=(1.03, 0.98, 1.01), block=100)
-
-    def run(compiled):
-        return simulate(prof, seed=2, params=eng, config=cfg, compiled=compiled)
-
-    ref = per_backend.reference("sim", lambda: run(False))
-    got = run(True)
+    ref = _stepped(prof, 2, eng, cfg)
+    got = simulate(prof, seed=2, params=eng, config=cfg)
     for fld in dataclasses.fields(ref):
         a, b = getattr(ref, fld.name), getattr(got, fld.name)
         assert a.shape == b.shape and np.array_equal(a, b), fld.name

@@ -77,32 +77,29 @@ def test_parse_kind_accepts_cli_spellings_and_rejects_unknown():
         parse_kind("explode")
 
 
-def test_manifold_events_computed_ahead_send_what_stepping_sends():
-    """Under numba ManifoldPart computes its events ahead in blocks (EventsAhead): the same
-    frames, times and truth as stepping ManifoldPlant, across block refills, noise blocks and
-    the switches to the next legs of the drive (vecu.plant.drive: one profile per manoeuvre)."""
+def test_manifold_events_computed_ahead_are_the_same_under_both_backends():
+    """ManifoldPart computes its events ahead in blocks (EventsAhead: truth_events, compiled
+    or as Python): the same frames, times and truth under both backends, across block refills,
+    noise blocks and the switches to the next legs of the drive (vecu.plant.drive: one profile
+    per manoeuvre). truth_events against the event-by-event loop: tests/plant/test_manifold.py."""
     pytest.importorskip("numba")
     from vecu.codec import shared_codec
     from vecu.kernels import using
     from vecu.plant.node import ManifoldPart
 
     codec = shared_codec()
-    with using("numba"):
-        ahead = ManifoldPart(codec, seed=3)
-    with using("python"):
-        stepped = ManifoldPart(codec, seed=3)
-    assert ahead._ahead is not None and stepped._ahead is None
     runs = []
-    for part in (ahead, stepped):
-        part.truth_msg = codec["TRUTH_Manifold"]
-        sent: list[tuple[float, int, bytes]] = []
+    for backend in ("numba", "python"):
+        with using(backend):
+            part = ManifoldPart(codec, seed=3)
+            part.truth_msg = codec["TRUTH_Manifold"]
+            sent: list[tuple[float, int, bytes]] = []
 
-        def send(m, sent=sent):
-            sent.append((m.timestamp, m.arbitration_id, bytes(m.data)))
-            return True
+            def send(m, sent=sent):
+                sent.append((m.timestamp, m.arbitration_id, bytes(m.data)))
+                return True
 
-        t_ns, times = 0, []
-        with using("numba" if part is ahead else "python"):
+            t_ns, times = 0, []
             while part._profile_index < 3 or len(times) % 300:  # into the fourth leg
                 times.append(t_ns)
                 t_ns = part.event(t_ns, send)
@@ -111,62 +108,90 @@ def test_manifold_events_computed_ahead_send_what_stepping_sends():
     assert runs[0] == runs[1]
 
 
-def test_throttle_ticks_computed_ahead_send_what_stepping_sends():
-    """Under numba ThrottlePart computes its ticks ahead in blocks (TicksAhead) and encodes
-    their frames in blocks: the same frames and probe values as stepping ThrottlePlant and
-    making each frame, across block refills and noise blocks, with TPS faults on the way (a
-    changed voltage, no frames for a while)."""
-    pytest.importorskip("numba")
+def test_throttle_ticks_computed_ahead_send_what_stepping_sends(backend):
+    """ThrottlePart computes its ticks ahead in blocks (ThrottlePlant.ticks) and encodes their
+    frames in blocks: the same frames and probe values as stepping eq. (3) tick by tick
+    (plant_step as plain Python on the same noise stream) and making each frame with the
+    framers, across block refills and noise blocks, with TPS faults on the way (a changed
+    voltage, no frames for a while)."""
     from vecu.codec import shared_codec
     from vecu.faults import FaultInjector
-    from vecu.kernels import using
     from vecu.models.sensors import TpsCalibration
-    from vecu.plant.node import ThrottlePart
     from vecu.plant.throttle import (
+        TPS_SIGNALS,
+        WATT_SIGNALS,
         InputConfig,
         InputGenerator,
+        ThrottlePart,
         ThrottlePlant,
         ThrottlePlantConfig,
+        plant_step,
     )
     from vecu.rng import rng_streams
 
     codec = shared_codec()
-    runs = []
-    for backend in ("numba", "python"):
+    cal = TpsCalibration(v_at_0=0.0, v_at_90=5.0)  # the paper's 0-5 V law: clamped at the stops
+    cfg = ThrottlePlantConfig()
+    commands = {700: (int(FaultKind.NOISE), 0.2), 1300: (0, 0.0), 1620: (0, 0.0),
+                1590: (int(FaultKind.FRAMES_STOP), 0.0)}  # 30 ticks without TPS frames
+
+    def run(tick):
         rngs = rng_streams(5, ("i", "p", "f"))
         inj = FaultInjector(rngs["f"])
-        with using(backend):
-            # the paper's 0-5 V law: the noisy voltage leaves 0..5 V at the stops (clamped)
-            part = ThrottlePart(codec, ThrottlePlant(ThrottlePlantConfig(), rngs["p"]),
-                                InputGenerator(InputConfig(), rngs["i"]), inj,
-                                TpsCalibration(v_at_0=0.0, v_at_90=5.0))
-            assert (part._ahead is not None) == (backend == "numba")
-            part.truth_msg = codec["TRUTH_Throttle"]
-            sent: list[tuple[float, int, bytes]] = []
-            seen = []
-            for k in range(2600):  # 5 blocks ahead, 2 noise blocks
-                if k == 700:
-                    assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS),
-                                          int(FaultKind.NOISE), 0.2)
-                if k in (1300, 1620):
-                    assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS), 0, 0.0)
-                if k == 1590:  # no TPS frames for 30 ticks: the counter stops meanwhile
-                    assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS),
-                                          int(FaultKind.FRAMES_STOP), 0.0)
-                part.tick(k * NS_PER_MS, lambda m, sent=sent: sent.append(
-                    (m.timestamp, m.arbitration_id, bytes(m.data))) or True)
-                seen.append((part.theta, part.u, part.tps_voltage))
-        runs.append((sent, seen))
-    assert len(runs[0][0]) > 7000
-    assert any(v == 0.0 for _, _, v in runs[1][1])  # a clamped voltage was among them
-    assert runs[0] == runs[1]
+        sent, seen = [], []
+        state = tick(rngs, inj)
+        for k in range(2600):  # 5 blocks ahead, 2 noise blocks
+            if k in commands:
+                assert inj.on_command(k * NS_PER_MS, int(FaultTarget.TPS), *commands[k])
+            seen.append(state(k * NS_PER_MS, lambda m: sent.append(
+                (m.timestamp, m.arbitration_id, bytes(m.data))) or True))
+        return sent, seen
+
+    def part(rngs, inj):
+        p = ThrottlePart(codec, ThrottlePlant(cfg, rngs["p"]),
+                         InputGenerator(InputConfig(), rngs["i"]), inj, cal)
+        p.truth_msg = codec["TRUTH_Throttle"]
+
+        def tick(t_ns, send):
+            p.tick(t_ns, send)
+            return p.theta, p.u, p.tps_voltage
+        return tick
+
+    def stepped(rngs, inj):  # the oracle: one tick at a time, each frame by its framer
+        gen, rng = InputGenerator(InputConfig(), rngs["i"]), rngs["p"]
+        tps, watt, truth = (codec[n] for n in ("TPS_Sensor", "ETB_Wattmeter", "TRUTH_Throttle"))
+        make_tps, make_watt = tps.framer(TPS_SIGNALS), watt.framer(WATT_SIGNALS)
+        m = cfg.model
+        x, noise, st = [0.0, 0.0, 0.0], [], {"counter": 0}
+
+        def tick(t_ns, send):
+            if not noise:
+                noise.extend(rng.standard_normal((cfg.block, 4)).tolist()[::-1])
+            w, u, ts = noise.pop(), gen.next(), t_ns / 1e9
+            theta, rho, i = x
+            v = inj.apply(FaultTarget.TPS, cal.voltage(theta) + cfg.tps_noise_v * w[3])
+            if v is not None:
+                v = min(max(v, 0.0), 5.0)
+                send(make_tps(ts, 0, st["counter"], v))
+                st["counter"] = (st["counter"] + 1) % 15
+            send(make_watt(ts, u, i * i + m.h_wattmeter * w[2]))
+            send(truth.frame({"TRU_ThrottleAngle": theta, "TRU_MotorVoltage": u}, ts))
+            x[:] = plant_step.py(m.rows, *m.mode_bounds_deg, cfg.noise_scale * m.f_diag[0],
+                                 cfg.noise_scale * m.f_diag[2], theta, rho, i, u, w[0], w[1])
+            return theta, u, v
+        return tick
+
+    ahead, oracle = run(part), run(stepped)
+    assert len(ahead[0]) > 7000
+    assert any(v == 0.0 for _, _, v in oracle[1])  # a clamped voltage was among them
+    assert ahead == oracle
 
 
 def test_longitudinal_frames_encoded_per_manoeuvre_are_the_framers():
     """LongitudinalPart encodes a whole manoeuvre's ESC_Motion payloads at once: each frame it
     sends is the framer's for that tick's sensor values, into the next manoeuvre too."""
     from vecu.codec import shared_codec
-    from vecu.plant.node import LongitudinalPart
+    from vecu.plant.drive import LongitudinalPart
     from vecu.units import MPS_PER_KMH
 
     codec = shared_codec()
@@ -186,12 +211,16 @@ def test_longitudinal_frames_encoded_per_manoeuvre_are_the_framers():
 
 @pytest.mark.parametrize("kind", [FaultKind.DEAD, FaultKind.STUCK, FaultKind.NOISE])
 def test_tps_frames_of_a_fault_are_the_framers(kind, backend):
-    """A fault's TPS voltages (a held one's payloads kept per counter value) go out as the
-    framer makes them, counter after counter."""
+    """A fault's TPS voltages go out as the framer makes them, counter after counter."""
     from vecu.codec import shared_codec
     from vecu.faults import FaultInjector
-    from vecu.plant.node import ThrottlePart
-    from vecu.plant.throttle import InputConfig, InputGenerator, ThrottlePlant, ThrottlePlantConfig
+    from vecu.plant.throttle import (
+        InputConfig,
+        InputGenerator,
+        ThrottlePart,
+        ThrottlePlant,
+        ThrottlePlantConfig,
+    )
     from vecu.rng import rng_streams
 
     codec = shared_codec()

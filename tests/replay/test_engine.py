@@ -6,6 +6,7 @@ from __future__ import annotations
 import gzip
 import importlib.util
 import json
+import logging
 import math
 import os
 import subprocess
@@ -15,9 +16,11 @@ from collections import defaultdict
 import can
 import pytest
 
+from tests.replay.oracle import FrameByFrame
 from vecu.cli import main as cli_main
 from vecu.codec import DbcCodec
-from vecu.replay.engine import ReplayConfig, replay
+from vecu.replay.engine import BRIEF_NS, ReplayConfig, replay, warm_up_ecu
+from vecu.replay.feeder import Feeder
 from vecu.replay.source import TraceSource
 from vecu.runner import RunConfig, run
 
@@ -354,8 +357,8 @@ def test_block_decoding_gives_the_frame_by_frame_results_also_on_bad_frames(reco
     results = {}
     for block in (True, False):
         out = tmp_path / f"est-{block}.log"
-        s = replay(ReplayConfig(trace=str(trace), out=str(out), block=block,
-                                progress=False)).summary
+        s = replay(ReplayConfig(trace=str(trace), out=str(out), progress=False),
+                   Feeder if block else FrameByFrame).summary
         for key in ("wall_time_s", "x_realtime", "frames_per_s", "kernel_load_s", "config"):
             s.pop(key)
         results[block] = (s, out.read_bytes())
@@ -376,7 +379,8 @@ def test_block_path_skips_only_what_the_frame_by_frame_path_merely_counts(record
     for block in (True, False):
         out = tmp_path / f"est-{block}-{with_inputs}.log"
         res = replay(ReplayConfig(trace=recorded[0], out=str(out), with_inputs=with_inputs,
-                                  block=block, keep_series=True, progress=False))
+                                  keep_series=True, progress=False),
+                     Feeder if block else FrameByFrame)
         s = res.summary
         for key in ("wall_time_s", "x_realtime", "frames_per_s", "kernel_load_s", "config"):
             s.pop(key)
@@ -388,3 +392,31 @@ def test_block_path_skips_only_what_the_frame_by_frame_path_merely_counts(record
     assert s["frames"]["ecu_rx"]["received"] < read - s["frames"]["truth"]  # some only tallied
     estimates = sum(f["estimates_sent"] for f in s["functions"].values())
     assert s["frames_written"] > estimates + (read if with_inputs else 0)  # + ECU_Status / Diag
+
+
+def test_the_kernel_warm_up_is_a_silent_ecu_on_the_trace_head_not_a_replay(recorded, tmp_path,
+                                                                           caplog):
+    """The warm-up (vecu.warmup, before the timed replay) runs a throw-away ECU on the input
+    frames of the trace's head: it takes good ones, counts bad ones without a word, and never
+    calls back into the replay; the replay itself then logs each receive problem once."""
+    msgs, n = [], 0
+    for m in can.LogReader(recorded[0]):
+        n += m.arbitration_id == 0x101
+        if m.arbitration_id == 0x101 and n % 4 == 0:  # ETB_Wattmeter, a byte short
+            m = can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id,
+                            is_extended_id=False, data=bytes(m.data[:-1]))
+        msgs.append(m)
+    trace = tmp_path / "short_frames.blf"
+    _write_log(trace, msgs)
+    config = ReplayConfig(trace=str(trace), progress=False)
+    with caplog.at_level(logging.DEBUG):
+        rx = warm_up_ecu(config)
+    assert rx.accepted > 0 and rx.dlc_errors > 0, rx.as_dict()
+    head = sum(1 for m in msgs if m.timestamp - msgs[0].timestamp <= BRIEF_NS / 1e9)
+    assert rx.received < head  # the head's ECU inputs only, not the whole trace
+    assert [r for r in caplog.records if r.levelno >= logging.WARNING] == []
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        replay(config)
+    bad = [r.getMessage() for r in caplog.records if r.getMessage().startswith("ecu rx")]
+    assert bad and len(bad) == len(set(bad)), bad  # logged, each once

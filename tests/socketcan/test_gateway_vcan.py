@@ -1,5 +1,6 @@
 """`vecu gateway` and two `vecu ecu` on a real kernel's vcan0: doipclient (through udsoncan's
-DoIPClientUDSConnector) reads the VIN of both ECUs over TCP on the guest's loopback, a functional
+DoIPClientUDSConnector) reads the VIN and the confirmed DTCs (the TPS's: no plant runs) of both
+ECUs over TCP on the guest's loopback, a functional
 TesterPresent is answered by both, and can-utils' candump shows the ISO-TP traffic the DoIP
 requests caused (single frames, the VIN's first frame, the gateway's flow control, consecutive
 frames, the functional single frame). Behaviour, not timing: the emulated kernel runs Python
@@ -36,7 +37,10 @@ def session(tmp_path_factory):
     res: dict = {"out": out}
     try:
         procs.start("candump", ["candump", "-L", CHANNEL], stdout=out / "candump.log")
-        common = [*bus, "--sync-timeout", "0", "--no-status", "--quiet"]
+        # throttle only (the emulated CPU is ~20x slower): no plant, so each ECU's TPS times
+        # out and confirms its DTC, which the tester reads through the gateway
+        common = [*bus, "--sync-timeout", "0", "--no-status", "--quiet", "--no-speed",
+                  "--no-steering", "--no-manifold", "--tps-timeout-cycles", "50"]
         for name, more in (("ecu_a", []), ("ecu_b", ECU_B)):
             procs.vecu(name, "ecu", *common, *more, "--ready-file", str(out / f"{name}.ready"),
                        "--summary", str(out / f"{name}.json"))
@@ -50,12 +54,13 @@ def session(tmp_path_factory):
         procs.ready("gateway", out / "gw.ready")
         config = {**CLIENT_CONFIG, "request_timeout": START_S, "p2_timeout": START_S,
                   "p2_star_timeout": START_S}
-        vins = []
+        vins, dtcs = [], []
         for la, sa in ((0x0010, 0x0E00), (0x0011, 0x0E01)):
             doip = DoIPClient("127.0.0.1", la, client_logical_address=sa)
             with Client(DoIPClientUDSConnector(doip, close_connection=True), config=config) as c:
                 vins.append(c.read_data_by_identifier(0xF190).service_data.values[0xF190])
-        res["vins"] = vins
+                dtcs.append([d.id for d in c.get_dtc_by_status_mask(0x08).service_data.dtcs])
+        res["vins"], res["dtcs"] = vins, dtcs
         doip = DoIPClient("127.0.0.1", 0x0010, client_logical_address=0x0E02)
         doip.send_diagnostic_to_address(0xE400, bytearray(b"\x3e\x00"), timeout=START_S)
         answers = set()
@@ -75,6 +80,7 @@ def session(tmp_path_factory):
 
 def test_doipclient_reads_both_ecus_vin_through_the_gateway_on_vcan0(session):
     assert session["vins"] == [VIN, VIN]
+    assert all(0x012087 in ids for ids in session["dtcs"]), session["dtcs"]  # TPS timeout: no plant
     assert {sa for sa, uds in session["functional"] if uds == b"\x7e\x00"} >= {0x10, 0x11}
     assert session["gateway_exit"] == 0
     gw = summary(session["out"] / "gw.json")

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Any
 
@@ -12,6 +13,7 @@ from vecu.clock import Stopwatch
 from vecu.estimators.common.sigma_sets import PAPER_SETS
 from vecu.estimators.throttle.model import NumpyThrottleUKF
 from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
+from vecu.models import manifold
 from vecu.plant.throttle import simulate
 
 BENCH_SEED = 1
@@ -202,8 +204,8 @@ class NumpyReferencePF:
                  th > MODE_BOUNDS_DEG[1]]
         for p, m in zip(PAPER_THROTTLE.rows, modes):  # eq. (3) per mode, on arrays
             tm, rm = th[m], rh[m]
-            new[0, m], new[1, m], new[2, m] = mode_step.py(p, tm, rm, ci[m], u, np.sign(rm),
-                                                           np.sign(tm - 1.0))
+            new[0, m], new[1, m], new[2, m] = mode_step(p, tm, rm, ci[m], u, np.sign(rm),
+                                                       np.sign(tm - 1.0))
         new[0] = np.clip(new[0] + self.s_th * rng.standard_normal(self.n), 0.0, 90.0)
         m = new[2]
         s2 = self.s_i ** 2
@@ -252,31 +254,86 @@ def bench_throttle_production(steps: int = 20_000, repeats: int = 3,
             "ratio": ref / prod, "budget_us": 1000.0 / 20.0, "steps": steps}
 
 
+# the plain continuous model of eq. 5-6: the baseline of the event integrator and the oracle of
+# tests/estimators/manifold/test_fast_paths.py, tests/plant/test_manifold.py
+
+
+def rhs_and_jacobian(p: float, t: float, alpha: float, u: Any,
+                     prm: Any) -> tuple[float, float, float, float]:
+    """(dP/dt, dT/dt, d(dP/dt)/dP, d(dT/dt)/dT) of the continuous model behind eq. 5-6, written
+    plainly on the model's functions (vecu.models.manifold_integrator inlines it)."""
+    k = prm.kappa
+    r = prm.r_air
+    v = prm.v_im_dm3
+    mdot, dmdot = manifold.throttle_flow(alpha, p, u.p_a, u.t_a, prm)
+    eta, deta = manifold.volumetric_efficiency(u.n_rpm, p, prm)
+    k_pump = u.n_rpm * prm.v_d_dm3 / (120.0 * v)  # mdot_ac R T / (V_im eta P), 1/s
+    q = manifold.heat_flow(t, u.t_a, u.t_cool, prm)
+    pv = max(p, manifold.P_FLOOR_KPA) * v
+    dp = k * r * u.t_a * mdot / v - k * k_pump * eta * p + (k - 1.0) * q / v
+    dt = (r * t * mdot * (k * u.t_a - t) + (k - 1.0) * t * q) / pv - (k - 1.0) * k_pump * eta * t
+    jpp = k * r * u.t_a * dmdot / v - k * k_pump * (eta + p * deta)
+    hsum = prm.h1_w_per_k + prm.h2_w_per_k
+    jtt = ((r * mdot * (k * u.t_a - 2.0 * t) + (k - 1.0) * (q - hsum * t)) / pv
+           - (k - 1.0) * k_pump * eta)
+    return dp, dt, jpp, jtt
+
+
+def manifold_rhs(p_im: float, t_im: float, alpha: float, u: Any,
+                 params: Any = manifold.V8_5L7) -> tuple[float, float]:
+    """Continuous eq. 5-6: (dP_im/dt in kPa/s, dT_im/dt in K/s) at throttle angle alpha.
+
+    dP/dt = kappa R (T_a mdot_at - T_im mdot_ac) / V_im + (kappa - 1) Q_ext / V_im
+    dT/dt = T_im / (P_im V_im) [R mdot_at (kappa T_a - T_im) - (kappa - 1) R T_im mdot_ac
+                                + (kappa - 1) Q_ext]
+    One Euler step of length T_s = 120/(8N) gives eq. 5-6 with V_cyl = V_d/8 in the pumping terms.
+    """
+    dp, dt, _, _ = rhs_and_jacobian(p_im, t_im, alpha, u, params)
+    return dp, dt
+
+
+def euler_event(p_im: float, t_im: float, alpha: float, u: Any,
+                params: Any = manifold.V8_5L7) -> tuple[float, float]:
+    """Eq. 5-6 as printed (one explicit Euler step over T_s), with V_cyl = V_d/8. Unstable at large
+    openings; for comparison only."""
+    ts = manifold.sample_time(u.n_rpm, params.n_cyl)
+    dp, dt, _, _ = rhs_and_jacobian(p_im, t_im, alpha, u, params)
+    return p_im + ts * dp, t_im + ts * dt
+
+
+def substeps(dp: float, dtt: float, jpp: float, jtt: float, dt: float, prm: Any) -> int:
+    """Smallest M with h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and
+    |h dT/dt| <= dt_step_max (h = dt/M), clamped to [1, max_substeps]."""
+    m = max(
+        dt * (abs(jpp) + abs(jtt)) / prm.lam_dt_max,
+        dt * abs(dp) / prm.dp_step_max_kpa,
+        dt * abs(dtt) / prm.dt_step_max_k,
+    )
+    return min(max(math.ceil(m), 1), prm.max_substeps)
+
+
 def integrate_manifold_reference(p: float, t: float, alpha: float, u: Any, dt: float,
                                  prm: Any = None) -> tuple[float, float, int]:
     """vecu.models.manifold.integrate_manifold written plainly on the model's own functions
     (`_rhs` per stage: throttle_flow, volumetric_efficiency, heat_flow): the baseline of the
-    hoisted, inlined implementation (the tests hold their own oracle)."""
-    from vecu.models import manifold
-    from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA
-    from vecu.models.manifold_params import V8_5L7
-
-    prm = V8_5L7 if prm is None else prm
-    g = ROS2_GAMMA
-    dp, dtt, jpp, jtt = manifold._rhs(p, t, alpha, u, prm)
-    m = manifold._substeps(dp, dtt, jpp, jtt, dt, prm)
+    hoisted, inlined implementation, and the oracle of tests/estimators/manifold/test_fast_paths.py."""
+    prm = manifold.V8_5L7 if prm is None else prm
+    g = manifold.ROS2_GAMMA
+    dp, dtt, jpp, jtt = rhs_and_jacobian(p, t, alpha, u, prm)
+    m = substeps(dp, dtt, jpp, jtt, dt, prm)
     h = dt / m
     for i in range(m):
         if i:
-            dp, dtt, jpp, jtt = manifold._rhs(p, t, alpha, u, prm)
+            dp, dtt, jpp, jtt = rhs_and_jacobian(p, t, alpha, u, prm)
         wp = 1.0 - g * h * min(jpp, 0.0)
         wt = 1.0 - g * h * min(jtt, 0.0)
         k1p, k1t = dp / wp, dtt / wt
-        dp2, dt2, _, _ = manifold._rhs(max(p + h * k1p, P_FLOOR_KPA), t + h * k1t, alpha, u, prm)
+        dp2, dt2, _, _ = rhs_and_jacobian(max(p + h * k1p, manifold.P_FLOOR_KPA), t + h * k1t,
+                                          alpha, u, prm)
         k2p, k2t = (dp2 - 2.0 * k1p) / wp, (dt2 - 2.0 * k1t) / wt
         p += h * (1.5 * k1p + 0.5 * k2p)
         t += h * (1.5 * k1t + 0.5 * k2t)
-        p = max(p, P_FLOOR_KPA)
+        p = max(p, manifold.P_FLOOR_KPA)
     return p, t, m
 
 
@@ -284,13 +341,12 @@ def f_manifold_reference(x: Any, u: Any, ts: float, prm: Any = None) -> Any:
     """The event map of eq. 10 (vecu.models.manifold.f) through integrate_manifold_reference."""
     import numpy as np
 
-    from vecu.models.manifold import actuator_coeffs, iat_coeffs
     from vecu.models.manifold_params import V8_5L7
 
     prm = V8_5L7 if prm is None else prm
     u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
-    a1, a2, b1, b2 = actuator_coeffs(ts, prm)
-    a_t, b_t = iat_coeffs(ts, prm)
+    a1, a2, b1, b2, a_t, b_t = manifold.event_coefficients(ts, prm.zeta, prm.omega0,
+                                                           prm.tau_temp_s)
     p_n, t_n, _ = integrate_manifold_reference(p, t, alpha, u, ts, prm)
     return np.array([u.ta_sp, a1 * alpha + a2 * alpha_prev + b1 * u.ta_sp + b2 * u_prev, alpha,
                      p_n, t_n, a_t * tm + b_t * t])
@@ -320,10 +376,10 @@ class PlainManifoldSDKF:
     def step(self, y: Any, u: Any) -> Any:
         """One event: update with y (all three channels), then predict; returns x_n|n."""
         from vecu.estimators.common.covariance import cholesky_lower, symmetrise
-        from vecu.estimators.manifold.model import event_dt, sdc_matrices
+        from vecu.estimators.manifold.model import sdc_matrices
 
         np, c = self.np, self.cfg
-        ts = event_dt(u, c.params)
+        ts = manifold.sample_time(u.n_rpm, c.params.n_cyl)
         yv = np.array([float(v) for v in y])
         if self.x is None:
             self.x = np.array([yv[0], yv[0], yv[0], yv[1], yv[2], yv[2]])
@@ -350,7 +406,6 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
     times. Same profile, same run."""
     from vecu.estimators.manifold.cac_predict import HORIZON, predict_cac
     from vecu.estimators.manifold.factory import make_filter
-    from vecu.estimators.manifold.model import event_dt
     from vecu.eval.manifold import trace_inputs
     from vecu.models.manifold import cylinder_air_charge
     from vecu.plant.drive_profile import DriveProfile, us06_like
@@ -376,7 +431,7 @@ def bench_manifold_function(duration_s: float = 20.0) -> dict[str, float | str |
         watch = Stopwatch()
         for y, u in zip(ys, inputs):
             x = flt.step(y, u)
-            ts = event_dt(u)
+            ts = manifold.sample_time(u.n_rpm)
             for _ in range(HORIZON):
                 x = f_manifold_reference(x, u, ts)
             cylinder_air_charge(float(x[3]), float(x[4]), u.n_rpm)

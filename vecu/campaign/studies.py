@@ -54,10 +54,10 @@ def metric_names(spec: CampaignSpec) -> tuple[str, ...]:
 
 def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
                    engine: str = "batch") -> dict[str, Any]:
-    """One Table 3 run. engine "batch": whole runs of events per compiled call (the plant's
-    simulate_events, the filters' run_events, the open-loop observer and all predictions at
-    once); "scalar": event by event as the ECU steps (ManifoldPlant.step, filter.step(),
-    one prediction per call). Same seeds, same numbers (tests/campaign/test_batch.py)."""
+    """One Table 3 run: the plant's truth_events, the open-loop observer and all predictions
+    in one kernel call each; the filters' events in runs (engine "batch": run_events) or
+    event by event as the ECU steps them ("scalar": filter.step()). Same seeds, same numbers
+    (tests/campaign/test_batch.py)."""
     from vecu.estimators.manifold.cac_predict import (
         CacPredictionConfig,
         prediction_errors,
@@ -83,11 +83,11 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
     prof = us06_like(d.sim_seed, params=truth.engine)
     k = round(duration_s / prof.dt_s) + 1
     prof = DriveProfile(prof.dt_s, prof.n_rpm[:k], prof.ta_sp[:k])
-    trace = simulate(prof, seed=d.sim_seed, params=truth.engine, config=truth, compiled=batch)
+    trace = simulate(prof, seed=d.sim_seed, params=truth.engine, config=truth)
     # the ECU's nominal ambient and coolant conditions
     inputs = None if batch else trace_inputs(trace, belief)
     states = {"direct": direct_states(trace),
-              "direct_ol": direct_ol_states(trace, inputs, belief, compiled=batch)}
+              "direct_ol": direct_ol_states(trace, inputs, belief)}
     out: dict[str, Any] = {"events": len(trace.t)}
     eta = None
     for name in FILTERS:
@@ -113,8 +113,7 @@ def manifold_study(d: RunDraw, duration_s: float = 80.0, stride: int = 1,
     pc = CacPredictionConfig(stride=stride)
     for m in METHODS:
         _, pred, actual = prediction_errors(states[m], trace.ta_sp, trace.n_rpm, trace.cac,
-                                            belief, pc, compiled=batch,
-                                            eta_scale=eta if m == "adaptive" else None)
+                                            belief, pc, eta_scale=eta if m == "adaptive" else None)
         err = 1e6 * (pred - actual)  # mg per cylinder event
         out[f"{m}_iae"] = stride * float(np.abs(err).sum())
         out[f"{m}_ise"] = stride * float((err ** 2).sum())

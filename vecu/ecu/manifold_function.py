@@ -5,9 +5,9 @@ Each engine event brings ENG_Event and ENG_Intake (same counter). On the next 1 
 the function runs its filter (the live SDKF: one warm-started Riccati iteration per event, or
 the EKF) once per complete event, predicts the cylinder air charge 6 events ahead with the
 setpoint held (the ECU does not know future pedal positions), and sends ECU_ManifoldEstimate.
-Under the numba backend the usual SDKF / EKF event is one compiled call for all three
-(filter.event_cac); the python backend, the adaptive filter and any unusual event (a missing or
-rejected reading, a fallback, a reset) make the separate calls, with the same numbers.
+The filter does all three (filter.estimate): the usual SDKF / EKF event in one kernel call, the
+adaptive filter and any unusual event (a missing or rejected reading, a fallback, a reset) in
+separate calls, with the same numbers.
 Before each ECU_ManifoldEstimate the function sends ECU_ManifoldSigma: the event's counter, the
 validity (vecu.ecu.validity; UDS DID 0x020F: init until the filter has been initialised from a
 complete event, degraded for an event with a reading missing, rejected or gated) and the
@@ -31,10 +31,10 @@ from vecu.codec import DbcCodec
 from vecu.ecu.diagnostics import FLOAT, UBYTE, ULONG, Did, Reader, Variable, validity_did
 from vecu.ecu.node import Send, Subscription
 from vecu.ecu.validity import DEGRADED, INIT, VALID
-from vecu.estimators.manifold.cac_predict import HORIZON, cac_sigmas, predict_cac
+from vecu.estimators.manifold.cac_predict import HORIZON, cac_sigmas
 from vecu.estimators.manifold.factory import make_filter
 from vecu.estimators.manifold.filters import ManifoldFilterConfig, input_problem
-from vecu.models.manifold import cylinder_air_charge, nominal_input
+from vecu.models.manifold import nominal_input
 from vecu.models.manifold_params import EngineInput
 from vecu.units import KELVIN_AT_0_DEGC, MG_PER_KG, RAD_PER_DEG
 
@@ -59,9 +59,9 @@ class ManifoldFunction:
                  config: ManifoldFunctionConfig = ManifoldFunctionConfig(),
                  stopwatch: Stopwatch | None = None) -> None:
         """stopwatch times the filter and the prediction (filter_seconds, predict_seconds).
-        Under the numba backend the usual event (SDKF / EKF) runs the filter, the CAC and its
-        prediction in one compiled call (CompiledEvents.event_cac): that time goes into
-        filter_seconds, and predict_seconds counts only the events that made separate calls."""
+        The usual event (SDKF / EKF) runs the filter, the CAC and its prediction in one kernel
+        call (filter.estimate): that time goes into filter_seconds, and predict_seconds counts
+        only the events that made separate calls."""
         self.filter = make_filter(config.filter, config.kf)
         self.filter_name = config.filter
         self._engine = self.filter.params  # the calibration: filter, CAC and prediction
@@ -146,27 +146,10 @@ class ManifoldFunction:
         watch = self._watch
         troubles = flt.missing + sum(flt.rejected) + sum(flt.gated)
         watch.lap()
-        # the usual event under the numba backend: filter, CAC and prediction in one call
-        done = flt.event_cac(ta, map_kpa, t_meas, u, HORIZON)
-        scale = 1.0
-        if done is not None:
-            cac, cac6 = done
-            self.filter_seconds += watch.lap()  # the CAC and its prediction included
-            x = flt.x_post.tolist()
-        else:
-            x = flt.step((ta, map_kpa, t_meas), u).tolist()
-            filter_s = watch.lap()
-            # the adaptive filter's eta correction as the CAC uses it (ManifoldAdaptive.eta_used)
-            if len(x) > 6:
-                scale = float(flt.eta_used(x[6], float(flt.P_post[6, 6])))
-            cac = scale * cylinder_air_charge(x[3], x[4], u.n_rpm, self._engine)
-            first = flt.last_prediction  # the filter already ran event n+1 from x
-            if first is not None and first[0] is u:
-                cac6 = predict_cac(first[1], [u] * (HORIZON - 1), self._engine, scale)
-            else:
-                cac6 = predict_cac(flt.x_post, [u] * HORIZON, self._engine, scale)
-            self.filter_seconds += filter_s
-            self.predict_seconds += watch.lap()
+        x, cac, cac6, scale, filter_s, predict_s = flt.estimate(ta, map_kpa, t_meas, u, HORIZON,
+                                                                watch.lap)
+        self.filter_seconds += filter_s
+        self.predict_seconds += predict_s
         if not (math.isfinite(cac) and math.isfinite(cac6)):  # last line of defence
             self.estimator_faults += 1
             flt.reset()

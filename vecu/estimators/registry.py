@@ -53,11 +53,11 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0,
         return OpenLoopThrottle(noise_scale, model or PAPER_THROTTLE)
     if name == "production":
         try:
-            from vecu.estimators.throttle.production import make_production_estimator
+            from vecu.estimators.throttle.pf.filter import make_production_estimator
         except ImportError as exc:
             raise EstimatorUnavailableError(
                 "throttle estimator 'production' is unavailable: cannot import "
-                f"make_production_estimator from vecu.estimators.throttle.production ({exc})"
+                f"make_production_estimator from vecu.estimators.throttle.pf.filter ({exc})"
             ) from exc
         if model is None:
             return make_production_estimator(noise_scale)

@@ -151,7 +151,7 @@ def nees_of(e: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 # ----------------------------------------------------------------------------- throttle
 def run_throttle(seed: int, sizes: Sizes, mismatch: bool, burn_in: int = 1000,
                  filter_alpha: float = 1.0) -> _Run:
-    from vecu.estimators.throttle.production import make_production_estimator
+    from vecu.estimators.throttle.pf.filter import make_production_estimator
     from vecu.eval.throttle import run_estimator
     from vecu.models.throttle import ThrottleModel
     from vecu.plant.throttle import simulate
@@ -265,7 +265,7 @@ def run_manifold(seed: int, sizes: Sizes, mismatch: bool, burn_in_s: float = 0.5
     full = us06_like(seed, params=plant)
     k = round(sizes.manifold_s / full.dt_s) + 1
     prof = DriveProfile(full.dt_s, full.n_rpm[:k], full.ta_sp[:k])
-    tr = simulate(prof, seed=seed, params=plant)  # type: ignore[arg-type]  # Profile declares duration_s settable, DriveProfile's is a property
+    tr = simulate(prof, seed=seed, params=plant)
     inputs = trace_inputs(tr, cfg.params)
     flt = make_filter("sdkf", cfg)
     n = len(tr.t)

@@ -15,7 +15,6 @@ first `scipy_events` events of the first run), the cheap-vs-full-DARE SDKF agree
 from __future__ import annotations
 
 import math
-from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +27,6 @@ from vecu.estimators.manifold.cac_predict import (
 )
 from vecu.estimators.manifold.factory import make_filter
 from vecu.estimators.manifold.filters import ManifoldFilterConfig
-from vecu.kernels import using
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile, us06_like
 from vecu.plant.manifold import ManifoldTrace, simulate
@@ -120,26 +118,26 @@ def run_filter(name: str, trace: ManifoldTrace, inputs: list[EngineInput],
         xs[n] = step(ys[n], inputs[n])
         elapsed += clock() - t0
         vs[n] = np.diag(flt.P_post)
-    flt.run_variances = vs  # as CompiledEvents.run_events
+    flt.run_variances = vs  # as FilterRuns.run_events
     return xs, elapsed, flt
 
 
 def direct_states(trace: ManifoldTrace) -> np.ndarray:
-    """cac_predict.direct_state at every event (the readings; event 0 uses itself as n-1)."""
+    """x_n from the readings alone at every event: (TA_SP,n-1, TA_n, TA_n-1, P_n, T_out,n,
+    T_out,n) (event 0 uses itself as n-1)."""
     y = trace.y
     k = np.maximum(np.arange(len(y)) - 1, 0)
     return np.column_stack([trace.ta_sp[k], y[:, 0], y[k, 0], y[:, 1], y[:, 2], y[:, 2]])
 
 
 def direct_ol_states(trace: ManifoldTrace, inputs: list[EngineInput] | None,
-                     params: ManifoldParams = V8_5L7, compiled: bool = True) -> np.ndarray:
+                     params: ManifoldParams = V8_5L7) -> np.ndarray:
     """direct_states with T_im from the open-loop observer driven by the measured angle (the
     ambient and coolant conditions of `inputs`; None: the nominal ones of params, as
-    trace_inputs(trace, params) gives; compiled: one call)."""
+    trace_inputs(trace, params) gives)."""
     out = direct_states(trace)
-    with nullcontext() if compiled else using("python"):
-        out[:, 4] = open_loop_temperatures(trace.y[:, 0], trace.n_rpm, trace.y[0, 1],
-                                           trace.y[0, 2], params, inputs)
+    out[:, 4] = open_loop_temperatures(trace.y[:, 0], trace.n_rpm, trace.y[0, 1],
+                                       trace.y[0, 2], params, inputs)
     return out
 
 

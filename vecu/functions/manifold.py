@@ -149,10 +149,11 @@ SPEC = EcuFunctionSpec(
     plot=_plot, report_rank=2, label="manifold pressure [kPa]",
     profile=(
         ("vecu.plant.node", "ManifoldPart", "event", "plant: manifold part (event)"),
-        ("vecu.plant.manifold", "ManifoldPlant", "step", "plant: manifold model step"),
+        ("vecu.plant.manifold", "EventsAhead", "fill", "plant: manifold events ahead"),
         ("vecu.ecu.manifold_function", "ManifoldFunction", "run", "ecu: manifold function"),
         ("vecu.estimators.manifold.filters", "_ManifoldKF", "step", "estimator: manifold SDKF"),
-        ("vecu.ecu.manifold_function", None, "predict_cac", "estimator: manifold CAC prediction"),
+        ("vecu.estimators.manifold.cac_predict", None, "predict_cac",
+         "estimator: manifold CAC prediction"),
         ("vecu.functions.manifold", "ManifoldProbe", "tick", "probes"),
     ),
     estimators=ESTIMATORS["manifold"].names)

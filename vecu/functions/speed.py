@@ -18,8 +18,7 @@ from vecu.ecu.speed_function import SpeedFunction
 from vecu.estimators.registry import ESTIMATORS
 from vecu.faults import FaultInjector
 from vecu.functions.base import EcuFunctionSpec, EcuInput, Sensor, TruthChannel, TruthPair
-from vecu.plant.drive import Drive
-from vecu.plant.node import LongitudinalPart
+from vecu.plant.drive import Drive, LongitudinalPart
 from vecu.probes import SeriesBuffer
 from vecu.stats import ErrorStats, RunningStats
 from vecu.units import MPS_PER_KMH
@@ -189,7 +188,7 @@ SPEC = EcuFunctionSpec(
         f"RMS {e['speed_error_kmh'].rms:.3f} km/h, accel {e['accel_error_mps2'].rms:.3f} m/s^2")),
     plot=_plot, report_rank=1, label="vehicle speed [km/h]",
     profile=(
-        ("vecu.plant.node", "LongitudinalPart", "tick", "plant: longitudinal part"),
+        ("vecu.plant.drive", "LongitudinalPart", "tick", "plant: longitudinal part"),
         ("vecu.ecu.speed_function", "SpeedFunction", "run", "ecu: speed function"),
         ("vecu.estimators.speed.kf", "SpeedKalmanFilter", "step", "estimator: speed KF"),
         ("vecu.functions.speed", "SpeedProbe", "tick", "probes"),

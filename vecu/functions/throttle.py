@@ -20,8 +20,7 @@ from vecu.faults import FaultInjector, FaultTarget
 from vecu.functions.base import EcuFunctionSpec, EcuInput, Kill, Sensor, TruthChannel, TruthPair
 from vecu.plant.drive import Drive
 from vecu.plant.input_file import FileInput, load_input_file
-from vecu.plant.node import ThrottlePart
-from vecu.plant.throttle import InputGenerator, ThrottlePlant
+from vecu.plant.throttle import InputGenerator, ThrottlePart, ThrottlePlant
 from vecu.probes import SeriesBuffer, source_name
 from vecu.stats import ErrorStats, RunningStats
 from vecu.summary import FLATTEN, Detection
@@ -186,11 +185,11 @@ SPEC = EcuFunctionSpec(
         f"{e['fallback_error_deg'].rms:.2f} deg ({e['fallback_error_deg'].n} ticks)")),
     report_rank=0, label="throttle angle [deg]",
     profile=(
-        ("vecu.plant.node", "ThrottlePart", "tick", "plant: throttle part"),
-        ("vecu.plant.throttle", "ThrottlePlant", "step", "plant: throttle model step"),
-        ("vecu.plant.throttle", "InputGenerator", "next", "plant: throttle input generator"),
+        ("vecu.plant.throttle", "ThrottlePart", "tick", "plant: throttle part"),
+        ("vecu.plant.throttle", "ThrottlePlant", "ticks", "plant: throttle model ticks"),
+        ("vecu.plant.throttle", "InputGenerator", "take", "plant: throttle input generator"),
         ("vecu.ecu.throttle_function", "ThrottleFunction", "run", "ecu: throttle function"),
-        ("vecu.estimators.throttle.production", "ThrottleParticleFilter", "step",
+        ("vecu.estimators.throttle.pf.filter", "ThrottleParticleFilter", "step",
          "estimator: throttle production PF/KF"),
         ("vecu.functions.throttle", "ThrottleProbe", "tick", "probes"),
     ),

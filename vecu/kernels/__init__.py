@@ -23,8 +23,23 @@ globals (the kernel's, its callees', transitively), kept beside numba's index (`
 A cache written from other code (a callee edited, also by a process that loaded the old source
 before the edit) is dropped and compiled again (`_code_key`, `_drop_stale_cache`): one
 mechanism for every kernel, no module keeps a guard of its own.
-Plain-Python hot paths call `k.py` directly: a compiled call from Python costs more than a tiny
-kernel.
+One way to call a kernel: `k(...)`, from Python and from other kernels alike. A small piece
+(a few arithmetic operations, shared by bigger kernels: `@kernel(small=True)`) called from
+Python runs as Python under every backend (a compiled call from Python costs more than the
+piece itself); inside compiled code it is compiled with its caller. `constants(values)` and
+`record(dtype)` give a kernel's arguments in the form the active backend takes fast (a float64
+array or a structured array compiled; tuples of Python floats or a dict of named Python numbers
+as Python); `@kernel(setup=fn)` runs fn once before the
+kernel is first compiled (an external symbol it links, say).
+
+A numpy form (`@kernel(python=numpy_fn)`): the python backend runs numpy_fn instead of the loops
+(the numba backend still compiles fn). A kernel may carry a numpy form only when its loops as
+plain Python would make the python backend unusable (per-particle loops: the throttle particle
+filter's step and resampling, vecu.estimators.throttle.pf); both forms are tested against each
+other (same draws and decisions, results equal to rounding). The same option carries a kernel
+on arrays that the python backend runs on their Python lists or a view of them (the same
+function; numpy's element access would double a small kernel's time in plain Python). The
+choice stays here: callers call `k(...)` under either backend.
 
 Same seed, same backend -> bit-identical output. The two backends agree to rounding (a few ulp:
 numba's vector reductions and libm calls may round differently from numpy's); for kernels that
@@ -41,6 +56,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any
+
+import numpy as np
 
 from vecu.errors import ConfigError
 
@@ -156,12 +173,17 @@ def kernel_cache_dirs() -> list[Path]:
 class Kernel:
     """A numba-compatible function, compiled on first use under the numba backend."""
 
-    __slots__ = ("_compiled", "_options", "py")
+    __slots__ = ("_compiled", "_options", "_setup", "_signature", "plain", "py", "small")
 
-    def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
+    def __init__(self, fn: Callable[..., Any], options: dict[str, Any],
+                 python: Callable[..., Any] | None = None) -> None:
         self.py = fn
+        self.plain = fn if python is None else python  # what the python backend runs
+        self.small = bool(options.pop("small", False))
+        self._setup: Callable[[], None] | None = options.pop("setup", None)
         self._options = options
         self._compiled: Callable[..., Any] | None = None
+        self._signature: tuple | Callable[[], tuple] | None = None
 
     @property
     def compiled(self) -> Callable[..., Any]:
@@ -170,6 +192,8 @@ class Kernel:
             numba = _import_numba()
             if not numba:
                 raise KernelBackendError("numba is not installed (pip install 'vecu[fast]')")
+            if self._setup is not None:
+                self._setup()
             try:
                 compiled = numba.njit(cache=True, **self._options)(self.py)
             except RuntimeError:  # no cache locator (function defined outside a file)
@@ -177,6 +201,8 @@ class Kernel:
             else:
                 _drop_stale_cache(compiled, self.py)
             self._compiled = compiled
+            if self._signature is not None:
+                self._fix()
         return self._compiled
 
     def discard_compiled(self) -> None:
@@ -187,22 +213,62 @@ class Kernel:
                 cache.flush()
         self._compiled = None
 
-    def fix_signature(self, signature: tuple) -> None:
-        """Compile (or load from numba's cache) this one signature now and switch further
-        compilation off: an int or numpy-scalar argument then converts to it instead of
-        compiling a new specialisation in the middle of a run."""
-        disp = self.compiled
-        disp.compile(signature)
-        disp.disable_compile()
+    def fix_signature(self, signature: tuple | Callable[[], tuple]) -> None:
+        """Declare this kernel's one signature (numba types, or a function returning them, so
+        that numba is imported only to compile): numba compiles it (or loads it from its cache)
+        when the kernel is first compiled, and no other; an int or numpy-scalar argument then
+        converts to it instead of compiling a new specialisation in the middle of a run."""
+        self._signature = signature
+        if self._compiled is not None:
+            self._fix()
+
+    def _fix(self) -> None:
+        sig = self._signature
+        self._signature = sig = sig() if callable(sig) else sig
+        assert self._compiled is not None and sig is not None
+        self._compiled.compile(sig)  # type: ignore[attr-defined]  # a numba dispatcher
+        self._compiled.disable_compile()  # type: ignore[attr-defined]  # as above
+
+    def fix_types(self, *example: Any) -> None:
+        """fix_signature for the types of these example arguments (numba.typeof of each), under
+        the numba backend and once (a kernel's signature is declared one time)."""
+        if backend() == "numba" and self._signature is None:
+            self.fix_signature(tuple(_import_numba().typeof(a) for a in example))
 
     def impl(self) -> Callable[..., Any]:
-        """The function for the active backend (hot callers fetch it once per call site)."""
-        return self.compiled if backend() == "numba" else self.py
+        """The function a call from Python runs under the active backend."""
+        return self.compiled if backend() == "numba" and not self.small else self.plain
 
     def __call__(self, *args: Any) -> Any:
-        if _active == "python":  # the common case first: a kernel calling kernels in Python
-            return self.py(*args)
-        return self.impl()(*args)
+        if _active == "python" or self.small:  # first: a kernel calling kernels in Python
+            return self.plain(*args)
+        return (self._compiled or self.impl())(*args)
+
+
+def record(dtype: np.dtype, **values: Any) -> Any:
+    """A one-element record of dtype's named fields (the others 0), as the active backend's
+    kernels read and write it fast, `r[0]["field"]` either way: a numpy structured array when
+    they run compiled (numba types its fields), a list of one dict of Python numbers when they
+    run as Python (a numpy field access and numpy scalars cost ~10x a dict's and a float's)."""
+    arr = np.zeros(1, dtype=dtype)
+    for name, value in values.items():
+        arr[0][name] = value
+    if backend() == "numba":
+        return arr
+    return [{name: arr[0][name].item() for name in dtype.names}]
+
+
+def constants(values: Any) -> Any:
+    """Read-only kernel arguments (numbers, or equal-length rows of numbers) as the active
+    backend takes them fast: a C-contiguous float64 array when kernels run compiled, a tuple
+    of Python floats (of such tuples) when they run as Python (numpy scalars make Python
+    arithmetic several times slower). Made where the kernels' caller is built."""
+    arr = np.ascontiguousarray(values, dtype=np.float64)
+    if backend() == "numba":
+        return arr
+    if arr.ndim == 1:
+        return tuple(arr.tolist())
+    return tuple(tuple(row) for row in arr.tolist())
 
 
 _SIMPLE = (bool, int, float, complex, str, bytes, type(None))
@@ -245,6 +311,8 @@ def _module_key(module: ModuleType) -> bytes:
             h.update(name.encode() + repr(v).encode())
         elif type(v).__name__ == "ndarray":
             h.update(name.encode() + str((v.dtype, v.shape)).encode() + v.tobytes())
+        elif type(v).__module__ == "numpy.dtypes":  # a record layout kernels view arrays as
+            h.update(name.encode() + repr(v.descr).encode())
     key = h.digest()
     _module_keys[module.__name__] = (module, key)
     return key
@@ -319,11 +387,13 @@ def _drop_stale_cache(compiled: Any, fn: Callable[..., Any]) -> None:
         pass
 
 
-def kernel(fn: Callable[..., Any] | None = None, **options: Any) -> Any:
-    """Decorator: `@kernel` or `@kernel(error_model="numpy")`; numba options pass through
-    (never fastmath: it would break the agreement with the Python path)."""
+def kernel(fn: Callable[..., Any] | None = None, *, python: Callable[..., Any] | None = None,
+           **options: Any) -> Any:
+    """Decorator: `@kernel`, `@kernel(small=True)`, `@kernel(setup=fn)`, `@kernel(python=fn)`
+    (module docstring) or `@kernel(error_model="numpy")`; numba options pass through (never
+    fastmath: it would break the agreement with the Python path)."""
     if "fastmath" in options:
         raise ValueError("fastmath is not allowed in vecu kernels")
     if fn is None:
-        return lambda f: Kernel(f, options)
-    return Kernel(fn, options)
+        return lambda f: Kernel(f, dict(options), python)
+    return Kernel(fn, options, python)

@@ -78,16 +78,15 @@ def tyre_consts(p: VehicleParams) -> TyreConsts:
                       d_r, p.c_r_n_per_rad / (p.shape_c * d_r), p.shape_c)
 
 
-@kernel
+@kernel(small=True)
 def tyre_force(d: float, c: float, b: float, alpha: float) -> float:
     """Lateral tyre force F_y = D sin(C atan(B alpha)) (N) at slip angle alpha (rad): Pacejka's
     magic formula without shifts (module docstring; the paper's tyre curve). The one copy: the
-    plant, the filters' model and the compiled steering kernels call it (plain-Python callers
-    `tyre_force.py`, vecu.kernels)."""
+    plant, the filters' model and the compiled steering kernels call it (a small kernel)."""
     return d * math.sin(c * math.atan(b * alpha))
 
 
-@kernel
+@kernel(small=True)
 def tyre_force_slope(d: float, c: float, b: float, alpha: float) -> tuple[float, float]:
     """(F_y, dF_y/dalpha) of `tyre_force`: with u = C atan(B alpha),
     (D sin u, D cos u C B / (1 + (B alpha)^2)) (the EKF's Jacobians)."""
@@ -95,7 +94,7 @@ def tyre_force_slope(d: float, c: float, b: float, alpha: float) -> tuple[float,
     return d * math.sin(u), d * math.cos(u) * c * b / (1.0 + (b * alpha) ** 2)
 
 
-@kernel
+@kernel(small=True)
 def lateral_motion(v_y: float, r: float, delta: float, v_x: float, d_f: float, b_f: float,
                    d_r: float, b_r: float, c: float, l_f: float, l_r: float, mass: float,
                    i_z: float) -> tuple[float, float]:
@@ -112,8 +111,8 @@ def lateral_motion(v_y: float, r: float, delta: float, v_x: float, d_f: float, b
 def _motion(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,
             t: TyreConsts | None) -> tuple[float, float]:
     t = t if t is not None else tyre_consts(p)
-    return lateral_motion.py(x[0], x[1], u[0], u[1], t.d_f, t.b_f, t.d_r, t.b_r, t.c, p.l_f_m,
-                             p.l_r_m, p.mass_kg, p.yaw_inertia_kgm2)
+    return lateral_motion(x[0], x[1], u[0], u[1], t.d_f, t.b_f, t.d_r, t.b_r, t.c, p.l_f_m,
+                          p.l_r_m, p.mass_kg, p.yaw_inertia_kgm2)
 
 
 def f(x: tuple[float, float], u: tuple[float, float], p: VehicleParams,

@@ -9,38 +9,25 @@ State of one event n (the augmented x_n of eq. 10, 6 entries):
 where (u_prev, alpha, alpha_prev) is the non-minimal actuator state x_ET of eq. 1.
 Input: EngineInput (throttle setpoint TA_SP in rad, N, P_a, T_a, T_coolant).
 
-Layers:
-- pure model functions (actuator coefficients, eq. 2-4 flow, eq. 5-6 right-hand side, eq. 8, eq. 9,
-  steady state), usable by filters;
-- `integrate_manifold`: one event of eq. 5-6 in sub-steps of a two-stage Rosenbrock method with
-  the diagonal Jacobian (the printed single Euler step diverges at large openings);
-- `f`/`h`: the noise-free event map and output of the augmented model;
+Layers: the model's kernels (eq. 1 and 9 coefficients and event map, eq. 2-4 flow, eq. 8) and
+their functions on a parameter set; `integrate_manifold`, one event of eq. 5-6 in ROS2 sub-steps
+(vecu.models.manifold_integrator; the printed single Euler step diverges at large openings);
+`f`/`h`, the noise-free event map and output of the augmented model; steady states.
 """
 
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
-from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq
 
-from vecu.kernels import Kernel, backend, kernel, using
-from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA, _tables, interp  # noqa: F401 (re-exported)
+from vecu.kernels import kernel
+from vecu.models.manifold_integrator import P_FLOOR_KPA, ROS2_GAMMA, interp, search_right, tables  # noqa: F401 (re-exported)
 from vecu.models.manifold_integrator import integrate_manifold as _integrate_fast
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 N_STATE = 6
-
-
-def _py(k: Kernel, *args: Any) -> Any:
-    """Kernel k's Python function with the Python functions of the kernels it calls (the
-    parameter set's tables are tuples here, which the compiled kernels do not take)."""
-    if backend() == "python":
-        return k.py(*args)
-    with using("python"):
-        return k.py(*args)
 
 
 def nominal_input(ta_sp: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> EngineInput:
@@ -59,8 +46,12 @@ def sample_time(n_rpm: float, n_cyl: int = 8) -> float:
 
 @kernel
 def event_coefficients(ts, zeta, omega0, tau):
-    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts: the corrected eq. 1 for the actuator
-    (zeta, omega0) and eq. 9 for the IAT sensor (tau); see actuator_coeffs and iat_coeffs."""
+    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts. The corrected eq. 1 for the actuator
+    (zeta, omega0), alpha_{n+1} = a1 alpha_n + a2 alpha_{n-1} + b1 u_n + b2 u_{n-1}: the exact
+    zero-order-hold discretisation of alpha'' = w0^2 (u - alpha) - 2 zeta w0 alpha', a1 = 2 a b,
+    a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b), a =
+    exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2); eq. 9 for
+    the IAT sensor (tau): a_T = exp(-ts / tau), b_T = 1 - a_T."""
     zw = zeta * omega0
     w_et = omega0 * math.sqrt(1.0 - zeta * zeta)
     a = math.exp(-zw * ts)
@@ -78,42 +69,6 @@ def event_map(co, u_prev, alpha, alpha_prev, sp, t, tm):
     one copy: the plant, the filters' event map and the CAC prediction call it."""
     a1, a2, b1, b2, a_t, b_t = co
     return a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, a_t * tm + b_t * t
-
-
-def actuator_coeffs(
-    ts: float, params: ManifoldParams = V8_5L7,
-) -> tuple[float, float, float, float]:
-    """(a1, a2, b1, b2) of the corrected eq. 1:
-    alpha_{n+1} = a1 alpha_n + a2 alpha_{n-1} + b1 u_n + b2 u_{n-1}.
-
-    Exact zero-order-hold discretisation of alpha'' = w0^2 (u - alpha) - 2 zeta w0 alpha' at ts:
-    a1 = 2 a b, a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b),
-    a = exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2).
-    """
-    a1, a2, b1, b2, _, _ = _py(event_coefficients, ts, params.zeta, params.omega0,
-                                                 params.tau_temp_s)
-    return a1, a2, b1, b2
-
-
-def actuator_coeffs_printed(
-    ts: float, params: ManifoldParams = V8_5L7,
-) -> tuple[float, float, float, float]:
-    """(a1, a2, b1, b2) exactly as printed under eq. 1 (wrong; kept as evidence for docs/tests)."""
-    zw = params.zeta * params.omega0
-    w_et = params.omega0 * math.sqrt(1.0 - params.zeta * params.zeta)
-    a = math.exp(-zw * ts)
-    b = math.cos(w_et * ts)
-    g = math.sin(w_et * ts)
-    return -2.0 * a * a * b, a * a, 1.0 - a * (b + zw * g / w_et), a * a + a * (zw * g / (w_et - b))
-
-
-def actuator_matrices(
-    ts: float, params: ManifoldParams = V8_5L7,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(A_ET, B_ET, C_ET) of eq. 1 for x_ET = (u_prev, alpha, alpha_prev); recompute every event."""
-    a1, a2, b1, b2 = actuator_coeffs(ts, params)
-    a_et = np.array([[0.0, 0.0, 0.0], [b2, a1, a2], [0.0, 1.0, 0.0]])
-    return a_et, np.array([1.0, b1, 0.0]), np.array([0.0, 1.0, 0.0])
 
 
 # ------------------------------------------------------------------------- throttle flow, eq. 2-4
@@ -136,18 +91,20 @@ def flow_function_of(pr, c):
 
 @kernel
 def discharge_of(pr, alpha, c, cd_alpha, cd_table, prs):
-    """(C_d, dC_d/dpr) by bilinear lookup (see discharge_coefficient) on the tables."""
+    """(C_d, dC_d/dpr) by bilinear lookup on the tables (eq. 2-3 text), pr clamped to the table."""
     a = 0.0 if 0.0 > alpha else alpha  # noqa: FURB136 (min/max with Python's NaN behaviour)
     a_deg = math.degrees(c[26] if c[26] < a else a)  # noqa: FURB136 (as above)
     n = len(prs)
-    p = prs[0] if prs[0] > pr else pr  # noqa: FURB136 (as above)
-    p = prs[n - 1] if prs[n - 1] < p else p  # noqa: FURB136 (as above)
-    j = bisect_right(prs, p) - 1
+    lo_pr, hi_pr = float(prs[0]), float(prs[n - 1])  # plain floats in Python
+    p = lo_pr if lo_pr > pr else pr  # noqa: FURB136 (as above)
+    p = hi_pr if hi_pr < p else p  # noqa: FURB136 (as above)
+    j = search_right(prs, p) - 1
     j = n - 2 if n - 2 < j else j  # noqa: FURB136 (as above)
     lo, _ = interp(a_deg, cd_alpha, cd_table[j])
     hi, _ = interp(a_deg, cd_alpha, cd_table[j + 1])
-    s = (hi - lo) / (prs[j + 1] - prs[j])
-    return lo + s * (p - prs[j]), s if prs[0] < pr < prs[n - 1] else 0.0
+    pj = float(prs[j])
+    s = (hi - lo) / (float(prs[j + 1]) - pj)
+    return lo + s * (p - pj), s if lo_pr < pr < hi_pr else 0.0
 
 
 @kernel
@@ -160,25 +117,6 @@ def throttle_flow_of(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs):
     a = c[26] if c[26] < a else a  # noqa: FURB136 (as above)
     xi0 = math.pi * c[27] * c[27] * (1.0 - math.cos(a)) * (1000.0 * p_a) / math.sqrt(c[1] * t_a)
     return xi0 * cd * psi, xi0 * (dcd * psi + cd * dpsi) / p_a
-
-
-def throttle_area(alpha: float, params: ManifoldParams = V8_5L7) -> float:
-    """Eq. 4, A_th = pi R_th^2 (1 - cos alpha) in m^2, alpha clipped to the stops [0, alpha_max]."""
-    a = min(max(alpha, 0.0), params.alpha_max_rad)
-    return math.pi * params.r_th_m * params.r_th_m * (1.0 - math.cos(a))
-
-
-def _interp(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> tuple[float, float]:
-    """Piecewise-linear lookup with end clamping: (value, slope) (slope 0 outside the table)."""
-    return _py(interp, x, xs, ys)
-
-
-def discharge_coefficient(
-    pr: float, alpha: float, params: ManifoldParams = V8_5L7,
-) -> tuple[float, float]:
-    """C_d(pr, alpha) by bilinear lookup (eq. 2-3 text): (C_d, dC_d/dpr); pr clamped to [0, 1]."""
-    c, cd_alpha, cd_table, prs, _, _ = _tables(params)[1]
-    return _py(discharge_of, pr, alpha, c, cd_alpha, cd_table, prs)
 
 
 def critical_pressure_ratio(kappa: float) -> float:
@@ -202,7 +140,7 @@ def flow_function(pr: float, params: ManifoldParams = V8_5L7) -> tuple[float, fl
     infinite slope of eq. 2 at pr -> 1 is removed; the odd extension gives a small reverse flow
     for pr > 1 (reached only through process noise at wide open throttle), saturated at -psi(s0).
     """
-    return _py(flow_function_of, pr, _tables(params)[1][0])
+    return flow_function_of(pr, tables(params)[0])
 
 
 def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
@@ -211,8 +149,8 @@ def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
 
     Xi = C_d A_th(alpha) P_a / sqrt(R_air T_a) with P_a converted to Pa (A_th in m^2).
     """
-    c, cd_alpha, cd_table, prs, _, _ = _tables(params)[1]
-    return _py(throttle_flow_of, alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs)
+    c, cd_alpha, cd_table, prs, _, _ = tables(params)
+    return throttle_flow_of(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs)
 
 
 # ------------------------------------------------------------------------- port flow, eq. 8
@@ -246,22 +184,22 @@ def volumetric_efficiency(
     n_rpm: float, p_im: float, params: ManifoldParams = V8_5L7,
 ) -> tuple[float, float]:
     """eta(N, P) = eta_N(N) (r_c - (P_exh/P)^(1/kappa)) / (r_c - 1): (eta, d eta/dP_im per kPa)."""
-    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
-    return _py(efficiency_of, n_rpm, p_im, c, eta_rpm, eta_val)
+    c, _, _, _, eta_rpm, eta_val = tables(params)
+    return efficiency_of(n_rpm, p_im, c, eta_rpm, eta_val)
 
 
 def port_flow(p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7) -> float:
     """Eq. 8: mdot_ac = eta P_im N V_d / (120 R_air T_im), kg/s (kPa dm^3 = J)."""
-    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
-    return _py(port_flow_of, n_rpm, p_im, t_im, c, eta_rpm, eta_val)
+    c, _, _, _, eta_rpm, eta_val = tables(params)
+    return port_flow_of(n_rpm, p_im, t_im, c, eta_rpm, eta_val)
 
 
 def cylinder_air_charge(
     p_im: float, t_im: float, n_rpm: float, params: ManifoldParams = V8_5L7,
 ) -> float:
     """Air mass trapped per cylinder event, kg: mdot_ac T_s = eta P_im V_cyl / (R_air T_im)."""
-    c, _, _, _, eta_rpm, eta_val = _tables(params)[1]
-    return _py(air_charge_of, n_rpm, p_im, t_im, c, params.v_cyl_dm3, eta_rpm, eta_val)
+    c, _, _, _, eta_rpm, eta_val = tables(params)
+    return air_charge_of(n_rpm, p_im, t_im, c, params.v_cyl_dm3, eta_rpm, eta_val)
 
 
 def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V8_5L7) -> float:
@@ -271,79 +209,22 @@ def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V
 
 # ------------------------------------------------------------------------- manifold, eq. 5-6
 
-def _rhs(p: float, t: float, alpha: float, u: EngineInput,
-         prm: ManifoldParams) -> tuple[float, float, float, float]:
-    """(dP/dt, dT/dt, d(dP/dt)/dP, d(dT/dt)/dT) of the continuous model behind eq. 5-6."""
-    k = prm.kappa
-    r = prm.r_air
-    v = prm.v_im_dm3
-    mdot, dmdot = throttle_flow(alpha, p, u.p_a, u.t_a, prm)
-    eta, deta = volumetric_efficiency(u.n_rpm, p, prm)
-    k_pump = u.n_rpm * prm.v_d_dm3 / (120.0 * v)  # mdot_ac R T / (V_im eta P), 1/s
-    q = heat_flow(t, u.t_a, u.t_cool, prm)
-    pv = max(p, P_FLOOR_KPA) * v
-    dp = k * r * u.t_a * mdot / v - k * k_pump * eta * p + (k - 1.0) * q / v
-    dt = (r * t * mdot * (k * u.t_a - t) + (k - 1.0) * t * q) / pv - (k - 1.0) * k_pump * eta * t
-    jpp = k * r * u.t_a * dmdot / v - k * k_pump * (eta + p * deta)
-    hsum = prm.h1_w_per_k + prm.h2_w_per_k
-    jtt = ((r * mdot * (k * u.t_a - 2.0 * t) + (k - 1.0) * (q - hsum * t)) / pv
-           - (k - 1.0) * k_pump * eta)
-    return dp, dt, jpp, jtt
-
-
-def manifold_rhs(p_im: float, t_im: float, alpha: float, u: EngineInput,
-                 params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """Continuous eq. 5-6: (dP_im/dt in kPa/s, dT_im/dt in K/s) at throttle angle alpha.
-
-    dP/dt = kappa R (T_a mdot_at - T_im mdot_ac) / V_im + (kappa - 1) Q_ext / V_im
-    dT/dt = T_im / (P_im V_im) [R mdot_at (kappa T_a - T_im) - (kappa - 1) R T_im mdot_ac
-                                + (kappa - 1) Q_ext]
-    One Euler step of length T_s = 120/(8N) gives eq. 5-6 with V_cyl = V_d/8 in the pumping terms.
-    """
-    dp, dt, _, _ = _rhs(p_im, t_im, alpha, u, params)
-    return dp, dt
-
-
-def euler_event(p_im: float, t_im: float, alpha: float, u: EngineInput,
-                params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """Eq. 5-6 as printed (one explicit Euler step over T_s), with V_cyl = V_d/8. Unstable at large
-    openings; for comparison only."""
-    ts = sample_time(u.n_rpm, params.n_cyl)
-    dp, dt, _, _ = _rhs(p_im, t_im, alpha, u, params)
-    return p_im + ts * dp, t_im + ts * dt
-
-
-def substeps_for(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
-                 params: ManifoldParams = V8_5L7) -> int:
-    """Sub-steps M for one interval dt (see integrate_manifold)."""
-    dp, dtt, jpp, jtt = _rhs(p_im, t_im, alpha, u, params)
-    return _substeps(dp, dtt, jpp, jtt, dt, params)
-
-
-def _substeps(dp: float, dtt: float, jpp: float, jtt: float, dt: float, prm: ManifoldParams) -> int:
-    """Smallest M with h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and
-    |h dT/dt| <= dt_step_max (h = dt/M), clamped to [1, max_substeps]."""
-    m = max(
-        dt * (abs(jpp) + abs(jtt)) / prm.lam_dt_max,
-        dt * abs(dp) / prm.dp_step_max_kpa,
-        dt * abs(dtt) / prm.dt_step_max_k,
-    )
-    return min(max(math.ceil(m), 1), prm.max_substeps)
-
-
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
     """Advance (P_im, T_im) by dt with alpha and u held (zero-order hold over the event).
 
-    M sub-steps (chosen once per event from the stiffness and the rates, `_substeps`), each a
-    two-stage Rosenbrock step (ROS2, gamma = 1 + 1/sqrt 2; second order for any W) with the
-    diagonal Jacobian W = diag(min(J_PP, 0), min(J_TT, 0)) of `_rhs`:
+    M sub-steps (chosen once per event from the stiffness and the rates: the smallest M with
+    h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and |h dT/dt| <= dt_step_max,
+    h = dt/M, clamped to [1, max_substeps]), each a two-stage Rosenbrock step (ROS2, gamma =
+    1 + 1/sqrt 2; second order for any W) with the diagonal Jacobian W = diag(min(J_PP, 0),
+    min(J_TT, 0)) of eq. 5-6's right-hand side:
         k1 = f(x) / (1 - gamma h W),  k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W),
         x += h (1.5 k1 + 0.5 k2).
     The throttle-flow pole (up to ~5000 1/s near pr = 1) is then damped for any h, and the
     steady state of eq. 5-6 is an exact fixed point. Returns (P_im, T_im, M).
     Implemented in vecu.models.manifold_integrator (per-event constants hoisted, loop inlined;
-    bit-identical to the same steps written with `_rhs`).
+    bit-identical to the same steps written plainly on throttle_flow, volumetric_efficiency and
+    heat_flow: vecu.bench.estimators.integrate_manifold_reference).
     """
     return _integrate_fast(p_im, t_im, alpha, u, dt, params)
 
@@ -373,13 +254,6 @@ def steady_state(
     return p, temp(mdot)
 
 
-# ------------------------------------------------------------------------- IAT sensor, eq. 9
-
-def iat_coeffs(ts: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """(a_T, 1 - a_T) of eq. 9, a_T = exp(-T_s / tau_Temp)."""
-    return _py(event_coefficients, ts, params.zeta, params.omega0, params.tau_temp_s)[4:]
-
-
 # ------------------------------------------------------------------------- augmented model
 
 def f(
@@ -392,9 +266,9 @@ def f(
     """
     ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
-    co = _py(event_coefficients, ts, params.zeta, params.omega0, params.tau_temp_s)
+    co = event_coefficients(ts, params.zeta, params.omega0, params.tau_temp_s)
     p_n, t_n, _ = integrate_manifold(p, t, alpha, u, ts, params)
-    alpha_n, tm_n = _py(event_map, co, u_prev, alpha, alpha_prev, u.ta_sp, t, tm)
+    alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, u.ta_sp, t, tm)
     return np.array([u.ta_sp, alpha_n, alpha, p_n, t_n, tm_n])
 
 

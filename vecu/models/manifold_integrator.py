@@ -2,9 +2,10 @@
 
 It is the hot loop of every run: the plant steps it once per engine event, the ECU's filter once
 and the 6-event air-charge prediction six times, each event ~15 sub-steps of two right-hand
-sides. It computes exactly what the reference functions of vecu.models.manifold compute
-(`_rhs` = `throttle_flow` + `volumetric_efficiency` + `heat_flow`), in the same floating-point
-operations and order (bit-identical results, tests/estimators/manifold/test_fast_paths.py), but:
+sides. It computes exactly what the model's functions (`throttle_flow`, `volumetric_efficiency`,
+`heat_flow`) compute, in the same floating-point operations and order (bit-identical to the
+plain steps, vecu.bench.estimators.integrate_manifold_reference; tests/estimators/manifold/
+test_fast_paths.py), but:
 - everything that is constant over one event is computed once per call: the throttle area and
   the C_d table column at the held angle alpha, Xi's factor, eta_N(N) and the pumping constant of
   the held input u, and the parameter set's constants (cached per ManifoldParams object);
@@ -14,11 +15,11 @@ operations and order (bit-identical results, tests/estimators/manifold/test_fast
 - the table lookups are `interp` (once per event), the kernel the model's functions use.
 
 The whole event is one compiled kernel (`_integrate_event`, vecu.kernels): numba when it is the
-active backend, the same Python function otherwise. Only scalar IEEE arithmetic, sqrt, cos and
-pow are used (no fastmath, no reductions), so both backends give bit-identical results
-(tests/models/test_manifold_integrator.py). Under the Python backend the tables are tuples of floats and
-the searches `bisect.bisect_right` (C); under numba they are float64 arrays and bisect_right is
-the hand-written `_bisect_right_impl` (CPython's algorithm: same index for any input, NaN too).
+active backend, the same Python function otherwise, on the same arguments (`tables`: float64
+arrays; the table values read into plain floats once per event). Only scalar IEEE arithmetic,
+sqrt, cos and pow are used (no fastmath, no reductions), so both backends give bit-identical
+results (tests/models/test_manifold_integrator.py); the table searches are `search_right`
+(CPython's bisect_right, written out).
 Bad input fails as the plain Python code fails (math.ceil's ValueError/OverflowError for a
 non-finite sub-step count, IndexError for a NaN table lookup, ZeroDivisionError), not silently.
 """
@@ -27,24 +28,24 @@ non-finite sub-step count, IndexError for a NaN table lookup, ZeroDivisionError)
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from typing import Any
 
-from vecu.kernels import kernel, using
+import numpy as np
+
+from vecu.kernels import kernel
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 P_FLOOR_KPA = 0.5  # lower guard for P_im inside eta and the integrator (never reached in use)
 ROS2_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
-# id(params) -> (params, python-backend tables, numba-backend tables or None)
-_TABLES: dict[int, tuple[ManifoldParams, tuple, tuple | None]] = {}
-_numba_ready = False  # bisect_right overload registered
-_numba_sig_ready = False  # kernel signature compiled, compilation switched off
+# id(params) -> (params, its tables: tables())
+_TABLES: dict[int, tuple[ManifoldParams, tuple]] = {}
 N_CONSTS = 29  # len(_param_consts(...))
 
 
-def _bisect_right_impl(a: Any, x: float) -> int:
-    """bisect.bisect_right(a, x) as CPython computes it (numba's stand-in for the C function)."""
+@kernel
+def search_right(a: Any, x: float) -> int:
+    """bisect.bisect_right(a, x): CPython's algorithm (the same index for any input, NaN too)."""
     lo = 0
     hi = len(a)
     while lo < hi:
@@ -62,14 +63,15 @@ def interp(x: float, xs: Any, ys: Any) -> tuple[float, float]:
     C_d and eta_N maps of eq. 2-3 and 8). A NaN x fails with IndexError under both backends."""
     last = len(xs) - 1
     if x <= xs[0]:
-        return ys[0], 0.0
+        return float(ys[0]), 0.0
     if x >= xs[last]:
-        return ys[len(ys) - 1], 0.0
-    i = bisect_right(xs, x) - 1
+        return float(ys[len(ys) - 1]), 0.0
+    i = search_right(xs, x) - 1
     if i + 1 >= len(ys) or i + 1 > last:
         raise IndexError("table lookup out of range (NaN?)")
-    s = (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])
-    return ys[i] + s * (x - xs[i]), s
+    y0, y1, x0 = float(ys[i]), float(ys[i + 1]), float(xs[i])  # plain floats in Python
+    s = (y1 - y0) / (float(xs[i + 1]) - x0)
+    return y0 + s * (x - x0), s
 
 
 def _param_consts(prm: ManifoldParams) -> tuple[float, ...]:
@@ -101,57 +103,38 @@ def _param_consts(prm: ManifoldParams) -> tuple[float, ...]:
     )
 
 
-def _tables(prm: ManifoldParams) -> tuple[ManifoldParams, tuple, tuple | None]:
-    """(params, tuple tables for Python, float64-array tables for numba or None), cached."""
+def tables(prm: ManifoldParams) -> tuple:
+    """The integrator's arguments for a parameter set, cached: (constants tuple, C_d alpha, C_d
+    table, C_d pr, eta_N rpm, eta_N values) as float64 arrays. ValueError for a set the kernels
+    cannot take: a ragged C_d table, or kappa <= 1, pr_reg > 1 or p_exh < 0, where Python's
+    sqrt and ** fail (negative roots, complex powers) and numba would return NaN."""
     hit = _TABLES.get(id(prm))
     if hit is not None and hit[0] is prm:
-        return hit
-    consts = _param_consts(prm)
-    py = (consts, prm.cd_alpha_deg, prm.cd_table, prm.cd_pr, prm.eta_n_rpm, prm.eta_n_val)
-    nb = None
-    # numba returns NaN where Python's sqrt and ** fail (negative roots, complex powers); these
-    # cannot occur for 1 < kappa, pr_reg <= 1 and p_exh >= 0, so other sets run in Python
-    safe = prm.kappa > 1.0 and prm.pr_reg <= 1.0 and prm.p_exh_kpa >= 0.0
+        return hit[1]
+    if not (prm.kappa > 1.0 and prm.pr_reg <= 1.0 and prm.p_exh_kpa >= 0.0):
+        raise ValueError("manifold parameters need kappa > 1, pr_reg <= 1 and p_exh >= 0 "
+                         f"(kappa {prm.kappa:g}, pr_reg {prm.pr_reg:g}, p_exh {prm.p_exh_kpa:g})")
     try:
-        import numpy as np
-
-        arrays = tuple(np.array(t, dtype=np.float64) for t in py[1:])
-        if safe and arrays[1].ndim == 2 and all(a.ndim == 1 for a in arrays[:1] + arrays[2:]):
-            nb = (tuple(float(x) for x in consts), *arrays)
-    except ValueError:  # a ragged C_d table: only the Python function can take it (and fail alike)
-        pass
-    hit = (prm, py, nb)
-    _TABLES[id(prm)] = hit
-    return hit
-
-
-def _register_numba_search() -> None:
-    """Let numba compile bisect.bisect_right calls as `_bisect_right_impl` (once, before the
-    first compilation of the kernel)."""
-    global _numba_ready
-    if not _numba_ready:
-        from numba.extending import overload
-
-        def typer(a: Any, x: float) -> Any:  # same parameters as the implementation
-            return _bisect_right_impl
-
-        overload(bisect_right)(typer)
-        _numba_ready = True
+        arrays = tuple(np.array(t, dtype=np.float64) for t in (
+            prm.cd_alpha_deg, prm.cd_table, prm.cd_pr, prm.eta_n_rpm, prm.eta_n_val))
+    except ValueError:
+        arrays = ()
+    if len(arrays) != 5 or arrays[1].ndim != 2 or any(a.ndim != 1 for a in arrays[::2]) \
+            or arrays[3].ndim != 1:
+        raise ValueError("manifold parameters: the C_d table must be one row per cd_pr point "
+                         "and one column per cd_alpha_deg point, the other tables flat")
+    out = (tuple(float(x) for x in _param_consts(prm)), *arrays)
+    _TABLES[id(prm)] = (prm, out)
+    return out
 
 
-def _prepare_numba() -> None:
-    """Search overload, then the kernel's one signature (all scalars float64, tables float64
-    arrays), compiled or loaded from numba's disk cache; further compilation is switched off,
-    so an int or numpy scalar argument is converted to float64 instead of compiling a new
-    specialisation in the middle of a run."""
-    global _numba_sig_ready
-    _register_numba_search()
+def _signature() -> tuple:
+    """_integrate_event's one signature: scalars float64, the tables float64 arrays."""
     from numba import types
 
     f8 = types.float64
-    _integrate_event.fix_signature((f8,) * 8 + (types.UniTuple(f8, N_CONSTS), f8[::1],
-                                    f8[:, ::1], f8[::1], f8[::1], f8[::1]))
-    _numba_sig_ready = True
+    return (f8,) * 8 + (types.UniTuple(f8, N_CONSTS), f8[::1], f8[:, ::1], f8[::1], f8[::1],
+                        f8[::1])
 
 
 @kernel
@@ -177,10 +160,11 @@ def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: fl
     nrow = len(cd_table)
     if nrow < nseg + 2:
         raise IndexError("C_d table has fewer rows than cd_pr breakpoints")
-    cdv = [interp(a_deg, cd_alpha, cd_table[jr])[0] for jr in range(nrow)]
-    cds = [(cdv[j + 1] - cdv[j]) / (prs[j + 1] - prs[j]) for j in range(nseg + 1)]
-    prs0, prs_hi = prs[0], prs[nseg + 1]
-    eta_n, _ = interp(n_rpm, eta_rpm, eta_val)
+    cdv = [float(interp(a_deg, cd_alpha, cd_table[jr])[0]) for jr in range(nrow)]
+    prl = [float(prs[j]) for j in range(nseg + 2)]  # plain floats in Python
+    cds = [(cdv[j + 1] - cdv[j]) / (prl[j + 1] - prl[j]) for j in range(nseg + 1)]
+    prs0, prs_hi = prl[0], prl[nseg + 1]
+    eta_n = float(interp(n_rpm, eta_rpm, eta_val)[0])
     scale = eta_n / (r_c - 1.0)
     k_pump = n_rpm * v_d / (120.0 * v)
     krta = k * r * t_a
@@ -222,9 +206,9 @@ def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: fl
                     dpsi = -(qa + 2.0 * qb * sa)
         pc = prs0 if prs0 > pr else pr
         pc = prs_hi if prs_hi < pc else pc
-        j = bisect_right(prs, pc) - 1
+        j = search_right(prl, pc) - 1
         j = nseg if nseg < j else j
-        cd = cdv[j] + cds[j] * (pc - prs[j])
+        cd = cdv[j] + cds[j] * (pc - prl[j])
         mdot = xi0 * cd * psi
         pp = floor if floor > ps else ps
         resid = (p_exh / pp) ** e_eta
@@ -280,7 +264,7 @@ def _integrate_event(p_im: float, t_im: float, alpha: float, p_a: float, t_a: fl
             first = True
 
 
-_PY_EVENT = _integrate_event.py
+_integrate_event.fix_signature(_signature)
 
 
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
@@ -290,17 +274,5 @@ def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, d
     See vecu.models.manifold.integrate_manifold for the method (M ROS2 sub-steps with the
     diagonal Jacobian); this is its implementation (the kernel `_integrate_event`).
     """
-    hit = _TABLES.get(id(params))
-    if hit is None or hit[0] is not params:
-        hit = _tables(params)
-    run = _integrate_event.impl()
-    if run is _PY_EVENT:
-        cst, xs, tab, prs, er, ev = hit[1]
-    elif hit[2] is None:  # a set numba cannot mirror: the Python function, its lookups too
-        with using("python"):
-            return _PY_EVENT(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt, *hit[1])
-    else:
-        if not _numba_sig_ready:
-            _prepare_numba()
-        cst, xs, tab, prs, er, ev = hit[2]
-    return run(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt, cst, xs, tab, prs, er, ev)
+    return _integrate_event(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt,
+                            *tables(params))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from vecu.kernels import kernel
 
 
-@kernel
+@kernel(small=True)
 def tps_law(v_at_0: float, v_at_90: float, theta_deg: float) -> float:
     """The TPS's linear angle-to-voltage law (TpsCalibration.voltage; the plant's compiled ticks)."""
     return v_at_0 + (v_at_90 - v_at_0) * theta_deg / 90.0
@@ -29,7 +29,7 @@ class TpsCalibration:
     fault_high_v: float = 4.75
 
     def voltage(self, theta_deg: float) -> float:
-        return tps_law.py(self.v_at_0, self.v_at_90, theta_deg)
+        return tps_law(self.v_at_0, self.v_at_90, theta_deg)
 
     def angle(self, voltage: float) -> float:
         """Voltage -> angle in deg, clipped to the mechanical range [0, 90]."""

@@ -5,7 +5,7 @@ Eq. (3) is written once, as two kernels (vecu.kernels: compiled under numba, pla
 otherwise): `mode_step`, one mode's affine map with the sign terms given, and `eq3_step`, the
 switched system (mode by theta, sgn(rho), sgn(theta - 1)) built on it. The plant, the paper's
 UKFs, the particle filter's class matrices (read off mode_step) and Kalman stretches, and the
-identification all call them; plain-Python callers call `.py`.
+identification all call them (small kernels: called from Python they run as Python).
 
 State x = [theta, rho, i]: valve angle theta in degrees (the paper's 0.1 factor dropped, see
 docs/models.md), angular velocity rho in the model's own units, motor current i in A.
@@ -91,7 +91,7 @@ class ThrottleModel:
 PAPER_THROTTLE = ThrottleModel()
 
 
-@kernel
+@kernel(small=True)
 def clip_theta(theta: float) -> float:
     """Mechanical stops: theta in [0, 90] deg (see docs/models.md, 'clip after every step');
     NaN passes."""
@@ -102,7 +102,7 @@ def clip_theta(theta: float) -> float:
     return theta
 
 
-@kernel
+@kernel(small=True)
 def mode_step(p: Any, theta: Any, rho: Any, i: Any, u: Any, s_rho: Any, s_theta: Any
               ) -> tuple[Any, Any, Any]:
     """Eq. (3) inside one mode, noise-free, before the clip: x_{k+1} = A_s x_k + B_s u_k + c_s
@@ -115,14 +115,14 @@ def mode_step(p: Any, theta: Any, rho: Any, i: Any, u: Any, s_rho: Any, s_theta:
             p[A32] * rho + p[A33] * i + p[B] * u)
 
 
-@kernel
+@kernel(small=True)
 def mode_of(b1: float, b2: float, theta: float) -> int:
     """The active mode s - 1 of eq. (3): 0 for Theta_1 = theta <= b1, 1 for Theta_2 = (b1, b2],
     2 above (NaN counts as Theta_3)."""
     return 0 if theta <= b1 else (1 if theta <= b2 else 2)
 
 
-@kernel
+@kernel(small=True)
 def eq3_step(rows: Any, b1: float, b2: float, theta: float, rho: float, i: float, u: float
              ) -> tuple[float, float, float]:
     """Noise-free eq. (3), before the clip: the mode by theta (mode_of), then mode_step with
@@ -137,12 +137,12 @@ def step_mean(theta: float, rho: float, i: float, u: float,
               modes: tuple[ModeParams, ...] = TABLE_I,
               bounds: tuple[float, float] = MODE_BOUNDS_DEG) -> tuple[float, float, float]:
     """Noise-free part of eq. (3): x_{k+1} = A_s x_k + B_s u_k + c_s(x_k), before the clip
-    (eq3_step for the given modes; callers in a loop call eq3_step.py with the rows)."""
+    (eq3_step for the given modes; callers in a loop call eq3_step with the rows)."""
     rows = PAPER_THROTTLE.rows if modes is TABLE_I else tuple(m.row for m in modes)
-    return eq3_step.py(rows, bounds[0], bounds[1], theta, rho, i, u)
+    return eq3_step(rows, bounds[0], bounds[1], theta, rho, i, u)
 
 
-@kernel
+@kernel(small=True)
 def wattmeter_reading(i: float, h: float, v: float) -> float:
     """y = i**2 + H v (eq. 4) for the standard Gaussian draw v."""
     return i * i + h * v

@@ -8,6 +8,7 @@ the 2 ms grid; the longitudinal part sends their sensors, the
 lateral part steers the single-track model at their speed, and the manifold part runs the engine
 the driveline (vecu.plant.driveline) puts behind them. Legs (one manoeuvre each) are made on
 demand, in order, from the seed alone, so the drive is the same whoever reads it first.
+`LongitudinalPart` is the plant node's part that sends the drive's speed sensors (ESC_Motion).
 """
 
 from __future__ import annotations
@@ -16,6 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.can_message import message
+from vecu.clock import NS_PER_MS, NS_PER_S
+from vecu.codec import DbcCodec
 from vecu.models.lateral import VehicleParams
 from vecu.models.manifold_params import V8_5L7, ManifoldParams
 from vecu.plant.drive_profile import DriveProfile
@@ -28,6 +32,8 @@ from vecu.plant.longitudinal import (
     WheelSensorConfig,
     simulate_speed,
 )
+from vecu.plant.part import Send, payload_rows
+from vecu.units import MPS_PER_KMH
 
 # the default: the paper's braking, one launch-and-brake cycle, then road legs (launch, 30-60 s
 # at 72-108 km/h, brake to rest) for as long as the plant runs
@@ -124,3 +130,59 @@ class Drive:
             out[k - k0:k - k0 + m] = leg.trace.v[k - leg.start:k - leg.start + m]
             k += m
         return out
+
+
+class LongitudinalPart:
+    """Longitudinal vehicle (Hernandez 2005): ESC_Motion (wheel speed, accelerometer) every 2 ms.
+
+    Sends the sensors of the drive's manoeuvres (vecu.plant.drive: the paper's 84 km/h ->
+    standstill braking first, then a launch-and-brake cycle and road legs), sample t_ns / 2 ms
+    of the drive at each tick; without a drive it makes its own from seed and sequence.
+    """
+
+    truth_message = "TRUTH_Speed"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
+    name = "longitudinal"
+    period_ns = 2 * NS_PER_MS
+
+    def __init__(self, codec: DbcCodec, seed: int, sequence: tuple[str, ...] | None = None,
+                 wheel: WheelSensorConfig = WheelSensorConfig(),
+                 accel: AccelSensorConfig = AccelSensorConfig(), drive: Drive | None = None) -> None:
+        self._msg = codec["ESC_Motion"]
+        self._frame = self._msg.framer(("ESC_WheelSpeed", "ESC_LongAccel"))
+        self.drive = drive if drive is not None else Drive(seed, sequence, wheel, accel)
+        self._cols: tuple[list[float], ...] = ()
+        self._payloads: list[bytearray | None] = []
+        self._leg = leg = self.drive.leg_at(0)
+        self._enter(leg)
+        self.truth_msg = None  # TRUTH_Speed codec when recording truth
+        self.v = self.a = self.wheel = self.accel = 0.0  # truth and raw sensors of the last tick (SI)
+
+    def _enter(self, leg: Leg) -> None:
+        self._leg = leg
+        trace = leg.trace
+        self._cols = (trace.v.tolist(), trace.a.tolist(), trace.wheel.tolist(),
+                      trace.accel.tolist())
+        # the whole manoeuvre's ESC_Motion payloads at once (FrameCodec.encode_rows: the
+        # framer's payloads); rows it leaves (none for finite sensors) go to the framer
+        encoded = self._msg.encode_rows(("ESC_WheelSpeed", "ESC_LongAccel"),
+                                        (trace.wheel / MPS_PER_KMH, trace.accel))
+        self._payloads = payload_rows(encoded, len(trace.v))
+
+    def tick(self, t_ns: int, send: Send) -> None:
+        k = t_ns // self.period_ns
+        leg = self._leg
+        if not leg.start <= k < leg.end:
+            leg = self.drive.leg_at(k)
+            self._enter(leg)
+        i = k - leg.start
+        cols = self._cols
+        v, a, wheel, accel = cols[0][i], cols[1][i], cols[2][i], cols[3][i]
+        self.v, self.a, self.wheel, self.accel = v, a, wheel, accel
+        ts = t_ns / NS_PER_S
+        data = self._payloads[i]
+        if data is not None:
+            send(message(ts, self._msg.frame_id, self._msg.is_extended, data, self._msg.is_fd))
+        else:
+            send(self._frame(ts, wheel / MPS_PER_KMH, accel))
+        if self.truth_msg is not None:
+            send(self.truth_msg.frame({"TRU_VehSpeed": v / MPS_PER_KMH, "TRU_VehAccel": a}, ts))

@@ -8,6 +8,7 @@ setpoint changes in steps ("snaps", the actuator of eq. 1 smooths them) and neve
 floor 7.5 deg + 14.5 deg (N - 700)/5300 (manifold.md) nor above 90 deg.
 """
 
+# ruff: noqa: FURB136 (x if c else y in the kernel mirrors min()/max(), NaN included)
 from __future__ import annotations
 
 import math
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vecu.kernels import kernel
 from vecu.models.manifold_params import V8_5L7, ManifoldParams
 from vecu.rng import rng_streams
 
@@ -34,6 +36,21 @@ class DriveProfileConfig:
     shift_time_s: float = 0.3  # throttle lifted to the floor during an upshift
 
 
+@kernel
+def profile_at(prof_n, prof_sp, dt_p, time):
+    """(N, TA_SP) at `time` on the grid t_k = k dt_p: N interpolated linearly, the setpoint
+    held (snaps stay snaps); time clamped to the grid."""
+    last = len(prof_n) - 1
+    fx = time / dt_p
+    fx = 0.0 if 0.0 > fx else fx
+    fx = float(last) if float(last) < fx else fx
+    i = int(fx)
+    i = last - 1 if last - 1 < i else i
+    frac = fx - i
+    n = prof_n[i] + frac * (prof_n[i + 1] - prof_n[i])
+    return n, prof_sp[i if frac < 1.0 else i + 1]
+
+
 @dataclass(frozen=True)
 class DriveProfile:
     """Engine speed (rpm) and throttle setpoint (rad) on a uniform grid t_k = k dt."""
@@ -51,12 +68,9 @@ class DriveProfile:
         return self.dt_s * np.arange(len(self.n_rpm))
 
     def at(self, t: float) -> tuple[float, float]:
-        """(N, TA_SP) at time t: N interpolated linearly, the setpoint held (snaps stay snaps)."""
-        x = min(max(t / self.dt_s, 0.0), len(self.n_rpm) - 1.0)
-        i = min(int(x), len(self.n_rpm) - 2)
-        frac = x - i
-        n = float(self.n_rpm[i] + frac * (self.n_rpm[i + 1] - self.n_rpm[i]))
-        return n, float(self.ta_sp[i if frac < 1.0 else i + 1])
+        """(N, TA_SP) at time t (profile_at)."""
+        n, sp = profile_at(self.n_rpm, self.ta_sp, self.dt_s, float(t))
+        return float(n), float(sp)
 
 
 class _Builder:

@@ -23,7 +23,6 @@ from vecu.faults import FaultInjector, FaultTarget
 from vecu.kernels import kernel
 from vecu.models.lateral import (
     DT_S,
-    TyreConsts,
     VehicleParams,
     h,
     lateral_motion,
@@ -229,33 +228,25 @@ def sample_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: floa
     return ay, vy, r
 
 
-def advance(x: tuple[float, float], d0: float, v0: float, d1: float, v1: float,
-            params: VehicleParams, tc: TyreConsts) -> tuple[float, float]:
-    """The state one sample (DT_S) on (advance_motion)."""
-    return advance_motion(x[0], x[1], d0, v0, d1, v1, motion_constants(params, tc))
-
-
 def simulate_lateral(
     seed: int = 1, cfg: ManoeuvreConfig = ManoeuvreConfig(),
     params: VehicleParams = VehicleParams(), sensors: LateralSensors = LateralSensors(),
 ) -> LateralTrace:
     """Simulate the manoeuvre: truth by RK4 (SIM_SUBSTEPS per 10 ms sample, inputs linear
-    within a sample), sensors sampled at every 10 ms with eq. (3)."""
+    within a sample; sample_motion, as DrivenLateral steps), sensors sampled at every 10 ms with
+    eq. (3)."""
     rngs = rng_streams(seed, STREAMS)
     v_x, swa = steering_profile(cfg, params, rngs["steer.manoeuvre"])
     n = v_x.size
     delta = swa / params.steering_ratio
-    tc = tyre_consts(params)
-    x = steady_state(float(delta[0]), float(v_x[0]), params)
-    vy = np.empty(n)
-    r = np.empty(n)
-    ay = np.empty(n)
+    cst = motion_constants(params, tyre_consts(params))
+    vy_k, r_k = steady_state(float(delta[0]), float(v_x[0]), params)
+    vy, r, ay = np.empty(n), np.empty(n), np.empty(n)
     d_l, v_l = delta.tolist(), v_x.tolist()
     for k in range(n):
-        vy[k], r[k] = x
-        ay[k] = h(x, (d_l[k], v_l[k]), params, tc)[1]
-        if k + 1 < n:
-            x = advance(x, d_l[k], v_l[k], d_l[k + 1], v_l[k + 1], params, tc)
+        vy[k], r[k] = vy_k, r_k
+        j = min(k + 1, n - 1)  # the last sample: its a_y (the step after it is not kept)
+        ay[k], vy_k, r_k = sample_motion(vy_k, r_k, d_l[k], v_l[k], d_l[j], v_l[j], cst)
     rs = rngs["steer.sensors"]
     # One stream, drawn in a fixed order: yaw rate, a_y, speed, steering wheel.
     m_r = sensors.yaw_rate.measure(r, rs)
@@ -314,7 +305,6 @@ class DrivenLateral:
         self._drive, self._cfg, self._p, self._sensors = drive, cfg, params, sensors
         self._tc = tyre_consts(params)
         self._cst = motion_constants(params, self._tc)
-        self._motion = sample_motion.impl()  # the active backend's, fetched once
         self._stride = round(DT_S / drive.dt_s)  # drive samples per lateral sample
         self._ahead = round(AHEAD_S / DT_S)
         self._col = math.exp(-2.0 * math.pi * cfg.column_hz * DT_S)
@@ -382,7 +372,7 @@ class DrivenLateral:
         x = self._x
         d1, v1 = nxt[0] / p.steering_ratio, nxt[1]
         if v >= V_KINEMATIC_MPS and v1 >= V_KINEMATIC_MPS:  # a_y of h, then RK4 (one call)
-            ay, vy1, r1 = self._motion(x[0], x[1], delta, v, d1, v1, self._cst)
+            ay, vy1, r1 = sample_motion(x[0], x[1], delta, v, d1, v1, self._cst)
             self._x = (vy1, r1)
         else:
             ay = h(x, (delta, v), p, self._tc)[1] if v >= V_KINEMATIC_MPS else v * x[1]

@@ -3,11 +3,12 @@
 The model (eq. 1-9, the event integrator) is vecu.models.manifold; this module adds state, noise
 and the event-by-event simulation over a drive profile. The truth's event (`plant_step`: eq. 1,
 the integrator of eq. 5-6, eq. 9, Section IV's Q, the physical clamps) and its measurement
-(`measure`: Section IV's R, the sensor gains) are written once as kernels (vecu.kernels):
-ManifoldPlant calls their Python functions; under the numba backend `simulate_events` (simulate's
-whole loop, bit-identical to it: the noise rows are drawn beforehand from the same stream, which
-Generator.standard_normal fills in order) and `advance_events` (vecu.plant.node.ManifoldPart's
-events ahead) call them compiled.
+(`measure`: Section IV's R, the sensor gains) are written once as kernels (vecu.kernels), and
+driven by one loop that is a kernel too, `truth_events`: simulate (a whole drive, on a float
+clock) and EventsAhead (vecu.plant.node.ManifoldPart's events computed ahead in blocks, on its
+integer-nanosecond clock).
+The noise rows are drawn in blocks of config.block from one stream (Generator.standard_normal
+fills them in order), so the block size never changes the numbers.
 """
 
 # ruff: noqa: FURB136 (x if c else y in the kernels mirrors Python's min()/max(), NaN included)
@@ -15,33 +16,29 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Protocol
 
 import numpy as np
 
-from vecu.kernels import backend, kernel, using
+from vecu.kernels import kernel
 from vecu.models.manifold import (
     air_charge_of,
-    cylinder_air_charge,
     event_coefficients,
     event_map,
     nominal_input,
-    port_flow,
     port_flow_of,
     sample_time,
     steady_state_vector,
-    throttle_flow,
     throttle_flow_of,
 )
 from vecu.models.manifold_integrator import _integrate_event as integrate_event
-from vecu.models.manifold_integrator import _tables
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import (
     PAPER_NOISE,
     V8_5L7,
-    EngineInput,
     ManifoldNoise,
     ManifoldParams,
 )
+from vecu.plant.drive_profile import DriveProfile, profile_at
 from vecu.rng import rng_streams
 
 # ------------------------------------------------------------------------- stochastic plant
@@ -67,25 +64,11 @@ class ManifoldPlantConfig:
     block: int = field(default=1024, metadata={"param": False})
 
 
-# plant constants vector (simulate_events' pc)
+# plant constants vector (truth_events' pc)
 (C_ZETA, C_OMEGA0, C_TAU, C_VCYL, C_NCYL, C_PA, C_TA, C_TCOOL, C_SQ0, C_SQ1, C_SQ2, C_SQ3,
  C_SR0, C_SR1, C_SR2, C_G0, C_G1, C_G2, C_PMIN, C_PMAX, C_TMIN, C_TMAX, C_DURATION,
  C_DT) = range(24)
 N_PLANT_CONSTS = 24
-
-
-@kernel
-def profile_at(prof_n, prof_sp, dt_p, time):
-    """DriveProfile.at(time): (N interpolated linearly, the setpoint held)."""
-    last = len(prof_n) - 1
-    fx = time / dt_p
-    fx = 0.0 if 0.0 > fx else fx
-    fx = float(last) if float(last) < fx else fx
-    i = int(fx)
-    i = last - 1 if last - 1 < i else i
-    frac = fx - i
-    n = prof_n[i] + frac * (prof_n[i + 1] - prof_n[i])
-    return n, prof_sp[i if frac < 1.0 else i + 1]
 
 
 @kernel
@@ -121,146 +104,51 @@ def plant_step(st, sp, n, p_a, t_a, t_cool, ts, w, pc, cst, cd_alpha, cd_table, 
     return m
 
 
-@kernel
-def simulate_events(x0, prof_n, prof_sp, noise, pc, cst, cd_alpha, cd_table, prs, eta_rpm,
-                    eta_val, rows, xs, ys):
-    """Events of the drive into rows (t, ts, N, TA_SP, mdot_at, mdot_ac, CAC, sub-steps), xs
-    (state before the step) and ys (measurement); returns the number of events, or -1 when the
-    output arrays (or noise rows) are too short."""
-    ncyl = pc[C_NCYL]
-    p_a, t_a = pc[C_PA], pc[C_TA]
-    st = x0.copy()
-    time = 0.0
-    k = 0
-    cap = min(len(xs), len(noise))
-    while time < pc[C_DURATION]:
-        if k >= cap:
-            return -1
-        n, sp = profile_at(prof_n, prof_sp, pc[C_DT], time)
-        ts = 120.0 / (ncyl * n)
-        w = noise[k]
-        alpha, p, t = st[1], st[3], st[4]
-        for j in range(6):
-            xs[k, j] = st[j]
-        ys[k, 0], ys[k, 1], ys[k, 2] = measure(st, w, pc)
-        mdot_at, _ = throttle_flow_of(alpha, p, p_a, t_a, cst, cd_alpha, cd_table, prs)
-        mdot_ac = port_flow_of(n, p, t, cst, eta_rpm, eta_val)
-        cac = air_charge_of(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
-        m = plant_step(st, sp, n, p_a, t_a, pc[C_TCOOL], ts, w, pc, cst, cd_alpha, cd_table, prs,
-                       eta_rpm, eta_val)
-        rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3] = time, ts, n, sp
-        rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7] = mdot_at, mdot_ac, cac, float(m)
-        time += ts
-        k += 1
-    return k
-
-
-# advance_events' out columns
-(E_N, E_SP, E_TA, E_P, E_TM, E_P_TRUE, E_T_TRUE, E_CAC_TRUE) = range(8)
+# truth_events' row columns: the event's period, N, TA_SP, the readings (TA, P_im, T_im.out),
+# the state before the event (6), the throttle and port flows, the CAC and the sub-steps used,
+# its time on the float clock
+(R_TS, R_N, R_SP, R_Y, R_X, R_MDOT_AT, R_MDOT_AC, R_CAC, R_M, R_T) = (0, 1, 2, 3, 6, 12, 13, 14,
+                                                                    15, 16)
+N_ROW = 17
 
 
 @kernel
-def advance_events(st, t_ns, t0_ns, prof_n, prof_sp, noise, pos, pc, cst, cd_alpha, cd_table,
-                   prs, eta_rpm, eta_val, times, out):
-    """vecu.plant.node.ManifoldPart's events ahead, from the event at t_ns (ns, int) of the
-    profile that started at t0_ns: per event k its time times[k] and out[k] = (N, TA_SP, the
-    TA, P_im and T_im.out readings, the truth's P_im, T_im and CAC); st (the plant state) is
-    advanced in place and noise rows are taken from pos on, one per event. The times are
-    ManifoldPart's: t_{k+1} = t_k + max(1, round(T_s * 1e9)) ns. Stops before an event past the
-    profile's end, when the noise rows run out or out is full; returns (events, the next event's
-    time, the next noise row)."""
-    ncyl = pc[C_NCYL]
+def truth_events(st, t_ns, t0_ns, time, ns_clock, prof_n, prof_sp, noise, pos, pc, c, cd_alpha,
+                 cd_table, prs, eta_rpm, eta_val, times, rows):
+    """The truth's events from the event at t_ns (ns, int; the profile started at t0_ns) and at
+    `time` (s, float): per event k its time times[k] (ns) and rows[k] (R_* columns), st (the
+    state) advanced in place, one noise row per event from pos on. Two clocks: t_{k+1} = t_k +
+    max(1, round(T_s 1e9)) ns (ManifoldPart's), time_{k+1} = time_k + T_s (simulate's); the one
+    named by ns_clock places the events on the profile. Stops before an event past the
+    profile's end, when the noise rows run out or rows is full; returns (events, the next
+    event's t_ns, its time, the next noise row)."""
     k = 0
-    while k < len(out) and pos < len(noise):
-        t_s = float(t_ns - t0_ns) / 1e9
+    while k < len(rows) and pos < len(noise):
+        t_s = float(t_ns - t0_ns) / 1e9 if ns_clock else time
         if t_s >= pc[C_DURATION]:
             break
         n, sp = profile_at(prof_n, prof_sp, pc[C_DT], t_s)
+        ts = 120.0 / (pc[C_NCYL] * n)
         w = noise[pos]
         p, t = st[3], st[4]
+        r = rows[k]
         times[k] = t_ns
-        out[k, E_N], out[k, E_SP] = n, sp
-        out[k, E_TA], out[k, E_P], out[k, E_TM] = measure(st, w, pc)
-        out[k, E_P_TRUE], out[k, E_T_TRUE] = p, t
-        out[k, E_CAC_TRUE] = air_charge_of(n, p, t, cst, pc[C_VCYL], eta_rpm, eta_val)
-        dt = 120.0 / (ncyl * n)
-        plant_step(st, sp, n, pc[C_PA], pc[C_TA], pc[C_TCOOL], dt, w, pc, cst, cd_alpha, cd_table,
-                   prs, eta_rpm, eta_val)
+        r[R_T], r[R_TS], r[R_N], r[R_SP] = time, ts, n, sp
+        r[R_Y], r[R_Y + 1], r[R_Y + 2] = measure(st, w, pc)
+        for j in range(6):
+            r[R_X + j] = st[j]
+        r[R_MDOT_AT] = throttle_flow_of(st[1], p, pc[C_PA], pc[C_TA], c, cd_alpha, cd_table,
+                                        prs)[0]
+        r[R_MDOT_AC] = port_flow_of(n, p, t, c, eta_rpm, eta_val)
+        r[R_CAC] = air_charge_of(n, p, t, c, pc[C_VCYL], eta_rpm, eta_val)
+        r[R_M] = plant_step(st, sp, n, pc[C_PA], pc[C_TA], pc[C_TCOOL], ts, w, pc, c, cd_alpha,
+                            cd_table, prs, eta_rpm, eta_val)
         pos += 1
-        step_ns = round(dt * 1e9)
+        step_ns = round(ts * 1e9)
         t_ns += step_ns if step_ns > 1 else 1
+        time += ts
         k += 1
-    return k, t_ns, pos
-
-
-def _python(k: Any, *args: Any) -> Any:
-    """Kernel k's Python function, the kernels it calls too (the tables here are tuples)."""
-    if backend() == "python":
-        return k.py(*args)
-    with using("python"):
-        return k.py(*args)
-
-
-class ManifoldPlant:
-    """Truth: eq. 10 with the corrected eq. 1, sub-stepped eq. 5-6, eq. 9 and Section IV noise."""
-
-    def __init__(self, params: ManifoldParams, config: ManifoldPlantConfig,
-                 rng: np.random.Generator, x0: np.ndarray) -> None:
-        self.params = params
-        self.config = config
-        self._rng = rng
-        self.x = [float(v) for v in x0]
-        self.last_substeps = 0
-        self._pc = tuple(plant_constants(params, config, 0.0, 0.0).tolist())
-        self._noise: list[list[float]] = []
-        self._pos = 0
-
-    def _row(self) -> list[float]:
-        if self._pos >= len(self._noise):
-            self._noise = self._rng.standard_normal((self.config.block, 7)).tolist()
-            self._pos = 0
-        return self._noise[self._pos]
-
-    @property
-    def alpha(self) -> float:
-        return self.x[1]
-
-    @property
-    def p_im(self) -> float:
-        return self.x[3]
-
-    @property
-    def t_im(self) -> float:
-        return self.x[4]
-
-    @property
-    def t_meas(self) -> float:
-        return self.x[5]
-
-    def measure(self) -> tuple[float, float, float]:
-        """y_n = (TA rad, P_im kPa, T_im.out K) with the paper's R (eq. 1, 7, 9)."""
-        return _python(measure, self.x, self._row(), self._pc)
-
-    def step(self, u: EngineInput, dt: float | None = None) -> int:
-        """Advance one engine event (dt defaults to T_s = 120/(8N)); returns the sub-steps used."""
-        prm = self.params
-        ts = sample_time(u.n_rpm, prm.n_cyl) if dt is None else dt
-        w = self._row()
-        self._pos += 1
-        m = _python(plant_step, self.x, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, w, self._pc,
-                    *_tables(prm)[1])
-        self.last_substeps = m
-        return m
-
-
-class Profile(Protocol):
-    """What `simulate` needs from a drive profile (vecu.plant.drive_profile.DriveProfile)."""
-
-    duration_s: float
-
-    def at(self, t: float) -> tuple[float, float]:
-        """(N in rpm, TA_SP in rad) at time t."""
-        ...
+    return k, t_ns, time, pos
 
 
 @dataclass(frozen=True)
@@ -279,89 +167,40 @@ class ManifoldTrace:
     substeps: np.ndarray
 
 
-def simulate(profile: Profile, seed: int = 0, params: ManifoldParams = V8_5L7,
-             config: ManifoldPlantConfig = ManifoldPlantConfig(),
-             compiled: bool = True) -> ManifoldTrace:
-    """Run the plant event by event over the profile, starting at rest at its first point.
-    Under the numba backend (compiled) the whole loop is one call
-    (simulate_events, bit-identical); compiled=False steps ManifoldPlant."""
+def simulate(profile: DriveProfile, seed: int = 0, params: ManifoldParams = V8_5L7,
+             config: ManifoldPlantConfig = ManifoldPlantConfig()) -> ManifoldTrace:
+    """Run the plant event by event over the profile (truth_events on the float clock),
+    starting at rest at its first point."""
     rng = rng_streams(seed, ("manifold.plant",))["manifold.plant"]
     n0, sp0 = profile.at(0.0)
     x0 = steady_state_vector(nominal_input(sp0, n0, params), params)
-    fast = _simulate_compiled(profile, params, config, rng, x0) if compiled else None
-    if fast is not None:
-        return fast
-    plant = ManifoldPlant(params, config, rng, x0)
-    rows: list[tuple[float, ...]] = []
-    xs: list[list[float]] = []
-    ys: list[tuple[float, float, float]] = []
-    t = 0.0
-    while t < profile.duration_s:
-        n, sp = profile.at(t)
-        u = nominal_input(sp, n, params)
-        ts = sample_time(n, params.n_cyl)
-        xs.append(list(plant.x))
-        ys.append(plant.measure())
-        mdot_at, _ = throttle_flow(plant.alpha, plant.p_im, u.p_a, u.t_a, params)
-        mdot_ac = port_flow(plant.p_im, plant.t_im, n, params)
-        cac = cylinder_air_charge(plant.p_im, plant.t_im, n, params)
-        m = plant.step(u, ts)
-        rows.append((t, ts, n, sp, mdot_at, mdot_ac, cac, float(m)))
-        t += ts
-    a = np.array(rows)
-    return ManifoldTrace(
-        t=a[:, 0], ts=a[:, 1], n_rpm=a[:, 2], ta_sp=a[:, 3], x=np.array(xs), y=np.array(ys),
-        mdot_at=a[:, 4], mdot_ac=a[:, 5], cac=a[:, 6], substeps=a[:, 7].astype(int),
-    )
-
-
-def _simulate_compiled(profile: Profile, params: ManifoldParams, config: ManifoldPlantConfig,
-                       rng: np.random.Generator, x0: np.ndarray) -> ManifoldTrace | None:
-    """simulate's loop as one compiled call (simulate_events) under the numba
-    backend for a DriveProfile; None: run the Python loop (python backend, another profile type,
-    a parameter set the compiled integrator does not take)."""
-    from vecu.kernels import backend
-    from vecu.plant.drive_profile import DriveProfile
-    if backend() != "numba" or not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
-        return None
-    tables = compiled_tables(params)
-    if tables is None:
-        return None
-    prof_n = np.ascontiguousarray(profile.n_rpm, dtype=np.float64)
-    prof_sp = np.ascontiguousarray(profile.ta_sp, dtype=np.float64)
-    n_min = float(prof_n.min())
-    if not (math.isfinite(n_min) and n_min > 0.0):
-        return None
+    prof_n, prof_sp = profile_arrays(profile)
     cap = int(profile.duration_s / sample_time(float(prof_n.max()), params.n_cyl)) + 2
     block = config.block
-    noise = rng.standard_normal((-(-cap // block) * block, 7))  # as ManifoldPlant._row draws
+    noise = rng.standard_normal((-(-cap // block) * block, 7))  # as EventsAhead draws them
     pc = plant_constants(params, config, profile.duration_s, profile.dt_s)
-    rows = np.empty((cap, 8))
-    xs = np.empty((cap, 6))
-    ys = np.empty((cap, 3))
-    k = simulate_events.compiled(np.asarray(x0, dtype=np.float64), prof_n, prof_sp, noise, pc,
-                                 *tables, rows, xs, ys)
-    if k < 0:
-        return None
+    rows = np.empty((cap, N_ROW))
+    k, _, time, _ = truth_events(np.asarray(x0, dtype=np.float64), 0, 0, 0.0, False, prof_n,
+                                 prof_sp, noise, 0, pc, *tables(params),
+                                 np.empty(cap, dtype=np.int64), rows)
+    assert time >= profile.duration_s, "simulate: more events than the fastest speed allows"
     a = rows[:k]
     return ManifoldTrace(
-        t=a[:, 0].copy(), ts=a[:, 1].copy(), n_rpm=a[:, 2].copy(), ta_sp=a[:, 3].copy(),
-        x=xs[:k].copy(), y=ys[:k].copy(), mdot_at=a[:, 4].copy(), mdot_ac=a[:, 5].copy(),
-        cac=a[:, 6].copy(), substeps=a[:, 7].astype(int),
+        t=a[:, R_T].copy(), ts=a[:, R_TS].copy(), n_rpm=a[:, R_N].copy(),
+        ta_sp=a[:, R_SP].copy(), x=a[:, R_X:R_X + 6].copy(), y=a[:, R_Y:R_Y + 3].copy(),
+        mdot_at=a[:, R_MDOT_AT].copy(), mdot_ac=a[:, R_MDOT_AC].copy(), cac=a[:, R_CAC].copy(),
+        substeps=a[:, R_M].astype(int),
     )
 
 
-def compiled_tables(params: ManifoldParams) -> tuple | None:
-    """The event integrator's float64 tables for the compiled kernels (its one signature
-    prepared), or None when they do not take this parameter set."""
-    from vecu.models import manifold_integrator as mi
-
-    tables = mi._tables(params)[2]
-    if tables is None:
-        return None
-    if not mi._numba_sig_ready:
-        mi._prepare_numba()
-    return tables
+def profile_arrays(profile: DriveProfile) -> tuple[np.ndarray, np.ndarray]:
+    """A drive profile's (N, TA_SP) grid as the kernels read it (profile_at); ValueError for
+    one they cannot: fewer than two points, or an engine speed that is not positive."""
+    prof_n = np.ascontiguousarray(profile.n_rpm, dtype=np.float64)
+    n_min = float(prof_n.min()) if len(prof_n) else math.nan
+    if len(prof_n) < 2 or not (math.isfinite(n_min) and n_min > 0.0):
+        raise ValueError("manifold drive profile: at least two points, engine speeds > 0 rpm")
+    return prof_n, np.ascontiguousarray(profile.ta_sp, dtype=np.float64)
 
 
 def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duration_s: float,
@@ -380,55 +219,50 @@ def plant_constants(params: ManifoldParams, config: ManifoldPlantConfig, duratio
     return pc
 
 
-class EventsAhead:
-    """ManifoldPlant's events computed ahead in blocks by one compiled call
-    (advance_events), for vecu.plant.node.ManifoldPart under the numba backend:
-    the same noise rows from the same stream (blocks of config.block rows, as ManifoldPlant
-    draws them), the same operations, so the same frames. The plant depends on nothing the ECU
-    sends, so nothing can change its course between the events computed and their frames."""
+_PART_COLUMNS = [R_N, R_SP, R_Y, R_Y + 1, R_Y + 2, R_X + 3, R_X + 4, R_CAC]
 
-    AHEAD = 256  # events per compiled call (~1.3 s of driving at 2000 rpm)
+
+class EventsAhead:
+    """The truth's events computed ahead in blocks by one kernel call (truth_events on
+    ManifoldPart's integer-nanosecond clock), for
+    vecu.plant.node.ManifoldPart: noise rows from the stream in blocks of config.block, as
+    simulate draws them. The plant depends on nothing the ECU sends, so nothing can change its
+    course between the events computed and their frames."""
+
+    AHEAD = 256  # events per kernel call (~1.3 s of driving at 2000 rpm)
 
     def __init__(self, params: ManifoldParams, config: ManifoldPlantConfig,
-                 rng: np.random.Generator, x0: np.ndarray, tables: tuple) -> None:
+                 rng: np.random.Generator, x0: np.ndarray) -> None:
         self.params, self.config = params, config
         self._rng = rng
         self.state = np.array(x0, dtype=np.float64)
-        self._tables = tables
+        self._tables = tables(params)
         self._noise = np.empty((0, 7))
         self._pos = 0
         self._prof: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.times = np.zeros(self.AHEAD, dtype=np.int64)
-        self.out = np.zeros((self.AHEAD, 8))
+        self._rows = np.zeros((self.AHEAD, N_ROW))
+        self.out = self._rows[:, _PART_COLUMNS]
         self.next_ns = 0
 
-    @staticmethod
-    def usable(profile: Profile) -> bool:
-        """The kernel's profile lookup takes a DriveProfile with positive engine speeds."""
-        from vecu.plant.drive_profile import DriveProfile
-
-        if not isinstance(profile, DriveProfile) or len(profile.n_rpm) < 2:
-            return False
-        n_min = float(np.min(profile.n_rpm))
-        return math.isfinite(n_min) and n_min > 0.0
-
-    def start_profile(self, profile: Profile) -> None:
-        self._prof = (np.ascontiguousarray(profile.n_rpm, dtype=np.float64),  # type: ignore[attr-defined]  # a manifold drive profile (usable() checked it)
-                      np.ascontiguousarray(profile.ta_sp, dtype=np.float64),  # type: ignore[attr-defined]  # as above
+    def start_profile(self, profile: DriveProfile) -> None:
+        self._prof = (*profile_arrays(profile),
                       plant_constants(self.params, self.config, profile.duration_s,
-                                      profile.dt_s))  # type: ignore[attr-defined]  # as above
+                                      profile.dt_s))
 
     def fill(self, t_ns: int, t0_ns: int) -> int:
-        """Compute the events from t_ns (the profile started at t0_ns) into times / out; returns
-        how many (0: the profile ends before t_ns, start the next one)."""
+        """Compute the events from t_ns (the profile started at t0_ns) into times / out (N,
+        TA_SP, the three readings, the truth's P_im, T_im and CAC); returns how many (0: the
+        profile ends before t_ns, start the next one)."""
         assert self._prof is not None
         prof_n, prof_sp, pc = self._prof
         while True:
             if self._pos >= len(self._noise):
                 self._noise = self._rng.standard_normal((self.config.block, 7))
                 self._pos = 0
-            k, self.next_ns, self._pos = advance_events.compiled(
-                self.state, t_ns, t0_ns, prof_n, prof_sp, self._noise, self._pos, pc,
-                *self._tables, self.times, self.out)
+            k, self.next_ns, _, self._pos = truth_events(
+                self.state, t_ns, t0_ns, 0.0, True, prof_n, prof_sp, self._noise, self._pos, pc,
+                *self._tables, self.times, self._rows)
             if k > 0 or self._pos < len(self._noise):
+                self.out = self._rows[:, _PART_COLUMNS]
                 return k

@@ -1,22 +1,36 @@
-"""Electronic throttle body simulator: stochastic eq. (3) and the Section III-B excitation.
+"""Electronic throttle body simulator: stochastic eq. (3), the Section III-B excitation and the
+plant node's throttle part.
 
-The model itself (Table I, eq. 3-4) is vecu.models.throttle and one step with noise
-vecu.plant.throttle_kernel.plant_step; this module adds state, the noise stream, the TPS sensor
-and the input generator.
+The model itself (Table I, eq. 3-4) is vecu.models.throttle; this module adds one step with
+noise (`plant_step`), the ticks (measure, then step) over the plant's noise stream as one kernel
+(`advance_ticks`, vecu.kernels: compiled under numba, plain Python otherwise), the input
+generator, the offline `simulate` and `ThrottlePart`, which sends the sensor frames.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy import signal
 
-from vecu.models.sensors import TpsCalibration
-from vecu.models.throttle import PAPER_THROTTLE, ThrottleModel, wattmeter_reading
+from vecu.can_message import message
+from vecu.clock import NS_PER_MS, NS_PER_S
+from vecu.codec import DbcCodec
+from vecu.faults import FaultInjector, FaultTarget
+from vecu.kernels import kernel
+from vecu.models.sensors import TpsCalibration, tps_law
+from vecu.models.throttle import (
+    PAPER_THROTTLE,
+    ThrottleModel,
+    clip_theta,
+    eq3_step,
+    wattmeter_reading,
+)
 from vecu.plant.input_file import BufferedInput
-from vecu.plant.throttle_kernel import advance_ticks, plant_step
+from vecu.plant.part import Send, payload_rows
 from vecu.rng import rng_streams
 
 INPUT_CHUNK = 1000  # input samples generated at a time
@@ -33,49 +47,74 @@ class ThrottlePlantConfig:
     block: int = field(default=1_000, metadata={"param": False})
 
 
+@kernel
+def plant_step(rows: Any, b1: float, b2: float, sig_theta: float, sig_i: float, theta: float,
+               rho: float, i: float, u: float, w_theta: float, w_i: float
+               ) -> tuple[float, float, float]:
+    """x_{k+1} = f(x_k, u_k) + F w_k (eq. 3, F = diag(sig_theta, 0, sig_i)), theta clipped to
+    the stops [0, 90] deg after the noise."""
+    theta_n, rho_n, i_n = eq3_step(rows, b1, b2, theta, rho, i, u)
+    return clip_theta(theta_n + sig_theta * w_theta), rho_n, i_n + sig_i * w_i
+
+
+@kernel
+def advance_ticks(st, u, noise, pos, rows, b1, b2, sig_theta, sig_i, h, tps_noise, v_at_0,
+                  v_at_90, out):
+    """Ticks k = 0.. of u: out[k] = (theta_k, rho_k, i_k, y_k = i_k^2 + H v_k (eq. 4), the TPS
+    voltage) on x_k, then plant_step; st = (theta, rho, i) is advanced in place, the noise rows
+    (w_theta, w_i, v, TPS noise) taken from pos on; rows: the 3x10 mode rows. Stops when u, out
+    or the noise rows run out; returns (ticks, the next noise row)."""
+    theta, rho, i = st[0], st[1], st[2]
+    k = 0
+    while k < len(u) and k < len(out) and pos < len(noise):
+        w = noise[pos]
+        out[k, 0] = theta
+        out[k, 1] = rho
+        out[k, 2] = i
+        out[k, 3] = wattmeter_reading(i, h, w[2])
+        out[k, 4] = tps_law(v_at_0, v_at_90, theta) + tps_noise * w[3]
+        theta, rho, i = plant_step(rows, b1, b2, sig_theta, sig_i, theta, rho, i, u[k], w[0],
+                                   w[1])
+        pos += 1
+        k += 1
+    st[0], st[1], st[2] = theta, rho, i
+    return k, pos
+
+
 class ThrottlePlant:
-    """Stochastic eq. (3) with theta clipped to the stops; noise drawn in fixed-size blocks."""
+    """Stochastic eq. (3) with theta clipped to the stops, advanced a block of ticks at a time by
+    one kernel call (advance_ticks: compiled under numba, plain Python otherwise); the noise is
+    drawn in fixed-size blocks (the stream does not depend on how many ticks a call takes)."""
 
     def __init__(self, config: ThrottlePlantConfig, rng: np.random.Generator) -> None:
         self.config = config
         self._rng = rng
-        self.theta = 0.0
-        self.rho = 0.0
-        self.i = 0.0
-        self._noise: list[list[float]] = []
+        self.state = np.zeros(3)  # (theta, rho, i) of the next tick
+        self._noise = np.empty((0, 4))
         self._pos = 0
-        self._sig_theta = config.noise_scale * config.model.f_diag[0]
-        self._sig_i = config.noise_scale * config.model.f_diag[2]
-        self._rows = config.model.rows
-        self._b1, self._b2 = (float(b) for b in config.model.mode_bounds_deg)
-        self._h = config.model.h_wattmeter
+        model = config.model
+        self._rows = np.array(model.rows, dtype=np.float64)
+        self._b1, self._b2 = (float(b) for b in model.mode_bounds_deg)
+        self._sig_theta = config.noise_scale * model.f_diag[0]
+        self._sig_i = config.noise_scale * model.f_diag[2]
 
-    def _refill(self) -> None:
-        block = self._rng.standard_normal((self.config.block, 4))
-        self._noise = block.tolist()
-        self._pos = 0
-
-    def step(self, u: float) -> None:
-        """Advance one 1 ms step with input u (V)."""
-        if self._pos >= len(self._noise):
-            self._refill()
-        w = self._noise[self._pos]
-        self._pos += 1
-        self.theta, self.rho, self.i = plant_step.py(
-            self._rows, self._b1, self._b2, self._sig_theta, self._sig_i, self.theta, self.rho,
-            self.i, u, w[0], w[1])
-
-    def wattmeter(self) -> float:
-        """y_k = i_k**2 + v_k (eq. 4), in W (model units)."""
-        if self._pos >= len(self._noise):
-            self._refill()
-        return wattmeter_reading.py(self.i, self._h, self._noise[self._pos][2])
-
-    def tps_voltage(self, calibration: TpsCalibration) -> float:
-        """Position-sensor output for the current angle, with small electrical noise."""
-        if self._pos >= len(self._noise):
-            self._refill()
-        return calibration.voltage(self.theta) + self.config.tps_noise_v * self._noise[self._pos][3]
+    def ticks(self, u: list[float] | np.ndarray,
+              calibration: TpsCalibration = TpsCalibration()) -> np.ndarray:
+        """(len(u), 5) rows (theta, rho, i, y, TPS voltage) of the next ticks with inputs u: each
+        row measured on x_k, then x_{k+1} = f(x_k, u_k) + F w_k."""
+        ua = np.array(u, dtype=np.float64)
+        out = np.empty((len(ua), 5))
+        done = 0
+        while done < len(ua):
+            if self._pos >= len(self._noise):
+                self._noise = self._rng.standard_normal((self.config.block, 4))
+                self._pos = 0
+            k, self._pos = advance_ticks(
+                self.state, ua[done:], self._noise, self._pos, self._rows, self._b1, self._b2,
+                self._sig_theta, self._sig_i, self.config.model.h_wattmeter,
+                self.config.tps_noise_v, calibration.v_at_0, calibration.v_at_90, out[done:])
+            done += k
+        return out
 
 
 @dataclass(frozen=True)
@@ -151,54 +190,103 @@ class ThrottleTrace:
 def simulate(steps: int, seed: int = 0, noise_scale: float = 1.0) -> ThrottleTrace:
     """Run the plant offline: u_k, then y_k measured on x_k, then x_{k+1} = f(x_k, u_k) + F w_k."""
     rngs = rng_streams(seed, ("throttle.input", "throttle.plant"))
-    gen = InputGenerator(InputConfig(), rngs["throttle.input"])
+    u = np.array(InputGenerator(InputConfig(), rngs["throttle.input"]).take(steps))
     plant = ThrottlePlant(ThrottlePlantConfig(noise_scale=noise_scale), rngs["throttle.plant"])
-    u = np.empty(steps)
-    th = np.empty(steps)
-    rh = np.empty(steps)
-    cur = np.empty(steps)
-    y = np.empty(steps)
-    for k in range(steps):
-        uk = gen.next()
-        u[k] = uk
-        th[k] = plant.theta
-        rh[k] = plant.rho
-        cur[k] = plant.i
-        y[k] = plant.wattmeter()
-        plant.step(uk)
-    return ThrottleTrace(u=u, theta=th, rho=rh, i=cur, y=y)
+    theta, rho, i, y = (np.ascontiguousarray(c) for c in plant.ticks(u).T[:4])
+    return ThrottleTrace(u=u, theta=theta, rho=rho, i=i, y=y)
 
 
-class TicksAhead:
-    """ThrottlePlant's ticks computed ahead in blocks by one compiled call
-    (throttle_kernel.advance_ticks), for vecu.plant.node.ThrottlePart under the numba backend:
-    the plant's state and noise stream carried on, so the same numbers as stepping it."""
+# --------------------------------------------------------------------------- on the bus
+_TPS = FaultTarget.TPS  # bound once (per-tick code)
+TPS_V_MIN, TPS_V_MAX = 0.0, 5.0  # sensor output saturates at ground and supply
+TPS_SIGNALS = ("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage")
+WATT_SIGNALS = ("ETB_Voltage", "ETB_Power")
 
-    AHEAD = 500  # ticks per compiled call
 
-    def __init__(self, plant: ThrottlePlant, calibration: TpsCalibration) -> None:
-        cfg = plant.config
-        model = cfg.model
-        self._plant = plant
-        self.state = np.array([plant.theta, plant.rho, plant.i], dtype=np.float64)
-        self._modes = np.array(model.rows, dtype=np.float64)
-        self._cst = np.array([plant._sig_theta, plant._sig_i, model.h_wattmeter, cfg.tps_noise_v,
-                              calibration.v_at_0, calibration.v_at_90, *model.mode_bounds_deg],
-                             dtype=np.float64)
-        self._noise = np.array(plant._noise, dtype=np.float64).reshape(-1, 4)
-        self._pos = plant._pos
-        self._out = np.empty((self.AHEAD, 3))
+class ThrottlePart:
+    """Throttle body (Vargas 2015): TPS_Sensor (E2E) and ETB_Wattmeter every 1 ms.
 
-    def fill(self, u: list[float]) -> np.ndarray:
-        """(len(u), 3) rows (theta, y, TPS voltage) of the next len(u) <= AHEAD ticks with
-        inputs u (a view, valid until the next fill)."""
-        ua = np.array(u, dtype=np.float64)
-        done = 0
-        while done < len(ua):
-            if self._pos >= len(self._noise):
-                self._noise = self._plant._rng.standard_normal((self._plant.config.block, 4))
-                self._pos = 0
-            k, self._pos = advance_ticks.compiled(self.state, ua[done:], self._noise, self._pos,
-                                                  self._modes, self._cst, self._out[done:])
-            done += k
-        return self._out[:done]
+    Per tick k: u_k from the input generator, y_k and the TPS voltage measured on x_k, faults
+    applied, frames sent with timestamp t_k, then x_{k+1} = f(x_k, u_k) + F w_k (eq. 3). The
+    ticks are computed AHEAD at a time (ThrottlePlant.ticks: the plant depends on nothing the ECU
+    sends) and their frames encoded in blocks (FrameCodec.encode_rows: the framers' payloads),
+    the TPS frames as if each tick sends one with the sensor left as it is; a tick whose TPS
+    frame differs from that (a fault's voltage, a counter moved on by stopped frames) is framed
+    on its own.
+    """
+
+    truth_message = "TRUTH_Throttle"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
+    name = "throttle"
+    period_ns = NS_PER_MS
+    AHEAD = 500  # ticks per ThrottlePlant.ticks call
+
+    def __init__(self, codec: DbcCodec, plant: ThrottlePlant, inputs: BufferedInput,
+                 injector: FaultInjector, calibration: TpsCalibration = TpsCalibration()) -> None:
+        self.plant = plant
+        self.inputs = inputs
+        self.injector = injector
+        self.calibration = calibration
+        self._tps = codec["TPS_Sensor"]
+        self._watt = codec["ETB_Wattmeter"]
+        self._tps_frame = self._tps.framer(TPS_SIGNALS)
+        e2e = self._tps.e2e
+        assert e2e is not None, "TPS_Sensor is E2E-protected in vecu.dbc"
+        self._modulo = e2e.protection.counter_modulo  # P11: 0..14
+        self._watt_frame = self._watt.framer(WATT_SIGNALS)
+        self._counter = 0
+        self.truth_msg = None  # TRUTH_Throttle codec when recording truth (PlantNode.enable_truth)
+        # truth and sensor of the last tick, read by probes
+        self.theta = 0.0
+        self.u = 0.0
+        self.tps_voltage: float | None = None
+        # the ticks ahead: inputs, (theta, y, TPS voltage) rows, their frames' payloads (None:
+        # left to the framer), the TPS counter the first of them was encoded with
+        self._us: list[float] = []
+        self._rows: list[list[float]] = []
+        self._tps_ahead: list[bytearray | None] = []
+        self._watt_ahead: list[bytearray | None] = []
+        self._counter_ahead = 0
+        self._k = 0
+
+    def _fill(self) -> None:
+        """The next AHEAD ticks: their rows and the payloads of their frames."""
+        self._us = us = self.inputs.take(self.AHEAD)
+        cols = self.plant.ticks(us, self.calibration).T
+        self._rows = np.stack((cols[0], cols[3], cols[4]), axis=1).tolist()
+        n = len(us)
+        v = np.where(cols[4] < TPS_V_MIN, TPS_V_MIN, np.minimum(cols[4], TPS_V_MAX))
+        self._counter_ahead = c0 = self._counter
+        self._tps_ahead = payload_rows(self._tps.encode_rows(TPS_SIGNALS, (
+            np.zeros(n), (c0 + np.arange(n)) % self._modulo, v)), n)
+        self._watt_ahead = payload_rows(self._watt.encode_rows(WATT_SIGNALS, (
+            np.array(us), cols[3])), n)
+        self._k = 0
+
+    def tick(self, t_ns: int, send: Send) -> None:
+        if self._k >= len(self._rows):
+            self._fill()
+        k = self._k
+        self._k = k + 1
+        u = self._us[k]
+        theta, y, v_sensor = self._rows[k]
+        v = self.injector.apply(_TPS, v_sensor)
+        ts = t_ns / NS_PER_S
+        if v is not None:
+            data = (self._tps_ahead[k] if v == v_sensor
+                    and self._counter == (self._counter_ahead + k) % self._modulo else None)
+            v = TPS_V_MIN if v < TPS_V_MIN else (min(v, TPS_V_MAX))
+            if data is not None:  # encoded from the same clamped voltage and counter
+                send(message(ts, self._tps.frame_id, self._tps.is_extended, data, self._tps.is_fd))
+            else:
+                send(self._tps_frame(ts, 0, self._counter, v))
+            self._counter = (self._counter + 1) % self._modulo
+        data = self._watt_ahead[k]
+        if data is not None:
+            send(message(ts, self._watt.frame_id, self._watt.is_extended, data, self._watt.is_fd))
+        else:
+            send(self._watt_frame(ts, u, y))
+        if self.truth_msg is not None:
+            send(self.truth_msg.frame({"TRU_ThrottleAngle": theta, "TRU_MotorVoltage": u}, ts))
+        self.theta = theta
+        self.u = u
+        self.tps_voltage = v

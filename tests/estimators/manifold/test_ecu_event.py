@@ -1,10 +1,10 @@
-"""The ECU manifold function's event in one compiled call (runs.ecu_event, through
-CompiledEvents.event_cac) against the separate calls it replaces (filter.step,
-cylinder_air_charge, predict_cac, as ManifoldFunction.run makes them when event_cac declines):
+"""The ECU manifold function's event (filter.estimate: the usual event in one filter_events call
+over that event with the CAC horizon, vecu.estimators.manifold.sequences) against the separate
+calls (filter.step, cylinder_air_charge, predict_cac, what estimate makes for the others):
 over a short drive with missing IAT readings, rejected readings, implausible inputs, a gated
 pressure step, a forced divergence and a non-positive-definite innovation covariance, the
-posteriors, covariances, predictions, CACs and counters are the same bit for bit, under numba
-and against the python backend, and the events it declines change nothing."""
+posteriors, covariances, predictions, CACs and counters are the same bit for bit, under every
+backend and against the python backend."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def drive(per_backend):
 
 
 def _separate(flt, y, u):
-    """What ManifoldFunction.run calls when event_cac declines (scale 1)."""
+    """The separate calls (scale 1)."""
     x = flt.step(y, u)
     cac = cylinder_air_charge(float(x[3]), float(x[4]), u.n_rpm, flt.params)
     first = flt.last_prediction
@@ -66,13 +66,14 @@ def _run(drive, name, fused):
             flt.P_post[3, 3] = flt.P[3, 3] = math.nan
         if n == NOT_PD:
             flt.P_post[:] = flt.P[:] = -10.0 * np.eye(6)
-        before = (flt.events, flt.x, flt.P, flt.P_post, flt.gated.copy())
-        done = flt.event_cac(y[0], y[1], y[2], u, HORIZON) if fused else None
-        if done is None:  # a declined event changed nothing
-            assert before == (flt.events, flt.x, flt.P, flt.P_post, flt.gated)
-            done = _separate(flt, y, u)
+        if fused:  # lap() returns 1 s: the prediction's time is 0 when it was one call
+            _, cac, cac6, scale, _, predict_s = flt.estimate(y[0], y[1], y[2], u, HORIZON,
+                                                             lambda: 1.0)
+            done = (cac, cac6)
+            taken += predict_s == 0.0
+            assert scale == 1.0
         else:
-            taken += 1
+            done = _separate(flt, y, u)
         pred = flt.last_prediction
         rows.append((flt.x_post.copy(), flt.P.copy(), flt.P_post.copy(),
                      None if pred is None else pred[1].copy(), *done))
@@ -82,7 +83,7 @@ def _run(drive, name, fused):
 @pytest.mark.parametrize("name", ["sdkf", "ekf"])
 def test_one_call_gives_the_separate_calls(drive, backend, per_backend, name):
     ref, ref_cnt, _ = per_backend.reference(("sep", name), lambda: _run(drive, name, False))
-    for fused in (True,) if backend == "python" else (False, True):
+    for fused in (False, True):
         got, cnt, taken = _run(drive, name, fused)
         assert cnt == ref_cnt
         for n, (a, b) in enumerate(zip(ref, got)):
@@ -91,8 +92,8 @@ def test_one_call_gives_the_separate_calls(drive, backend, per_backend, name):
                     assert va is vb, (n, what)
                 else:
                     assert np.array_equal(va, vb, equal_nan=True), (n, what, fused)
-        if backend == "python" or not fused:
-            assert taken == 0  # the python backend keeps the separate calls
+        if not fused:
+            assert taken == 0
         else:  # the usual events in one call, less those the filter kernel hands back
             usual = sum(all(lo <= v <= hi for v, (lo, hi) in zip(y, Y_RANGES))
                         for y in drive[0]) - 1  # the implausible input
@@ -102,7 +103,10 @@ def test_one_call_gives_the_separate_calls(drive, backend, per_backend, name):
     assert all(math.isfinite(r[4]) and math.isfinite(r[5]) for r in ref)
 
 
-def test_the_adaptive_filter_declines(backend):
+def test_the_adaptive_filter_makes_the_separate_calls(backend):
     flt = make_filter("adaptive")
     u = EngineInput(0.3, 2000.0)
-    assert flt.event_cac(0.3, 40.0, 310.0, u, HORIZON) is None and flt.events == 0
+    for k in range(3):
+        *_, predict_s = flt.estimate(0.3, 40.0 + k, 310.0, u, HORIZON, lambda: 1.0)
+        assert predict_s == 1.0
+    assert flt.events == 3

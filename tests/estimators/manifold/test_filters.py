@@ -11,6 +11,15 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from vecu.bench.estimators import euler_event
+from vecu.estimators.manifold.event import (
+    FD_ALPHA,
+    FD_REL,
+    coefficients,
+    integrate_event,
+    jacobian,
+    model_constants,
+)
 from vecu.estimators.manifold.factory import make_filter
 from vecu.estimators.manifold.filters import (
     ManifoldFilterConfig,
@@ -19,16 +28,15 @@ from vecu.estimators.manifold.filters import (
 )
 from vecu.estimators.manifold.model import (
     C_MATRIX,
-    f,
-    f_and_jacobian,
-    numerical_jacobian,
+    N_X,
     q_matrix,
     r_matrix,
     sdc_matrices,
 )
 from vecu.eval.manifold import evaluate_manifold, trace_inputs
-from vecu.models.manifold import euler_event, nominal_input, steady_state_vector
-from vecu.models.manifold_params import EngineInput
+from vecu.models.manifold import f, nominal_input, sample_time, steady_state_vector
+from vecu.models.manifold_integrator import tables
+from vecu.models.manifold_params import V8_5L7, EngineInput
 from vecu.plant.drive_profile import DriveProfile, us06_like
 from vecu.plant.manifold import simulate
 
@@ -36,6 +44,36 @@ DEG = math.pi / 180.0
 # (throttle deg, rpm, P offset kPa, T offset K): part load, transients, WOT, idle
 POINTS = [(15, 2000, 3.0, 5.0), (30, 3000, -10.0, -8.0), (60, 1500, 5.0, 3.0),
           (90, 700, -2.0, 4.0), (7.5, 700, 4.0, -6.0), (45, 5600, -20.0, 10.0)]
+
+
+def f_and_jacobian(x, u, params=V8_5L7, dt=None):
+    """(f(x), df/dx) as the EKF's event computes them (event.jacobian)."""
+    ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
+    xp = np.array([float(v) for v in x])
+    fc = model_constants(params)
+    c, cd_alpha, cd_table, prs, eta_rpm, eta_val = tables(params)
+    F = np.zeros((N_X, N_X))
+    p_n, t_n, m = integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), u.p_a, u.t_a,
+                                  u.t_cool, u.n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm,
+                                  eta_val)
+    jacobian(F, xp, p_n, t_n, m, coefficients(ts, fc), np.array([FD_ALPHA, FD_REL]), 0.0, 3,
+             u.p_a, u.t_a, u.t_cool, u.n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm, eta_val,
+             cd_table, eta_val)
+    return f(x, u, params, ts), F
+
+
+def numerical_jacobian(x, u, params=V8_5L7, dt=None, rel=1e-5):
+    """Central-difference df/dx over all six states (reference for tests; 12 calls of f)."""
+    x = np.asarray(x, dtype=float)
+    J = np.zeros((N_X, N_X))
+    for j in range(N_X):
+        d = rel * max(abs(x[j]), 1.0) if j in (3, 4, 5) else rel
+        xp = x.copy()
+        xm = x.copy()
+        xp[j] += d
+        xm[j] -= d
+        J[:, j] = (f(xp, u, params, dt) - f(xm, u, params, dt)) / (2.0 * d)
+    return J
 
 
 def _perturbed(deg, n, dp, dt):

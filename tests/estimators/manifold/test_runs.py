@@ -1,4 +1,4 @@
-"""Runs of manifold events in one compiled call (vecu.estimators.manifold.runs) against
+"""Runs of manifold events in one kernel call (vecu.estimators.manifold.sequences) against
 stepping event by event: ManifoldKF.run_events over a drive with bad readings, bad inputs, gated
 spikes and a forced divergence gives the same posteriors, final state and counters as step()
 (bit for bit), and hands the events it cannot decide alone back to the Python path; the
@@ -14,8 +14,10 @@ import pytest
 
 from vecu.estimators.manifold import factory as mf
 from vecu.estimators.manifold.cac_predict import (
+    HORIZON,
     CacPredictionConfig,
     open_loop_temperatures,
+    predict_cac,
     prediction_errors,
 )
 from vecu.eval.manifold import trace_input_array, trace_inputs
@@ -106,3 +108,12 @@ def test_open_loop_observer_and_predictions_at_all_events(drive, backend, per_ba
             p, t, _ = integrate_manifold(p, t, alpha, u, sample_time(u.n_rpm))
     assert np.array_equal(np.array(by_hand), ref[0])
     assert np.ptp(ref[0]) > 1.0 and not np.array_equal(ref[1], ref[2])
+    # the predictions are predict_cac's from each state, the setpoints known (an oracle)
+    states = trace.x.copy()
+    states[:, 4] = ref[0]
+    sp, inputs = trace.ta_sp.tolist(), trace_inputs(trace)
+    for j, n in enumerate(range(0, len(trace.cac) - HORIZON, 3)):
+        if j % 25 == 0:
+            hz = [EngineInput(sp[n + k], inputs[n].n_rpm, inputs[n].p_a, inputs[n].t_a,
+                              inputs[n].t_cool) for k in range(HORIZON)]
+            assert predict_cac(states[n], hz) == ref[1][j], n

@@ -3,7 +3,7 @@ vecu.estimators.steering.model / unscented / rts compiled by numba, or run as pl
 exactly (==, measured max |difference| 0) what the Python backend gives, and the same again on a
 second run: filter outputs, smoothed outputs, the recorded history and every counter, on a long
 manoeuvre and on a run with bad readings, resets, gating and clipping; with the Cholesky
-fallback; across a backend switch in the middle of a run. Each property is one test over the
+fallback. Each property is one test over the
 backends (tests/conftest.py `backend`; the python reference is computed once per module)."""
 
 from __future__ import annotations
@@ -50,16 +50,12 @@ def bad_inputs():
     return out
 
 
-def _run(inputs, lag_s=0.25, maxlen=None, switch_at=()):
-    """Smoother and a recording UKF over inputs; switch_at: (step, backend) changes mid-run.
-    Returns every output as arrays / tuples."""
+def _run(inputs, lag_s=0.25, maxlen=None):
+    """Smoother and a recording UKF over inputs. Returns every output as arrays / tuples."""
     fl = FixedLagSmoother(lag_s)
     ref = SteeringUKF(record=True, history_maxlen=maxlen)
-    switches = dict(switch_at)
     live, lagged = [], []
-    for k, (v, r, a) in enumerate(inputs):
-        if k in switches:
-            kernels.set_backend(switches[k])
+    for v, r, a in inputs:
         le = fl.step(v, r, a)
         ref.step(v, r, a)
         f = fl.filter
@@ -110,17 +106,6 @@ def test_short_and_long_lags(backend, per_backend, long_inputs, lag_s) -> None:
                       _run(inputs, lag_s))
 
 
-@needs_numba
-def test_backend_switch_mid_run(backend_switch, bad_inputs) -> None:
-    """python -> numba -> python -> numba inside one run (history and gains converted) equals
-    the run under one backend."""
-    inputs = bad_inputs[:900]
-    py = backend_switch(lambda: _run(inputs), "python")
-    mixed = backend_switch(lambda: _run(inputs, switch_at=(
-        (0, "python"), (150, "numba"), (400, "python"), (401, "numba"))), "python")
-    _assert_identical(py, mixed)
-
-
 def _non_pd_filter() -> SteeringUKF:
     """A UKF whose P is slightly indefinite (v_y, r correlation 1.0025): the unrolled Cholesky
     fails and covariance.cholesky_lower (eigenvalue clipping) supplies the factor."""
@@ -143,7 +128,7 @@ def test_cholesky_fallback_gives_the_python_reference(backend, per_backend) -> N
         f.step(20.0, 0.05, 0.8)
         # the a_y update from the same non-PD P (the update's own fallback)
         g = SteeringUKF()
-        x_ay, p_ay = g._update_ay(f._x, p_bad, 0.7, 20.0, kernels.backend() == "numba")
+        x_ay, p_ay = g._update_ay(f._x, p_bad, 0.7, 20.0)
         return f.x, f.P, f.history().C, x_ay, p_ay, f.resets
 
     ref = per_backend.reference("fallback", run)
@@ -156,14 +141,14 @@ def test_cholesky_fallback_gives_the_python_reference(backend, per_backend) -> N
     for a, b in zip(ref, got):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     g = SteeringUKF()
-    cst, pts = g._args[kernels.backend() == "numba"]
+    cst, pts = g._kcst, g._pts
     assert not uk.ay_moments(g._x, p_bad, 20.0, cst, pts)[0]
     assert not uk.predict(g._x, p_bad, 20.0, cst, pts, g._scratch, 0, False)[0]
 
 
 def test_scalar_update_is_the_kalman_update(backend) -> None:
-    """scalar_update (plain Python in the filters; compiled here to hold it kernel-compatible)
-    is x + K e, P - K s K^T with K = P h^T / s (numpy matrix form, to 1e-12), the same bits on
+    """scalar_update (a small kernel: plain Python from the filters; compiled here under numba
+    to hold it kernel-compatible) is x + K e, P - K s K^T with K = P h^T / s (numpy matrix form, to 1e-12), the same bits on
     every backend."""
     rng = np.random.default_rng(3)
     for _ in range(50):
@@ -173,7 +158,8 @@ def test_scalar_update_is_the_kalman_update(backend) -> None:
         x, e, s = tuple(rng.normal(size=4).tolist()), float(rng.normal()), float(hv @ P @ hv + 0.3)
         c = P @ hv
         p10 = tuple(float(P[i, j]) for i in range(4) for j in range(i, 4))
-        xn, pn = uk.scalar_update(x, p10, e, s, *c.tolist())
+        run = uk.scalar_update.compiled if backend == "numba" else uk.scalar_update
+        xn, pn = run(x, p10, e, s, *c.tolist())
         assert (xn, pn) == uk.scalar_update.py(x, p10, e, s, *c.tolist())
         K = c / s
         np.testing.assert_allclose(xn, np.array(x) + K * e, rtol=1e-12, atol=1e-14)
@@ -185,8 +171,6 @@ def test_smoother_gain_solves_the_rts_equation(backend) -> None:
     """smoother_gain reads P_pred and C from a ring row and writes G with G P_pred = C
     (row-major, to 1e-12) into the previous row, and nothing else; the same bits on every
     backend (compiled: LAPACK dgesv called directly, plain Python: np.linalg.solve)."""
-    if backend == "numba":
-        rts.prepare()
     rng = np.random.default_rng(5)
     for _ in range(50):
         M = rng.normal(size=(4, 4))

@@ -91,7 +91,7 @@ def diverged(x: np.ndarray, P: np.ndarray, bounds: DivergenceBounds = Divergence
     return bool(np.abs(x).max() > bounds.max_abs_state) if x.size else False
 
 
-@kernel
+@kernel(small=True)
 def diverged_scalars(x: Sequence[float], trace: float, offdiag_sum: float, max_trace: float,
                      max_abs_state: float) -> bool:
     """The criterion of `diverged_floats` with the bounds as numbers (a kernel: compiled filter
@@ -114,4 +114,4 @@ def diverged_floats(
     x: the state entries; trace: trace(P), so a NaN or inf on the diagonal fails the range test;
     offdiag_sum: the sum of the stored off-diagonal entries (NaN or +-inf makes `s - s` non-zero).
     """
-    return diverged_scalars.py(x, trace, offdiag_sum, bounds.max_trace, bounds.max_abs_state)
+    return diverged_scalars(x, trace, offdiag_sum, bounds.max_trace, bounds.max_abs_state)

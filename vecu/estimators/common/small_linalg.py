@@ -3,9 +3,8 @@
 Written once for every filter that factors a small covariance in plain floats: the throttle UKF
 (3x3 sigma points) and particle filter (3x3 Kalman stretch), the lateral UKF and its kernels
 (4x4 sigma points), the manifold filters' innovation covariance S = C P C^T + R (3x3 factor and
-inverse, Python path and SDKF kernel). Each is a `vecu.kernels.kernel`: compiled kernels call
-them directly, plain-Python callers call `.py` (the reference); none calls another, so `.py`
-never reaches compiled code. Symmetric matrices are passed as their
+inverse, Python path and SDKF kernel). Each is a small `vecu.kernels.kernel`: compiled kernels
+compile it with them, called from Python it runs as Python. Symmetric matrices are passed as their
 upper triangle, row by row; lower factors come back row by row:
 
   3x3  p = (p00, p01, p02, p11, p12, p22)                    -> (l00, l10, l11, l20, l21, l22)
@@ -33,7 +32,7 @@ L3 = tuple[float, float, float, float, float, float]
 L4 = tuple[float, float, float, float, float, float, float, float, float, float]
 
 
-@kernel
+@kernel(small=True)
 def chol3(p: Any) -> tuple[bool, L3]:
     """(ok, lower factor) of the 3x3 SPD matrix p (upper triangle, module docstring)."""
     p00, p01, p02, p11, p12, p22 = p
@@ -51,7 +50,7 @@ def chol3(p: Any) -> tuple[bool, L3]:
     return False, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@kernel
+@kernel(small=True)
 def chol4(p: Any) -> tuple[bool, L4]:
     """(ok, lower factor) of the 4x4 SPD matrix p (upper triangle, module docstring)."""
     p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
@@ -73,7 +72,7 @@ def chol4(p: Any) -> tuple[bool, L4]:
     return False, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@kernel
+@kernel(small=True)
 def chol3_floored(p: Any, floor: float) -> L3:
     """Lower factor of the 3x3 matrix p with every pivot floored at `floor` (never fails; a tiny
     jitter where P is not positive definite). floor if floor > d else d is max(d, floor) as
@@ -89,7 +88,7 @@ def chol3_floored(p: Any, floor: float) -> L3:
     return l00, l10, l11, l20, l21, math.sqrt(floor if floor > d else d)  # noqa: FURB136 (as above)
 
 
-@kernel
+@kernel(small=True)
 def inverse_from_chol3(low: Any) -> L3:
     """S^-1 (upper triangle) from chol3's factor L of S: S^-1 = M^T M with M = L^-1 (lower)."""
     l00, l10, l11, l20, l21, l22 = low
@@ -104,7 +103,7 @@ def inverse_from_chol3(low: Any) -> L3:
 def chol3_or_fallback(p: Any) -> L3:
     """chol3's factor, or covariance.cholesky_lower's (jitter, then eigenvalue clipping) when P
     is not positive definite for it (plain Python)."""
-    ok, low = chol3.py(p)
+    ok, low = chol3(p)
     if ok:
         return low
     p00, p01, p02, p11, p12, p22 = p
@@ -116,7 +115,7 @@ def chol3_or_fallback(p: Any) -> L3:
 def chol4_or_fallback(p: Any) -> L4:
     """chol4's factor, or covariance.cholesky_lower's (jitter, then eigenvalue clipping) when P
     is not positive definite for it (plain Python)."""
-    ok, low = chol4.py(p)
+    ok, low = chol4(p)
     if ok:
         return low
     p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p

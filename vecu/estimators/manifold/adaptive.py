@@ -27,17 +27,17 @@ from typing import Any
 
 import numpy as np
 
-from vecu.estimators.manifold.adaptive_event import N_XA, adaptive_event, prepare
+from vecu.estimators.manifold.adaptive_event import N_XA, adaptive_event
 from vecu.estimators.manifold.event import (
     ALPHA_SDC_MIN,
     DIVERGED,
     FD_ALPHA,
     FD_REL,
     filter_constants,
-    numba_tables,
 )
 from vecu.estimators.manifold.filters import ManifoldFilterConfig, _ManifoldKF
 from vecu.estimators.manifold.model import q_matrix
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import EngineInput
 
 ETA_FD = 1e-6  # finite-difference step in c
@@ -67,7 +67,7 @@ def eta_scale_used(c: Any, var: Any, p_drift: float, slab_sd: float) -> Any:
 
 
 class ManifoldAdaptive(_ManifoldKF):
-    """The adaptive EKF (see module). eta_scale / eta_sigma: c and its standard deviation."""
+    """The adaptive EKF (see module): c is x_post[6], its variance P_post[6, 6]."""
 
     name = "adaptive"
 
@@ -82,25 +82,11 @@ class ManifoldAdaptive(_ManifoldKF):
         self._P0 = np.diag(np.array((*c.p0_diag, c.eta_p0, c.eta_p0, c.ta_gain_p0, c.act_p0,
                                      c.act_p0), dtype=float))
         self._x_default = np.append(self._x_default[:6], (1.0, 1.0, 1.0, 1.0, 1.0))
-        tables = numba_tables(self.params)
-        if tables is None:
-            raise ValueError("the adaptive manifold filter needs kappa > 1, pr_reg <= 1 and "
-                             "p_exh >= 0 (the compiled integrator's domain)")
-        self._args = (filter_constants(c, ALPHA_SDC_MIN), self.Q, np.array([FD_ALPHA, FD_REL]),
+        self._kargs = (filter_constants(c, ALPHA_SDC_MIN), self.Q, np.array([FD_ALPHA, FD_REL]),
                       np.array([c.eta_box[0], c.eta_box[1], ETA_FD, c.eta_pr_freeze,
                                 c.eta_alpha_gate, *c.ta_gain_box, *c.act_box, ACT_FD]),
-                      *tables)
+                      *tables(self.params))
         self.reset(count=False)
-
-    @property
-    def eta_scale(self) -> float:
-        """c of the posterior: eta_true / eta_calibrated (the filter's; the CAC uses
-        eta_used(c, its variance))."""
-        return float(self.x_post[6])
-
-    @property
-    def eta_sigma(self) -> float:
-        return float(math.sqrt(max(float(self.P_post[6, 6]), 0.0)))
 
     def eta_used(self, c: Any, var: Any) -> Any:
         """eta_scale_used with this filter's eta_drift_prior and eta_slab_sd."""
@@ -112,21 +98,9 @@ class ManifoldAdaptive(_ManifoldKF):
     _EVENT_ERRORS = (FloatingPointError, ValueError, ZeroDivisionError, IndexError, OverflowError,
                      np.linalg.LinAlgError)
 
-    def _event_runner(self) -> tuple[Any, Any, tuple, bool]:
-        run = adaptive_event.impl()
-        if run is not adaptive_event.py:
-            prepare()
-        return run, None, self._args, False
+    _KERNELS = (adaptive_event, None)
+    _KIND = 2  # filter_events' kind
 
     def _fallback(self, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                   u: EngineInput, ts: float, mask: int, code: int) -> int:
         return DIVERGED
-
-    def _block_ready(self) -> bool:
-        if not self._initialised or adaptive_event.impl() is adaptive_event.py:
-            return False
-        prepare()
-        if self._kernel_args is None:
-            self._kernel_args = self._args
-            self._kernel_args_ready = True
-        return True

@@ -37,7 +37,8 @@ N_ADAPT_CONSTS = 10
 ZETA_MAX = 0.99
 
 
-def _consider_py(x, P, xp, Pp, lo, hi):
+@kernel
+def _consider(x, P, xp, Pp, lo, hi):
     """Undo the update of states lo..hi-1 in (xp, Pp) from the prior (x, P): the Schmidt
     (consider) filter's result, for which the other states' update is unchanged (their gain,
     and so their cross-covariance with the considered states, is the optimal update's)."""
@@ -48,7 +49,8 @@ def _consider_py(x, P, xp, Pp, lo, hi):
             Pp[i, j] = P[i, j] if lo <= j < hi else Pp[j, i]
 
 
-def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
+@kernel
+def _angle_update(x, P, xp, Pp, y0, run0, fc):
     """The TA channel's EKF update with the measurement TA = g alpha (H: g in the alpha
     column, alpha in g's), gated as event.update. Returns 1 (gated), 0 or FALLBACK."""
     n = x.shape[0]
@@ -74,16 +76,12 @@ def _angle_update_py(x, P, xp, Pp, y0, run0, fc):
     return 0
 
 
-def _actuator_coeffs_py(ts, fc, kz, kw):
+@kernel
+def _actuator_coeffs(ts, fc, kz, kw):
     """event.coefficients with zeta and omega0 scaled by k_zeta, k_omega (zeta kept below
     ZETA_MAX: eq. 1's discretisation is the underdamped one)."""
     z = fc[F_ZETA] * kz
     return event_coefficients(ts, z if z < ZETA_MAX else ZETA_MAX, fc[F_OMEGA0] * kw, fc[F_TAU])
-
-
-_consider = kernel(_consider_py)
-_angle_update = kernel(_angle_update_py)
-_actuator_coeffs = kernel(_actuator_coeffs_py)
 
 
 @kernel
@@ -94,7 +92,6 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     map with eta scaled by c, the throttle flow by c_th and the actuator's (zeta, omega0) by
     (k_zeta, k_omega), its Jacobian (one-sided differences) and P = sym(F P F^T + Q). Writes
     xo (3 x 11), Po (2 x 11 x 11); returns the gated channels | DIVERGED | FALLBACK."""
-    cst = K.const_tuple(c)
     n = x.shape[0]
     xp = xo[1]
     Pp = Po[1]
@@ -149,9 +146,9 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     ev = eta_val * xp[I_C]
     cdt = cd_table * xp[I_CTH]
     p_n, t_n, m = K.integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), p_a, t_a, t_cool,
-                                    n_rpm, ts, cst, cd_alpha, cdt, prs, eta_rpm, ev)
+                                    n_rpm, ts, c, cd_alpha, cdt, prs, eta_rpm, ev)
     F = np.zeros((n, n))
-    K.jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, cst,
+    K.jacobian(F, xp, p_n, t_n, m, co, fd, ac[A_FD_C], 5, p_a, t_a, t_cool, n_rpm, ts, c,
                 cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val)
     # the actuator row's columns k_zeta, k_omega (eq. 1 is linear in alpha, not in them)
     alpha_n = co[0] * xp[1] + co[1] * xp[2] + co[2] * sp + co[3] * xp[0]
@@ -166,16 +163,9 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     return gated
 
 
-_ready = False
-
-
-def prepare() -> None:
-    """event.prepare (the kernels this one calls), then its one signature."""
-    global _ready
-    if _ready:
-        return
-    K.prepare()
+def _signature() -> tuple:
     _, f8, i8, v, m, tables = K.signature_types()
-    adaptive_event.fix_signature((v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
-                                 + (v, m, v, v) + tables)
-    _ready = True
+    return (v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v, v) + tables
+
+
+adaptive_event.fix_signature(_signature)

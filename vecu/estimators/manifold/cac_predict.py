@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -36,22 +35,17 @@ from vecu.estimators.manifold.event import (
     F_NCYL,
     F_VCYL,
     coefficients,
-    const_tuple,
     integrate_event,
     model_constants,
-    numba_tables,
-    python_tables,
     sdc_matrix,
     signature_types,
 )
-from vecu.estimators.manifold.event import prepare as prepare_events
-from vecu.kernels import kernel, using
+from vecu.kernels import kernel
 from vecu.models import manifold_integrator as mi
 from vecu.models.manifold import air_charge_of, efficiency_of, event_map
 from vecu.models.manifold_params import V8_5L7, EngineInput, ManifoldParams
 
 HORIZON = 6
-METHODS = ("direct", "direct_ol", "ekf", "sdkf")
 
 
 @dataclass(frozen=True)
@@ -61,93 +55,38 @@ class CacPredictionConfig:
     stride: int = 1  # predict at every stride-th event (the sums are scaled back by stride)
 
 
-def horizon_inputs(ta_sp: Sequence[float], n: int, n_rpm: float, params: ManifoldParams = V8_5L7,
-                   config: CacPredictionConfig = CacPredictionConfig()) -> list[EngineInput]:
-    """EngineInputs for events n..n+horizon-1: known (or held) setpoints, N_n held."""
-    last = len(ta_sp) - 1
-    out = []
-    for k in range(config.horizon):
-        sp = ta_sp[min(n + k, last)] if config.known_setpoint else ta_sp[n]
-        out.append(EngineInput(float(sp), n_rpm, params.p_a_kpa, params.t_a_k, params.t_cool_k))
-    return out
+# id(params) -> (params, (model constants, kernel tables))
+_ARGS: dict[int, tuple[ManifoldParams, tuple]] = {}
 
 
-# id(params) -> (params, (constants, tables) for the compiled kernels or None, ... for Python)
-_ARGS: dict[int, tuple[ManifoldParams, tuple | None, tuple]] = {}
-_ready = False
-
-
-def _args(params: ManifoldParams) -> tuple[ManifoldParams, tuple | None, tuple]:
+def _args(params: ManifoldParams, eta_scale: float = 1.0) -> tuple:
+    """The prediction kernels' constants and tables for params (cached); eta_scale multiplies
+    the eta_N table (the adaptive filter's c)."""
     hit = _ARGS.get(id(params))
     if hit is None or hit[0] is not params:
-        fc = model_constants(params)
-        tables = numba_tables(params)
-        hit = (params, None if tables is None else (fc, *tables),
-               (tuple(fc.tolist()), *python_tables(params)))
+        hit = (params, (model_constants(params), *mi.tables(params)))
         _ARGS[id(params)] = hit
-    return hit
-
-
-def prepare() -> None:
-    """Before the first numba call (idempotent): event.prepare, then predict_events' one
-    signature (compilation off)."""
-    global _ready
-    if _ready:
-        return
-    prepare_events()
-    _, f8, i8, v, m, tables = signature_types()
-    predict_events.fix_signature((v, m, i8, v, v) + tables)
-    air_charge_sigmas.fix_signature((v, m, m, i8, f8, f8, f8, f8, v) + tables)
-    _ready = True
-
-
-def _backend_args(kern: Any, params: ManifoldParams, eta_scale: float) -> tuple[Any, bool, tuple]:
-    """(the kernel's active implementation, compiled?, its table arguments for params): the
-    float64-array tables under numba (where numba can mirror the set), tuples otherwise;
-    eta_scale multiplies the eta_N table (the adaptive filter's c)."""
-    hit = _ARGS.get(id(params))
-    _, nb, py = hit if hit is not None and hit[0] is params else _args(params)
-    run = kern.impl()
-    compiled = run is not kern.py and nb is not None
-    args: tuple = nb if compiled and nb is not None else py
+    args = hit[1]
     if eta_scale != 1.0:
-        ev = args[-1]
-        args = (*args[:-1], ev * eta_scale if compiled else tuple(v * eta_scale for v in ev))
-    return run, compiled, args
+        args = (*args[:-1], args[-1] * eta_scale)
+    return args
 
 
 def _prediction(x: np.ndarray, inputs: Sequence[EngineInput], params: ManifoldParams,
                 eta_scale: float = 1.0) -> tuple[np.ndarray, float]:
-    """(x after the inputs, CAC there at the last input's speed): predict_events, compiled under
-    the numba backend, its Python function otherwise (or for a parameter set numba cannot
-    mirror). eta_scale multiplies the eta_N table (the adaptive filter's c). x: the first six
-    states are used."""
-    run, compiled, args = _backend_args(predict_events, params, eta_scale)
+    """(x after the inputs, CAC there at the last input's speed): predict_events. eta_scale
+    multiplies the eta_N table (the adaptive filter's c). x: the first six states are used."""
     xa = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:6])
-    u0 = inputs[0]
-    held = True
-    for u in inputs:
-        if u is not u0:
-            held = False
-            break
-    rows = inputs[:1] if held else inputs
+    rows = inputs[:1] if all(u is inputs[0] for u in inputs) else inputs  # held: one row
     ua = np.array([(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool) for u in rows], dtype=np.float64)
     out = np.empty(6)
-    if compiled:
-        if not _ready:
-            prepare()
-        cac = run(xa, ua, len(inputs), out, *args)
-    elif run is predict_events.py:
-        cac = run(xa, ua, len(inputs), out, *args)
-    else:  # numba, a parameter set it cannot mirror: the Python functions throughout
-        with using("python"):
-            cac = predict_events.py(xa, ua, len(inputs), out, *args)
+    cac = predict_events(xa, ua, len(inputs), out, *_args(params, eta_scale))
     return out, cac
 
 
 def predict_state(x: np.ndarray, inputs: Sequence[EngineInput],
                   params: ManifoldParams = V8_5L7) -> np.ndarray:
-    """x_n+len(inputs) from x_n through the noise-free event map of eq. 10 (model.f;
+    """x_n+len(inputs) from x_n through the noise-free event map of eq. 10 (models.manifold.f;
     predict_events)."""
     if not inputs:
         return np.array(np.asarray(x, dtype=float)[:6])
@@ -161,49 +100,27 @@ def predict_cac(x: np.ndarray, inputs: Sequence[EngineInput],
     return _prediction(x, inputs, params, eta_scale)[1]
 
 
-def direct_state(y: Sequence[float], y_prev: Sequence[float], sp_prev: float) -> np.ndarray:
-    """x_n from the readings alone: (TA_SP,n-1, TA_n, TA_n-1, P_n, T_out,n, T_out,n)."""
-    return np.array([sp_prev, y[0], y_prev[0], y[1], y[2], y[2]], dtype=float)
-
-
 def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       cac_actual: np.ndarray, params: ManifoldParams = V8_5L7,
                       config: CacPredictionConfig = CacPredictionConfig(),
-                      compiled: bool = True, eta_scale: np.ndarray | None = None
+                      eta_scale: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For events n = 0, stride, 2 stride, ... with n + horizon in range:
-    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg. Under the numba backend (compiled)
-    all predictions in one call (predict_at_events: the same numbers). eta_scale:
-    per event, the eta correction the state came with (the adaptive filter's c; None: 1)."""
+    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg, all predictions in one kernel call
+    (predict_at_events: predict_cac's numbers). eta_scale: per event, the eta correction the
+    state came with (the adaptive filter's c; None: 1)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
     pred = np.empty(len(idx))
     scale = np.ones(len(states)) if eta_scale is None else np.asarray(eta_scale, dtype=float)
-    if compiled and _predict_block(states, idx, ta_sp, n_rpm, params, config, pred, scale):
-        return idx, pred, cac_actual[idx + hz]
-    sp = ta_sp.tolist()
-    for j, n in enumerate(idx):
-        inputs = horizon_inputs(sp, int(n), float(n_rpm[n]), params, config)
-        pred[j] = predict_cac(states[n], inputs, params, float(scale[n]))
+    if hz >= 1 and len(idx):
+        u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
+        predict_at_events(np.ascontiguousarray(states[:, :6], dtype=np.float64), idx,
+                          np.ascontiguousarray(ta_sp, dtype=np.float64),
+                          np.ascontiguousarray(n_rpm, dtype=np.float64), hz,
+                          config.known_setpoint, u_amb, np.ascontiguousarray(scale), pred,
+                          *_args(params))
     return idx, pred, cac_actual[idx + hz]
-
-
-def _predict_block(states: np.ndarray, idx: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
-                   params: ManifoldParams, config: CacPredictionConfig, pred: np.ndarray,
-                   eta_scale: np.ndarray) -> bool:
-    """prediction_errors' predictions into pred by one compiled call; False: not available."""
-    nb = _args(params)[1]
-    if (predict_events.impl() is predict_events.py or config.horizon < 1 or not len(idx)
-            or nb is None):
-        return False
-    prepare()
-    u_amb = np.array([params.p_a_kpa, params.t_a_k, params.t_cool_k])
-    predict_at_events.compiled(np.ascontiguousarray(states[:, :6], dtype=np.float64), idx,
-                               np.ascontiguousarray(ta_sp, dtype=np.float64),
-                               np.ascontiguousarray(n_rpm, dtype=np.float64), config.horizon,
-                               config.known_setpoint, u_amb, np.ascontiguousarray(eta_scale),
-                               pred, *nb)
-    return True
 
 
 def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0: float,
@@ -211,8 +128,8 @@ def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0
                            inputs: Sequence[EngineInput] | None = None) -> np.ndarray:
     """T_im,n of the open-loop manifold observer over the events: (P, T) of eq. 5-6 from (p0,
     t0) driven by the measured throttle angle TA_n (the last finite one), no feedback, with
-    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n.
-    open_loop_run: compiled under the numba backend, its Python function otherwise."""
+    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n
+    (the kernel open_loop_run)."""
     n_ev = len(ta_meas)
     out = np.empty(n_ev)
     if inputs is None:
@@ -220,17 +137,9 @@ def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0
     else:
         amb = np.array([(u.p_a, u.t_a, u.t_cool) for u in inputs], dtype=np.float64)
     amb = np.ascontiguousarray(amb, dtype=np.float64).reshape(n_ev, 3)
-    ta = np.ascontiguousarray(ta_meas, dtype=np.float64)
-    n = np.ascontiguousarray(n_rpm, dtype=np.float64)
-    tables = mi._tables(params)[2]
-    if open_loop_run.impl() is not open_loop_run.py and tables is not None:
-        prepare()
-        open_loop_run.compiled(ta, n, float(p0), float(t0), amb, float(params.n_cyl), *tables,
-                               out)
-        return out
-    with using("python"):
-        open_loop_run.py(ta.tolist(), n.tolist(), float(p0), float(t0), amb.tolist(),
-                         float(params.n_cyl), *python_tables(params), out)
+    open_loop_run(np.ascontiguousarray(ta_meas, dtype=np.float64),
+                  np.ascontiguousarray(n_rpm, dtype=np.float64), float(p0), float(t0), amb,
+                  float(params.n_cyl), *mi.tables(params), out)
     return out
 
 
@@ -239,7 +148,6 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
     """x after `count` events through the event map (cac_predict.predict_state) into out;
     returns the CAC (kg) there at the last input's speed (predict_cac). u: rows (TA_SP, N, P_a,
     T_a, T_cool); event i uses row min(i, len(u) - 1) (one row: input held)."""
-    cst = const_tuple(c)
     u_prev, alpha, alpha_prev = float(x[0]), float(x[1]), float(x[2])  # plain floats in Python
     p, t, tm = float(x[3]), float(x[4]), float(x[5])
     ts_prev = math.nan
@@ -254,7 +162,7 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
         if ts != ts_prev:
             co = coefficients(ts, fc)
             ts_prev = ts
-        p_n, t_n, _ = integrate_event(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+        p_n, t_n, _ = integrate_event(p, t, alpha, p_a, t_a, t_cool, n_rpm, ts, c, cd_alpha,
                                       cd_table, prs, eta_rpm, eta_val)
         alpha_n, tm_n = event_map(co, u_prev, alpha, alpha_prev, sp, t, tm)
         u_prev, alpha, alpha_prev, p, t, tm = sp, alpha_n, alpha, p_n, t_n, tm_n
@@ -263,7 +171,7 @@ def predict_events(x, u, count, out, fc, c, cd_alpha, cd_table, prs, eta_rpm, et
 
 
 @kernel
-def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, cst, cd_alpha, cd_table, prs, eta_rpm,
+def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, c, cd_alpha, cd_table, prs, eta_rpm,
                   eta_val, out):
     """The open-loop observer over the events (open_loop_temperatures): out[n] = T_im,n; amb[n]
     the event's (P_a, T_a, T_coolant)."""
@@ -276,7 +184,7 @@ def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, cst, cd_alpha, cd_table, pr
             continue
         alpha = a
         ts = 120.0 / (ncyl * n_rpm[n])
-        p, t, _ = integrate_event(p, t, a, amb[n][0], amb[n][1], amb[n][2], n_rpm[n], ts, cst,
+        p, t, _ = integrate_event(p, t, a, amb[n][0], amb[n][1], amb[n][2], n_rpm[n], ts, c,
                                   cd_alpha, cd_table, prs, eta_rpm, eta_val)
 
 
@@ -284,7 +192,7 @@ def open_loop_run(ta_meas, n_rpm, p0, t0, amb, ncyl, cst, cd_alpha, cd_table, pr
 def predict_at_events(states, idx, ta_sp, n_rpm, horizon, known_setpoint, u_amb, eta_scale,
                       pred, fc, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
     """cac_predict.prediction_errors' predictions: pred[j] = CAC_pred(idx[j]) (kg) from
-    states[idx[j]] over the horizon (horizon_inputs: known or held setpoints, N held), the
+    states[idx[j]] over the horizon (the known setpoints, or the one held; N held), the
     eta_N table scaled by eta_scale[idx[j]] (1: the calibration as it is)."""
     last = len(ta_sp) - 1
     u = np.empty((horizon, 5))
@@ -342,13 +250,21 @@ def air_charge_sigmas(x, P, Q, horizon, n_rpm, p_a, t_a, t_cool, fc, c, cd_alpha
 def cac_sigmas(x: np.ndarray, P: np.ndarray, Q: np.ndarray, u: EngineInput,
                params: ManifoldParams, horizon: int = HORIZON, eta_scale: float = 1.0
                ) -> tuple[float, float]:
-    """air_charge_sigmas for a filter's posterior (x, P; its Q) and the event's input u:
-    compiled under the numba backend, its Python function otherwise (or for a parameter set
-    numba cannot mirror); eta_scale multiplies the eta_N table (the adaptive filter's c)."""
-    run, compiled, args = _backend_args(air_charge_sigmas, params, eta_scale)
-    if compiled:
-        if not _ready:
-            prepare()
-        return run(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)
-    with using("python"):  # the kernels it calls as Python too (the tables are tuples)
-        return air_charge_sigmas.py(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool, *args)
+    """air_charge_sigmas for a filter's posterior (x, P; its Q) and the event's input u;
+    eta_scale multiplies the eta_N table (the adaptive filter's c)."""
+    return air_charge_sigmas(x, P, Q, horizon, u.n_rpm, u.p_a, u.t_a, u.t_cool,
+                             *_args(params, eta_scale))
+
+
+def _predict_signature() -> tuple:
+    _, f8, i8, v, m, tables = signature_types()
+    return (v, m, i8, v, v) + tables
+
+
+def _sigmas_signature() -> tuple:
+    _, f8, i8, v, m, tables = signature_types()
+    return (v, m, m, i8, f8, f8, f8, f8, v) + tables
+
+
+predict_events.fix_signature(_predict_signature)
+air_charge_sigmas.fix_signature(_sigmas_signature)

@@ -8,11 +8,12 @@ DARE modes solve eq. 14 in Python and pass its P), gating and the measurement up
 plant's integrator of eq. 5-6, vecu.models.manifold_integrator). `ekf_event` is the EKF event:
 the same update, then F = df/dx at x_n|n (analytic rows of eq. 1 and 9, one-sided differences
 of the integrator: `jacobian`) and P = F P F^T + Q. The adaptive filter's event
-(manifold.adaptive) and the runs of events (manifold.runs) call these pieces.
+(manifold.adaptive) and the runs of events (manifold.sequences) call these pieces.
 
 Each function is a `vecu.kernels.kernel`: numba-compiled under the numba backend, the same
-Python function under the python backend (ManifoldEKF / ManifoldSDKF call `.impl()`; the block
-and ECU paths call them from compiled loops), so every path computes an event the same way. A
+Python function under the python backend, on the same arguments (the integrator's tables,
+manifold_integrator.tables), so every
+path computes an event the same way. A
 kernel returns a status word: bits 0-2 the channels gated, DIVERGED (reset the filter), FALLBACK
 (the innovation covariance S is not positive definite or not finite: the filter factors it with
 covariance.cholesky_lower's jitter, then `apply_gain` and `sdkf_finish` / `ekf_finish`).
@@ -50,9 +51,6 @@ ALPHA_SDC_MIN = 1e-3  # rad: B_IM divides by alpha (eq. 7); below this the flow 
 FD_ALPHA = 1e-6  # rad
 FD_REL = 1e-6
 
-_ready = False
-
-
 # input_fault's answers
 INPUT_OK, INPUT_SPEED, INPUT_SETPOINT, INPUT_AMBIENT = range(4)
 
@@ -69,14 +67,6 @@ def input_fault(sp, n_rpm, p_a, t_a, t_cool, n_lo, n_hi):
     if not (50.0 <= p_a <= 120.0 and 200.0 <= t_a <= 450.0 and 200.0 <= t_cool <= 450.0):
         return INPUT_AMBIENT
     return INPUT_OK
-
-
-@kernel
-def const_tuple(c):
-    """The integrator's 29 per-parameter-set constants as the tuple it takes."""
-    return (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
-            c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23], c[24],
-            c[25], c[26], c[27], c[28])
 
 
 @kernel
@@ -236,7 +226,7 @@ def update(x, Pn, xp, Pp, yv, runs, chans, fc):
 
 
 @kernel
-def jacobian(F, xp, p_n, t_n, m, co, fd, fd_c, ncol, p_a, t_a, t_cool, n_rpm, ts, cst,
+def jacobian(F, xp, p_n, t_n, m, co, fd, fd_c, ncol, p_a, t_a, t_cool, n_rpm, ts, c,
              cd_alpha, cdt, prs, eta_rpm, ev, cd_table, eta_val):
     """F = df/dx at the posterior xp into F (zeros on entry): the analytic rows of eq. 1 and 9,
     identity rows for parameter states beyond the sixth, and one-sided differences of the event
@@ -265,7 +255,7 @@ def jacobian(F, xp, p_n, t_n, m, co, fd, fd_c, ncol, p_a, t_a, t_cool, n_rpm, ts
             t_ = t + sign * d if j == 2 else t
             e_ = eta_val * (xp[6] + sign * d) if j == 3 else ev
             c_ = cd_table * (xp[7] + sign * d) if j == 4 else cdt
-            pp, tt, mm = integrate_event(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+            pp, tt, mm = integrate_event(p_, t_, a_, p_a, t_a, t_cool, n_rpm, ts, c, cd_alpha,
                                          c_, prs, eta_rpm, e_)
             if mm == m:
                 break
@@ -312,7 +302,7 @@ def sdkf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, c, cd_alpha,
     if not in_bounds(xp, Po[1], fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
     p_n, t_n, _ = integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), p_a, t_a, t_cool,
-                                  n_rpm, ts, const_tuple(c), cd_alpha, cd_table, prs, eta_rpm,
+                                  n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm,
                                   eta_val)
     map_out(xo, xp, sp, p_n, t_n, coefficients(ts, fc), fc)
     if not in_bounds(xo[0], Po[0], fc[F_MAX_TRACE], fc[F_MAX_ABS]):
@@ -354,12 +344,11 @@ def ekf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, Q, fd, c, cd_
     clamp(xp, fc)
     if not in_bounds(xp, Pp, fc[F_MAX_TRACE], fc[F_MAX_ABS]):
         return gated | DIVERGED
-    cst = const_tuple(c)
     co = coefficients(ts, fc)
     p_n, t_n, m = integrate_event(float(xp[3]), float(xp[4]), float(xp[1]), p_a, t_a, t_cool,
-                                  n_rpm, ts, cst, cd_alpha, cd_table, prs, eta_rpm, eta_val)
+                                  n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm, eta_val)
     F = np.zeros((6, 6))
-    jacobian(F, xp, p_n, t_n, m, co, fd, 0.0, 3, p_a, t_a, t_cool, n_rpm, ts, cst, cd_alpha,
+    jacobian(F, xp, p_n, t_n, m, co, fd, 0.0, 3, p_a, t_a, t_cool, n_rpm, ts, c, cd_alpha,
              cd_table, prs, eta_rpm, eta_val, cd_table, eta_val)
     map_out(xo, xp, sp, p_n, t_n, co, fc)
     if not propagate(F, Pp, Q, xo, Po, fc):
@@ -401,20 +390,6 @@ def model_constants(prm: Any) -> np.ndarray:
     return out
 
 
-def numba_tables(params: Any) -> tuple | None:
-    """(constants array, C_d alpha, C_d table, C_d pr, eta_N rpm, eta_N values) as float64
-    arrays for the compiled kernels, or None when the parameter set runs in Python only."""
-    nb = mi._tables(params)[2]
-    if nb is None:
-        return None
-    return (np.array(nb[0], dtype=np.float64), *nb[1:])
-
-
-def python_tables(params: Any) -> tuple:
-    """The same tables for the kernels' Python functions (tuples: the integrator's fast form)."""
-    return mi._tables(params)[1]
-
-
 def signature_types() -> tuple[Any, Any, Any, Any, Any, tuple]:
     """numba's (types, float64, int64, contiguous vector, contiguous matrix, the integrator's
     tables: c, cd_alpha, cd_table, prs, eta_rpm, eta_val) for the kernels' one signatures."""
@@ -422,25 +397,19 @@ def signature_types() -> tuple[Any, Any, Any, Any, Any, tuple]:
 
     f8, i8 = types.float64, types.int64
     v, m = f8[::1], f8[:, ::1]
-    return types, f8, i8, v, m, (v, v, m, v, v, v)
+    return types, f8, i8, v, m, (types.UniTuple(f8, mi.N_CONSTS), v, m, v, v, v)
 
 
-def _compile_signatures() -> None:
+def _sdkf_signature() -> tuple:
     types, f8, i8, v, m, tables = signature_types()
-    sdkf_event.fix_signature((v, m, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4
-                             + (types.boolean, v, m) + tables)
-    ekf_event.fix_signature((v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v)
-                            + tables)
+    return ((v, m, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (types.boolean, v, m)
+            + tables)
 
 
-def prepare() -> None:
-    """Before the first numba call (idempotent): the integrator's search overload and signature,
-    each event kernel's one signature (compiled or loaded from numba's cache; further
-    compilation off, so int or numpy-scalar arguments convert to float64)."""
-    global _ready
-    if _ready:
-        return
-    if not mi._numba_sig_ready:
-        mi._prepare_numba()
-    _compile_signatures()
-    _ready = True
+def _ekf_signature() -> tuple:
+    _, f8, i8, v, m, tables = signature_types()
+    return (v, m, m, f8[:, :, ::1]) + (f8,) * 9 + (i8,) * 4 + (v, m, v) + tables
+
+
+sdkf_event.fix_signature(_sdkf_signature)
+ekf_event.fix_signature(_ekf_signature)

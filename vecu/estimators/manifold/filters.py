@@ -8,7 +8,7 @@ step(y, u) at event n: update with y_n (the measurement of x_n), store the poste
 (returned), then predict x_n+1|n with the event's input u_n (setpoint TA_SP,n, N_n, P_a, T_a, T_cool).
 
 - `ManifoldEKF`: recursive EKF; mean through the plant's sub-stepped event map f, F = df/dx at the
-  posterior (model.f_and_jacobian; event.ekf_event), P = F P F^T + Q.
+  posterior (event.jacobian, in event.ekf_event), P = F P F^T + Q.
 - `ManifoldSDKF`: eq. 12-14. Gain K_n = P_n C^T (C P_n C^T + R)^-1 with P_n from the Riccati
   equation of the SDC matrix A_n = A(x_n|n-1) (event.sdc_matrix). `riccati` selects
   how P_n is obtained:
@@ -39,142 +39,58 @@ counters, resets, the DARE of the "doubling" / "scipy" modes, the jittered fallb
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 import scipy.linalg
 
 from vecu.estimators.common.covariance import (
-    DivergenceBounds,
     cholesky_lower,
     symmetrise,
 )
+from vecu.estimators.manifold.cac_predict import predict_cac
 from vecu.estimators.manifold.event import (
     DIVERGED,
     FALLBACK,
     FD_ALPHA,
     FD_REL,
-    INPUT_OK,
-    INPUT_SETPOINT,
-    INPUT_SPEED,
     apply_gain,
     ekf_event,
     ekf_finish,
     filter_constants,
-    input_fault,
-    python_tables,
     sdkf_event,
     sdkf_finish,
 )
-from vecu.estimators.manifold.model import (
+from vecu.estimators.manifold.model import (  # noqa: F401 (RICCATI_MODES, dare_doubling re-exported)
     C_MATRIX,
+    MANIFOLD_BOUNDS,
+    RICCATI_MODES,
     Y_INDEX,
-    event_dt,
+    ManifoldFilterConfig,
+    dare_doubling,
+    input_problem,
     q_matrix,
     r_matrix,
     sdc_matrices,
 )
-from vecu.estimators.manifold.runs import CompiledEvents
-from vecu.kernels import backend, using
-from vecu.models.manifold import nominal_input, steady_state_vector
+from vecu.estimators.manifold.sequences import filter_events, limits
+from vecu.models.manifold import (
+    cylinder_air_charge,
+    nominal_input,
+    sample_time,
+    steady_state_vector,
+)
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import (
-    PAPER_NOISE,
-    V8_5L7,
     EngineInput,
-    ManifoldNoise,
-    ManifoldParams,
 )
 
-RICCATI_MODES = ("iterate", "doubling", "scipy")
-MANIFOLD_BOUNDS = DivergenceBounds(max_trace=1e5, max_abs_state=1e4)
+_NO_AC = np.zeros(3)  # filter_events' adaptive constants for the other kinds
+_NO_CAC = np.empty((0, 2))  # ... its CAC outputs without a horizon
 
 
-@dataclass(frozen=True)
-class ManifoldFilterConfig:
-    """Model, noise, guards. Ranges are (lo, hi) in the model's units (rad, kPa, K, rpm)."""
-
-    params: ManifoldParams = V8_5L7
-    noise: ManifoldNoise = PAPER_NOISE
-    riccati: str = "iterate"  # SDKF only, see RICCATI_MODES
-    # Prior variances (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) at start and after a reset.
-    p0_diag: tuple[float, ...] = (1e-4, 1e-3, 1e-3, 4.0, 100.0, 1.0)
-    # Plausible measurement ranges (TA, P_im, T_im.out): readings outside are rejected.
-    y_ranges: tuple[tuple[float, float], ...] = ((-0.2, 1.9), (1.0, 200.0), (200.0, 450.0))
-    # State box (alpha and u_prev, P_im, T_im and T_im.meas) applied to the posterior.
-    alpha_box: tuple[float, float] = (-0.1, 1.9)
-    p_box: tuple[float, float] = (1.0, 200.0)
-    t_box: tuple[float, float] = (200.0, 500.0)
-    n_range: tuple[float, float] = (300.0, 9000.0)  # plausible engine speed for an input
-    gate_sigma: float = 10.0  # per-channel innovation gate (normalised)
-    # the reported covariance (reported_cov: sigmas for the bus, NEES) is P_post x this: model
-    # error the matched Q leaves out (calibration errors, docs/models.md "Consistency")
-    report_var_scale: float = field(default=1.3, metadata={"bounds": (1.0, 100.0)})
-    max_gated_in_row: int = 20  # then the channel is believed again (a real step, not a spike)
-    doubling_tol: float = 1e-12
-    doubling_max_iter: int = 40
-    bounds: DivergenceBounds = field(default_factory=lambda: MANIFOLD_BOUNDS)
-    # adaptive filter only: corrections c (eta) and c_th (throttle flow), random walks
-    eta_q: float = 1e-9  # variance of c's and c_th's step per event
-    eta_p0: float = 2.5e-3  # prior variance of c and c_th (sigma 5 %)
-    eta_box: tuple[float, float] = (0.7, 1.3)  # c and c_th are clamped here
-    eta_pr_freeze: float = 0.9  # c, c_th not learned above this P_im / P_a
-    eta_alpha_gate: float = 2.0  # nor while |TA innovation| exceeds this many sigma
-    # ... and the angle sensor's gain g (TA = g alpha) and the actuator's k_zeta, k_omega
-    ta_gain_p0: float = 4e-4  # prior variance of g (sigma 2 %)
-    ta_gain_box: tuple[float, float] = (0.9, 1.1)
-    act_p0: float = 2.5e-3  # prior variance of k_zeta and k_omega (sigma 5 %)
-    act_box: tuple[float, float] = (0.85, 1.15)
-    act_q: float = 0.0  # variance of g's, k_zeta's and k_omega's step per event
-    # the eta correction the CAC uses: c averaged with "calibrated engine" (spike and slab):
-    # the prior probability that eta differs from the calibration, and by how much (sd of c)
-    eta_drift_prior: float = field(default=0.1, metadata={"bounds": (0.0, 1.0)})
-    eta_slab_sd: float = field(default=0.02, metadata={"bounds": (1e-4, 0.5)})  # sd of c then
-
-
-def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
-    """Why an event's input is implausible (None: plausible): engine speed outside `n_range`,
-    setpoint outside [-0.2, 1.9] rad, ambient or coolant conditions outside physical bounds.
-    The filter holds its last plausible input instead; the ECU refuses the event (NaN fails)."""
-    lo, hi = config.n_range
-    fault = input_fault.py(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, lo, hi)
-    if fault == INPUT_OK:
-        return None
-    if fault == INPUT_SPEED:
-        return f"engine speed {u.n_rpm:g} rpm outside {lo:g}..{hi:g} rpm"
-    if fault == INPUT_SETPOINT:
-        return f"throttle setpoint {u.ta_sp:g} rad outside -0.2..1.9 rad"
-    return (f"ambient {u.p_a:g} kPa / {u.t_a:g} K or coolant {u.t_cool:g} K outside "
-            "50..120 kPa / 200..450 K")
-
-
-def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
-                  tol: float = 1e-12, max_iter: int = 40) -> tuple[np.ndarray, int]:
-    """Prior covariance P of the filter DARE P = A P A^T - A P C^T (C P C^T + R)^-1 C P A^T + Q
-    (eq. 14) by the structure-preserving doubling algorithm (Chu, Fan, Lin 2005) on the dual
-    (control) form: A_0 = A^T, G_0 = C^T R^-1 C, H_0 = Q;
-    W = I + G H, A' = A W^-1 A, G' = G + A W^-1 G A^T, H' = H + A^T H W^-1 A; H -> P.
-    Returns (P, doublings)."""
-    n = A.shape[0]
-    eye = np.eye(n)
-    a = A.T.copy()
-    g = C.T @ np.linalg.solve(R, C)
-    hh = Q.copy()
-    for k in range(1, max_iter + 1):
-        w = eye + g @ hh
-        wa = np.linalg.solve(w, a)  # W^-1 A
-        wg = np.linalg.solve(w, g)  # W^-1 G
-        h_new = hh + a.T @ hh @ wa
-        g = g + a @ wg @ a.T
-        a = a @ wa
-        if np.abs(h_new - hh).max() <= tol * max(np.abs(h_new).max(), 1e-300):
-            return symmetrise(h_new), k
-        hh = h_new
-    return symmetrise(hh), max_iter
-
-
-class _ManifoldKF(CompiledEvents):
+class _ManifoldKF:
     """Shared guards, counters and the event's orchestration (subclasses: their event kernel);
     a manifold.base.ManifoldEstimator."""
 
@@ -187,6 +103,8 @@ class _ManifoldKF(CompiledEvents):
         self.params = c.params
         self.Q = q_matrix(c.noise)
         self.R = r_matrix(c.noise)
+        self._kargs = (filter_constants(c), self.Q, np.array([FD_ALPHA, FD_REL]),
+                       *tables(self.params))
         self._P0 = np.diag(np.array(c.p0_diag, dtype=float))
         # a given x0 is the state; else the idle steady state until the first complete reading
         # initialises it (_initialise; before issue 30 x0 was always "given": 25 kPa at start)
@@ -270,37 +188,12 @@ class _ManifoldKF(CompiledEvents):
 
     # ---------------------------------------------------------------- the event
     _KERNELS: tuple[Any, Any] = (None, None)  # (event kernel, finish kernel) of the subclass
+    _KIND = 0  # filter_events' kind
     _count_gated_on_reset = True  # the gated counters of an event that diverged still count
-    _py_args: tuple | None = None  # the kernels' constants for their Python functions
+    _kargs: tuple  # the kernels' constants: filter constants, Q, FD steps (, ...), tables
     # what a failing event raises (the filter resets): non-finite or implausible numbers
     _EVENT_ERRORS: tuple[type[Exception], ...] = (FloatingPointError, ValueError,
                                                   np.linalg.LinAlgError)
-
-    _runner_backend: str | None = None  # the backend _runner was made for
-    _runner: tuple[Any, Any, tuple, bool]
-
-    def _event_runner(self) -> tuple[Any, Any, tuple, bool]:
-        """(event kernel, finish kernel, their constants, Python only?) for the active backend:
-        the compiled kernels under numba (event.prepare first), their Python functions with
-        plain-float constants otherwise or for a parameter set numba cannot mirror."""
-        active = backend()
-        if active != self._runner_backend:
-            self._runner = self._make_runner()
-            self._runner_backend = active
-        return self._runner
-
-    def _make_runner(self) -> tuple[Any, Any, tuple, bool]:
-        ev, fin = self._KERNELS
-        if ev.impl() is not ev.py:
-            args = self._kernel_args
-            if args is None and not self._kernel_args_ready:
-                args = self._prepare_kernel()
-            if args is not None:
-                return ev.compiled, fin.compiled, args, False
-        if self._py_args is None:
-            self._py_args = (tuple(filter_constants(self.config).tolist()), self.Q,
-                             (FD_ALPHA, FD_REL), *python_tables(self.params))
-        return ev.py, fin.py, self._py_args, ev.impl() is not ev.py
 
     def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                     u: EngineInput, ts: float, mask: int) -> int:
@@ -320,7 +213,8 @@ class _ManifoldKF(CompiledEvents):
         """The event after the input checks: one call of the subclass's event kernel (prior
         covariance, update, guards, prediction), a fallback update when S needs jitter, then
         the counters, a reset or the new state."""
-        run, finish, args, py_only = self._event_runner()
+        run, finish = self._KERNELS
+        args = self._kargs
         mask = 0
         for i in chans:
             mask |= 1 << i
@@ -328,11 +222,7 @@ class _ManifoldKF(CompiledEvents):
         xo = np.empty((3, n))
         Po = np.empty((2, n, n))
         try:
-            if py_only:
-                with using("python"):
-                    code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
-            else:
-                code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
+            code = self._run_event(run, finish, args, xo, Po, u, ts, mask)
         except self._EVENT_ERRORS:
             self._reset_in_step()
             return
@@ -362,13 +252,135 @@ class _ManifoldKF(CompiledEvents):
         L = cholesky_lower(prior[np.ix_(idx, idx)] + self.R[np.ix_(ch, ch)])
         Linv = np.linalg.inv(L)
         ly = self._last_y
-        apply_gain.impl()(self.x, prior, xo[1], Po[1], (ly[0], ly[1], ly[2]),
+        apply_gain(self.x, prior, xo[1], Po[1], np.array(ly, dtype=np.float64),
                           np.array(ch, dtype=np.int64), len(ch), Linv.T @ Linv)
         return self._call_finish(finish, args, xo, Po, u, ts, gated)
 
     def _prior_of(self, Po: np.ndarray) -> np.ndarray:
         """The prior covariance the event's update used."""
         return self.P
+
+    # ---------------------------------------------------------------- runs of events
+    def estimate(self, y0: float, y1: float, y2: float, u: EngineInput, horizon: int,
+                 lap: Callable[[], float]) -> tuple[list[float], float, float, float, float,
+                                                    float]:
+        """The ECU's event: step((y0, y1, y2), u), the CAC at the posterior and predicted
+        `horizon` events ahead with u held (the adaptive filter's eta correction applied):
+        (posterior, CAC, CAC+horizon, the eta scale used, seconds in the filter, seconds in
+        the prediction made apart). The usual event of the SDKF ("iterate") and the EKF is
+        one kernel call (filter_events over one event with the horizon: the prediction's time
+        counted in the filter's), the others step() and predict_cac, with the same numbers;
+        lap: the caller's Stopwatch.lap."""
+        if self._KIND != 2 and self._initialised and self._runs:
+            ys, us, xs, vs, cacs = self._buffers
+            ys[0, 0], ys[0, 1], ys[0, 2] = y0, y1, y2
+            us[0, 0], us[0, 1], us[0, 2], us[0, 3], us[0, 4] = (u.ta_sp, u.n_rpm, u.p_a, u.t_a,
+                                                                u.t_cool)
+            try:
+                done = self._run_block(ys, us, 0, xs, vs, horizon, cacs, u)
+            except (FloatingPointError, ValueError, ZeroDivisionError, np.linalg.LinAlgError):
+                done = 0  # step() runs the event again and decides (a reset)
+            if done:
+                c = cacs[0].tolist()
+                return self.x_post.tolist(), c[0], c[1], 1.0, lap(), 0.0
+        x = self.step((y0, y1, y2), u).tolist()
+        filter_s = lap()
+        scale = 1.0
+        if len(x) > 6:  # the adaptive filter's eta correction as the CAC uses it
+            scale = float(self.eta_used(x[6], float(self.P_post[6, 6])))  # type: ignore[attr-defined]  # ManifoldAdaptive's
+        cac = scale * cylinder_air_charge(x[3], x[4], u.n_rpm, self.params)
+        first = self.last_prediction  # the filter already ran event n+1 from x
+        if first is not None and first[0] is u:
+            cac6 = predict_cac(first[1], [u] * (horizon - 1), self.params, scale)
+        else:
+            cac6 = predict_cac(self.x_post, [u] * horizon, self.params, scale)
+        return x, cac, cac6, scale, filter_s, lap()
+
+    _runs = True  # whole runs of events go through filter_events (not the DARE modes)
+    _lim: np.ndarray | None = None  # the plausibility limits (limits(config)), on first use
+    _counts: np.ndarray
+    _bufs: tuple | None = None
+
+    @property
+    def _buffers(self) -> tuple:
+        """estimate's arrays for filter_events over one event: ys, us, xs, vs, cacs."""
+        if self._bufs is None:
+            nx = len(self.x)
+            self._bufs = (np.empty((1, 3)), np.empty((1, 5)), np.empty((1, nx)),
+                          np.empty((1, nx)), np.empty((1, 2)))
+        return self._bufs
+
+    def _count_gated(self, code: int, chans: list[int]) -> None:
+        """The gated / gated-in-a-row counters of the channels used, from a kernel's code."""
+        gr = self._gated_run
+        for i in chans:
+            if code >> i & 1:
+                self.gated[i] += 1
+                gr[i] += 1
+            else:
+                gr[i] = 0
+
+    def _commit_event(self, xo: np.ndarray, Po: np.ndarray, u: EngineInput) -> None:
+        """Take a kernel's output: next prior (xo[0], Po[0]), posterior (xo[1], Po[1]) and the
+        event map's output xo[2]."""
+        self.x, self.x_post = xo[0], xo[1]
+        self.P, self.P_post = Po[0], Po[1]
+        self.last_prediction = (u, xo[2])
+
+    def run_events(self, ys: np.ndarray, us: np.ndarray) -> np.ndarray:
+        """step(ys[n], EngineInput(*us[n])) for every event n; the posteriors (events x states;
+        their variances, the diagonal of P_post, in `self.run_variances` afterwards).
+        ys: (events, 3) readings, us: (events, 5) inputs (TA_SP, N, P_a, T_a, T_cool). Runs of
+        events go through one filter_events call each (the same kernels, so the same numbers
+        and counters as stepping); the events the kernels hand back (bad inputs, rejected
+        readings, fallbacks, divergence) go through step()."""
+        ys = np.ascontiguousarray(ys, dtype=np.float64)
+        us = np.ascontiguousarray(us, dtype=np.float64)
+        n_ev = len(ys)
+        xs = np.empty((n_ev, len(self.x)))
+        vs = np.empty((n_ev, len(self.x)))
+        n = 0
+        while n < n_ev:
+            if self._runs and self._initialised:
+                n = self._run_block(ys, us, n, xs, vs, 0, _NO_CAC)
+                if n >= n_ev:
+                    break
+            xs[n] = self.step(ys[n].tolist(), EngineInput(*us[n].tolist()))
+            vs[n] = np.diag(self.P_post)
+            n += 1
+        self.run_variances = vs
+        return xs
+
+    def _run_block(self, ys: np.ndarray, us: np.ndarray, start: int, xs: np.ndarray,
+                   vs: np.ndarray, horizon: int, cacs: np.ndarray,
+                   u: EngineInput | None = None) -> int:
+        """filter_events from event start; the state, counters and last inputs (u: the last
+        event's, as given) taken from the events it ran. Returns the first event not run."""
+        args = self._kargs
+        if self._lim is None:
+            self._lim = limits(self.config)
+            self._counts = np.zeros((2, 3), dtype=np.int64)  # gated in a row, gated
+        gr, gated = self._counts
+        gr[0], gr[1], gr[2] = self._gated_run
+        gated[0] = gated[1] = gated[2] = 0
+        x, P, P_post = self.x.copy(), self.P.copy(), self.P_post.copy()
+        last_pred = np.empty(len(x))
+        kind = self._KIND
+        stop = filter_events(kind, x, P, P_post, ys, us, start, self.events, gr, gated, xs, vs,
+                             last_pred, self._lim, args[0], args[1], args[2],
+                             args[3] if kind == 2 else _NO_AC, *args[-6:], horizon, cacs)
+        if stop == start:
+            return start
+        self.events += stop - start
+        self.x, self.P, self.P_post = x, P, P_post
+        self.x_post = xs[stop - 1].copy()
+        self._gated_run = gr.tolist()
+        g = self.gated
+        g[0], g[1], g[2] = g[0] + int(gated[0]), g[1] + int(gated[1]), g[2] + int(gated[2])
+        self._last_y = ys[stop - 1].tolist()
+        self._last_u = u = EngineInput(*us[stop - 1].tolist()) if u is None else u
+        self.last_prediction = (u, last_pred)
+        return stop
 
     # ---------------------------------------------------------------- public
     def step(self, y: Sequence[Any] | None, u: EngineInput) -> np.ndarray:
@@ -379,7 +391,7 @@ class _ManifoldKF(CompiledEvents):
         self.events += 1
         self.last_prediction = None
         u = self._check_input(u)
-        ts = event_dt(u, self.params)
+        ts = sample_time(u.n_rpm, self.params.n_cyl)
         chans = self._valid_channels(y)
         self._initialise(y, chans)
         self._event(y, u, ts, chans)
@@ -417,6 +429,7 @@ class ManifoldEKF(_ManifoldKF):
 
     name = "ekf"
     _KERNELS = (ekf_event, ekf_finish)
+    _KIND = 1
 
     def _call_finish(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                      u: EngineInput, ts: float, gated: int) -> int:
@@ -436,6 +449,7 @@ class ManifoldSDKF(_ManifoldKF):
             raise ValueError(f"riccati must be one of {RICCATI_MODES}, got {config.riccati!r}")
         self.dare_failures = 0
         self.doublings = 0
+        self._runs = config.riccati == "iterate"  # the DARE modes step event by event
         super().__init__(config, x0)
 
     def _dare_prior(self, u: EngineInput, ts: float) -> None:

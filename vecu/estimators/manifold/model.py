@@ -7,11 +7,9 @@ written there once, for the kernels); no equation is restated here.
 State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) (eq. 10), output y = C x =
 (TA, P_im, T_im.out) with C a row selection (indices 1, 3, 5). Units as the plant: rad, kPa, K.
 
-- `f`, `h`: the plant's noise-free event map and output (the corrected, sub-stepped eq. 1, 5-6, 9).
-- `f_and_jacobian`: f and F = df/dx. Actuator and IAT rows are analytic (linear, eq. 1 and 9);
-  the manifold rows (d(P, T)_{n+1}/d(alpha, P, T)_n) are one-sided finite differences of the
-  plant's event integrator, three extra calls, with the step direction flipped when a perturbation
-  would change the integrator's sub-step count (so the difference never straddles a switch).
+The event map f and output h are the plant's (vecu.models.manifold.f, h); F = df/dx is
+event.jacobian (analytic actuator and IAT rows; one-sided finite differences of the event
+integrator for the manifold rows, the step flipped where the sub-step count would change).
 - `sdc_matrices`: A(x), B(x) of eq. 10 with the paper's A_IM, B_IM (eq. 7) built from eq. 5-6 with
   the corrected per-event pumping volume V_cyl; A(x) x + B(x) u is eq. 5-6 as printed (one Euler
   step) for the manifold rows and exactly eq. 1/9 for the others. The SDKF uses A(x) for its
@@ -22,24 +20,24 @@ State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) (eq. 10), output y 
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
+from vecu.estimators.common.covariance import DivergenceBounds, symmetrise
 from vecu.estimators.manifold.event import (
     ALPHA_SDC_MIN,  # noqa: F401 (re-exported)
     F_ALPHA_MIN,
-    FD_ALPHA,
-    FD_REL,
+    INPUT_OK,
+    INPUT_SETPOINT,
+    INPUT_SPEED,
     coefficients,
-    integrate_event,
-    jacobian,
+    input_fault,
     model_constants,
-    python_tables,
     sdc_matrix,
 )
-from vecu.kernels import using
 from vecu.models.manifold import N_STATE, sample_time
-from vecu.models.manifold import f as plant_f
-from vecu.models.manifold import h as plant_h
+from vecu.models.manifold_integrator import tables
 from vecu.models.manifold_params import (
     PAPER_NOISE,
     V8_5L7,
@@ -67,55 +65,6 @@ def r_matrix(noise: ManifoldNoise = PAPER_NOISE) -> np.ndarray:
     return np.diag(np.array(noise.r_diag(), dtype=float))
 
 
-def event_dt(u: EngineInput, params: ManifoldParams = V8_5L7) -> float:
-    """T_s = 120 / (8 N) for this event's engine speed."""
-    return sample_time(u.n_rpm, params.n_cyl)
-
-
-def f(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
-      dt: float | None = None) -> np.ndarray:
-    """Noise-free event map of eq. 10 (the plant's `f`)."""
-    return plant_f(x, u, params, dt)
-
-
-def h(x: np.ndarray) -> np.ndarray:
-    """y = C x = (TA, P_im, T_im.out) without noise (the plant's `h`)."""
-    return plant_h(x)
-
-
-def f_and_jacobian(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
-                   dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(f(x), df/dx) as the EKF's event computes them (event.jacobian: analytic actuator/IAT
-    rows, finite-difference manifold block, see module)."""
-    ts = event_dt(u, params) if dt is None else dt
-    xp = np.array([float(v) for v in x])
-    fc = model_constants(params)
-    c, cd_alpha, cd_table, prs, eta_rpm, eta_val = python_tables(params)
-    F = np.zeros((N_X, N_X))
-    with using("python"):  # the Python functions throughout (the tables are tuples)
-        p_n, t_n, m = integrate_event(xp[3], xp[4], xp[1], u.p_a, u.t_a, u.t_cool, u.n_rpm, ts,
-                                      c, cd_alpha, cd_table, prs, eta_rpm, eta_val)
-        jacobian(F, xp, p_n, t_n, m, coefficients(ts, fc), (FD_ALPHA, FD_REL), 0.0, 3, u.p_a,
-                 u.t_a, u.t_cool, u.n_rpm, ts, c, cd_alpha, cd_table, prs, eta_rpm, eta_val,
-                 cd_table, eta_val)
-    return f(x, u, params, ts), F
-
-
-def numerical_jacobian(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
-                       dt: float | None = None, rel: float = 1e-5) -> np.ndarray:
-    """Central-difference df/dx over all six states (reference for tests; 12 calls of f)."""
-    x = np.asarray(x, dtype=float)
-    J = np.zeros((N_X, N_X))
-    for j in range(N_X):
-        d = rel * max(abs(x[j]), 1.0) if j in (3, 4, 5) else rel
-        xp = x.copy()
-        xm = x.copy()
-        xp[j] += d
-        xm[j] -= d
-        J[:, j] = (f(xp, u, params, dt) - f(xm, u, params, dt)) / (2.0 * d)
-    return J
-
-
 def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
                  dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(A(x), B(x)) of eq. 10 with the paper's SDC factorisation (eq. 7), per event.
@@ -126,11 +75,97 @@ def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
     pi = kappa eta N V_d T_s / (120 V_im) (= kappa V_cyl eta / V_im at T_s = 120/(8N)).
     B_IM C_ET goes into the alpha column of A (eq. 10); alpha >= ALPHA_SDC_MIN in the division.
     """
-    ts = event_dt(u, params) if dt is None else dt
+    ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     fc = model_constants(params)
     A = np.zeros((N_X, N_X))
-    co = coefficients.py(ts, fc)
-    with using("python"):  # the Python functions throughout (the tables are tuples)
-        sdc_matrix(A, [float(v) for v in x], u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, co,
-                   fc[F_ALPHA_MIN], *python_tables(params))
+    co = coefficients(ts, fc)
+    sdc_matrix(A, np.array([float(v) for v in x]), u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, co,
+               fc[F_ALPHA_MIN], *tables(params))
     return A, np.array([1.0, co[2], 0.0, 0.0, 0.0, 0.0])
+
+
+RICCATI_MODES = ("iterate", "doubling", "scipy")
+MANIFOLD_BOUNDS = DivergenceBounds(max_trace=1e5, max_abs_state=1e4)
+
+
+@dataclass(frozen=True)
+class ManifoldFilterConfig:
+    """Model, noise, guards. Ranges are (lo, hi) in the model's units (rad, kPa, K, rpm)."""
+
+    params: ManifoldParams = V8_5L7
+    noise: ManifoldNoise = PAPER_NOISE
+    riccati: str = "iterate"  # SDKF only, see RICCATI_MODES
+    # Prior variances (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) at start and after a reset.
+    p0_diag: tuple[float, ...] = (1e-4, 1e-3, 1e-3, 4.0, 100.0, 1.0)
+    # Plausible measurement ranges (TA, P_im, T_im.out): readings outside are rejected.
+    y_ranges: tuple[tuple[float, float], ...] = ((-0.2, 1.9), (1.0, 200.0), (200.0, 450.0))
+    # State box (alpha and u_prev, P_im, T_im and T_im.meas) applied to the posterior.
+    alpha_box: tuple[float, float] = (-0.1, 1.9)
+    p_box: tuple[float, float] = (1.0, 200.0)
+    t_box: tuple[float, float] = (200.0, 500.0)
+    n_range: tuple[float, float] = (300.0, 9000.0)  # plausible engine speed for an input
+    gate_sigma: float = 10.0  # per-channel innovation gate (normalised)
+    # the reported covariance (reported_cov: sigmas for the bus, NEES) is P_post x this: model
+    # error the matched Q leaves out (calibration errors, docs/models.md "Consistency")
+    report_var_scale: float = field(default=1.3, metadata={"bounds": (1.0, 100.0)})
+    max_gated_in_row: int = 20  # then the channel is believed again (a real step, not a spike)
+    doubling_tol: float = 1e-12
+    doubling_max_iter: int = 40
+    bounds: DivergenceBounds = field(default_factory=lambda: MANIFOLD_BOUNDS)
+    # adaptive filter only: corrections c (eta) and c_th (throttle flow), random walks
+    eta_q: float = 1e-9  # variance of c's and c_th's step per event
+    eta_p0: float = 2.5e-3  # prior variance of c and c_th (sigma 5 %)
+    eta_box: tuple[float, float] = (0.7, 1.3)  # c and c_th are clamped here
+    eta_pr_freeze: float = 0.9  # c, c_th not learned above this P_im / P_a
+    eta_alpha_gate: float = 2.0  # nor while |TA innovation| exceeds this many sigma
+    # ... and the angle sensor's gain g (TA = g alpha) and the actuator's k_zeta, k_omega
+    ta_gain_p0: float = 4e-4  # prior variance of g (sigma 2 %)
+    ta_gain_box: tuple[float, float] = (0.9, 1.1)
+    act_p0: float = 2.5e-3  # prior variance of k_zeta and k_omega (sigma 5 %)
+    act_box: tuple[float, float] = (0.85, 1.15)
+    act_q: float = 0.0  # variance of g's, k_zeta's and k_omega's step per event
+    # the eta correction the CAC uses: c averaged with "calibrated engine" (spike and slab):
+    # the prior probability that eta differs from the calibration, and by how much (sd of c)
+    eta_drift_prior: float = field(default=0.1, metadata={"bounds": (0.0, 1.0)})
+    eta_slab_sd: float = field(default=0.02, metadata={"bounds": (1e-4, 0.5)})  # sd of c then
+
+
+def input_problem(u: EngineInput, config: ManifoldFilterConfig) -> str | None:
+    """Why an event's input is implausible (None: plausible): engine speed outside `n_range`,
+    setpoint outside [-0.2, 1.9] rad, ambient or coolant conditions outside physical bounds.
+    The filter holds its last plausible input instead; the ECU refuses the event (NaN fails)."""
+    lo, hi = config.n_range
+    fault = input_fault(u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, lo, hi)
+    if fault == INPUT_OK:
+        return None
+    if fault == INPUT_SPEED:
+        return f"engine speed {u.n_rpm:g} rpm outside {lo:g}..{hi:g} rpm"
+    if fault == INPUT_SETPOINT:
+        return f"throttle setpoint {u.ta_sp:g} rad outside -0.2..1.9 rad"
+    return (f"ambient {u.p_a:g} kPa / {u.t_a:g} K or coolant {u.t_cool:g} K outside "
+            "50..120 kPa / 200..450 K")
+
+
+def dare_doubling(A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
+                  tol: float = 1e-12, max_iter: int = 40) -> tuple[np.ndarray, int]:
+    """Prior covariance P of the filter DARE P = A P A^T - A P C^T (C P C^T + R)^-1 C P A^T + Q
+    (eq. 14) by the structure-preserving doubling algorithm (Chu, Fan, Lin 2005) on the dual
+    (control) form: A_0 = A^T, G_0 = C^T R^-1 C, H_0 = Q;
+    W = I + G H, A' = A W^-1 A, G' = G + A W^-1 G A^T, H' = H + A^T H W^-1 A; H -> P.
+    Returns (P, doublings)."""
+    n = A.shape[0]
+    eye = np.eye(n)
+    a = A.T.copy()
+    g = C.T @ np.linalg.solve(R, C)
+    hh = Q.copy()
+    for k in range(1, max_iter + 1):
+        w = eye + g @ hh
+        wa = np.linalg.solve(w, a)  # W^-1 A
+        wg = np.linalg.solve(w, g)  # W^-1 G
+        h_new = hh + a.T @ hh @ wa
+        g = g + a @ wg @ a.T
+        a = a @ wa
+        if np.abs(h_new - hh).max() <= tol * max(np.abs(h_new).max(), 1e-300):
+            return symmetrise(h_new), k
+        hh = h_new
+    return symmetrise(hh), max_iter

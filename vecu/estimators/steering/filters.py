@@ -8,9 +8,10 @@ and lets either be missing on its own.
 
 The equations live once in kernels (vecu.kernels): the model in steering.model, the UKF's sigma
 points, predict, a_y moments and scalar update in steering.unscented, the smoother's gain and
-backward pass in steering.rts; under the numba backend the UKF's predict and a_y moments and
-the recording run compiled (3 compiled calls per step), otherwise the same functions as plain
-Python (bit-identical). The classes here only check inputs, gate, count, project and reset.
+backward pass in steering.rts. One driver under every backend: the UKF's predict and a_y
+moments and the recording are kernel calls (compiled under numba, 3 calls per step; the same
+functions as plain Python otherwise, bit-identical). The classes here only check inputs, gate,
+count, project and reset.
 
 UKF (`SteeringUKF`): n = 4, P kept as its 10 distinct entries, unrolled Cholesky
 (common.small_linalg.chol4; fallback: covariance.cholesky_lower). Sigma set: any
@@ -49,17 +50,21 @@ from vecu.estimators.steering import model as sm
 from vecu.estimators.steering import rts
 from vecu.estimators.steering import unscented as uk
 from vecu.estimators.steering.base import FilterRun
-from vecu.estimators.steering.history import COL_C, COL_PP, COL_VX, COL_XP, N_COLS, Ring
+from vecu.estimators.steering.history import (
+    COL_C,
+    COL_PP,
+    COL_VX,
+    COL_XP,
+    IDX16,
+    N_COLS,
+    TRIU,
+    Ring,
+)
 from vecu.estimators.steering.model import SteeringModel
-from vecu.kernels import backend
+from vecu.kernels import constants
 
 P10 = tuple[float, float, float, float, float, float, float, float, float, float]
-# index of (i, j) in the 10-entry upper triangle p00 p01 p02 p03 p11 p12 p13 p22 p23 p33
-_IDX = ((0, 1, 2, 3), (1, 4, 5, 6), (2, 5, 7, 8), (3, 6, 8, 9))
 V_X_DEFAULT = 20.0  # used for v_x until the first good reading
-_scalar_update = uk.scalar_update.py  # tiny: plain Python under every backend (vecu.kernels)
-_transition = sm.transition.py  # the EKF's (plain Python, numpy Jacobians)
-_accel = sm.accelerations.py
 
 
 def default_sigma_set() -> SigmaSet:
@@ -68,15 +73,12 @@ def default_sigma_set() -> SigmaSet:
 
 
 def p10_from_matrix(P: np.ndarray) -> P10:
-    return tuple(float(P[i, j]) for i in range(4) for j in range(i, 4))  # type: ignore[return-value]  # 10 entries (upper triangle of 4x4)
+    """The 10-entry upper triangle p00 p01 p02 p03 p11 p12 p13 p22 p23 p33 of P."""
+    return tuple(P[TRIU].tolist())  # type: ignore[return-value]  # 10 entries
 
 
 def matrix_from_p10(p: P10 | list[float]) -> np.ndarray:
-    P = np.empty((4, 4))
-    for i in range(4):
-        for j in range(4):
-            P[i, j] = p[_IDX[i][j]]
-    return P
+    return np.asarray(p, dtype=np.float64)[IDX16].reshape(4, 4)
 
 
 class _SteeringFilter:
@@ -86,12 +88,15 @@ class _SteeringFilter:
     def __init__(self, model: SteeringModel, record: bool, history_maxlen: int | None) -> None:
         self.model = model
         self._cst = sm.constants(model)
+        self._kcst = constants(self._cst)  # as the kernels take it (vecu.kernels.constants)
         self._gate2 = model.gate_sigma ** 2
         self._x0 = tuple(float(v) for v in model.x0())
         self._p0 = p10_from_matrix(model.P0())
         self._reset_row = np.array([*self._x0, *self._p0, *([0.0] * 16)])
         self.record = record
         self._ring: Ring | None = Ring(history_maxlen) if record else None
+        if record:
+            rts.prepare()
         self._scratch = np.zeros((1, N_COLS))  # the kernels' history row when not recording
         self._smooth_lag: int | None = None  # set by a FixedLagSmoother (keep_history)
         self._lagged = (0.0, 0.0, 0.0, 0.0)  # with a smoother: its output of the last step
@@ -169,6 +174,7 @@ class _SteeringFilter:
         self.record = True
         self._ring = Ring(maxlen)
         self._smooth_lag = smooth_lag
+        rts.prepare()
 
     def history(self) -> FilterRun:
         """The recorded forward pass (record=True; the last history_maxlen steps if bounded)."""
@@ -233,12 +239,12 @@ class _SteeringFilter:
                 min(max(d, -m.max_abs_delta), m.max_abs_delta), dd)
 
     # -- one step -------------------------------------------------------------------------------
-    def _predict(self, vx: float, hist: np.ndarray, slot: int, compiled: bool
+    def _predict(self, vx: float, hist: np.ndarray, slot: int
                  ) -> tuple[tuple[float, ...], P10]:
         """x_pred, P_pred; when recording also written with C into hist[slot]."""
         raise NotImplementedError
 
-    def _update_ay(self, x: tuple[float, ...], p: P10, y: float, vx: float, compiled: bool
+    def _update_ay(self, x: tuple[float, ...], p: P10, y: float, vx: float
                    ) -> tuple[tuple[float, ...], P10]:
         raise NotImplementedError
 
@@ -248,14 +254,10 @@ class _SteeringFilter:
         e = y - x[1]
         if not self._gate_r(e, s):
             return x, p
-        return _scalar_update(x, p, e, s, p[1], p[4], p[5], p[6])
+        return uk.scalar_update(x, p, e, s, p[1], p[4], p[5], p[6])
 
     def step(self, v_x: float | None, yaw_rate: float | None, a_y: float | None) -> None:
         """Predict 10 ms with v_x, then update with the gyro and the accelerometer readings."""
-        compiled = backend() == "numba"
-        if compiled:
-            uk.prepare()
-            rts.prepare()
         self.steps += 1
         m = self.model
         vx = float(self._speed(v_x))
@@ -265,7 +267,7 @@ class _SteeringFilter:
             hist = ring.hist
         else:
             slot, hist = 0, self._scratch
-        x, p = self._predict(vx, hist, slot, compiled)
+        x, p = self._predict(vx, hist, slot)
         if yaw_rate is None:
             self.missing_r += 1
         elif not -m.max_abs_r <= yaw_rate <= m.max_abs_r:
@@ -277,7 +279,7 @@ class _SteeringFilter:
         elif not -m.max_abs_ay <= a_y <= m.max_abs_ay:
             self.rejected_ay += 1
         else:
-            x, p = self._update_ay(x, p, a_y, vx, compiled)
+            x, p = self._update_ay(x, p, a_y, vx)
         if (diverged_floats(x, p[0] + p[4] + p[7] + p[9], sum(p) - p[0] - p[4] - p[7] - p[9],
                             m.bounds)
                 or p[0] <= 0.0 or p[4] <= 0.0 or p[7] <= 0.0 or p[9] <= 0.0):
@@ -289,10 +291,10 @@ class _SteeringFilter:
             x = self._project(x, vx)
         self._x, self._p = x, p
         if ring is not None:
-            self._lagged = self._record(ring, slot, x, p, vx, compiled)
+            self._lagged = self._record(ring, slot, x, p, vx)
 
-    def _record(self, ring: Ring, slot: int, x: tuple[float, ...], p: P10, vx: float,
-                compiled: bool) -> tuple[float, float, float, float]:
+    def _record(self, ring: Ring, slot: int, x: tuple[float, ...], p: P10, vx: float
+                ) -> tuple[float, float, float, float]:
         """Close row `slot` (rts.record) and advance the ring; with a fixed-lag smoother also
         the previous row's gain and, once steps > lag, the smoothed mean of step k - lag."""
         prev, n_back = -1, 0
@@ -303,8 +305,7 @@ class _SteeringFilter:
                 prev = ring.newest()
             if self.steps - 1 >= lag:
                 n_back = min(ring.count + 1, cap)
-        run = rts.record.compiled if compiled else rts.record.py
-        out = run(ring.hist, slot, prev, x, p, vx, n_back, rts.NO_OUT)
+        out = rts.record(ring.hist, slot, prev, x, p, vx, n_back, rts.NO_OUT)
         ring.advance()
         return out
 
@@ -320,34 +321,31 @@ class SteeringUKF(_SteeringFilter):
             raise ValueError(f"sigma set must have n = {sm.N_STATE}")
         self.sigma_set = s
         super().__init__(model, record, history_maxlen)
-        pts = uk.pattern(s)
-        self._args = {False: uk.arguments(self._cst, pts, False),
-                      True: uk.arguments(self._cst, pts, True)}
+        self._pts = constants(uk.pattern(s))
+        uk.prepare()
 
-    def _predict(self, vx: float, hist: np.ndarray, slot: int, compiled: bool
+    def _predict(self, vx: float, hist: np.ndarray, slot: int
                  ) -> tuple[tuple[float, ...], P10]:
-        cst, pts = self._args[compiled]
+        cst, pts = self._kcst, self._pts
         rec = self._ring is not None
-        run = uk.predict.compiled if compiled else uk.predict.py
-        ok, x, p = run(self._x, self._p, vx, cst, pts, hist, slot, rec)
+        ok, x, p = uk.predict(self._x, self._p, vx, cst, pts, hist, slot, rec)
         if not ok:  # not PD for the unrolled Cholesky: the fallback factor
-            run = uk.predict_with_factor.compiled if compiled else uk.predict_with_factor.py
-            ok, x, p = run(chol4_or_fallback(self._p), self._x, vx, cst, pts, hist, slot, rec)
+            ok, x, p = uk.predict_with_factor(chol4_or_fallback(self._p), self._x, vx, cst, pts,
+                                              hist, slot, rec)
         return x, p
 
-    def _update_ay(self, x: tuple[float, ...], p: P10, y: float, vx: float, compiled: bool
+    def _update_ay(self, x: tuple[float, ...], p: P10, y: float, vx: float
                    ) -> tuple[tuple[float, ...], P10]:
         """Unscented scalar update with points redrawn from (x, P)."""
-        cst, pts = self._args[compiled]
-        run = uk.ay_moments.compiled if compiled else uk.ay_moments.py
-        ok, ym, s, c0, c1, c2, c3 = run(x, p, vx, cst, pts)
+        cst, pts = self._kcst, self._pts
+        ok, ym, s, c0, c1, c2, c3 = uk.ay_moments(x, p, vx, cst, pts)
         if not ok:
-            run = uk.ay_moments_with_factor.compiled if compiled else uk.ay_moments_with_factor.py
-            ok, ym, s, c0, c1, c2, c3 = run(chol4_or_fallback(p), x, vx, cst, pts)
+            ok, ym, s, c0, c1, c2, c3 = uk.ay_moments_with_factor(chol4_or_fallback(p), x, vx,
+                                                                  cst, pts)
         e = y - ym
         if not self._gate_ay(e, s):
             return x, p
-        return _scalar_update(x, p, e, s, c0, c1, c2, c3)
+        return uk.scalar_update(x, p, e, s, c0, c1, c2, c3)
 
 
 class SteeringEKF(_SteeringFilter):
@@ -358,27 +356,27 @@ class SteeringEKF(_SteeringFilter):
         self._Q = sm.process_noise(model)
         super().__init__(model, record, history_maxlen)
 
-    def _predict(self, vx: float, hist: np.ndarray, slot: int, compiled: bool
+    def _predict(self, vx: float, hist: np.ndarray, slot: int
                  ) -> tuple[tuple[float, ...], P10]:
         x, k = self._x, self._cst
         F = sm.jacobian_f(x, vx, k)  # type: ignore[arg-type]  # the state is a 4-tuple
         P = matrix_from_p10(self._p)
         PFt = P @ F.T
         pp = p10_from_matrix(symmetrise(F @ PFt + self._Q))
-        xp = _transition(x[0], x[1], x[2], x[3], vx, k)
+        xp = sm.transition(x[0], x[1], x[2], x[3], vx, k)
         if self._ring is not None:  # C = P F^T: the extended RTS smoother's
             hist[slot, COL_XP:COL_PP] = xp
             hist[slot, COL_PP:COL_C] = pp
             hist[slot, COL_C:COL_VX] = PFt.ravel()
         return xp, pp
 
-    def _update_ay(self, x: tuple[float, ...], p: P10, y: float, vx: float, compiled: bool
+    def _update_ay(self, x: tuple[float, ...], p: P10, y: float, vx: float
                    ) -> tuple[tuple[float, ...], P10]:
         k = self._cst
         Hr = sm.jacobian_h(x, vx, k)[1]  # type: ignore[arg-type]  # the state is a 4-tuple
         c = matrix_from_p10(p) @ Hr  # P H^T
         s = float(Hr @ c) + k[sm.R_AY]
-        e = y - _accel(x[0], x[1], x[2], vx, k)[0]
+        e = y - sm.accelerations(x[0], x[1], x[2], vx, k)[0]
         if not self._gate_ay(e, s):
             return x, p
-        return _scalar_update(x, p, e, s, float(c[0]), float(c[1]), float(c[2]), float(c[3]))
+        return uk.scalar_update(x, p, e, s, float(c[0]), float(c[1]), float(c[2]), float(c[3]))

@@ -19,8 +19,8 @@ COL_X, COL_P, COL_XP, COL_PP, COL_C, COL_VX, COL_G = 0, 4, 14, 18, 28, 44, 45
 N_COLS = 61
 UNBOUNDED_START = 256  # initial rows of an unbounded ring (doubled when full)
 # column offsets of P's 16 entries (row-major) in the 10-entry upper triangle
-_IDX16 = np.array([0, 1, 2, 3, 1, 4, 5, 6, 2, 5, 7, 8, 3, 6, 8, 9])
-_TRIU = np.triu_indices(4)
+IDX16 = np.array([0, 1, 2, 3, 1, 4, 5, 6, 2, 5, 7, 8, 3, 6, 8, 9])
+TRIU = np.triu_indices(4)
 
 
 class Ring:
@@ -67,8 +67,8 @@ class Ring:
     def arrays(self) -> tuple[np.ndarray, ...]:
         """(x, P, x_pred, P_pred, C, v_x) over the rows, oldest first (a FilterRun's fields)."""
         rows = self.ordered()
-        return (rows[:, COL_X:COL_P].copy(), rows[:, COL_P + _IDX16].reshape(-1, 4, 4),
-                rows[:, COL_XP:COL_PP].copy(), rows[:, COL_PP + _IDX16].reshape(-1, 4, 4),
+        return (rows[:, COL_X:COL_P].copy(), rows[:, COL_P + IDX16].reshape(-1, 4, 4),
+                rows[:, COL_XP:COL_PP].copy(), rows[:, COL_PP + IDX16].reshape(-1, 4, 4),
                 rows[:, COL_C:COL_VX].reshape(-1, 4, 4), rows[:, COL_VX].copy())
 
     def vx(self) -> list[float]:
@@ -84,9 +84,9 @@ def rows_from_run(run: FilterRun) -> np.ndarray:
     n = run.x.shape[0]
     rows = np.zeros((n, N_COLS))
     rows[:, COL_X:COL_P] = run.x
-    rows[:, COL_P:COL_XP] = run.P[:, _TRIU[0], _TRIU[1]]
+    rows[:, COL_P:COL_XP] = run.P[:, TRIU[0], TRIU[1]]
     rows[:, COL_XP:COL_PP] = run.x_pred
-    rows[:, COL_PP:COL_C] = run.P_pred[:, _TRIU[0], _TRIU[1]]
+    rows[:, COL_PP:COL_C] = run.P_pred[:, TRIU[0], TRIU[1]]
     rows[:, COL_C:COL_VX] = run.C.reshape(n, 16)
     rows[:, COL_VX] = run.v_x
     return rows

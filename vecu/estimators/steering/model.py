@@ -13,9 +13,10 @@ Discretisation (dt = 10 ms): Heun (explicit trapezoid) on the continuous dynamic
 `jacobian_h` that of h; both are tested against finite differences (the EKF's).
 
 `accelerations` and `transition` are the one copy of the model's equations: vecu.kernels kernels
-on a constants vector (`constants`), which the UKF (vecu.estimators.steering.unscented) runs
-compiled under the numba backend and as plain Python otherwise, and the EKF calls as plain
-Python. Only scalar IEEE arithmetic and libm calls: both backends give the same bits.
+on a constants vector (`constants`), which the UKF's kernels (vecu.estimators.steering.unscented)
+run compiled under the numba backend and as plain Python otherwise; small kernels, so that the
+EKF's Python calls run them as Python. Only scalar IEEE arithmetic and libm calls: both backends
+give the same bits.
 """
 
 from __future__ import annotations
@@ -44,7 +45,6 @@ V_X_MIN = 3.0  # m/s: the single-track model is singular at standstill; v_x is c
 STEERING_BOUNDS = DivergenceBounds(max_trace=1e3, max_abs_state=1e2)
 
 State = tuple[float, float, float, float]
-_tyre_slope = tyre_force_slope.py  # plain Python (the EKF's Jacobians)
 
 
 @dataclass(frozen=True)
@@ -97,8 +97,8 @@ class SteeringModel:
         return np.diag(np.square(self.p0_std))
 
 
-# constants vector (`constants`): what the filters' equations read, as plain floats (a tuple for
-# plain Python, a float64 array for compiled callers; the same indices)
+# constants vector (`constants`): what the filters' equations read, as plain floats (the UKF's
+# kernels take it as vecu.kernels.constants gives it; the same indices)
 DT, M, IZ, LF, LR, DF, BF, DR, BR, C, IS, R_R, R_AY, Q0 = range(14)  # Q: 10 entries from Q0
 N_CONSTS = Q0 + 10
 
@@ -114,7 +114,7 @@ def constants(model: SteeringModel) -> tuple[float, ...]:
         *(Q[i, j] for i in range(4) for j in range(i, 4))))
 
 
-@kernel
+@kernel(small=True)
 def accelerations(vy: float, r: float, d: float, vx: float, cst: Any) -> tuple[float, float]:
     """(a_y, r'): the paper's lateral (4) and yaw (11) motion, vecu.models.lateral
     .lateral_motion (the plant's too) on the packed constants. a_y is also the accelerometer's
@@ -123,7 +123,7 @@ def accelerations(vy: float, r: float, d: float, vx: float, cst: Any) -> tuple[f
                           cst[LR], cst[M], cst[IZ])
 
 
-@kernel
+@kernel(small=True)
 def transition(vy: float, r: float, d: float, dd: float, vx: float, cst: Any
                ) -> tuple[float, float, float, float]:
     """x_{k+1} = f(x_k, v_x): one Heun step of `deriv` (module docstring), dt = cst[DT];
@@ -140,13 +140,13 @@ def transition(vy: float, r: float, d: float, dd: float, vx: float, cst: Any
 def deriv(x: State, vx: float, cst: Any) -> State:
     """Continuous dynamics g(x) = (v_y', r', delta', delta_dot') (eqs. 4, 11; delta_ddot = 0)."""
     vy, r, d, dd = x
-    ay, rd = _accel(vy, r, d, vx, cst)
+    ay, rd = accelerations(vy, r, d, vx, cst)
     return (ay - vx * r, rd, dd, 0.0)
 
 
 def h(x: State, vx: float, cst: Any) -> tuple[float, float]:
     """Measurement (r, a_y) (eq. 2 with a nonlinear h)."""
-    return x[1], _accel(x[0], x[1], x[2], vx, cst)[0]
+    return x[1], accelerations(x[0], x[1], x[2], vx, cst)[0]
 
 
 def swa(x: Sequence[float] | np.ndarray, cst: Any) -> float:
@@ -168,17 +168,14 @@ def stiffness_sensitivity(r: float, vx: float, p: VehicleParams) -> tuple[float,
             p.mass_kg * p.l_f_m * v * v * r / (p.wheelbase_m * p.c_r_n_per_rad))
 
 
-_accel = accelerations.py  # plain-Python callers (the EKF, the Jacobians): no backend dispatch
-
-
 # --------------------------------------------------------------------------- Jacobians
 def _force_grads(vy: float, r: float, d: float, vx: float, k: Any
                  ) -> tuple[float, float, tuple[float, float, float], tuple[float, float]]:
     """(F_yf cos d, F_yr, d(F_yf cos d)/d(vy, r, d), dF_yr/d(vy, r))."""
     af = d - (vy + k[LF] * r) / vx
     ar = (k[LR] * r - vy) / vx
-    ff, dff = _tyre_slope(k[DF], k[C], k[BF], af)  # F_f, dF_f/d alpha_f
-    fr, dfr = _tyre_slope(k[DR], k[C], k[BR], ar)
+    ff, dff = tyre_force_slope(k[DF], k[C], k[BF], af)  # F_f, dF_f/d alpha_f
+    fr, dfr = tyre_force_slope(k[DR], k[C], k[BR], ar)
     cd, sd = math.cos(d), math.sin(d)
     g_f = (-dff * cd / vx, -dff * cd * k[LF] / vx, dff * cd - ff * sd)
     g_r = (-dfr / vx, dfr * k[LR] / vx)

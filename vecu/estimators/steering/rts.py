@@ -15,8 +15,8 @@ window; `smooth_window` and `smooth_run` smooth a whole window / recorded run.
 
 The gain solves P_pred G^T = C^T with LAPACK dgesv (`solve4`): as plain Python np.linalg.solve,
 compiled a direct call of scipy.linalg.cython_lapack's dgesv (the same routine: bit-identical,
-tests/estimators/steering/test_backends.py; numba's own np.linalg.solve takes ~10 s to compile).
-`prepare()` registers that call; it must run before any of these kernels is compiled.
+tests/estimators/steering/test_backends.py; numba's own np.linalg.solve takes ~10 s to compile),
+linked by `_link_dgesv`, the kernels' setup (vecu.kernels).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from vecu.kernels import kernel
 
 NO_OUT = np.empty((0, 4))  # record: no output rows wanted
 _DGESV_SYMBOL = "vecu_steering_dgesv"
-_prepared = False
+_linked = _prepared = False
 
 
 def solve4(a: Any, b: Any, iw: Any) -> int:
@@ -54,7 +54,34 @@ def solve4(a: Any, b: Any, iw: Any) -> int:
     return 0
 
 
-@kernel
+def _link_dgesv() -> None:
+    """Before the first compilation or cache load of a kernel here (their `setup`): make
+    `solve4` a call of LAPACK dgesv, by symbol name so that numba's disk cache stays valid
+    across processes."""
+    global _linked
+    if _linked:
+        return
+    import llvmlite.binding as llvm
+    from numba import types
+    from numba.extending import get_cython_function_address, overload
+
+    llvm.add_symbol(_DGESV_SYMBOL, get_cython_function_address("scipy.linalg.cython_lapack",
+                                                               "dgesv"))
+    ptr = types.voidptr
+    dgesv = types.ExternalFunction(_DGESV_SYMBOL, types.void(ptr, ptr, ptr, ptr, ptr, ptr, ptr,
+                                                             ptr))
+
+    def solve4_lapack(a, b, iw):  # no annotations: numba compares them with the typer's
+        # dgesv(n, nrhs, a, lda, ipiv, b, ldb, info)
+        dgesv(iw[0:].ctypes, iw[1:].ctypes, a.ctypes, iw[2:].ctypes, iw[5:].ctypes, b.ctypes,
+              iw[3:].ctypes, iw[4:].ctypes)
+        return iw[4]
+
+    overload(solve4)(lambda a, b, iw: solve4_lapack)
+    _linked = True
+
+
+@kernel(setup=_link_dgesv)
 def smoother_gain(hist: Any, slot: int, prev: int) -> None:
     """G = C P_pred^-1 from row slot into row prev's gain columns: G^T = P_pred^-1 C^T (P_pred
     symmetric, so its row-major entries are its column-major ones; C row-major is C^T
@@ -109,7 +136,7 @@ def backward_pass(hist: Any, newest: int, n: int, out: Any) -> tuple[float, floa
     return m0, m1, m2, m3
 
 
-@kernel
+@kernel(setup=_link_dgesv)
 def record(hist: Any, slot: int, prev: int, x: Any, p: Any, vx: float, n_back: int,
            out: Any) -> tuple[float, float, float, float]:
     """Write x, P, v_x into hist[slot]; if prev >= 0 the gain of row prev from this row's
@@ -127,13 +154,13 @@ def record(hist: Any, slot: int, prev: int, x: Any, p: Any, vx: float, n_back: i
     return 0.0, 0.0, 0.0, 0.0
 
 
-@kernel
+@kernel(setup=_link_dgesv)
 def smooth_window(hist: Any, newest: int, n: int, out: Any) -> None:
     """All n smoothed means of the window ending at `newest` into out (n, 4), oldest first."""
     backward_pass(hist, newest, n, out)
 
 
-@kernel
+@kernel(setup=_link_dgesv)
 def smooth_run(hist: Any, n: int, out: Any) -> None:
     """A whole recorded run in rows 0..n-1 (in order): every gain, then every smoothed mean
     into out (n, 4)."""
@@ -143,33 +170,15 @@ def smooth_run(hist: Any, n: int, out: Any) -> None:
 
 
 def prepare() -> None:
-    """Once, before the first compilation or cache load of a kernel here: make `solve4` a call
-    of LAPACK dgesv (by symbol name, so numba's disk cache stays valid across processes) and
-    compile (or load) every kernel now, so none compiles in the middle of a live run."""
+    """Once: run every kernel here on a small window now (compiled or loaded from numba's disk
+    cache under numba), so that none compiles in the middle of a live run."""
     global _prepared
     if _prepared:
         return
-    import llvmlite.binding as llvm
-    from numba import types
-    from numba.extending import get_cython_function_address, overload
-
-    llvm.add_symbol(_DGESV_SYMBOL, get_cython_function_address("scipy.linalg.cython_lapack",
-                                                               "dgesv"))
-    ptr = types.voidptr
-    dgesv = types.ExternalFunction(_DGESV_SYMBOL, types.void(ptr, ptr, ptr, ptr, ptr, ptr, ptr,
-                                                             ptr))
-
-    def solve4_lapack(a, b, iw):  # no annotations: numba compares them with the typer's
-        # dgesv(n, nrhs, a, lda, ipiv, b, ldb, info)
-        dgesv(iw[0:].ctypes, iw[1:].ctypes, a.ctypes, iw[2:].ctypes, iw[5:].ctypes, b.ctypes,
-              iw[3:].ctypes, iw[4:].ctypes)
-        return iw[4]
-
-    overload(solve4)(lambda a, b, iw: solve4_lapack)
     _prepared = True
     x, p = (0.0,) * 4, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0)
     hist = np.zeros((2, N_COLS))
     hist[:, COL_PP + np.array([0, 4, 7, 9])] = 1.0
-    record.compiled(hist, 1, 0, x, p, 10.0, 2, NO_OUT)
-    smooth_window.compiled(hist, 1, 2, np.empty((2, 4)))
-    smooth_run.compiled(hist, 2, np.empty((2, 4)))
+    record(hist, 1, 0, x, p, 10.0, 2, NO_OUT)
+    smooth_window(hist, 1, 2, np.empty((2, 4)))
+    smooth_run(hist, 2, np.empty((2, 4)))

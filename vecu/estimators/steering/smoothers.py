@@ -16,7 +16,6 @@ code is the extended RTS smoother.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -25,7 +24,6 @@ from vecu.estimators.steering.base import FilterRun, LaggedEstimate
 from vecu.estimators.steering.filters import SteeringUKF, _SteeringFilter
 from vecu.estimators.steering.history import COL_G, rows_from_run
 from vecu.estimators.steering.model import SteeringModel, side_slip, swa
-from vecu.kernels import Kernel, backend
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,21 +34,13 @@ class SmoothedRun:
     P: np.ndarray | None
 
 
-def _impl(k: Kernel) -> Any:
-    """k's function for the active backend (rts.prepare first when compiled)."""
-    if backend() == "numba":
-        rts.prepare()
-        return k.compiled
-    return k.py
-
-
 def rts_smooth(run: FilterRun, covariance: bool = True) -> SmoothedRun:
     """Full (offline) unscented RTS smoother over a recorded forward pass: gains and means by
     rts.smooth_run, then P_k|T = P_k|k + G_k (P_k+1|T - P_k+1|k) G_k^T."""
     rows = rows_from_run(run)
     n = rows.shape[0]
     xs = np.empty((n, 4))
-    _impl(rts.smooth_run)(rows, n, xs)
+    rts.smooth_run(rows, n, xs)
     if not covariance:
         return SmoothedRun(xs, None)
     G = rows[:, COL_G:].reshape(n, 4, 4)
@@ -143,7 +133,7 @@ class FixedLagSmoother:
             return []
         first = f.steps - n_buf
         out = np.empty((n_buf, 4))
-        _impl(rts.smooth_window)(ring.hist, ring.newest(), n_buf, out)
+        rts.smooth_window(ring.hist, ring.newest(), n_buf, out)
         ms = out.tolist()
         vxs = ring.vx()
         skip = 1 if f.steps - 1 >= self.lag else 0  # the oldest one was already returned

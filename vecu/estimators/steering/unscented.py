@@ -19,7 +19,7 @@ positive definite for it they return ok = False and the caller passes the fallba
 
 Arguments: x, p as tuples (x 4, p the 10 upper-triangle entries); `cst` the constants vector
 (model.constants: the model, sigma_ay^2 and Q) and `pts` the pattern rows
-(z0..z3, w), both tuples for plain Python and float64 arrays for compiled calls (`arguments`).
+(z0..z3, w), as vecu.kernels.constants gives them (float64 arrays compiled, tuples as Python).
 Only scalar IEEE arithmetic and libm calls in a fixed order (no fastmath, no reductions): both
 backends give bit-identical results (tests/estimators/steering/test_backends.py).
 """
@@ -34,7 +34,7 @@ from vecu.estimators.common.sigma_sets import SigmaSet
 from vecu.estimators.common.small_linalg import chol4
 from vecu.estimators.steering.history import COL_C, COL_PP, COL_XP, N_COLS
 from vecu.estimators.steering.model import N_CONSTS, Q0, R_AY, accelerations, transition
-from vecu.kernels import kernel
+from vecu.kernels import constants, kernel
 
 P10 = tuple[float, float, float, float, float, float, float, float, float, float]
 X4 = tuple[float, float, float, float]
@@ -45,14 +45,6 @@ def pattern(s: SigmaSet) -> tuple[tuple[float, ...], ...]:
     zero-weight centre point dropped)."""
     cols = (tuple(float(v) for v in (*s.Z[:, j], s.w[j])) for j in range(s.points))
     return tuple(c for c in cols if c[4] != 0.0)
-
-
-def arguments(cst: tuple[float, ...], pts: tuple[tuple[float, ...], ...], compiled: bool
-              ) -> tuple[Any, Any]:
-    """(cst, pts) as the backend's kernels take them: float64 arrays compiled, tuples else."""
-    if compiled:
-        return np.array(cst, dtype=np.float64), np.array(pts, dtype=np.float64)
-    return cst, pts
 
 
 @kernel
@@ -175,7 +167,7 @@ def ay_moments(x: Any, p: Any, vx: float, cst: Any, pts: Any
     return ay_moments_with_factor(low, x, vx, cst, pts)
 
 
-@kernel
+@kernel(small=True)
 def scalar_update(x: Any, p: Any, e: float, s: float, c0: float, c1: float, c2: float,
                   c3: float) -> tuple[X4, P10]:
     """eqs. 23-25 for one scalar reading: innovation e, its variance s, c = P_xy = P h^T;
@@ -192,15 +184,16 @@ _prepared = False
 
 
 def prepare() -> None:
-    """Compile (or load from numba's disk cache) the step's kernels now, the rarely used
-    with-factor ones included, so that none compiles in the middle of a live run."""
+    """Once: run the step's kernels now (compiled or loaded from numba's disk cache under
+    numba), the rarely used with-factor ones included, so that none compiles in the middle of
+    a live run."""
     global _prepared
     if _prepared:
         return
-    x, p = (0.0,) * 4, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0)
-    cst, pts, hist = np.ones(N_CONSTS), np.zeros((1, 5)), np.zeros((1, N_COLS))
-    predict.compiled(x, p, 10.0, cst, pts, hist, 0, True)
-    predict_with_factor.compiled(p, x, 10.0, cst, pts, hist, 0, True)
-    ay_moments.compiled(x, p, 10.0, cst, pts)
-    ay_moments_with_factor.compiled(p, x, 10.0, cst, pts)
     _prepared = True
+    x, p = (0.0,) * 4, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0)
+    cst, pts, hist = constants(np.ones(N_CONSTS)), constants(np.zeros((1, 5))), np.zeros((1, N_COLS))
+    predict(x, p, 10.0, cst, pts, hist, 0, True)
+    predict_with_factor(p, x, 10.0, cst, pts, hist, 0, True)
+    ay_moments(x, p, 10.0, cst, pts)
+    ay_moments_with_factor(p, x, 10.0, cst, pts)

@@ -33,8 +33,8 @@ THROTTLE_BOUNDS = DivergenceBounds(max_trace=1e6, max_abs_state=1e6)
 def f(x: np.ndarray, u: float, model: ThrottleModel = PAPER_THROTTLE) -> np.ndarray:
     """x_{k+1} = eq3_step(x_k, u_k) with theta clipped to [0, 90] (eq. 3 without w)."""
     b1, b2 = model.mode_bounds_deg
-    th, rho, i = eq3_step.py(model.rows, b1, b2, float(x[0]), float(x[1]), float(x[2]), u)
-    return np.array([clip_theta.py(th), rho, i])
+    th, rho, i = eq3_step(model.rows, b1, b2, float(x[0]), float(x[1]), float(x[2]), u)
+    return np.array([clip_theta(th), rho, i])
 
 
 def h(x: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ to < 1e-9 relative (tests/estimators/common/test_ukf.py; on free runs see docs/m
 from __future__ import annotations
 
 import math
+import weakref
 from typing import Any
 
 import numpy as np
@@ -51,8 +52,9 @@ class FastThrottleUKF:
         )
         self.model = model
         self._rows = model.rows
-        self._pattern_arr = np.array(self._pattern, dtype=np.float64)  # the compiled step's
+        self._pattern_arr = np.array(self._pattern, dtype=np.float64)  # predict_moments'
         self._rows_arr = np.array(self._rows, dtype=np.float64)
+        self._pattern_arr.flags.writeable = self._rows_arr.flags.writeable = False
         self._b1, self._b2 = (float(b) for b in model.mode_bounds_deg)
         self._q = process_noise_diag(noise_scale, model.f_diag)
         self._r = measurement_noise_var(model.h_wattmeter)
@@ -114,13 +116,8 @@ class FastThrottleUKF:
     def step(self, u_prev: float, y: float | None) -> None:
         """Step 2 (draw) + Step 3 (predict with u_prev; update with y unless None / non-finite)."""
         low = chol3_or_fallback(self.p)
-        run = predict_moments.impl()
-        if run is _PREDICT_PY:
-            out = run(low, self.x, self._pattern, self._rows, self._b1, self._b2, float(u_prev),
-                      self._q)
-        else:
-            out = run(low, self.x, self._pattern_arr, self._rows_arr, self._b1, self._b2,
-                      float(u_prev), self._q)
+        out = predict_moments(low, self.x, self._pattern_arr, self._rows_arr, self._b1, self._b2,
+                              float(u_prev), self._q)
         x0, x1, x2, p00, p01, p02, p11, p12, p22, yp, c0, c1, c2, pyy = out
         self.x = (x0, x1, x2)
         self.p = (p00, p01, p02, p11, p12, p22)
@@ -151,9 +148,28 @@ class FastThrottleUKF:
             self.reset()
 
 
-@kernel
-def predict_moments(low: Any, x: Any, pattern: Any, rows: Any, b1: float, b2: float, u: float,
-                    q: Any) -> tuple[float, ...]:
+_lists: dict[int, Any] = {}  # id of a read-only array -> its tolist() (dropped with it)
+
+
+def _as_list(a: np.ndarray) -> Any:
+    if a.flags.writeable:
+        return a.tolist()
+    hit = _lists.get(id(a))
+    if hit is None:
+        hit = _lists[id(a)] = a.tolist()
+        weakref.finalize(a, _lists.pop, id(a), None)
+    return hit
+
+
+def _moments_on_lists(low: Any, x: Any, pattern: Any, rows: Any, b1: float, b2: float, u: float,
+                      q: Any) -> tuple[float, ...]:
+    """predict_moments' python form: the same function on Python lists (in plain Python,
+    numpy's element access and float64 scalars would cost the step about twice its time)."""
+    return _predict_moments(low, x, _as_list(pattern), _as_list(rows), b1, b2, u, q)
+
+
+def _predict_moments(low: Any, x: Any, pattern: Any, rows: Any, b1: float, b2: float, u: float,
+                     q: Any) -> tuple[float, ...]:
     """Step 3's prediction: the sigma points x + L z of `pattern` (rows z0, z1, z2, w), each
     through eq. (3) (eq3_step, theta clipped), their mean, covariance + Q, y_pred = E[i^2], Pxy
     and Pyy (without HH^T), accumulated in one pass about the first propagated point. Returns
@@ -205,4 +221,4 @@ def predict_moments(low: Any, x: Any, pattern: Any, rows: Any, b1: float, b2: fl
             ry + sy, c0 - s0 * sy, c1 - s1 * sy, c2 - s2 * sy, pyy - sy * sy)
 
 
-_PREDICT_PY = predict_moments.py
+predict_moments = kernel(_predict_moments, python=_moments_on_lists)

@@ -1,4 +1,4 @@
-"""Production throttle estimator (vecu.estimators.throttle.production) against simulated truth.
+"""Production throttle estimator (vecu.estimators.throttle.pf) against simulated truth.
 
 Accuracy is checked on 60 k steps per alpha (the 200 k-step, 3-seed figures are in
 docs/models.md); the tolerances leave room for the Monte-Carlo spread of a 60 k-step run, they are
@@ -15,11 +15,10 @@ import numpy as np
 import pytest
 
 from vecu.estimators.registry import make_throttle_estimator
-from vecu.estimators.throttle.pf_parts import ModeThreeKalman, class_matrix_stack
-from vecu.estimators.throttle.production import (
-    ThrottleParticleFilter,
-    make_production_estimator,
-)
+from vecu.estimators.throttle.pf.filter import ThrottleParticleFilter, make_production_estimator
+from vecu.estimators.throttle.pf.kalman_stretch import mode3_predict, mode3_update, set_constants
+from vecu.estimators.throttle.pf.model import class_matrix_stack
+from vecu.estimators.throttle.pf.state import new_state
 from vecu.models.throttle import TABLE_I, step_mean
 from vecu.plant.throttle import simulate
 
@@ -96,8 +95,7 @@ def test_outputs_always_finite_and_in_range(runs):
 def test_eq3_propagation_is_exact():
     """One prediction step equals vecu.plant.throttle.step_mean (eq. 3) + clip, all classes."""
     est = ThrottleParticleFilter(1.0, n_high=64, n_low=64, use_kalman=False)
-    est._zth[:] = 0.0
-    est._zi[:] = 0.0
+    est._ztab[:2] = 0.0  # no theta noise, the prior current
     rng = np.random.default_rng(0)
     for lo, hi in [(0.0, 40.0), (20.0, 89.0), (1.5, 7.9), (8.1, 15.9), (0.0, 0.99)]:
         f = est._b.cur
@@ -121,7 +119,7 @@ def test_class_matrices_are_table_i():
 
 
 def test_kalman_moments_match_numpy():
-    """ModeThreeKalman's unrolled algebra equals A P A^T + Q and the Gaussian i^2 update."""
+    """The Kalman stretch's unrolled algebra equals A P A^T + Q and the Gaussian i^2 update."""
     p = TABLE_I[2]
     a = np.array([[1.0, p.a12, 0.0], [p.a21, p.a22, p.a23], [0.0, p.a32, p.a33]])
     q = np.diag([0.35, 0.0, 0.18])
@@ -129,26 +127,24 @@ def test_kalman_moments_match_numpy():
     m = rng.normal(size=(3, 3))
     cov = m @ m.T + np.eye(3)
     mean = np.array([50.0, 1.0, 3.0])
-    kf = ModeThreeKalman(0.35, 0.18)
-    kf.load(mean, cov)
-    kf.predict(5.0)
+    s = new_state()[1]
+    set_constants(s, 0.35, 0.18)
+    x0 = (*mean, cov[0, 0], cov[0, 1], cov[0, 2], cov[1, 1], cov[1, 2], cov[2, 2])
+    x = mode3_predict(x0, tuple(s.kf_coef.tolist()), 0.35, 0.18, 5.0)
     pp = a @ cov @ a.T + q
-    got = np.array([[kf.p00, kf.p01, kf.p02], [kf.p01, kf.p11, kf.p12],
-                    [kf.p02, kf.p12, kf.p22]])
-    np.testing.assert_allclose(got, pp, rtol=1e-12)
+
+    def cov_of(x):
+        return np.array([[x[3], x[4], x[5]], [x[4], x[6], x[7]], [x[5], x[7], x[8]]])
+
+    np.testing.assert_allclose(cov_of(x), pp, rtol=1e-12)
     th, rh, ci = step_mean(50.0, 1.0, 3.0, 5.0)
     rh += p.c1 * (math.erf(1.0 / math.sqrt(2.0 * cov[1, 1])) - 1.0)  # E[sgn rho], not sgn
-    assert abs(kf.th - th) < 1e-12 and abs(kf.ci - ci) < 1e-12 and abs(kf.rh - rh) < 1e-12
-    r, s = kf.innovation(10.0)
-    mi, vi = kf.ci, kf.p22
-    assert math.isclose(s, 4 * mi * mi * vi + 2 * vi * vi + 1.0)
-    before = got.copy()
-    kf.update(r, s)
-    k = 2 * mi * before[:, 2] / s
-    after = before - np.outer(k, k) * s
-    got = np.array([[kf.p00, kf.p01, kf.p02], [kf.p01, kf.p11, kf.p12],
-                    [kf.p02, kf.p12, kf.p22]])
-    np.testing.assert_allclose(got, after, rtol=1e-9, atol=1e-12)
+    assert abs(x[0] - th) < 1e-12 and abs(x[2] - ci) < 1e-12 and abs(x[1] - rh) < 1e-12
+    mi, vi = x[2], x[8]
+    s = 4 * mi * mi * vi + 2 * vi * vi + 1.0  # Var[i^2] + R under N(mi, vi)
+    k = 2 * mi * pp[:, 2] / s
+    np.testing.assert_allclose(cov_of(mode3_update(x, 10.0 - mi * mi - vi, s)),
+                               pp - np.outer(k, k) * s, rtol=1e-9, atol=1e-12)
 
 
 def test_bad_measurements_are_rejected_and_never_nan():
