@@ -334,6 +334,33 @@ class LaneBus(can.BusABC):
         super().shutdown()
 
 
+class MergedEdges(can.BusABC):
+    """The log endpoints (edges) of several lanes read as one bus, as a log writer of a
+    multi-bus run needs: recv() gives the earliest frame of any of them (ties: the first
+    lane's), each frame keeping its lane's channel, or with `numbered` the lane's place, 1, 2, …
+    (log formats whose channels are numbers: ASC, BLF)."""
+
+    def __init__(self, edges: list[LaneBus], numbered: bool = False) -> None:
+        super().__init__(channel="+".join(e.lane.channel for e in edges))
+        self.edges = edges
+        self._number = {e.lane.channel: i + 1 for i, e in enumerate(edges)} if numbered else None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise can.CanOperationError("merged log endpoints only listen")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        best = None
+        for edge in self.edges:
+            if edge.queue and (best is None or edge.queue[0].timestamp < best.queue[0].timestamp):
+                best = edge
+        if best is None:
+            return None, False
+        msg = best.queue.popleft()  # an edge's own copy: its channel may be renamed
+        if self._number is not None:
+            msg.channel = self._number[str(msg.channel)]
+        return msg, False
+
+
 MAX_LOGGED_SEND_ERRORS = 20
 
 

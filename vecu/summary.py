@@ -123,6 +123,7 @@ class RunSummary:
     uds_steps: list[dict[str, Any]] | None = field(default=None, metadata=OMIT_NONE)
     xcp: dict[str, Any] | None = field(default=None, metadata=OMIT_NONE)
     xcp_steps: list[dict[str, Any]] | None = field(default=None, metadata=OMIT_NONE)
+    gateway: dict[str, Any] | None = field(default=None, metadata=OMIT_NONE)  # routing's figures
     functions: dict[str, Any] = field(default_factory=dict, metadata=FLATTEN)
 
     def section(self, name: str) -> Any:

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from vecu import argtypes
 from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.errors import BadArgumentError
 from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 
 if TYPE_CHECKING:
@@ -54,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="leave the debug truth frames (vecu/dbc/vecu_truth.dbc) out of --log")
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", metavar="FILE.png", help="write a truth-vs-estimate plot")
+    p.add_argument("--gateway", metavar="GATEWAY.toml",
+                   help="route between the buses this gateway config names; plant and ECU on its "
+                        "first bus (docs/gateway.md 'Routing between buses')")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=main)
 
@@ -98,7 +102,19 @@ def main(args: argparse.Namespace) -> int:
 
         config = replace(config, calibrations=_sets_at(args.sets_at, args.duration))
     config.validate()  # user errors before any output is touched
-    result = run(config)
+    if args.gateway:
+        from vecu.gateway.routes_config import load_routing_config
+        from vecu.gateway.sim import run_with_gateway
+
+        routing = load_routing_config(args.gateway)  # every problem before any bus opens
+        if args.channel or args.interface:
+            raise BadArgumentError("--gateway runs the buses its file names: no --interface or "
+                                   "--channel")
+        if not routing.buses:
+            raise BadArgumentError(f"--gateway {args.gateway}: names no [buses.NAME] to route")
+        result = run_with_gateway(config, routing)
+    else:
+        result = run(config)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
     if args.plot and result.throttle_series is not None:
@@ -156,4 +172,20 @@ def format_summary(s: RunSummary) -> str:
     lines.append(f"broadcast: {th.missing_broadcasts} missing ticks, {th.nan_outputs} NaN")
     for section in s.functions.values():  # the other functions, each in its own words
         lines.extend(section.lines())
+    if s.gateway is not None:
+        lines.extend(gateway_lines(s.gateway))
     return "\n".join(lines)
+
+
+def gateway_lines(figures: dict) -> list[str]:
+    """Each route's counters and latency (vecu.gateway.routing's summary)."""
+    lines = []
+    for name, r in figures["routes"].items():
+        lat = r["latency_us"]
+        dropped = ", ".join(f"{k} {v}" for k, v in r["dropped"].items()) or "none"
+        lines.append(f"gateway {name}: in {r['in']}, out {r['out']}, dropped {dropped}; latency "
+                     f"min/mean/p99/max {lat['min']}/{lat['mean']}/{lat['p99']}/{lat['max']} us, "
+                     f"queue peak {r['queue_peak']}")
+    if figures["denied"]:
+        lines.append("gateway denied: " + ", ".join(f"{k} {v}" for k, v in figures["denied"].items()))
+    return lines

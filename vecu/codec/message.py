@@ -27,6 +27,7 @@ from vecu.codec.signals import (
     SignalInfo,
     arxml_e2e,
     mux_selections,
+    signal_bits,
     signal_info,
     signal_ranges,
     start_value,
@@ -66,6 +67,18 @@ class FrameCodec:
         self.mux_selections: tuple[dict[str, int], ...] = (
             tuple(mux_selections(msg.signal_tree)) if msg.is_multiplexed() else ())
         self.arxml_e2e: ArxmlE2E | None = arxml_e2e(msg)
+        # what a signal gateway needs (vecu.gateway.routing): each signal's choices (raw value
+        # -> name), the payload bytes it occupies, and for a multiplexed signal its multiplexer
+        # and the selector values that carry it
+        self.choices: dict[str, dict[int, str]] = {
+            s.name: {int(k): str(v) for k, v in s.choices.items()}
+            for s in msg.signals if s.choices}
+        self.signal_bytes: dict[str, frozenset[int]] = {
+            s.name: frozenset(b for b, _ in (signal_bits(s, msg.length) or ("", 0, set()))[2])
+            for s in msg.signals}
+        self.mux_of: dict[str, tuple[str, tuple[int, ...]]] = {
+            s.name: (s.multiplexer_signal, tuple(s.multiplexer_ids))
+            for s in msg.signals if s.multiplexer_signal is not None and s.multiplexer_ids}
         # crc_ok(payload): its E2E CRC byte is right (True without E2E; autosar-e2e's check)
         self.crc_ok: Callable[[bytes | bytearray], bool] = (
             _no_crc if self.e2e is None else self.e2e.protection.checker())

@@ -171,7 +171,9 @@ class GatewayConfigError(BadFileError):
 
 TOP = {"vin": str, "eid": str, "gid": str, "logical_address": int, "tester_addresses": list,
        "functional_address": int, "functional_id": int, "functional_addressing": str,
-       "doip": dict, "ecu": list}
+       "doip": dict, "ecu": list,
+       # routing between buses (vecu.gateway.routes_config reads these)
+       "buses": dict, "routes": list, "deny": list}
 DOIP = {f.name: list if f.name.endswith("types") else {"int": int, "float": float}[str(f.type)]
         for f in fields(GatewayConfig)
         if f.name in ("protocol_version", "max_sockets", "announce_count", "further_action",
@@ -251,7 +253,8 @@ def parse_gateway_config(data: dict[str, Any], path: str) -> GatewayConfig:
     chk.table(data, TOP, "")
     doip = chk.table(data.get("doip", {}), DOIP, "doip.")
     top: dict[str, Any] = {k: v for k, v in data.items()
-                           if k not in ("doip", "ecu", "eid", "gid", "tester_addresses")}
+                           if k not in ("doip", "ecu", "eid", "gid", "tester_addresses", "buses",
+                                         "routes", "deny")}
     vin = top.get("vin", GatewayConfig.vin)
     if len(vin) != 17 or not vin.isascii() or not vin.isprintable():
         raise chk.fail("vin", f"expected 17 printable ASCII characters, got {len(vin)}: {vin!r}")

@@ -1,0 +1,59 @@
+"""Frame routes: a frame matched on the source bus is copied, payload untouched (so its E2E
+protection still passes the receiver's check, as a frame gateway must leave it: AUTOSAR PduR
+I-PDU routing), to the target bus, optionally under a new CAN ID, after the route's processing
+delay. With min_interval the route sends at most one frame per interval, the latest received
+winning (AUTOSAR PduR's last-is-best buffer); the frames it replaces are dropped and counted."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import can
+
+from vecu.can_message import message
+from vecu.gateway.route_stats import RouteStats
+from vecu.gateway.routes import FrameRoute
+
+
+class FrameRouter:
+    """One frame route: offer() every frame of its source bus, tick() each 1 ms."""
+
+    def __init__(self, route: FrameRoute) -> None:
+        self.route = route
+        self.stats = RouteStats()
+        self._ids = {i for i, _ in route.ids}
+        self._queue: deque[tuple[int, can.Message]] = deque()  # (arrival ns, frame)
+        self._last_out_ns: int | None = None
+
+    def matches(self, msg: can.Message) -> bool:
+        r, can_id = self.route, msg.arbitration_id
+        if r.id_mask is not None and can_id & r.id_mask[1] == r.id_mask[0]:
+            return True
+        return can_id in self._ids
+
+    def offer(self, msg: can.Message, now_ns: int) -> None:
+        if not self.matches(msg):
+            return
+        self.stats.frames_in += 1
+        q = self._queue
+        if self.route.min_interval_ns and q:  # last is best: the newer replaces the waiting
+            q.pop()
+            self.stats.drop("rate_limit")
+        q.append((now_ns, msg))
+        self.stats.queued(len(q))
+
+    def tick(self, now_ns: int) -> list[can.Message]:
+        """The frames this route sends at now_ns (channel: the target bus's name)."""
+        r, q, out = self.route, self._queue, []
+        while q and q[0][0] + r.delay_ns <= now_ns:
+            if (r.min_interval_ns and self._last_out_ns is not None
+                    and now_ns - self._last_out_ns < r.min_interval_ns):
+                break
+            arrived, msg = q.popleft()
+            out.append(message(now_ns / 1e9, msg.arbitration_id if r.new_id is None else r.new_id,
+                               msg.is_extended_id if r.new_id is None else r.new_id > 0x7FF,
+                               bytearray(msg.data), msg.is_fd, r.target, False,
+                               bitrate_switch=msg.bitrate_switch))
+            self.stats.sent(now_ns - arrived)
+            self._last_out_ns = now_ns
+        return out

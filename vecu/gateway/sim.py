@@ -1,0 +1,90 @@
+"""`vecu run --gateway GATEWAY.toml`: the routing engine beside the plant and the ECU on the
+simulated clock. The plant and the ECU sit on the first bus the file names; every bus is an
+in-process lane named after its bus (vecu.bus.SimLane), the gateway an endpoint on each, ticking
+each 1 ms after the ECU and before the recorder, so a route's latency is exactly its configured
+delay and a run is deterministic. `--log` holds every bus, each frame's channel its bus name (in
+formats whose channels are numbers, ASC and BLF: the bus's place in the file, 1, 2, …), in time
+order (at one instant: the buses in the file's order)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import can
+
+from vecu.assembly import PRIO_ECU, PRIO_RECORD, TICK_NS
+from vecu.bus import LaneBus, MergedEdges, SimLane
+from vecu.clock import SimClock
+from vecu.errors import ConfigError
+from vecu.gateway.routes import RoutingConfig
+from vecu.gateway.routing import RoutingEngine
+from vecu.runner import (
+    Pipeline,
+    RunConfig,
+    RunResult,
+    build,
+    ensure_kernels,
+    execute,
+    schedule,
+    summarise,
+)
+from vecu.scheduler import Scheduler
+
+CHANNEL_NAME_FORMATS = (".log", ".log.gz")  # candump: a channel is a name; elsewhere a number
+PRIO_GATEWAY = (PRIO_ECU + PRIO_RECORD) // 2  # after the ECU's tick, before the probes / log
+
+
+class GatewayNode:
+    """The routing engine with one endpoint on each bus's lane."""
+
+    def __init__(self, engine: RoutingEngine, endpoints: dict[str, can.BusABC]) -> None:
+        self.engine = engine
+        self.endpoints = endpoints
+
+    def tick(self, now_ns: int) -> None:
+        receive = self.engine.receive
+        for name, bus in self.endpoints.items():
+            while (msg := bus.recv(0.0)) is not None:
+                receive(name, msg, now_ns)
+        for name, msg in self.engine.tick(now_ns):
+            self.endpoints[name].send(msg)
+
+
+def run_with_gateway(config: RunConfig, routing: RoutingConfig,
+                     progress: Callable[[float, float], None] | None = None) -> RunResult:
+    """runner.run(config) with the gateway of `routing` beside plant and ECU."""
+    if config.realtime:
+        raise ConfigError("--gateway runs on the simulated clock (no --realtime)")
+    if config.interface not in (None, "virtual"):
+        raise ConfigError("--gateway runs its buses in-process: no --interface")
+    first = routing.buses[0].name
+    config = replace(config, channel=first)
+    config.validate()
+    clock = SimClock()
+    p = Pipeline(config, clock, Scheduler(clock), round(config.duration_s * 1000),
+                 SimLane(first), [])
+    assert p.lane is not None
+    try:
+        build(p)
+        lanes = {first: p.lane, **{b.name: SimLane(b.name) for b in routing.buses[1:]}}
+        endpoints: dict[str, can.BusABC] = {name: lane.bus() for name, lane in lanes.items()}
+        p.buses += endpoints.values()
+        if p.recorder is not None:  # the first lane's log endpoint, then one per other lane
+            first_edge = p.recorder.bus
+            assert isinstance(first_edge, LaneBus)
+            edges = [first_edge] + [lane.bus(edge=True) for lane in list(lanes.values())[1:]]
+            p.buses += edges[1:]
+            named = config.log_path is not None and config.log_path.lower().endswith(
+                CHANNEL_NAME_FORMATS)
+            p.recorder.bus = merged = MergedEdges(edges, numbered=not named)
+            p.buses.append(merged)
+        node = GatewayNode(RoutingEngine(routing), endpoints)
+        schedule(p)
+        p.sched.every(TICK_NS, node.tick, name="gateway", priority=PRIO_GATEWAY)
+        kernel_load_s = ensure_kernels(config)
+        wall = execute(p, progress)
+        summary = replace(summarise(p, wall, kernel_load_s), gateway=node.engine.summary())
+    finally:
+        p.close()
+    return RunResult(summary, {name: probe.series() for name, probe in p.probes.items()})
