@@ -191,4 +191,4 @@ def test_a_million_hostile_frames_through_a_real_ecu_tick():
     assert rx.dlc_errors and rx.crc_errors and rx.unknown_id and rx.remote_frames
     assert rx.error_frames and rx.value_errors
     assert uds.stats.requests > 0  # single frames on 0x7E0/0x7DF made it to the server
-    assert uds.stats.handler_errors == 0 and ecu.handler_errors == {}  # no handler raised
+    assert ecu.handler_errors == {}  # no handler raised (the boundary never fired)

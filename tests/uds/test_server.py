@@ -278,7 +278,7 @@ def test_10k_random_requests_in_every_session_keep_the_ecu_answering_and_broadca
     assert answers + direct == stats.responses == stats.requests - stats.suppressed
     assert stats.positive > 300 and stats.negative > 8000
     # no request reached a service that raised (the boundary's NRC 0x10 was never needed)
-    assert stats.handler_errors == 0 and sim.ecu.handler_errors == {}
+    assert sim.ecu.handler_errors == {}
     assert seen_sessions == {1, 3} and sessions > 500
     got = exchange([(b"\x22\xf1\x90", False)])  # a multi-frame response: FF, FC, CFs
     for _ in range(4):

@@ -83,7 +83,6 @@ class UdsStats:
     transport_errors: int = 0    # ISO-TP errors (bad sequence, timeouts, ...) reported by can-isotp
     echoes: int = 0              # frames on the response ID (own echoes, another server)
     resets: int = 0
-    handler_errors: int = 0      # requests whose service raised: answered NRC 0x10 generalReject
     # the request's last CAN frame taken from the bus -> its response handed to ISO-TP, on the
     # ECU's clock (whole ticks: 0 when answered in the tick the request arrived; more when the
     # inbox, the request queue or the per-tick limits made it wait)
@@ -226,7 +225,6 @@ class UdsServer:
             try:
                 result = service[0](payload, t_ns)
             except Exception as exc:  # noqa: BLE001 - the handler boundary (ISO 14229-1 NRC 0x10)
-                stats.handler_errors += 1
                 self.node.handler_failed(f"uds service 0x{sid:02X}", exc)
                 result, spr = C.GeneralReject, False
         if isinstance(result, int):
