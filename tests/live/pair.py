@@ -60,3 +60,14 @@ def await_ecu(client: Any, attempts: int = 60) -> None:
             return
         except TimeoutException:
             continue
+
+
+def run_script(script: Path, out: Path, timeout: float) -> dict:
+    """Run a live test script (python SCRIPT OUT) in a private network namespace and return
+    the JSON line it printed last; a failure shows its output and its children's OUT/*.err."""
+    from vecu.live.netns import run_in_namespace
+
+    res = run_in_namespace([sys.executable, str(script), str(out)], timeout=timeout)
+    assert res.returncode == 0, res.stderr + res.stdout + "".join(
+        p.read_text() for p in out.glob("*.err"))
+    return json.loads(res.stdout.strip().splitlines()[-1])

@@ -5,24 +5,19 @@ is counted in the summary (docs/live.md 'Floods')."""
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 import pytest
 
-from vecu.live.netns import namespace_prefix, run_in_namespace
+from tests.live.pair import run_script
+from vecu.live.netns import namespace_prefix
 
 HERE = Path(__file__).resolve().parent
 
 
 @pytest.mark.skipif(namespace_prefix()[0] is None, reason=namespace_prefix()[1] or "n/a")
 def test_a_flood_leaves_every_ecu_tick_short_and_the_estimates_and_uds_going(tmp_path):
-    res = run_in_namespace([sys.executable, str(HERE / "flood_live.py"), str(tmp_path)],
-                           timeout=300)
-    assert res.returncode == 0, res.stderr + res.stdout + "".join(
-        p.read_text() for p in tmp_path.glob("*.err"))
-    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out = run_script(HERE / "flood_live.py", tmp_path, timeout=300)
     assert out["flood"]["frames"] == 100_000
     ecu = out["ecu"]
     # every frame the ECU read landed in exactly one bin, the flood's among the rejects / shed

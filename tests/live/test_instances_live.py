@@ -4,13 +4,12 @@ on one bus'), and each one's frames are on the bus at its own IDs."""
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 import pytest
 
-from vecu.live.netns import namespace_prefix, run_in_namespace
+from tests.live.pair import run_script
+from vecu.live.netns import namespace_prefix
 
 HERE = Path(__file__).resolve().parent
 
@@ -18,11 +17,7 @@ HERE = Path(__file__).resolve().parent
 @pytest.mark.slow
 @pytest.mark.skipif(namespace_prefix()[0] is None, reason=namespace_prefix()[1] or "n/a")
 def test_two_live_ecus_on_one_bus_answer_each_at_its_own_ids(tmp_path):
-    res = run_in_namespace([sys.executable, str(HERE / "instances_live.py"), str(tmp_path)],
-                           timeout=240)
-    assert res.returncode == 0, res.stderr + res.stdout + "".join(
-        p.read_text() for p in tmp_path.glob("*.err"))
-    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out = run_script(HERE / "instances_live.py", tmp_path, timeout=240)
     assert out["serial"] == {"0": "VECU-00000", "1": "VECU-00001"}
     assert all(0x012200 in out["dtcs"][n] for n in ("0", "1"))  # each its own TPS DTC
     s0, s1 = out["summary0"], out["summary1"]

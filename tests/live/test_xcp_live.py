@@ -6,24 +6,19 @@ And raw XCP frames that used to stop `vecu ecu` (exit 1, no broadcast) leave it 
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 import pytest
 
-from vecu.live.netns import namespace_prefix, run_in_namespace
+from tests.live.pair import run_script
+from vecu.live.netns import namespace_prefix
 
 HERE = Path(__file__).resolve().parent
 
 
 @pytest.mark.skipif(namespace_prefix()[0] is None, reason=namespace_prefix()[1] or "n/a")
 def test_a_pyxcp_master_measures_and_calibrates_the_live_ecu(tmp_path):
-    res = run_in_namespace([sys.executable, str(HERE / "xcp_live_master.py"), str(tmp_path)],
-                           timeout=300)
-    assert res.returncode == 0, res.stderr + res.stdout + "".join(
-        p.read_text() for p in tmp_path.glob("*.err"))
-    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out = run_script(HERE / "xcp_live_master.py", tmp_path, timeout=300)
     assert out["name"] == "vecu"
     # one sample per ECU tick: the timestamps step by whole ms, and the samples per ms of the
     # recording follow the share of ticks the ECU ran (all of them on an idle machine)
@@ -47,11 +42,7 @@ def test_the_eleven_frames_leave_the_live_ecu_broadcasting_and_answering(tmp_pat
     """Raw XCP frames against `vecu ecu` (both variants of the sequence that stopped it): each
     command answered, WRITE_DAQ into the GET_ID area refused, the ECU alive and broadcasting its
     throttle estimate afterwards, CONNECT and GET_STATUS answered."""
-    res = run_in_namespace([sys.executable, str(HERE / "xcp_kill_live.py"), str(tmp_path)],
-                           timeout=300)
-    assert res.returncode == 0, res.stderr + res.stdout + "".join(
-        p.read_text() for p in tmp_path.glob("*.err"))
-    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out = run_script(HERE / "xcp_kill_live.py", tmp_path, timeout=300)
     assert set(out["variants"]) == {"get_id_1", "get_daq_event_info_0"}
     for v in out["variants"].values():
         assert None not in v["answers"], v  # every command answered
