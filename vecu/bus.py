@@ -367,13 +367,16 @@ MAX_LOGGED_SEND_ERRORS = 20
 @dataclass(frozen=True)
 class RxBudget:
     """A node's receive work per tick (docs/live.md 'Floods'): the first `frames_per_tick`
-    frames read are handled; the next `shed_per_tick` are read and shed (counted, not decoded;
-    a diagnostic request among them still reaches its server); whatever else came stays in the
-    bus (socket or queue) for the next tick. 64 is ~3x what a saturated 1 Mbit/s classic CAN
-    bus carries per 1 ms (~21 frames of 47 bits), and the worst tick then costs ~0.5 ms."""
+    frames read are handled and whatever else came stays in the bus (socket or queue) for the
+    next tick, so a backlog after a host stall is caught up without loss. Only once
+    `catch_up_ticks` ticks in a row ended with frames left (a flood, not a stall) are the next
+    `shed_per_tick` frames of each such tick read and shed (counted, not decoded; a diagnostic
+    request among them still reaches its server). 64 is ~3x what a saturated 1 Mbit/s classic
+    CAN bus carries per 1 ms (~21 frames of 47 bits); the worst tick then costs ~0.5 ms."""
 
     frames_per_tick: int = field(default=64, metadata={"bounds": (1, 65535)})
     shed_per_tick: int = field(default=192, metadata={"bounds": (0, 1_000_000)})
+    catch_up_ticks: int = field(default=20, metadata={"bounds": (0, 1_000_000)})
 
 
 class BusNode:
@@ -393,13 +396,21 @@ class BusNode:
         self.rx_budget = rx_budget
         self.rx_shed = 0  # frames read past rx_budget.frames_per_tick and dropped undecoded
         self.rx_peak = 0  # the most frames read in one tick (at most the budget's two parts)
+        self.rx_saturated = 0  # ticks in a row that ended with frames left in the bus
         self.handler_errors: dict[str, int] = {}  # by handler: requests whose handling raised
         self._log = logging.getLogger(f"vecu.{name}")
 
     def shed(self, keep: Callable[[can.Message], bool] | None = None) -> None:
-        """After a tick's `frames_per_tick` frames: read up to `shed_per_tick` more and drop
-        them, counted in rx_shed, except those `keep(msg)` takes (True). The rest stays in the
-        bus: the tick's receive work is bounded whatever arrives. The first shed is logged."""
+        """After a tick's `frames_per_tick` frames: within `catch_up_ticks` such ticks in a row
+        nothing more (the rest waits in the bus); past them read up to `shed_per_tick` more and
+        drop them, counted in rx_shed, except those `keep(msg)` takes (True). Either way the
+        tick's receive work is bounded whatever arrives. The first shed is logged. A node sets
+        rx_saturated = 0 in a tick that emptied its bus."""
+        budget = self.rx_budget
+        self.rx_saturated += 1
+        if self.rx_saturated <= budget.catch_up_ticks:
+            self.rx_peak = max(self.rx_peak, budget.frames_per_tick)
+            return
         recv = self.bus.recv
         before = self.rx_shed
         n = 0

@@ -32,7 +32,8 @@ def setup(request):
     ecu_bus, tester = open_bus(channel=channel), open_bus(channel=channel)
     ecu = EcuNode(ecu_bus, codec, [ThrottleFunction(codec, FastThrottleUKF("arm")),
                                    SpeedFunction(codec)],
-                  rx_budget=RxBudget(frames_per_tick=8, shed_per_tick=16))
+                  rx_budget=RxBudget(frames_per_tick=8, shed_per_tick=16,
+                                     catch_up_ticks=getattr(request, "param", 0)))
     yield codec, ecu, tester
     ecu_bus.shutdown()
     tester.shutdown()
@@ -63,6 +64,30 @@ def test_a_tick_takes_its_budget_sheds_the_next_and_leaves_the_rest_in_the_bus(s
     assert ecu.rx_peak == 24  # the most frames read in one tick: the budget's two parts
     # every 1 ms a throttle estimate, flood or not
     assert sum(m.arbitration_id == 0x200 for m in _drain(tester)) == 5
+
+
+@pytest.mark.parametrize("setup", [20], indirect=True)
+def test_a_backlog_is_caught_up_without_loss_and_only_a_lasting_flood_is_shed(setup):
+    """catch_up_ticks = 20 (the default): a stalled host's backlog (100 frames) drains at 8 a
+    tick in 13 ticks, nothing shed; a flood that keeps every tick full sheds from its 21st
+    saturated tick on."""
+    codec, ecu, tester = setup
+    for _ in range(100):
+        tester.send(JUNK)
+    t = 0
+    for _ in range(14):  # 13 ticks of 8 + one that empties the bus
+        ecu.tick(t)
+        t += NS_PER_MS
+    rx = ecu.rx
+    assert (rx.received, rx.unknown_id, rx.shed) == (100, 100, 0)
+    assert ecu.rx_saturated == 0  # the bus emptied: the count starts again
+    for k in range(25):  # 30 frames a tick: more than 8 + 16
+        for _ in range(30):
+            tester.send(JUNK)
+        ecu.tick(t)
+        t += NS_PER_MS
+        assert rx.shed == (16 * (k - 19) if k >= 20 else 0), k
+    assert rx.received == rx.accepted + rx.ignored + rx.rejected + rx.diagnostic + rx.shed
 
 
 def test_the_shed_count_is_on_the_bus_in_ecu_diag(setup):
@@ -154,6 +179,7 @@ def test_the_plant_obeys_a_fault_command_inside_a_flood_and_sheds_the_rest():
     plant_bus, tester = open_bus(channel="flood-plant"), open_bus(channel="flood-plant")
     try:
         plant = build_plant(RunConfig(duration_s=1.0, kill_tps_at_s=None), codec, plant_bus)
+        plant.rx_budget = RxBudget(catch_up_ticks=0)  # shed from the first saturated tick
         plant.tick(0)
         _drain(tester)
         for _ in range(plant.rx_budget.frames_per_tick + 10):

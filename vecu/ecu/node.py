@@ -389,7 +389,8 @@ class EcuNode(BusNode):
             if not n:
                 self._shed(t_ns)
                 break
-        else:
+        else:  # the bus emptied: no backlog
+            self.rx_saturated = 0
             self.rx_peak = max(self.rx_peak, self.rx_budget.frames_per_tick - n)
         send = self._app_send
         for fn in self._armed:

@@ -270,6 +270,8 @@ class DiagRouter:
 
                 node.shed(keep)
                 break
+        else:
+            node.rx_saturated = 0
         self.tick(t_ns)
 
     def tick(self, t_ns: int) -> None:

@@ -194,6 +194,8 @@ class PlantNode(BusNode):
             if not n:  # past the budget: FI_Command frames still obeyed, the rest shed
                 self.shed(lambda m: self._take(m, t_ns))
                 break
+        else:
+            self.rx_saturated = 0
 
     def _take(self, msg: can.Message, t_ns: int) -> bool:
         """One received frame (counted): True when it is an FI_Command (obeyed or rejected)."""
