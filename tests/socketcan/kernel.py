@@ -70,6 +70,13 @@ def wait_for(cond: Callable[[], bool], timeout_s: float, poll_s: float = 0.1) ->
     return True
 
 
+# The emulated CPU runs the ECU ~20x slower than the frames arrive, so its receive backlog never
+# ends and the flood bound (docs/live.md 'Floods') would shed sensor and background frames these
+# tests count one by one: behaviour, not timing, is tested here, so shedding is off (the bound
+# itself is tested on the host: tests/ecu/test_flood.py, tests/live/test_flood_live.py).
+EMULATED_ECU = ("--set", "ecu.rx.catch_up_ticks=1000000")
+
+
 class Processes:
     """Child processes of one test: vecu nodes and can-utils tools, each with its stderr in a
     file; stop() sends the signal a user would (SIGTERM to a node: it flushes its log and
@@ -87,7 +94,9 @@ class Processes:
         return proc
 
     def vecu(self, name: str, *args: str) -> subprocess.Popen:
-        return self.start(name, [sys.executable, "-m", "vecu", *args])
+        """`vecu ARGS...`; a `vecu ecu` never sheds frames here (EMULATED_ECU)."""
+        extra = EMULATED_ECU if args[:1] == ("ecu",) else ()
+        return self.start(name, [sys.executable, "-m", "vecu", *args, *extra])
 
     def ready(self, name: str, ready_file: Path, timeout_s: float = START_S) -> None:
         proc = self.procs[name]
