@@ -349,8 +349,9 @@ def test_return_control_to_the_ecu_answers_with_the_sensors_own_value(sim):
 
 def test_uds_latency_counts_the_ticks_a_request_waited_in_the_inbox(sim):
     """latency_max_ms: request's last frame taken from the bus -> response, on the ECU's clock.
-    A request behind 100 frames waits 4 ticks in the inbox (32 frames a tick); before issue 29
-    it was stamped when reassembled, and read 0.0 whatever the wait."""
+    A request behind 100 frames is taken from the bus in the second tick (the ECU takes 64 a
+    tick: ecu.rx.frames_per_tick) and then waits in the inbox (32 frames a tick); when it was
+    stamped at reassembly instead, it read 0.0 whatever the wait."""
     sim.run_to(0.02)
     bus = sim.bus()
     assert sim.uds.stats.latency_max_ms == 0.0
@@ -370,8 +371,9 @@ def test_uds_latency_counts_the_ticks_a_request_waited_in_the_inbox(sim):
         if answered is not None:
             break
     assert answered is not None
-    waited_ms = (answered - t0) / NS_PER_MS - 1  # the frames are taken in at the first tick
-    assert waited_ms >= 3
+    taken = -(-101 // sim.ecu.rx_budget.frames_per_tick)  # the tick that takes the request in
+    waited_ms = (answered - t0) / NS_PER_MS - taken
+    assert waited_ms >= 2
     assert sim.uds.stats.latency_max_ms == pytest.approx(waited_ms)
 
 
