@@ -33,15 +33,19 @@ class ConfigError(UserError, ValueError):
 
 
 class BadFileError(UserError):
-    """A file the user named cannot be read, used or written; str() is "PATH: problem"."""
+    """A file the user named cannot be read, used or written; str() is "PATH: problem", or
+    "--OPTION PATH: problem" when the option that named it is known."""
 
-    def __init__(self, path: str | os.PathLike[str] | None, problem: str) -> None:
+    def __init__(self, path: str | os.PathLike[str] | None, problem: str,
+                 option: str | None = None) -> None:
         self.path = None if path is None else os.fspath(path)
         self.problem = problem
-        super().__init__(problem if path is None else f"{self.path}: {problem}")
+        self.option = option
+        where = self.path if option is None or path is None else f"{option} {self.path}"
+        super().__init__(problem if where is None else f"{where}: {problem}")
 
     def __reduce__(self) -> tuple:  # picklable across processes (scenario --jobs)
-        return type(self), (self.path, self.problem)
+        return type(self), (self.path, self.problem, self.option)
 
 
 class UnavailableError(UserError):

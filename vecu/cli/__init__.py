@@ -15,6 +15,7 @@ import traceback
 from typing import NoReturn
 
 import vecu
+from vecu.cli.outputs import check_output_args
 from vecu.cli.outputs import check_outputs as check_outputs
 from vecu.errors import UserError
 
@@ -90,6 +91,7 @@ def run_command(args: argparse.Namespace) -> int:
     from vecu.live.children import EXIT_TERMINATED, Terminated
 
     try:
+        check_output_args(args)  # every output option of every subcommand, before any work
         from vecu import kernels
 
         cold = kernels.cache_is_cold()  # VECU_KERNELS checked before any work starts

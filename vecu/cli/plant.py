@@ -9,7 +9,6 @@ from vecu import argtypes
 from vecu.cli import (
     UserInputError,
     add_set_option,
-    check_outputs,
     configure_logging,
     param_sets,
 )
@@ -48,7 +47,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
 
     from vecu.assembly import build_plant, schedule_plant
     from vecu.config import RunConfig
