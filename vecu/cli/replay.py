@@ -61,6 +61,8 @@ def main(args: argparse.Namespace) -> int:
         sets=tuple(param_sets(args, only="ecu.")),
         keep_series=bool(args.plot))
     result = replay(config)
+    if result.error and result.report.frames.read == 0:  # not a trace: no summary of nothing
+        raise TraceReadError(None, result.error)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
     if args.plot and result.series is not None:
