@@ -9,6 +9,10 @@
 
 Anything else that escapes the command line is a bug: a traceback and exit code 1. The
 ValueError bases keep `except ValueError` in library callers working for validation errors.
+
+    KeyboardInterrupt
+    └── Interrupted                  Ctrl-C part-way, with what was done: `vecu: interrupted …`
+                                     (what was kept), exit code 130
 """
 
 from __future__ import annotations
@@ -52,5 +56,17 @@ class UnavailableError(UserError):
     """Something asked for is not available on this machine: a bus, an optional package."""
 
 
-__all__ = ["BadArgumentError", "BadFileError", "ConfigError", "UnavailableError", "UserError",
-           "VecuError"]
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) stopped a command part-way, and it has a result so far: `done` says how
+    far it came ("12.345 of 60 s simulated"); `summary` is its partial summary as --summary
+    writes it (None: the command wrote its own). Still a KeyboardInterrupt for library callers;
+    the command line writes the summary, says in one line what was kept and exits 130."""
+
+    def __init__(self, done: str, summary: dict | None = None) -> None:
+        super().__init__(done)
+        self.done = done
+        self.summary = summary
+
+
+__all__ = ["BadArgumentError", "BadFileError", "ConfigError", "Interrupted", "UnavailableError",
+           "UserError", "VecuError"]

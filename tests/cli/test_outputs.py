@@ -249,13 +249,13 @@ def test_every_output_option_rejects_bad_places_before_any_work(
 
 ISSUE_CASES = [
     (["campaign", "run", "tps-kill-latency", "--out", "x.blf"], "--out x.blf: not a directory"),
-    (["campaign", "run", "tps-kill-latency", "--out", "x.blf/camp"], "--out x.blf/camp: cannot "
-     "create directory: {d}/x.blf is a file"),
-    (["campaign", "run", "tps-kill-latency", "--out", "/sys/camp"], "--out /sys/camp: cannot "
-     "create a file in /sys"),
+    (["campaign", "run", "tps-kill-latency", "--out", "x.blf/camp"], ("--out x.blf/camp: cannot "
+     "create directory: {d}/x.blf is a file")),
+    (["campaign", "run", "tps-kill-latency", "--out", "/sys/camp"], ("--out /sys/camp: cannot "
+     "create a file in /sys")),
     (["figures", "--out", "x.blf/figs"], "--out x.blf/figs: cannot create directory"),
-    (["identify", "throttle", "x.blf", "--out", "/proc/p.toml"], "--out /proc/p.toml: cannot "
-     "create a file in /proc"),
+    (["identify", "throttle", "x.blf", "--out", "/proc/p.toml"], ("--out /proc/p.toml: cannot "
+     "create a file in /proc")),
 ]
 
 

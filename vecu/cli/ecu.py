@@ -154,7 +154,7 @@ def main(args: argparse.Namespace) -> int:
         proc.close()
     if not args.quiet and summary is not None:
         print(format_ecu_summary(summary))
-    return 0
+    return LiveProcess.end(summary)
 
 
 def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:

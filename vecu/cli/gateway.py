@@ -100,7 +100,7 @@ def main(args: argparse.Namespace) -> int:
         proc.close()
     if not args.quiet and summary is not None:
         print(format_gateway_summary(summary))
-    return 0
+    return LiveProcess.end(summary)
 
 
 def request_ids(config: Any) -> set[tuple[int, bool]]:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -123,9 +124,8 @@ def _probe(directory: Path, path: str) -> None:
         fd, name = tempfile.mkstemp(dir=directory, prefix=".vecu-probe-")
     except OSError as exc:
         special = next((k for k in KERNEL_FS if directory == k or k in directory.parents), None)
-        raise BadFileError(path, f"cannot create a file in {directory} ("
-                           + (f"{special} is a kernel file system" if special else exc.strerror)
-                           + ")") from None
+        why = f"{special} is a kernel file system" if special else exc.strerror
+        raise BadFileError(path, f"cannot create a file in {directory} ({why})") from None
     os.close(fd)
     os.unlink(name)
 
@@ -149,3 +149,30 @@ def check_plot_path(path: str) -> None:
         tex = matplotlib.rcParams["pgf.texsystem"]
         if shutil.which(tex) is None:
             raise BadFileError(path, f".pgf plots need {tex}, which is not installed")
+
+
+def report_interrupted(args: argparse.Namespace, started: float, done: str | None = None,
+                       summary: dict | None = None) -> int:
+    """Ctrl-C on any command (vecu.cli.run_command): the partial summary written where --summary
+    asked for it (marked "interrupted": true), one line saying how far the command came and
+    which outputs it kept (those written since `started`, a time.time()), exit code 130."""
+    import json
+
+    path = getattr(args, "summary", None)
+    if summary is not None and path:
+        Path(path).write_text(json.dumps({**summary, "interrupted": True}, indent=2) + "\n")
+    kept = []
+    for dest, value in sorted(vars(args).items()):
+        if not isinstance(value, OutputPath):
+            continue
+        flag = "--" + dest.replace("_", "-")
+        p = Path(value)
+        if value.kind == "dir" and p.is_dir():
+            n = sum(1 for f in p.rglob("*") if f.is_file() and f.stat().st_mtime >= started)
+            if n:
+                kept.append(f"{flag} {value} ({n} file{'s' if n != 1 else ''})")
+        elif p.is_file() and p.stat().st_mtime >= started:
+            kept.append(f"{flag} {value}" + (" (partial)" if dest == "summary" else ""))
+    print(f"vecu: interrupted{f' after {done}' if done else ''}; "
+          + (f"kept {', '.join(kept)}" if kept else "nothing written"), file=sys.stderr, flush=True)
+    return 130

@@ -123,7 +123,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"  host delayed this plant: {h['skipped_sends']} ticks' frames never sent, "
                   f"{h['late_sends']} sent late (max lateness {h['max_lateness_ms']} ms); the "
                   "ECU's timeouts in that time are the host's doing, not a sensor's")
-    return 0
+    return LiveProcess.end(summary)
 
 
 class HostReport:

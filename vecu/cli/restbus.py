@@ -95,6 +95,10 @@ def main(args: argparse.Namespace) -> int:
               f"{len(s['disturbances'])} disturbance events; send errors {s['send_errors']}"
               + (f"; not sent: {len(s['skipped'])} ({_reasons(s['skipped'])})"
                  if s["skipped"] else ""))
+    if s["interrupted"]:  # Ctrl-C: the summary above is written; exit 130 (vecu.cli)
+        from vecu.errors import Interrupted
+
+        raise Interrupted(f"{s['duration_s']:.3g} s")
     return 0
 
 
