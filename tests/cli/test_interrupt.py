@@ -29,8 +29,7 @@ def test_an_interrupted_command_writes_its_partial_summary_and_says_what_it_kept
         tmp_path: Path, capsys) -> None:
     log, summary = tmp_path / "x.log", tmp_path / "s.json"
     old = tmp_path / "old.png"
-    old.write_text("from before")
-    os.utime(old, (0, 0))
+    old.write_text("from before")  # not written by the command: not kept
 
     def cut(args: argparse.Namespace) -> int:
         log.write_text("frames")

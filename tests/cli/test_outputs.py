@@ -198,8 +198,8 @@ def test_the_table_covers_every_subcommand_that_writes() -> None:
         for a in p._actions:
             if any(o in OUTPUT_NAMES for o in a.option_strings):
                 assert getattr(a.type, "output_kind", None), f"vecu {' '.join(path)} {a.option_strings}"
-    for path, a in OUTPUTS:
-        assert "--" + a.dest.replace("_", "-") in a.option_strings, (path, a.option_strings)
+    for path, a in OUTPUTS:  # an output is an option (a positional would be named --DEST)
+        assert "--" + a.dest.replace("_", "-") in a.option_strings, (path, a.dest)
     commands = {path[0] for path, _ in OUTPUTS}
     assert {"run", "replay", "plant", "ecu", "gateway", "restbus", "scenario", "campaign",
             "figures", "identify", "excite", "a2l"} <= commands

@@ -151,27 +151,50 @@ def check_plot_path(path: str) -> None:
             raise BadFileError(path, f".pgf plots need {tex}, which is not installed")
 
 
-def report_interrupted(args: argparse.Namespace, started: float, done: str | None = None,
-                       summary: dict | None = None) -> int:
+def _outputs(args: argparse.Namespace) -> list[tuple[str, OutputPath]]:
+    return [(dest, v) for dest, v in sorted(vars(args).items()) if isinstance(v, OutputPath)]
+
+
+def _state(path: OutputPath) -> object:
+    """What tells a change of an output: a file's (mtime, size), a directory's files' ones."""
+    p = Path(path)
+    try:
+        if path.kind == "dir":
+            return {f: (s.st_mtime_ns, s.st_size) for f in p.rglob("*")
+                    if f.is_file() and (s := f.stat())} if p.is_dir() else None
+        st = p.stat()
+        return (st.st_mtime_ns, st.st_size)
+    except OSError:
+        return None
+
+
+def output_state(args: argparse.Namespace) -> dict[str, object]:
+    """The state of every output of a parsed command line before it runs (report_interrupted
+    tells what was written since)."""
+    return {dest: _state(v) for dest, v in _outputs(args)}
+
+
+def report_interrupted(args: argparse.Namespace, before: dict[str, object],
+                       done: str | None = None, summary: dict | None = None) -> int:
     """Ctrl-C on any command (vecu.cli.run_command): the partial summary written where --summary
     asked for it (marked "interrupted": true), one line saying how far the command came and
-    which outputs it kept (those written since `started`, a time.time()), exit code 130."""
+    which outputs it kept (those changed since `before`, output_state()), exit code 130."""
     import json
 
     path = getattr(args, "summary", None)
     if summary is not None and path:
         Path(path).write_text(json.dumps({**summary, "interrupted": True}, indent=2) + "\n")
     kept = []
-    for dest, value in sorted(vars(args).items()):
-        if not isinstance(value, OutputPath):
+    for dest, value in _outputs(args):
+        now, then = _state(value), before.get(dest)
+        if now is None or now == then:
             continue
         flag = "--" + dest.replace("_", "-")
-        p = Path(value)
-        if value.kind == "dir" and p.is_dir():
-            n = sum(1 for f in p.rglob("*") if f.is_file() and f.stat().st_mtime >= started)
-            if n:
-                kept.append(f"{flag} {value} ({n} file{'s' if n != 1 else ''})")
-        elif p.is_file() and p.stat().st_mtime >= started:
+        if isinstance(now, dict):
+            old = then if isinstance(then, dict) else {}
+            n = sum(1 for f, st in now.items() if old.get(f) != st)
+            kept.append(f"{flag} {value} ({n} file{'s' if n != 1 else ''})")
+        else:
             kept.append(f"{flag} {value}" + (" (partial)" if dest == "summary" else ""))
     print(f"vecu: interrupted{f' after {done}' if done else ''}; "
           + (f"kept {', '.join(kept)}" if kept else "nothing written"), file=sys.stderr, flush=True)
