@@ -145,6 +145,29 @@ ids = [0x7E0, 0x7DF]
     assert engine.summary()["routes"]["routes[0] vehicle->powertrain"]["in"] == 1
 
 
+def test_frame_routes_match_the_id_and_its_11_or_29_bit_format(tmp_path):
+    """ids = [0x123] takes the 11-bit 0x123 only; id + mask above 0x7FF takes 29-bit frames."""
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + """
+[[routes]]
+from = "vehicle"
+to = "powertrain"
+ids = [0x123]
+[[routes]]
+from = "vehicle"
+to = "powertrain"
+id = 0x18FF0000
+mask = 0x1FFF0000
+""")))
+    frames = [(0x123, False), (0x123, True), (0x18FF0123, True), (0x0123, False),
+              (0x18FE0001, True), (0x18FF7FFF, True)]
+    for ms, (can_id, ext) in enumerate(frames):
+        engine.receive("vehicle", can.Message(arbitration_id=can_id, data=bytes([ms]),
+                                              is_extended_id=ext), ms * MS)
+    sent = [m for ms in range(len(frames)) for _, m in engine.tick(ms * MS)]
+    assert [(m.arbitration_id, m.is_extended_id, m.data[0]) for m in sent] == [
+        (0x123, False, 0), (0x18FF0123, True, 2), (0x123, False, 3), (0x18FF7FFF, True, 5)]
+
+
 def test_a_frame_route_forwards_e2e_untouched(tmp_path):
     """A protected frame copied by a frame route still passes the receiver's check
     (autosar-e2e P11, data ID = its CAN ID), counter and CRC as the sender made them."""

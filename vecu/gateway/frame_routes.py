@@ -16,24 +16,20 @@ from vecu.gateway.routes import FrameRoute
 
 
 class FrameRouter:
-    """One frame route: offer() every frame of its source bus, tick() each 1 ms."""
+    """One frame route: offer() each frame it matches, tick() each 1 ms."""
 
     def __init__(self, route: FrameRoute) -> None:
         self.route = route
         self.stats = RouteStats()
-        self._ids = {i for i, _ in route.ids}
         self._queue: deque[tuple[int, can.Message]] = deque()  # (arrival ns, frame)
         self._last_out_ns: int | None = None
 
-    def matches(self, msg: can.Message) -> bool:
-        r, can_id = self.route, msg.arbitration_id
-        if r.id_mask is not None and can_id & r.id_mask[1] == r.id_mask[0]:
-            return True
-        return can_id in self._ids
+    def source_ids(self) -> frozenset[tuple[int, bool]]:
+        """The (CAN ID, 29-bit) the route takes by ID (id/mask routes match on their own)."""
+        return self.route.ids
 
     def offer(self, msg: can.Message, now_ns: int) -> None:
-        if not self.matches(msg):
-            return
+        """A frame the route matches (the engine looks it up), arrived at now_ns."""
         self.stats.frames_in += 1
         q = self._queue
         if self.route.min_interval_ns and q:  # last is best: the newer replaces the waiting

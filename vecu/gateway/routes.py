@@ -32,6 +32,18 @@ class FrameRoute:
     min_interval_ns: int = 0
     delay_ns: int = 0
 
+    @property
+    def mask_extended(self) -> bool:
+        """An id/mask route matches 29-bit frames when its id or mask is above 0x7FF."""
+        return self.id_mask is not None and max(self.id_mask) > 0x7FF
+
+    def matches(self, can_id: int, extended: bool) -> bool:
+        """A frame of this ID and 11/29-bit format is one the route copies."""
+        if (can_id, extended) in self.ids:
+            return True
+        return (self.id_mask is not None and extended == self.mask_extended
+                and can_id & self.id_mask[1] == self.id_mask[0])
+
 
 @dataclass(frozen=True)
 class SignalMap:

@@ -2,7 +2,8 @@
 then every frame route and signal route of the config, driven by the caller's clock.
 
 receive(bus, frame, now_ns) for each frame a bus delivers, tick(now_ns) every 1 ms: the frames to
-send, each as (target bus name, frame). Nothing here reads a clock or opens a bus, so on the
+send, each as (target bus name, frame). A frame finds its routes by one dict lookup on (bus, CAN
+ID, 29-bit flag); only id/mask routes are tried one by one. Nothing here reads a clock or opens a bus, so on the
 simulated clock a route's latency is exactly its configured delay (default 0)."""
 
 from __future__ import annotations
@@ -26,18 +27,30 @@ class RoutingEngine:
         self.routes += [SignalRouter(r, config.bus(r.source).codec, config.bus(r.target).codec)
                         for r in config.signal_routes]
         self.routes.sort(key=lambda r: int(r.route.key[len("routes["):-1]))
-        self._from: dict[str, list[FrameRouter | SignalRouter]] = {}
+        Key = tuple[str, int, bool]
+        self._by_id: dict[Key, list[FrameRouter | SignalRouter]] = {}  # (bus, ID, 29-bit)
+        self._masked: dict[str, list[FrameRouter]] = {}                # bus -> id/mask routes
         for r in self.routes:
-            self._from.setdefault(r.route.source, []).append(r)
+            for can_id, extended in r.source_ids():
+                self._by_id.setdefault((r.route.source, can_id, extended), []).append(r)
+            if isinstance(r, FrameRouter) and r.route.id_mask is not None:
+                self._masked.setdefault(r.route.source, []).append(r)
 
     def receive(self, bus: str, msg: can.Message, now_ns: int) -> None:
         """A frame `bus` delivered at now_ns (error and remote frames are not routed)."""
         if msg.is_error_frame or msg.is_remote_frame:
             return
-        if self.firewall.blocks(bus, msg.arbitration_id):
+        can_id, extended = msg.arbitration_id, msg.is_extended_id
+        if self.firewall.blocks(bus, can_id):
             return
-        for route in self._from.get(bus, ()):
-            route.offer(msg, now_ns)
+        routes = self._by_id.get((bus, can_id, extended))
+        if routes is not None:
+            for route in routes:
+                route.offer(msg, now_ns)
+        for masked in self._masked.get(bus, ()):
+            if masked.route.matches(can_id, extended) and (
+                    routes is None or masked not in routes):
+                masked.offer(msg, now_ns)
 
     def tick(self, now_ns: int) -> list[tuple[str, can.Message]]:
         """Every route's frames due at now_ns, in the file's route order."""

@@ -35,6 +35,35 @@ CHANNEL_NAME_FORMATS = (".log", ".log.gz")  # candump: a channel is a name; else
 PRIO_GATEWAY = (PRIO_ECU + PRIO_RECORD) // 2  # after the ECU's tick, before the probes / log
 
 
+class TraceGateway(can.Listener):
+    """`vecu replay TRACE --gateway`: the trace's frames and the ECU's are the first bus's; the
+    replay's feeder hands every trace frame here (on_message_received, at the simulated clock's
+    now), the ECU's tap its frames (receive), and tick() each 1 ms after the ECU gives the routed
+    frames to `write` (each frame's channel its bus name). `copy_to` (--with-inputs): the trace's
+    frames under the first bus's name."""
+
+    def __init__(self, routing: RoutingConfig, clock: SimClock,
+                 write: Callable[[can.Message, int], None],
+                 copy_to: can.Listener | None) -> None:
+        self.engine = RoutingEngine(routing)
+        self.first = routing.buses[0].name
+        self.clock, self.write, self.copy_to = clock, write, copy_to
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.engine.receive(self.first, msg, self.clock.now_ns())
+        if self.copy_to is not None:
+            msg.channel = self.first
+            self.copy_to.on_message_received(msg)
+
+    def receive(self, msg: can.Message, now_ns: int) -> None:
+        self.engine.receive(self.first, msg, now_ns)
+
+    def tick(self, now_ns: int) -> None:
+        for _, msg in self.engine.tick(now_ns):
+            msg.is_rx = True  # as a recorder on that bus sees it (the run's --log)
+            self.write(msg, now_ns)
+
+
 class GatewayNode:
     """The routing engine with one endpoint on each bus's lane."""
 
