@@ -28,6 +28,13 @@ class FrameRouter:
         """The (CAN ID, 29-bit) the route takes by ID (id/mask routes match on their own)."""
         return self.route.ids
 
+    def out_id(self) -> int:
+        """The CAN ID the route sends (its first, by value)."""
+        r = self.route
+        if r.new_id is not None:
+            return r.new_id
+        return min(i for i, _ in r.ids) if r.ids else (r.id_mask or (0, 0))[0]
+
     def offer(self, msg: can.Message, now_ns: int) -> None:
         """A frame the route matches (the engine looks it up), arrived at now_ns."""
         self.stats.frames_in += 1

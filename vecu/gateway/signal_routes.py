@@ -66,6 +66,10 @@ class SignalRouter:
         """The (CAN ID, 29-bit) of its source messages."""
         return frozenset((fc.frame_id, fc.is_extended) for fc, _ in self._sources.values())
 
+    def out_id(self) -> int:
+        """The CAN ID the route sends: its target message's."""
+        return self.target.frame_id
+
     def offer(self, msg: can.Message, now_ns: int) -> None:
         """A frame of one of its source messages (the engine looks it up), arrived at now_ns."""
         self.stats.frames_in += 1

@@ -10,13 +10,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 
 import can
 
 from vecu.assembly import PRIO_ECU, PRIO_RECORD, TICK_NS
 from vecu.bus import LaneBus, MergedEdges, SimLane
-from vecu.clock import SimClock
+from vecu.clock import NS_PER_S, SimClock
 from vecu.errors import ConfigError
+from vecu.faults import ScheduledFault
 from vecu.gateway.routes import RoutingConfig
 from vecu.gateway.routing import RoutingEngine
 from vecu.runner import (
@@ -80,9 +82,28 @@ class GatewayNode:
             self.endpoints[name].send(msg)
 
 
+def schedule_route_faults(sched: Scheduler, engine: RoutingEngine,
+                          faults: tuple[ScheduledFault, ...]) -> None:
+    """Start (and end) each fault on its route, just before the gateway's tick then."""
+    for f in faults:
+        start = partial(_disturb, engine, f, True)
+        sched.at(round(f.start_s * NS_PER_S), start, name=f"route-fault-{f.kind}-{f.target}",
+                 priority=PRIO_GATEWAY - 1)
+        if f.end_s is not None:
+            end = partial(_disturb, engine, f, False)
+            sched.at(round(f.end_s * NS_PER_S), end, name=f"route-unfault-{f.kind}-{f.target}",
+                     priority=PRIO_GATEWAY - 1)
+
+
+def _disturb(engine: RoutingEngine, f: ScheduledFault, active: bool, t_ns: int) -> None:
+    engine.disturb(t_ns, f.target, f.kind, f.value, active)
+
+
 def run_with_gateway(config: RunConfig, routing: RoutingConfig,
-                     progress: Callable[[float, float], None] | None = None) -> RunResult:
-    """runner.run(config) with the gateway of `routing` beside plant and ECU."""
+                     progress: Callable[[float, float], None] | None = None,
+                     faults: tuple[ScheduledFault, ...] = ()) -> RunResult:
+    """runner.run(config) with the gateway of `routing` beside plant and ECU; `faults`: each
+    on the route its target names ("routes[i]", vecu.gateway.route_faults)."""
     if config.realtime:
         raise ConfigError("--gateway runs on the simulated clock (no --realtime)")
     if config.interface not in (None, "virtual"):
@@ -111,6 +132,7 @@ def run_with_gateway(config: RunConfig, routing: RoutingConfig,
         node = GatewayNode(RoutingEngine(routing), endpoints)
         schedule(p)
         p.sched.every(TICK_NS, node.tick, name="gateway", priority=PRIO_GATEWAY)
+        schedule_route_faults(p.sched, node.engine, faults)
         kernel_load_s = ensure_kernels(config)
         wall = execute(p, progress)
         summary = replace(summarise(p, wall, kernel_load_s), gateway=node.engine.summary())

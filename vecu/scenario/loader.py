@@ -21,6 +21,9 @@ from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.errors import BadFileError, UserError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
+from vecu.gateway import route_faults
+from vecu.gateway.routes import RoutingConfig
+from vecu.gateway.routes_config import load_routing_config, parse_routing_config
 from vecu.params import ParamError, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
 from vecu.restbus.node import RestbusNode
@@ -44,7 +47,7 @@ NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
-            "uds": list, "restbus": dict, "xcp": list}
+            "uds": list, "restbus": dict, "xcp": list, "gateway": (str, dict)}
 PLANT_KEYS = {"noise_scale": NUMBER, **dict.fromkeys(functions.OPTIONAL, BOOL),
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, **dict.fromkeys(SENSORS, dict)}
@@ -97,6 +100,8 @@ class Scenario:
     description: str
     config: RunConfig
     criteria: Criteria
+    gateway: RoutingConfig | None = None       # [gateway]: routing between buses beside the run
+    route_faults: tuple[ScheduledFault, ...] = ()  # [[faults]] on its routes ("routes[i]")
 
 
 class _Checker:
@@ -116,6 +121,10 @@ class _Checker:
         return data
 
     def typed(self, value: Any, want: Any, key: str) -> None:
+        if want == (str, dict):  # a file's path or the file's tables inline
+            if not isinstance(value, (str, dict)):
+                raise self.fail(key, f"expected a path or a table, got {_tname(value)}")
+            return
         ok = {NUMBER: isinstance(value, (int, float)) and not isinstance(value, bool),
               INT: isinstance(value, int) and not isinstance(value, bool),
               BOOL: isinstance(value, bool), STR: isinstance(value, str),
@@ -175,8 +184,17 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         monitors[sensor] = over
     restbus = _restbus(chk, data.get("restbus"), seed)
     restbus_node = restbus_checker(restbus, chk) if restbus is not None else None
-    faults, disturbances = _faults(chk, data.get("faults", []), duration, parts, codec,
-                                   restbus_node)
+    gateway = _gateway(chk, data.get("gateway"))
+    route_keys: set[str] = set()
+    if gateway is not None:
+        route_keys = {r.key for r in gateway.frame_routes} | {r.key for r in gateway.signal_routes}
+    items = data.get("faults", [])
+    on_routes = [i for i, item in enumerate(items)
+                 if isinstance(item, dict) and item.get("target") in route_keys]
+    faults, disturbances = _faults(chk, [it for i, it in enumerate(items) if i not in on_routes],
+                                   duration, parts, codec, restbus_node)
+    route_faults = tuple(_route_fault(chk, f"faults[{i}].", items[i], duration)
+                         for i in on_routes)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
@@ -205,7 +223,39 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         params=params, uds_steps=uds_steps, xcp_steps=xcp_steps, restbus=restbus,
         restbus_disturbances=disturbances, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
-                    config, criteria)
+                    config, criteria, gateway, route_faults)
+
+
+def _gateway(chk: _Checker, data: Any) -> RoutingConfig | None:
+    """[gateway]: a gateway config inline, or `gateway = "GATEWAY.toml"` (relative to the
+    scenario file); the plant and ECU on its first bus (vecu.gateway.sim)."""
+    if data is None:
+        return None
+    if isinstance(data, str):
+        return load_routing_config(Path(chk.path).parent / data)
+    routing = parse_routing_config(data, chk.path)
+    if not routing.buses:
+        raise chk.fail("gateway.buses", "expected [gateway.buses.NAME] tables")
+    return routing
+
+
+def _route_fault(chk: _Checker, pre: str, item: dict, duration: float) -> ScheduledFault:
+    """A [[faults]] entry on a gateway route: kind and value checked, times as any fault's."""
+    chk.table(item, FAULT_KEYS, pre)
+    for req in ("kind", "start_s"):
+        if req not in item:
+            raise chk.fail(pre + req, "required key missing")
+    start, end = float(item["start_s"]), item.get("end_s")
+    if not 0 <= start < duration:
+        raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
+    if end is not None and not start < end:
+        raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
+    try:
+        route_faults.check(item["kind"], item.get("value"))
+    except UserError as exc:
+        raise chk.fail(pre + "kind", str(exc)) from None
+    return ScheduledFault(item["target"], item["kind"], start,
+                          None if end is None else float(end), item.get("value"))
 
 
 def _restbus(chk: _Checker, data: Any, seed: int) -> RestbusConfig | None:
