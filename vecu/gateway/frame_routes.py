@@ -35,6 +35,11 @@ class FrameRouter:
             return r.new_id
         return min(i for i, _ in r.ids) if r.ids else (r.id_mask or (0, 0))[0]
 
+    def out_keys(self) -> set[tuple[int, bool]]:
+        """The (CAN ID, 29-bit) it sends (an id/mask route without a new ID: none known)."""
+        r = self.route
+        return {(r.new_id, r.new_id > 0x7FF)} if r.new_id is not None else set(r.ids)
+
     def offer(self, msg: can.Message, now_ns: int) -> None:
         """A frame the route matches (the engine looks it up), arrived at now_ns."""
         self.stats.frames_in += 1

@@ -32,7 +32,7 @@ UNIT_CONVERSIONS: dict[tuple[str, str], tuple[float, float]] = {
     ("degC", "K"): (1.0, KELVIN_AT_0_DEGC), ("K", "degC"): (1.0, -KELVIN_AT_0_DEGC),
 }
 BUS = {"interface": str, "channel": str, "bitrate": int, "fd": bool, "data_bitrate": int,
-       "dbc": list}
+       "port": int, "dbc": list}
 ROUTE = {"from": str, "to": str, "messages": list, "ids": list, "id": int, "mask": int,
          "min_interval_ms": float, "target": str, "send": str, "timeout_ms": float,
          "signals": dict, "e2e": dict, "delay_ms": float}

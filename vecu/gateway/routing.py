@@ -60,6 +60,15 @@ class RoutingEngine:
                     routes is None or masked not in routes):
                 masked.offer(msg, now_ns)
 
+    def sends(self, bus: str) -> set[tuple[int, bool]]:
+        """The (CAN ID, 29-bit) the routes send on `bus` (an id/mask route without a new ID:
+        none known)."""
+        out: set[tuple[int, bool]] = set()
+        for r in self.routes:
+            if r.route.target == bus:
+                out |= r.out_keys()
+        return out
+
     def disturb(self, now_ns: int, key: str, kind: str, value: float | None = None,
                 active: bool = True, source: str = "scenario") -> None:
         """Start (active) or end a fault (vecu.gateway.route_faults) on the route `key`

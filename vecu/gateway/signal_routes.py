@@ -70,6 +70,9 @@ class SignalRouter:
         """The CAN ID the route sends: its target message's."""
         return self.target.frame_id
 
+    def out_keys(self) -> set[tuple[int, bool]]:
+        return {(self.target.frame_id, self.target.is_extended)}
+
     def offer(self, msg: can.Message, now_ns: int) -> None:
         """A frame of one of its source messages (the engine looks it up), arrived at now_ns."""
         self.stats.frames_in += 1
