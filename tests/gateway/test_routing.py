@@ -5,6 +5,7 @@ limit, timeout substitutes and the firewall."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import can
@@ -287,3 +288,46 @@ e2e = {{ profile = "P02", data_id_list = {ids} }}
     for n, m in enumerate(sent):
         assert autosar_e2e.p02.e2e_p02_check(bytearray(m.data), bytes(ids), length=0)
         assert m.data[1] & 0x0F == n % 16  # P02's counter: 0..15
+
+
+def test_check_and_forward_drops_frames_failing_their_e2e_check(tmp_path):
+    """e2e_check = true: a frame route passes the frames whose protection (the source
+    database's, autosar-e2e's check) holds and drops and counts the others."""
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + """
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+messages = ["ECU_ThrottleEstimate"]
+e2e_check = true
+""")))
+    feed = {}
+    for ms in range(20):
+        f = _frame("ECU_ThrottleEstimate", {"THR_Angle": ms * 1.5, "THR_AliveCounter": ms % 15},
+                   ms * MS)
+        if ms % 4 == 3:
+            f.data[5] ^= 0x01  # one bit flipped after the CRC was computed
+        feed[ms] = [f]
+    sent = _run(engine, feed, 20)
+    assert [bytes(m.data) for _, _, m in sent] == [bytes(feed[ms][0].data) for ms in range(20)
+                                                    if ms % 4 != 3]
+    assert all(autosar_e2e.p11.e2e_p11_check(bytearray(m.data), 0x200) for _, _, m in sent)
+    route = engine.summary()["routes"]["routes[0] powertrain->vehicle"]
+    assert route["in"] == 20 and route["out"] == 15 and route["dropped"] == {"e2e": 5}
+
+
+@pytest.mark.parametrize("route, problem", [
+    ('messages = ["ECU_SpeedEstimate"]\ne2e_check = true',
+     "routes[0].e2e_check': no message of the route names an E2E protection"),
+    (('target = "VEH_Mux"\nsend = "on_change"\nsignals = { VEH_Yaw = "CHS_Lateral.LAT_YawRate" }'
+     '\ne2e_check = true'), "routes[0].e2e_check': belongs to a frame route"),
+])
+def test_e2e_check_errors(tmp_path, route, problem):
+    from vecu.gateway.config import GatewayConfigError
+
+    with pytest.raises(GatewayConfigError, match=re.escape(problem)):
+        load_routing_config(write_config(tmp_path, TWO_BUSES + f"""
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+{route}
+"""))

@@ -31,6 +31,7 @@ class FrameRoute:
     new_id: int | None = None
     min_interval_ns: int = 0
     delay_ns: int = 0
+    e2e_check: bool = False   # check-and-forward: frames failing their E2E check dropped
 
     @property
     def mask_extended(self) -> bool:

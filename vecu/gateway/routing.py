@@ -25,8 +25,8 @@ class RoutingEngine:
     def __init__(self, config: RoutingConfig) -> None:
         self.config = config
         self.firewall = Firewall(config.deny)
-        self.routes: list[FrameRouter | SignalRouter] = [FrameRouter(r)
-                                                         for r in config.frame_routes]
+        self.routes: list[FrameRouter | SignalRouter] = [
+            FrameRouter(r, config.bus(r.source).codec) for r in config.frame_routes]
         self.routes += [SignalRouter(r, config.bus(r.source).codec, config.bus(r.target).codec)
                         for r in config.signal_routes]
         self.routes.sort(key=lambda r: int(r.route.key[len("routes["):-1]))
