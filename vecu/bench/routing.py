@@ -106,8 +106,8 @@ def _latency(frames: list[can.Message], seed: int) -> dict[str, Any]:
         sink.shutdown()
 
 
-CANGW_RULE = ["-s", "vcan0", "-d", "vcan1", "-f", "123:7FF", "-m",
-              "SET:I:321.0.0000000000000000"]  # 0x123 on vcan0 -> 0x321 on vcan1
+CANGW_RULE = ["-s", "vcan0", "-d", "vcan1", "-e", "-f", "123:7FF", "-m",
+              "SET:I:321.0.0000000000000000"]  # 0x123 on vcan0 -> 0x321 on vcan1 (-e: echo on vcan)
 KERNEL_CONFIG = """
 [buses.src]
 interface = "socketcan"

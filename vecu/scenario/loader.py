@@ -188,13 +188,8 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     route_keys: set[str] = set()
     if gateway is not None:
         route_keys = {r.key for r in gateway.frame_routes} | {r.key for r in gateway.signal_routes}
-    items = data.get("faults", [])
-    on_routes = [i for i, item in enumerate(items)
-                 if isinstance(item, dict) and item.get("target") in route_keys]
-    faults, disturbances = _faults(chk, [it for i, it in enumerate(items) if i not in on_routes],
-                                   duration, parts, codec, restbus_node)
-    route_faults = tuple(_route_fault(chk, f"faults[{i}].", items[i], duration)
-                         for i in on_routes)
+    faults, disturbances, on_routes = _faults(chk, data.get("faults", []), duration, parts,
+                                              codec, restbus_node, route_keys)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
@@ -223,7 +218,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         params=params, uds_steps=uds_steps, xcp_steps=xcp_steps, restbus=restbus,
         restbus_disturbances=disturbances, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
-                    config, criteria, gateway, route_faults)
+                    config, criteria, gateway, on_routes)
 
 
 def _gateway(chk: _Checker, data: Any) -> RoutingConfig | None:
@@ -237,25 +232,6 @@ def _gateway(chk: _Checker, data: Any) -> RoutingConfig | None:
     if not routing.buses:
         raise chk.fail("gateway.buses", "expected [gateway.buses.NAME] tables")
     return routing
-
-
-def _route_fault(chk: _Checker, pre: str, item: dict, duration: float) -> ScheduledFault:
-    """A [[faults]] entry on a gateway route: kind and value checked, times as any fault's."""
-    chk.table(item, FAULT_KEYS, pre)
-    for req in ("kind", "start_s"):
-        if req not in item:
-            raise chk.fail(pre + req, "required key missing")
-    start, end = float(item["start_s"]), item.get("end_s")
-    if not 0 <= start < duration:
-        raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
-    if end is not None and not start < end:
-        raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
-    try:
-        route_faults.check(item["kind"], item.get("value"))
-    except UserError as exc:
-        raise chk.fail(pre + "kind", str(exc)) from None
-    return ScheduledFault(item["target"], item["kind"], start,
-                          None if end is None else float(end), item.get("value"))
 
 
 def _restbus(chk: _Checker, data: Any, seed: int) -> RestbusConfig | None:
@@ -291,13 +267,16 @@ def restbus_checker(cfg: RestbusConfig, chk: _Checker) -> RestbusNode:
 
 
 def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
-            codec: DbcCodec | None, restbus: RestbusNode | None = None
-            ) -> tuple[tuple[ScheduledFault, ...], tuple[ScheduledFault, ...]]:
-    """[[faults]]: on vecu's own sensors and frames (the injector), or on a message of the
-    restbus (a restbus disturbance, vecu.restbus.disturb)."""
+            codec: DbcCodec | None, restbus: RestbusNode | None = None,
+            route_keys: set[str] | frozenset[str] = frozenset(),
+            ) -> tuple[tuple[ScheduledFault, ...], ...]:
+    """[[faults]]: on vecu's own sensors and frames (the injector), on a message of the
+    restbus (a restbus disturbance, vecu.restbus.disturb), or on a gateway route (its key,
+    vecu.gateway.route_faults): (faults, disturbances, route faults)."""
     injector = FaultInjector(np.random.default_rng(0), codec)
     out = []
     disturbances = []
+    on_routes = []
     for i, item in enumerate(items):
         pre = f"faults[{i}]."
         chk.table(item, FAULT_KEYS, pre)
@@ -309,6 +288,15 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
             raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
         if end is not None and not start < end:
             raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
+        if item["target"] in route_keys:
+            try:
+                route_faults.check(item["kind"], item.get("value"))
+            except UserError as exc:
+                raise chk.fail(pre + "kind", str(exc)) from None
+            on_routes.append(ScheduledFault(item["target"], item["kind"], start,
+                                            None if end is None else float(end),
+                                            item.get("value")))
+            continue
         if restbus is not None and _on_restbus(restbus, item["target"]):
             try:
                 restbus.check(item["target"], item["kind"], item.get("value"))
@@ -335,7 +323,7 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
                                            f"plant.{part} = true")
         out.append(ScheduledFault(item["target"], item["kind"], start,
                                   None if end is None else float(end), item.get("value")))
-    return tuple(out), tuple(disturbances)
+    return tuple(out), tuple(disturbances), tuple(on_routes)
 
 
 def _on_restbus(node: RestbusNode, target: str) -> bool:
