@@ -102,3 +102,31 @@ def test_a_bad_route_fault_is_one_line(tmp_path):
     with pytest.raises(ScenarioError, match=r"faults\[0\]\.kind.*corrupt.*\[0, 63\]"):
         _scenario(tmp_path, '[[faults]]\ntarget = "routes[1]"\nkind = "corrupt"\nvalue = 99\n'
                             'start_s = 0.1\n')
+
+
+def test_a_campaign_run_routes_with_its_gateway(tmp_path):
+    """A drive campaign's [run] gateway = "gw.toml" (beside the campaign file): each run routes,
+    and a route's figures are metrics like any summary value."""
+    from vecu.campaign.draws import load_campaign
+    from vecu.campaign.studies import run_one
+
+    from .routing_setup import write_config
+
+    write_config(tmp_path)
+    metric = "gateway.routes.routes[0] powertrain->vehicle.out"
+    (tmp_path / "c.toml").write_text(f'kind = "drive"\nruns = 2\nmetrics = ["{metric}"]\n'
+                                     '[run]\nduration_s = 0.5\ngateway = "gw.toml"\n')
+    spec = load_campaign(str(tmp_path / "c.toml"))
+    row = run_one(spec, 0)
+    assert row["status"] == "ok", row
+    assert row[metric] == 25  # ECU_SpeedEstimate every 2 ms, at most one per 20 ms: 0..480 ms
+
+
+def test_a_campaign_gateway_error_is_one_line(tmp_path):
+    from vecu.campaign.spec import read_campaign
+    from vecu.errors import UserError
+
+    (tmp_path / "gw.toml").write_text('[buses.a]\ninterface = "virtual"\ndbc = ["nope.dbc"]\n')
+    (tmp_path / "c.toml").write_text('kind = "drive"\n[run]\ngateway = "gw.toml"\n')
+    with pytest.raises(UserError, match=r"gw\.toml: key 'buses\.a\.dbc'"):
+        read_campaign(str(tmp_path / "c.toml"))
