@@ -48,8 +48,10 @@ class LiveRouting:
 
     def step(self, now_ns: int) -> None:
         """Every frame the buses hold (each dated by its age now), then the routes' frames sent."""
-        got = [(name, msg) for name, bus in self.buses.items()
-               for msg in iter(lambda b=bus: b.recv(0.0), None)]  # type: ignore[misc]
+        got: list[tuple[str, can.Message]] = []
+        for name, bus in self.buses.items():
+            while (msg := bus.recv(0.0)) is not None:
+                got.append((name, msg))
         if got:
             receive, now_s = self.engine.receive, wall_time()
             for name, msg in got:
