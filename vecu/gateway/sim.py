@@ -69,15 +69,16 @@ class TraceGateway(can.Listener):
 class GatewayNode:
     """The routing engine with one endpoint on each bus's lane."""
 
-    def __init__(self, engine: RoutingEngine, endpoints: dict[str, can.BusABC]) -> None:
+    def __init__(self, engine: RoutingEngine, endpoints: dict[str, LaneBus]) -> None:
         self.engine = engine
         self.endpoints = endpoints
+        self._queues = [(name, bus.queue) for name, bus in endpoints.items()]  # no filters set
 
     def tick(self, now_ns: int) -> None:
         receive = self.engine.receive
-        for name, bus in self.endpoints.items():
-            while (msg := bus.recv(0.0)) is not None:
-                receive(name, msg, now_ns)
+        for name, q in self._queues:  # each lane endpoint's deque (LaneBus.recv without a call)
+            while q:
+                receive(name, q.popleft(), now_ns)
         for name, msg in self.engine.tick(now_ns):
             self.endpoints[name].send(msg)
 
@@ -118,7 +119,7 @@ def run_with_gateway(config: RunConfig, routing: RoutingConfig,
     try:
         build(p)
         lanes = {first: p.lane, **{b.name: SimLane(b.name) for b in routing.buses[1:]}}
-        endpoints: dict[str, can.BusABC] = {name: lane.bus() for name, lane in lanes.items()}
+        endpoints = {name: lane.bus() for name, lane in lanes.items()}
         p.buses += endpoints.values()
         if p.recorder is not None:  # the first lane's log endpoint, then one per other lane
             first_edge = p.recorder.bus
