@@ -136,3 +136,13 @@ def kill_time(text: str) -> float | str | None:
     if not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"expected seconds or 'none', got {text!r}")
     return v
+
+
+def bus_override(text: str) -> tuple[str, str, str]:
+    """`--bus NAME=INTERFACE:CHANNEL` -> (name, interface, channel); the channel may hold ':'."""
+    name, eq, rest = text.partition("=")
+    interface, colon, channel = rest.partition(":")
+    if not (eq and colon and name.strip() and interface.strip() and channel.strip()):
+        raise argparse.ArgumentTypeError(f"expected NAME=INTERFACE:CHANNEL (e.g. "
+                                         f"vehicle=socketcan:vcan1), got {text!r}")
+    return name.strip(), interface.strip(), channel.strip()

@@ -37,6 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--channel", help="python-can channel for --speed")
     p.add_argument("--format", dest="fmt", metavar="FMT",
                    help="reader when the suffix does not tell (asc, blf, log, trc, csv, mf4)")
+    p.add_argument("--gateway", metavar="GATEWAY.toml",
+                   help="route the trace (its first bus) and the ECU's frames between the buses "
+                        "this gateway config names; --out holds every bus (docs/gateway.md)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.* calibration only", params_file=True)
     p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary")
@@ -59,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
         channel=args.channel, fmt=args.fmt, estimator=args.estimator, progress=args.progress,
         sets=tuple(param_sets(args, only="ecu.")),
-        keep_series=bool(args.plot))
+        keep_series=bool(args.plot), gateway=args.gateway)
     result = replay(config)
     if result.error and result.report.frames.read == 0:  # not a trace: no summary of nothing
         raise TraceReadError(None, result.error)
@@ -104,6 +107,9 @@ def format_summary(s: ReplaySummary) -> str:
         e = s.schedule_error
         lines.append(f"schedule error: p50 {e['p50_us']} us, p99 {e['p99_us']} us, max "
                      f"{e['max_us']} us over {e['count']} frames")
+    if s.gateway is not None:
+        from vecu.cli.run import gateway_lines
+        lines += gateway_lines(s.gateway)
     if s.frames_written:
         lines.append(f"wrote {s.frames_written} frames to {s.config['out']}")
     return "\n".join(lines)

@@ -15,7 +15,7 @@ import logging
 import math
 import sys
 import threading
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from typing import Any
 
@@ -79,12 +79,15 @@ class ReplayConfig:
     progress_every_s: float = PROGRESS_EVERY_S  # wall time between progress lines
     idle_gap_s: float = IDLE_GAP_NS / NS_PER_S  # a longer silence is shortened to this
     keep_series: bool = False           # estimate/truth rows for a plot (ReplayResult.series)
+    gateway: str | None = None          # GATEWAY.toml: the trace on its first bus, routed
 
     def validate(self) -> None:
         for path, _ in self.sets:
             if not path.startswith("ecu."):
                 raise BadArgumentError(f"--set {path}: a replay takes ecu.* parameters only (the "
                                        f"car is the one that recorded the trace)")
+        if self.gateway is not None and self.speed is not None:
+            raise BadArgumentError("--gateway replays on the simulated clock (no --speed)")
         if self.speed is not None and not (self.speed > 0 and self.speed < 1e4):
             raise BadArgumentError(f"--speed must be in (0, 10000), got {self.speed}")
         if not (math.isfinite(self.progress_every_s) and self.progress_every_s >= 0):
@@ -110,6 +113,13 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
     """Replay config.trace through the ECU; see the module docstring. feeder_type: the feeder
     (tests pass their frame-by-frame oracle, a Feeder without block checks)."""
     config.validate()
+    routing = None
+    if config.gateway is not None:  # every problem of the file before any work
+        from vecu.gateway.routes_config import load_routing_config
+        from vecu.gateway.sim import PRIO_GATEWAY, TraceGateway
+        routing = load_routing_config(config.gateway)
+        if not routing.buses:
+            raise BadArgumentError(f"--gateway {config.gateway}: names no [buses.NAME] to route")
     ecu_codec, trace_db, smap, functions, routes = _ecu_parts(config)
     live = config.speed is not None
     stopped_at_s: float | None = None  # where Ctrl-C stopped the replay (replay time)
@@ -135,20 +145,33 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
             buses += [player_bus, ecu_bus]
         else:
             ecu_bus = SinkBus("replay")
-        def on_sent(msg: can.Message) -> None:
-            t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
-            scorer.on_estimate(msg, t_ns)
+        out_channel = OUT_CHANNEL if routing is None else routing.buses[0].name
+
+        def to_out(msg: can.Message, t_ns: int) -> None:
             if writer is not None:  # back on the trace's time base (skipped idle time too)
                 skipped = source.skipped_before(int(t_ns * config.speed) if live else t_ns)
                 msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
                 if msg.channel is None:
-                    msg.channel = OUT_CHANNEL
+                    msg.channel = out_channel
                 writer.on_message_received(msg)
+
+        copy_to: can.Listener | None = writer if config.with_inputs else None
+        gateway = None
+        if routing is not None:
+            assert isinstance(clock, SimClock)
+            copy_to = gateway = TraceGateway(routing, clock, to_out, copy_to)
+            sched.every(TICK_NS, gateway.tick, name="gateway", priority=PRIO_GATEWAY)
+
+        def on_sent(msg: can.Message) -> None:
+            t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
+            scorer.on_estimate(msg, t_ns)
+            if gateway is not None:
+                gateway.receive(msg, t_ns)
+            to_out(msg, t_ns)
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
                       arm_on_input=True, tap=on_sent, tallied_rx=frozenset({UNKNOWN_ID}))
         tally = FrameTally()
-        feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes,
-                             writer if config.with_inputs else None,
+        feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes, copy_to,
                              player=player_bus, speed=config.speed or 1.0,
                              clock=clock if isinstance(clock, WallClock) else None)
         ecu_task = schedule_ecu(sched, ecu)
@@ -190,6 +213,8 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
         log.warning("%s", unknown_id_tally(config.trace, ecu.rx.unknown_id, feeder.unknown_ids))
     summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
                        writer.frames if writer is not None else 0, kernel_load_s)
+    if gateway is not None:
+        summary = replace(summary, gateway=gateway.engine.summary())
     if stopped_at_s is not None:
         raise Interrupted(f"{stopped_at_s:.3f} s of the trace ({source.stats.frames_read} frames "
                           "read)", to_json(summary))
@@ -442,7 +467,8 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
         trace=config.trace,
         mode="live" if config.speed is not None else "fast",
         config={k: v for k, v in asdict(config).items()
-                if k not in ("progress", "progress_every_s", "keep_series")},
+                if k not in ("progress", "progress_every_s", "keep_series")
+                and not (k == "gateway" and v is None)},
         error=source.error,
         frames=ReplayFrames(
             read=st.frames_read,

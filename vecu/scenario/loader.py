@@ -21,6 +21,9 @@ from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.errors import BadFileError, UserError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
+from vecu.gateway import route_faults
+from vecu.gateway.routes import RoutingConfig
+from vecu.gateway.routes_config import load_routing_config, parse_routing_config
 from vecu.params import ParamError, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
 from vecu.restbus.node import RestbusNode
@@ -44,7 +47,7 @@ NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
-            "uds": list, "restbus": dict, "xcp": list}
+            "uds": list, "restbus": dict, "xcp": list, "gateway": (str, dict)}
 PLANT_KEYS = {"noise_scale": NUMBER, **dict.fromkeys(functions.OPTIONAL, BOOL),
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, **dict.fromkeys(SENSORS, dict)}
@@ -97,6 +100,8 @@ class Scenario:
     description: str
     config: RunConfig
     criteria: Criteria
+    gateway: RoutingConfig | None = None       # [gateway]: routing between buses beside the run
+    route_faults: tuple[ScheduledFault, ...] = ()  # [[faults]] on its routes ("routes[i]")
 
 
 class _Checker:
@@ -116,6 +121,10 @@ class _Checker:
         return data
 
     def typed(self, value: Any, want: Any, key: str) -> None:
+        if want == (str, dict):  # a file's path or the file's tables inline
+            if not isinstance(value, (str, dict)):
+                raise self.fail(key, f"expected a path or a table, got {_tname(value)}")
+            return
         ok = {NUMBER: isinstance(value, (int, float)) and not isinstance(value, bool),
               INT: isinstance(value, int) and not isinstance(value, bool),
               BOOL: isinstance(value, bool), STR: isinstance(value, str),
@@ -175,8 +184,12 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         monitors[sensor] = over
     restbus = _restbus(chk, data.get("restbus"), seed)
     restbus_node = restbus_checker(restbus, chk) if restbus is not None else None
-    faults, disturbances = _faults(chk, data.get("faults", []), duration, parts, codec,
-                                   restbus_node)
+    gateway = _gateway(chk, data.get("gateway"))
+    route_keys: set[str] = set()
+    if gateway is not None:
+        route_keys = {r.key for r in gateway.frame_routes} | {r.key for r in gateway.signal_routes}
+    faults, disturbances, on_routes = _faults(chk, data.get("faults", []), duration, parts,
+                                              codec, restbus_node, route_keys)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
@@ -205,7 +218,20 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         params=params, uds_steps=uds_steps, xcp_steps=xcp_steps, restbus=restbus,
         restbus_disturbances=disturbances, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
-                    config, criteria)
+                    config, criteria, gateway, on_routes)
+
+
+def _gateway(chk: _Checker, data: Any) -> RoutingConfig | None:
+    """[gateway]: a gateway config inline, or `gateway = "GATEWAY.toml"` (relative to the
+    scenario file); the plant and ECU on its first bus (vecu.gateway.sim)."""
+    if data is None:
+        return None
+    if isinstance(data, str):
+        return load_routing_config(Path(chk.path).parent / data)
+    routing = parse_routing_config(data, chk.path)
+    if not routing.buses:
+        raise chk.fail("gateway.buses", "expected [gateway.buses.NAME] tables")
+    return routing
 
 
 def _restbus(chk: _Checker, data: Any, seed: int) -> RestbusConfig | None:
@@ -241,13 +267,16 @@ def restbus_checker(cfg: RestbusConfig, chk: _Checker) -> RestbusNode:
 
 
 def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
-            codec: DbcCodec | None, restbus: RestbusNode | None = None
-            ) -> tuple[tuple[ScheduledFault, ...], tuple[ScheduledFault, ...]]:
-    """[[faults]]: on vecu's own sensors and frames (the injector), or on a message of the
-    restbus (a restbus disturbance, vecu.restbus.disturb)."""
+            codec: DbcCodec | None, restbus: RestbusNode | None = None,
+            route_keys: set[str] | frozenset[str] = frozenset(),
+            ) -> tuple[tuple[ScheduledFault, ...], ...]:
+    """[[faults]]: on vecu's own sensors and frames (the injector), on a message of the
+    restbus (a restbus disturbance, vecu.restbus.disturb), or on a gateway route (its key,
+    vecu.gateway.route_faults): (faults, disturbances, route faults)."""
     injector = FaultInjector(np.random.default_rng(0), codec)
     out = []
     disturbances = []
+    on_routes = []
     for i, item in enumerate(items):
         pre = f"faults[{i}]."
         chk.table(item, FAULT_KEYS, pre)
@@ -259,6 +288,15 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
             raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
         if end is not None and not start < end:
             raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
+        if item["target"] in route_keys:
+            try:
+                route_faults.check(item["kind"], item.get("value"))
+            except UserError as exc:
+                raise chk.fail(pre + "kind", str(exc)) from None
+            on_routes.append(ScheduledFault(item["target"], item["kind"], start,
+                                            None if end is None else float(end),
+                                            item.get("value")))
+            continue
         if restbus is not None and _on_restbus(restbus, item["target"]):
             try:
                 restbus.check(item["target"], item["kind"], item.get("value"))
@@ -285,7 +323,7 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
                                            f"plant.{part} = true")
         out.append(ScheduledFault(item["target"], item["kind"], start,
                                   None if end is None else float(end), item.get("value")))
-    return tuple(out), tuple(disturbances)
+    return tuple(out), tuple(disturbances), tuple(on_routes)
 
 
 def _on_restbus(node: RestbusNode, target: str) -> bool:
