@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from vecu import params as ptree
 from vecu.bus import RxBudget
@@ -25,6 +25,7 @@ from vecu.errors import ConfigError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
+from vecu.fmu.binding import FmuBinding, NoFmu, parameter_tree
 from vecu.instances import ECU_NODE, MAX_INSTANCE, check_distinct, uds_ids, xcp_ids
 from vecu.models.lateral import VehicleParams
 from vecu.models.sensors import TpsCalibration
@@ -78,6 +79,8 @@ class EcuParams:
     uds: UdsConfig = field(default_factory=UdsConfig)  # diagnostics server (docs/uds.md)
     xcp: XcpConfig = field(default_factory=XcpConfig)  # measurement and calibration (docs/xcp.md)
     rx: RxBudget = field(default_factory=RxBudget)  # receive work per 1 ms tick (docs/live.md)
+    # an FMU's parameters, ecu.fmu.<instance>.<variable> (RunConfig.with_fmu; docs/fmu.md)
+    fmu: Any = field(default_factory=NoFmu)
 
 
 @dataclass(frozen=True)
@@ -207,6 +210,7 @@ class RunConfig:
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
     restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
     restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline
+    fmu: FmuBinding | None = None  # an FMU as an ECU function (with_fmu; docs/fmu.md)
 
     def with_params(self, sets: Mapping[str, object] | Iterable[tuple[str, object]] = (),
                     **shortcuts: object) -> RunConfig:
@@ -215,6 +219,19 @@ class RunConfig:
         pairs = list(sets.items()) if isinstance(sets, Mapping) else list(sets)
         pairs += shortcut_sets(**shortcuts)
         return replace(self, params=self.params.set(pairs)) if pairs else self
+
+    def with_fmu(self, binding: FmuBinding) -> RunConfig:
+        """This configuration with binding's FMU as an ECU function: its parameters become the
+        ecu.fmu.<instance> subtree (at the FMU's start values, then the map's [parameters]);
+        with_params afterwards overrides them."""
+        ecu = replace(self.params.ecu, fmu=parameter_tree(binding))
+        params = replace(self.params, ecu=ecu)
+        starts = [(f"ecu.fmu.{binding.name}.{k}", v) for k, v in binding.starts]
+        return replace(self, fmu=binding, params=ptree.apply_sets(params, starts))
+
+    def default_params(self) -> ParamTree:
+        """The default tree of this run's shape (an FMU's subtree at its start values)."""
+        return ParamTree(ecu=EcuParams(fmu=type(self.params.ecu.fmu)()))
 
     @property
     def estimator(self) -> str:
@@ -234,7 +251,10 @@ class RunConfig:
         out["noise_scale"] = self.params.plant.throttle.noise_scale
         out["estimator"] = self.estimator
         out["manifold_filter"] = self.params.ecu.manifold.filter
-        out["params"] = {leaf.path: leaf.value for leaf in ptree.differences(self.params, ParamTree())}
+        out["fmu"] = None if self.fmu is None else {
+            "fmu": self.fmu.fmu, "instance": self.fmu.name, "step_ms": self.fmu.step_ms}
+        out["params"] = {leaf.path: leaf.value
+                         for leaf in ptree.differences(self.params, self.default_params())}
         return out
 
     def validate(self) -> None:

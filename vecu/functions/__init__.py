@@ -24,6 +24,7 @@ FUNCTIONS: dict[str, str] = {
     "speed": "vecu.functions.speed:SPEC",
     "steering": "vecu.functions.steering:SPEC",
     "manifold": "vecu.functions.manifold:SPEC",
+    "fmu": "vecu.functions.fmu:SPEC",  # a user's FMU (RunConfig.fmu; docs/fmu.md)
 }
 # the built-in functions a run may leave out: RunConfig.<name>, `--no-<name>` of the live tools
 OPTIONAL: tuple[str, ...] = ("speed", "steering", "manifold")
@@ -92,13 +93,18 @@ def registered(new: EcuFunctionSpec) -> Iterator[EcuFunctionSpec]:
         unregister(new.name)
 
 
-def function_codec(instance: int = 0) -> DbcCodec:
+def function_codec(instance: int = 0, config: RunConfig | None = None) -> DbcCodec:
     """vecu's codec (its DBC and truth DBC), with the DBCs of registered plug-ins that bring
-    their own messages; the shared codec when none does. instance: the ECU instance whose frames
-    it sends and reads (vecu.instances; 0: the DBCs' IDs)."""
+    their own messages and those config's run adds (an FMU's); the shared codec when none does.
+    instance: the ECU instance whose frames it sends and reads (vecu.instances; 0: the DBCs'
+    IDs)."""
     from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path, shared_codec
 
     extra = tuple(path for s in specs() for path in s.dbc)
+    if config is not None:
+        extra += tuple(path for s in enabled(config) if s.run_dbc is not None
+                       for path in s.run_dbc(config))
+        extra = tuple(dict.fromkeys(extra))
     if not extra:
         return shared_codec(instance)
     codec = _codecs.get((*extra, instance))

@@ -121,6 +121,8 @@ class EcuFunctionSpec:
     plot: Callable[[Any, Any], None] | None = None  # (its series, a matplotlib axes): a panel
     estimators: tuple[str, ...] = ()
     dbc: tuple[str, ...] = ()
+    # DBC files a run's configuration adds (an FMU's databases), beside `dbc`
+    run_dbc: Callable[[RunConfig], tuple[str, ...]] | None = None
     label: str = ""  # its broadcast value with unit, a replay plot's axis (default: its name)
     # its hot paths, rows of `vecu bench --only breakdown`: (module, class or None, attribute,
     # row label)
