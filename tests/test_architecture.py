@@ -428,7 +428,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
     3: ("bus", "codec", "e2e", "can_message", "fault_kinds",
         "faults", "scheduler", "recorder"),
     4: ("estimators",),
-    5: ("plant", "restbus", "ecu", "uds", "xcp"),
+    5: ("plant", "restbus", "ecu", "uds", "xcp", "fmu"),
     6: ("config", "assembly", "runner", "probes", "summary", "warmup", "functions"),
     7: ("replay", "scenario", "campaign", "eval", "bench", "live", "plot", "figures", "ident",
         "gateway"),

@@ -33,7 +33,7 @@ from vecu.bus import (
 )
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.codec import DbcCodec
-from vecu.config import ParamTree, RunConfig, validate_tree
+from vecu.config import RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind

@@ -12,11 +12,11 @@ import importlib
 import logging
 import sys
 import traceback
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import vecu
 from vecu.cli.outputs import check_outputs as check_outputs
-from vecu.errors import UserError
+from vecu.errors import BadArgumentError, UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
                "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway")
@@ -130,6 +130,36 @@ def add_set_option(p: argparse.ArgumentParser, scope: str, params_file: bool = F
                             "`vecu identify throttle --out` writes (--set overrides it)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
                    help=f"override a parameter ({scope}; `vecu params` lists them), repeatable")
+
+
+def add_fmu_options(p: argparse.ArgumentParser) -> None:
+    """--fmu MODEL.fmu --fmu-map MAP.toml: an FMU as an ECU function (docs/fmu.md)."""
+    p.add_argument("--fmu", metavar="MODEL.fmu",
+                   help="an FMI 2.0 / 3.0 co-simulation FMU as an ECU function (needs --fmu-map; "
+                        "docs/fmu.md)")
+    p.add_argument("--fmu-map", metavar="MAP.toml",
+                   help="binds the FMU's inputs and outputs to DBC signals, its step and "
+                        "parameters (docs/fmu.md)")
+
+
+def fmu_binding(args: argparse.Namespace) -> Any:
+    """The FMU binding of --fmu / --fmu-map (None without), checked before any work (one line
+    per problem)."""
+    fmu, fmu_map = getattr(args, "fmu", None), getattr(args, "fmu_map", None)
+    if fmu is None and fmu_map is None:
+        return None
+    if fmu is None or fmu_map is None:
+        raise BadArgumentError("--fmu and --fmu-map go together (the map binds the FMU to the "
+                               "bus; docs/fmu.md)")
+    from vecu.fmu.binding import load_binding
+
+    return load_binding(fmu, fmu_map)
+
+
+def with_fmu(config: Any, args: argparse.Namespace) -> Any:
+    """config (a RunConfig) with the FMU of --fmu / --fmu-map; unchanged without."""
+    binding = fmu_binding(args)
+    return config if binding is None else config.with_fmu(binding)
 
 
 def param_sets(args: argparse.Namespace, only: str | None = None) -> list[tuple[str, str]]:

@@ -8,7 +8,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vecu import argtypes
-from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.cli import (
+    add_fmu_options,
+    add_set_option,
+    check_outputs,
+    configure_logging,
+    fmu_binding,
+    param_sets,
+)
 
 if TYPE_CHECKING:
     from vecu.replay.summary import ReplaySummary, ScoreSection
@@ -39,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="reader when the suffix does not tell (asc, blf, log, trc, csv, mf4)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.* calibration only", params_file=True)
+    add_fmu_options(p)
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
     prog = p.add_mutually_exclusive_group()
@@ -60,7 +68,7 @@ def main(args: argparse.Namespace) -> int:
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
         channel=args.channel, fmt=args.fmt, estimator=args.estimator, progress=args.progress,
         sets=tuple(param_sets(args, only="ecu.")),
-        keep_series=bool(args.plot))
+        keep_series=bool(args.plot), fmu=fmu_binding(args))
     result = replay(config)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")

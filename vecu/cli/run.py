@@ -8,7 +8,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vecu import argtypes
-from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.cli import (
+    add_fmu_options,
+    add_set_option,
+    check_outputs,
+    configure_logging,
+    param_sets,
+    with_fmu,
+)
 from vecu.errors import BadArgumentError
 from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 
@@ -58,6 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gateway", metavar="GATEWAY.toml",
                    help="route between the buses this gateway config names; plant and ECU on its "
                         "first bus (docs/gateway.md 'Routing between buses')")
+    add_fmu_options(p)
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=main)
 
@@ -87,7 +95,7 @@ def main(args: argparse.Namespace) -> int:
 
     from vecu.runner import RunConfig, run
 
-    config = RunConfig(
+    config = with_fmu(RunConfig(
         duration_s=args.duration, seed=args.seed,
         kill_tps_at_s=args.duration / 2 if args.kill_tps_at == "half" else args.kill_tps_at,
         fault=args.fault, fault_value=args.fault_value, realtime=args.realtime, interface=args.interface,
@@ -95,7 +103,7 @@ def main(args: argparse.Namespace) -> int:
         keep_series=bool(args.plot),
         kill_swa_at_s=None if args.kill_swa_at == "half" else args.kill_swa_at,
         swa_fault=args.swa_fault, swa_fault_value=args.swa_fault_value,
-    ).with_params(param_sets(args), noise_scale=args.noise_scale, estimator=args.estimator,
+    ), args).with_params(param_sets(args), noise_scale=args.noise_scale, estimator=args.estimator,
                   manifold_filter=args.manifold_filter)
     if args.sets_at:
         from dataclasses import replace

@@ -131,11 +131,11 @@ def _conversion(path: str, key: str, src: str, dst: str) -> tuple[float, float]:
     except ImportError:
         raise UnavailableError("unit conversion of an FMU binding needs pint: "
                                "pip install 'vecu[fmu]'") from None
-    ureg = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
+    ureg: Any = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
     try:
         zero = ureg.Quantity(0.0, src).to(dst).magnitude
         one = ureg.Quantity(1.0, src).to(dst).magnitude
-    except Exception as exc:  # pint's undefined-unit and dimensionality errors
+    except Exception as exc:  # noqa: BLE001 - pint's undefined-unit and dimensionality errors
         raise BadFileError(path, f"{key}: cannot convert {src!r} to {dst!r}: "
                            f"{str(exc).splitlines()[0]}") from None
     return float(one - zero), float(zero)
@@ -147,9 +147,7 @@ def _fits(var: FmuVariable, sig: Any) -> str | None:
         return f"its FMI type {var.fmi_type} has no CAN signal form (numbers and booleans only)"
     if var.kind == "float":
         return None
-    integral = (not sig.is_float and float(sig.scale).is_integer()
-                and float(sig.offset).is_integer())
-    if not integral:
+    if not sig.integral:
         return (f"it is {var.fmi_type} but the signal {sig.name} carries fractions "
                 f"(scale {sig.scale:g}, offset {sig.offset:g})")
     if var.kind == "bool" and ((sig.minimum is not None and sig.minimum < 0)
@@ -219,7 +217,7 @@ def load_binding(fmu_path: str, map_path: str, table: Mapping[str, Any] | None =
                            f"{', '.join(sorted(FMU_KEYS))})")
     try:
         md = fmpy.read_model_description(fmu_path)
-    except Exception as exc:  # FMPy's own errors: not a zip, no or invalid modelDescription.xml
+    except Exception as exc:  # noqa: BLE001 - FMPy's errors: not a zip, no modelDescription
         raise BadFileError(fmu_path, f"not a readable FMU: {str(exc).splitlines()[0]}") from None
     if md.coSimulation is None:
         raise BadFileError(fmu_path, f"FMI {md.fmiVersion} FMU without co-simulation (model "
@@ -249,7 +247,7 @@ def load_binding(fmu_path: str, map_path: str, table: Mapping[str, Any] | None =
         db = DbcCodec([builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC), *databases,
                        output_dbc], strict=False)
         out_db = DbcCodec([output_dbc], strict=False)
-    except Exception as exc:  # cantools' parse errors, through the codec
+    except Exception as exc:  # noqa: BLE001 - cantools' parse errors, through the codec
         raise BadFileError(map_path, f"[fmu] databases: {str(exc).splitlines()[0]}") from None
     variables = _variables(md)
     inputs = tuple(_link(map_path, "inputs", k, v, variables, "input", db,

@@ -12,6 +12,7 @@ initialisation; tunable ones also live (XCP, timed sets: `calibrations()`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import shutil
@@ -62,8 +63,8 @@ class FmuSummary:
 
     def lines(self) -> list[str]:
         state = "valid" if self.valid_at_end else f"INVALID ({self.first_error})"
-        return [f"fmu {self.instance}: {self.steps} steps, {self.frames_sent} frames sent, "
-                f"{self.errors} errors, {state}"]
+        return [(f"fmu {self.instance}: {self.steps} steps, {self.frames_sent} frames sent, "
+                f"{self.errors} errors, {state}")]
 
 
 class FmuFunction:
@@ -94,7 +95,8 @@ class FmuFunction:
         md = read_model_description(b.fmu)
         self._fmu = instantiate_fmu(self._unzipped, md, fmi_type="CoSimulation")
         fmu = self._fmu
-        weakref.finalize(self, _release, fmu)
+        self._alive = [True]  # False once a call failed: the slave is freed, not terminated
+        weakref.finalize(self, _release, fmu, self._alive)
         self._set = {v.name: _accessor(fmu, b.fmi_version, v, "set")
                      for v in (*b.parameters, *(link.variable for link in b.inputs))}
         self._get = {link.variable.name: _accessor(fmu, b.fmi_version, link.variable, "get")
@@ -124,9 +126,10 @@ class FmuFunction:
             return False
         try:
             call()
-        except Exception as exc:  # an FMU's error status (FMPy raises) or its crash: reported
+        except Exception as exc:  # noqa: BLE001 - an FMU's error status (FMPy raises) or crash
             self.errors += 1
             self.validity = INVALID
+            self._alive[0] = False
             self.first_error = f"{type(exc).__name__}: {exc}".splitlines()[0]
             log.error("fmu %s: %s; the function is invalid from now on, the ECU runs on",
                       self.binding.name, self.first_error)
@@ -180,6 +183,11 @@ class FmuFunction:
                 frame.data = buf
             self.frames_sent += send(frame)
 
+    @property
+    def estimates_sent(self) -> int:
+        """Its frames sent (a replay's per-function count)."""
+        return self.frames_sent
+
     def status_signals(self) -> dict[str, int]:
         return {}
 
@@ -192,11 +200,11 @@ class FmuFunction:
             sig = self._out[link.message].signal(link.signal)
             out.append(Did(OUTPUT_DIDS + i, f"fmu output {link.variable.name}", "i",
                            float(sig.scale) / (link.scale or 1.0), link.variable.unit,
-                           lambda n=link.variable.name: _number(self.outputs.get(n))))
+                           partial(self._output, link.variable.name)))
         for i, p in enumerate(self.binding.parameters[:15]):
             out.append(Did(PARAMETER_DIDS + i, f"fmu parameter {p.name}", "i",
                            DID_PARAMETER_SCALE, p.unit,
-                           lambda n=p.name: _number(getattr(self._values, n))))
+                           partial(self._parameter, p.name)))
         return out
 
     def variables(self) -> list[Variable]:
@@ -206,15 +214,20 @@ class FmuFunction:
                         f"FMU {name} validity (0 init, 1 valid, 3 invalid)")]
         for link in self.binding.outputs:
             out.append(Variable(f"fmu.{name}.{link.variable.name}", link.variable.unit, FLOAT,
-                                lambda n=link.variable.name: _number(self.outputs.get(n)),
+                                partial(self._output, link.variable.name),
                                 -1e9, 1e9, f"FMU {name} output {link.variable.name}"))
         return out
 
     def calibrations(self) -> Calibrations:
         """The tunable parameters, set in the FMU from the next step (FMI 2.0 section 4.2.4)."""
         tunable = {p.name for p in self.binding.parameters if p.tunable}
-        return {f"fmu.{self.binding.name}.{n}": (lambda value, n=n: self._calibrate(n, value))
-                for n in tunable}
+        return {f"fmu.{self.binding.name}.{n}": partial(self._calibrate, n) for n in tunable}
+
+    def _output(self, name: str) -> float | None:
+        return _number(self.outputs.get(name))
+
+    def _parameter(self, name: str) -> float | None:
+        return _number(getattr(self._values, name))
 
     def _calibrate(self, name: str, value: Any) -> None:
         self._values = replace(self._values, **{name: value})
@@ -229,13 +242,11 @@ def _number(value: Any) -> float | None:
     return None if value is None else float(value)
 
 
-def _release(fmu: Any) -> None:
-    """Terminate and free the slave (FMI 2.0 section 4.2.4); a failing FMU is freed anyway."""
-    try:
-        fmu.terminate()
-    except Exception:  # noqa: BLE001 - an FMU that already failed may refuse to terminate
-        pass
-    try:
+def _release(fmu: Any, alive: list[bool]) -> None:
+    """Terminate and free the slave (FMI 2.0 section 4.2.4); a failed one is only freed (its
+    state allows no fmi2Terminate). An FMU may refuse either: nothing is left to report."""
+    with contextlib.suppress(Exception):
+        if alive[0]:
+            fmu.terminate()
+    with contextlib.suppress(Exception):
         fmu.freeInstance()
-    except Exception:  # noqa: BLE001
-        pass
