@@ -177,13 +177,17 @@ def validate_tree(tree: ParamTree) -> None:
     check_ecu_ids(tree.ecu)
 
 
+HALF_THE_DURATION = math.nan  # RunConfig.kill_tps_at_s's default: half the run, as `vecu run`
+
+
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything `vecu run` needs; defaults are the demo (10 s, TPS dead at 5 s)."""
+    """Everything `vecu run` needs; defaults are the demo's, as `vecu run`'s (10 s, the TPS
+    dead at half the duration: kill_tps_at_s left at HALF_THE_DURATION)."""
 
     duration_s: float = 10.0
     seed: int = 0
-    kill_tps_at_s: float | None = 5.0
+    kill_tps_at_s: float | None = HALF_THE_DURATION
     fault: str = "dead"
     fault_value: float | None = None
     realtime: bool = False
@@ -211,6 +215,10 @@ class RunConfig:
     restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
     restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline
     fmu: FmuBinding | None = None  # an FMU as an ECU function (with_fmu; docs/fmu.md)
+
+    def __post_init__(self) -> None:
+        if self.kill_tps_at_s is not None and math.isnan(self.kill_tps_at_s):
+            object.__setattr__(self, "kill_tps_at_s", self.duration_s / 2)  # frozen: once, here
 
     def with_params(self, sets: Mapping[str, object] | Iterable[tuple[str, object]] = (),
                     **shortcuts: object) -> RunConfig:

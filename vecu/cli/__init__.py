@@ -169,38 +169,14 @@ def param_sets(args: argparse.Namespace, only: str | None = None) -> list[tuple[
 
     pairs = parse_set_args(getattr(args, "sets", []) or [])
     if getattr(args, "params_file", None):
+        from vecu.simulation import read_params_file
+
         pairs = read_params_file(args.params_file, only) + pairs
     if only is not None:
         for path, _ in pairs:
             if not path.startswith(only):
                 raise ParamError(f"--set {path}: `vecu {args.command}` takes {only}* parameters "
                                  f"only")
-    return pairs
-
-
-def read_params_file(path: str, only: str | None = None) -> list[tuple[str, object]]:
-    """The (path, value) pairs of a PARAMS.toml: a [set] table of tree paths (dotted keys or
-    nested tables, as a scenario's [set]); every pair checked against the tree, a bad one a
-    BadFileError naming the file and the key. only: the half of the tree the command takes."""
-    from vecu.config import ParamTree
-    from vecu.errors import BadFileError
-    from vecu.params import ParamError, flatten_toml
-    from vecu.tomlfile import read_toml
-
-    doc = read_toml(path)
-    extra = sorted(set(doc) - {"set"})
-    if extra or not isinstance(doc.get("set"), dict):
-        raise BadFileError(path, "expected a [set] table of parameter paths (e.g. "
-                           '"ecu.throttle.model.mode3.b" = 0.05)'
-                           + (f", not {', '.join(extra)}" if extra else ""))
-    pairs = flatten_toml(doc["set"])
-    try:
-        for key, value in pairs:
-            if only is not None and not key.startswith(only):
-                raise ParamError(f"this command takes {only}* parameters only")
-            ParamTree().set([(key, value)])
-    except ParamError as exc:
-        raise BadFileError(path, f"[set] key '{key}': {exc}") from None
     return pairs
 
 
