@@ -11,8 +11,8 @@ may name the plant's and the ECU's configuration classes (docs/architecture.md).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import asdict, dataclass, field, fields, make_dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 from vecu import params as ptree
@@ -83,12 +83,32 @@ class EcuParams:
     fmu: Any = field(default_factory=NoFmu)
 
 
+_EXTENDED: dict[tuple[tuple[str, Callable[[], Any]], ...], type] = {}
+
+
+def ecu_params() -> EcuParams:
+    """The default `ecu` half: EcuParams, with a field per plug-in subtree when there are any
+    (vecu.params.ecu_subtrees; a frozen subclass made once per set of subtrees, so that equal
+    trees compare equal)."""
+    extra = ptree.ecu_subtrees()
+    if not extra:
+        return EcuParams()
+    cls = _EXTENDED.get(extra)
+    if cls is None:
+        cls = _EXTENDED[extra] = make_dataclass(
+            "EcuParamsWithPlugins", [(name, Any, field(default_factory=factory))
+                                     for name, factory in extra],
+            bases=(EcuParams,), frozen=True)
+    return cls()
+
+
 @dataclass(frozen=True)
 class ParamTree:
-    """The whole parameter tree: `plant.*` (the truth) and `ecu.*` (the calibration)."""
+    """The whole parameter tree: `plant.*` (the truth) and `ecu.*` (the calibration; plug-in
+    functions' subtrees included, ecu_params)."""
 
     plant: PlantParams = field(default_factory=PlantParams)
-    ecu: EcuParams = field(default_factory=EcuParams)
+    ecu: EcuParams = field(default_factory=ecu_params)
 
     def set(self, sets: object) -> ParamTree:
         """A new tree with (path, value) pairs or a {path: value} mapping applied, checked."""
@@ -239,7 +259,7 @@ class RunConfig:
 
     def default_params(self) -> ParamTree:
         """The default tree of this run's shape (an FMU's subtree at its start values)."""
-        return ParamTree(ecu=EcuParams(fmu=type(self.params.ecu.fmu)()))
+        return ParamTree(ecu=replace(ecu_params(), fmu=type(self.params.ecu.fmu)()))
 
     @property
     def estimator(self) -> str:

@@ -18,6 +18,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from vecu.params import add_ecu_subtrees
+
 if TYPE_CHECKING:
     from vecu.codec import DbcCodec
     from vecu.config import RunConfig
@@ -186,6 +188,14 @@ def registered(new: EcuFunctionSpec) -> Iterator[EcuFunctionSpec]:
         yield new
     finally:
         unregister(new.name)
+
+
+def _plugin_subtrees() -> dict[str, Any]:
+    """{name: factory} of the plug-ins' calibrations (vecu.config.ecu_params adds them)."""
+    return {s.name: s.params for s in specs() if s.params is not None and s.name not in FUNCTIONS}
+
+
+add_ecu_subtrees(_plugin_subtrees)
 
 
 def function_codec(instance: int = 0, config: RunConfig | None = None) -> DbcCodec:

@@ -414,6 +414,8 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
             fn_report[name] = FunctionReport(False, reason=smap.disabled[name])
         else:
             fn = next((f for f in functions if f.name == name), None)
+            if fn is None:  # not a function of this replay's ECU (an FMU without --fmu)
+                continue
             fn_report[name] = FunctionReport(
                 True, ran=name in armed, estimates_sent=getattr(fn, "estimates_sent", None),
                 reason=None if name in armed else "no input frames in the trace")

@@ -176,8 +176,9 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         monitors[sensor] = over
     restbus = _restbus(chk, data.get("restbus"), seed)
     restbus_node = restbus_checker(restbus, chk) if restbus is not None else None
-    faults, disturbances = _faults(chk, data.get("faults", []), duration, parts, codec,
-                                   restbus_node)
+    faults, disturbances = _faults(chk, data.get("faults", []), duration, parts,
+                                   codec if codec is not None else functions.function_codec(),
+                                   restbus_node)  # with the plug-ins' messages
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
