@@ -170,8 +170,15 @@ def test_parameters_are_in_the_tree_the_a2l_and_a_scenario(fmus, tmp_path, capsy
                         f'dbc = "{OUT_DBC}"\n[fmu.inputs]\n'
                         'Float64_continuous_input = "ETB_Wattmeter.ETB_Voltage"\n'
                         '[fmu.outputs]\nFloat64_continuous_output = "FMU_Out.FMU_Value"\n'
-                        '[set]\n"ecu.fmu.Feedthrough.Float64_tunable_parameter" = 2.5\n')
+                        '[set]\n"ecu.fmu.Feedthrough.Float64_tunable_parameter" = 2.5\n'
+                        # a tester reads its validity and its second parameter (micro-units)
+                        '[[uds]]\nat_s = 0.1\nrequest = "22 06 0F"\nexpect = "62 06 0F 01"\n'
+                        '[[uds]]\nat_s = 0.15\nrequest = "22 06 11"\n'
+                        'expect = "62 06 11 00 26 25 A0"\n')
     config = load_scenario(scenario).config
     assert config.params.ecu.fmu.Feedthrough.Float64_tunable_parameter == 2.5
-    section = run(config).report.functions["fmu"]
+    report = run(config).report
+    section = report.functions["fmu"]
     assert (section.steps, section.frames_sent, section.valid_at_end) == (9, 20, True)
+    assert report.uds_steps is not None and [s["passed"] for s in report.uds_steps] == [True,
+                                                                                         True]
