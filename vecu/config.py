@@ -98,8 +98,18 @@ def ecu_params() -> EcuParams:
         cls = _EXTENDED[extra] = make_dataclass(
             "EcuParamsWithPlugins", [(name, Any, field(default_factory=factory))
                                      for name, factory in extra],
-            bases=(EcuParams,), frozen=True)
+            bases=(EcuParams,), frozen=True, namespace={"__reduce__": _reduce_ecu})
     return cls()
+
+
+def _reduce_ecu(ecu: EcuParams) -> tuple[Any, tuple[dict[str, Any]]]:
+    """Pickle an extended `ecu` half by value: rebuilt in the receiving process (a campaign's
+    or a scenario's worker) from its own plug-ins, which must be the same."""
+    return _restore_ecu, ({f.name: getattr(ecu, f.name) for f in fields(ecu)},)
+
+
+def _restore_ecu(values: dict[str, Any]) -> EcuParams:
+    return replace(ecu_params(), **values)
 
 
 @dataclass(frozen=True)

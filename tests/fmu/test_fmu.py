@@ -182,3 +182,15 @@ def test_parameters_are_in_the_tree_the_a2l_and_a_scenario(fmus, tmp_path, capsy
     assert (section.steps, section.frames_sent, section.valid_at_end) == (9, 20, True)
     assert report.uds_steps is not None and [s["passed"] for s in report.uds_steps] == [True,
                                                                                          True]
+
+
+def test_a_configuration_with_an_fmu_pickles_for_worker_processes(fmus):
+    import pickle
+
+    from vecu.config import RunConfig
+    from vecu.fmu.binding import load_binding
+
+    binding = load_binding(str(fmus / "fmi2" / "Dahlquist.fmu"), str(HERE / "dahlquist.toml"))
+    config = RunConfig().with_fmu(binding).with_params({"ecu.fmu.Dahlquist.k": 2.5})
+    copy = pickle.loads(pickle.dumps(config))
+    assert copy == config and copy.params.ecu.fmu.Dahlquist.k == 2.5

@@ -289,15 +289,36 @@ class NoFmu:
     """`ecu.fmu` without an FMU: no leaves."""
 
 
+_TREES: dict[tuple[str, str, tuple[FmuVariable, ...]], type] = {}
+
+
 def parameter_tree(binding: FmuBinding) -> Any:
     """The `ecu.fmu` subtree of binding: a frozen dataclass holding one frozen dataclass per
     instance, whose leaves are the FMU's numeric parameters at their modelDescription start
-    values (unit from the FMU, source its modelDescription.xml)."""
-    leaves = [(p.name, PY_TYPE[p.kind], field(
-        default=_typed(p, p.start),
-        metadata={"unit": p.unit or "1", "source": SOURCE.format(Path(binding.fmu).name)}))
-        for p in binding.parameters]
-    instance = dataclasses.make_dataclass(f"FmuParameters_{binding.name}", leaves, frozen=True)
-    root = dataclasses.make_dataclass("FmuInstances", [(binding.name, instance, field(
-        default_factory=instance))], frozen=True)
+    values (unit from the FMU, source its modelDescription.xml). One class per FMU and
+    instance, so that equal trees compare equal; pickled by value (scenario and campaign
+    workers rebuild it from the binding)."""
+    key = (binding.fmu, binding.name, binding.parameters)
+    root = _TREES.get(key)
+    if root is None:
+        leaves = [(p.name, PY_TYPE[p.kind], field(
+            default=_typed(p, p.start),
+            metadata={"unit": p.unit or "1", "source": SOURCE.format(Path(binding.fmu).name)}))
+            for p in binding.parameters]
+        instance = dataclasses.make_dataclass(
+            f"FmuParameters_{binding.name}", leaves, frozen=True,
+            namespace={"__reduce__": lambda self: (_restore_instance, (
+                binding, {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}))})
+        root = _TREES[key] = dataclasses.make_dataclass(
+            "FmuInstances", [(binding.name, instance, field(default_factory=instance))],
+            frozen=True, namespace={"__reduce__": lambda self: (_restore_root, (
+                binding, getattr(self, binding.name)))})
     return root()
+
+
+def _restore_instance(binding: FmuBinding, values: dict[str, Any]) -> Any:
+    return dataclasses.replace(getattr(parameter_tree(binding), binding.name), **values)
+
+
+def _restore_root(binding: FmuBinding, instance: Any) -> Any:
+    return dataclasses.replace(parameter_tree(binding), **{binding.name: instance})
