@@ -31,6 +31,7 @@ from vecu.codec import TRUTH_DBC, DbcCodec, FrameCodec, builtin_dbc_path
 from vecu.e2e import E2EProtection
 from vecu.errors import BadFileError, UnavailableError
 from vecu.tomlfile import read_toml
+from vecu.units import affine
 
 FLOAT_TYPES = frozenset({"Real", "Float32", "Float64"})
 INT_TYPES = frozenset({"Integer", "Enumeration", "Int8", "UInt8", "Int16", "UInt16", "Int32",
@@ -123,22 +124,14 @@ def _typed(var: FmuVariable, value: Any) -> Any:
 
 
 def _conversion(path: str, key: str, src: str, dst: str) -> tuple[float, float]:
-    """(scale, offset) from unit src to unit dst (1, 0 when either is not given or equal)."""
-    if not src or not dst or src == dst:
-        return 1.0, 0.0
+    """(scale, offset) from unit src to unit dst (vecu.units.affine), or the one-line error."""
     try:
-        import pint
+        return affine(src, dst)
     except ImportError:
         raise UnavailableError("unit conversion of an FMU binding needs pint: "
                                "pip install 'vecu[fmu]'") from None
-    ureg: Any = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
-    try:
-        zero = ureg.Quantity(0.0, src).to(dst).magnitude
-        one = ureg.Quantity(1.0, src).to(dst).magnitude
-    except Exception as exc:  # noqa: BLE001 - pint's undefined-unit and dimensionality errors
-        raise BadFileError(path, f"{key}: cannot convert {src!r} to {dst!r}: "
-                           f"{str(exc).splitlines()[0]}") from None
-    return float(one - zero), float(zero)
+    except ValueError as exc:
+        raise BadFileError(path, f"{key}: {exc}") from None
 
 
 def _fits(var: FmuVariable, sig: Any) -> str | None:
