@@ -192,7 +192,9 @@ def registered(new: EcuFunctionSpec) -> Iterator[EcuFunctionSpec]:
 
 def _plugin_subtrees() -> dict[str, Any]:
     """{name: factory} of the plug-ins' calibrations (vecu.config.ecu_params adds them)."""
-    return {s.name: s.params for s in specs() if s.params is not None and s.name not in FUNCTIONS}
+    found = [_load(name) for name in _installed() if name not in _broken]
+    found += list(_plugins.values())  # the built-in specs are not imported for this
+    return {s.name: s.params for s in found if s is not None and s.params is not None}
 
 
 add_ecu_subtrees(_plugin_subtrees)
