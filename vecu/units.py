@@ -7,6 +7,7 @@ The factors are exact constants so that `x * FACTOR` is the one way each convers
 from __future__ import annotations
 
 import math
+from typing import Any
 
 RAD_PER_DEG = math.pi / 180.0  # deg -> rad: x_rad = x_deg * RAD_PER_DEG
 DEG_PER_RAD = 180.0 / math.pi  # rad -> deg: x_deg = x_rad * DEG_PER_RAD
@@ -51,7 +52,7 @@ def affine(src: str, dst: str) -> tuple[float, float]:
         return 1.0, 0.0
     import pint
 
-    ureg = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
+    ureg: Any = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
     try:
         zero = ureg.Quantity(0.0, src).to(dst).magnitude
         one = ureg.Quantity(1.0, src).to(dst).magnitude
