@@ -194,3 +194,16 @@ def test_a_configuration_with_an_fmu_pickles_for_worker_processes(fmus):
     config = RunConfig().with_fmu(binding).with_params({"ecu.fmu.Dahlquist.k": 2.5})
     copy = pickle.loads(pickle.dumps(config))
     assert copy == config and copy.params.ecu.fmu.Dahlquist.k == 2.5
+
+
+def test_an_output_database_that_takes_an_id_on_the_bus_is_refused(fmus, tmp_path, capsys):
+    clash = tmp_path / "clash.dbc"
+    clash.write_text(OUT_DBC.read_text().replace("1424", "512"))  # ECU_ThrottleEstimate's ID
+    fmu_map = tmp_path / "map.toml"
+    fmu_map.write_text(f'[fmu]\nstep_ms = 10\ndbc = "{clash}"\n'
+                       '[outputs]\nFloat64_continuous_output = "FMU_Out.FMU_Value"\n')
+    assert cli_main(["run", "--fmu", str(fmus / "fmi3" / "Feedthrough.fmu"), "--fmu-map",
+                     str(fmu_map)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [(f"vecu: error: {clash}: FMU_Out: CAN ID 0x200 is ECU_ThrottleEstimate's on "
+                   "the bus already: give it another ID")]

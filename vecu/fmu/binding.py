@@ -237,11 +237,17 @@ def load_binding(fmu_path: str, map_path: str, table: Mapping[str, Any] | None =
     (output_dbc,) = _paths(map_path, base, "dbc", head["dbc"])
     databases = _paths(map_path, base, "databases", head.get("databases", []))
     try:
-        db = DbcCodec([builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC), *databases,
-                       output_dbc], strict=False)
         out_db = DbcCodec([output_dbc], strict=False)
+        on_bus = DbcCodec([builtin_dbc_path(), builtin_dbc_path(TRUTH_DBC), *databases],
+                          strict=False)
     except Exception as exc:  # noqa: BLE001 - cantools' parse errors, through the codec
         raise BadFileError(map_path, f"[fmu] databases: {str(exc).splitlines()[0]}") from None
+    for key, fc in sorted(out_db.by_id.items()):  # the output DBC joins the ECU's codec whole
+        taken = on_bus.by_id.get(key)
+        if taken is not None and taken.name != fc.name:
+            raise BadFileError(output_dbc, f"{fc.name}: CAN ID 0x{fc.frame_id:X} is "
+                               f"{taken.name}'s on the bus already: give it another ID")
+    db = DbcCodec([*on_bus.paths, output_dbc], strict=False)
     variables = _variables(md)
     inputs = tuple(_link(map_path, "inputs", k, v, variables, "input", db,
                          "the databases on the bus") for k, v in cfg.get("inputs", {}).items())
