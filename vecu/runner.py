@@ -33,7 +33,7 @@ from vecu.bus import (
 )
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.codec import DbcCodec
-from vecu.config import ParamTree, RunConfig, validate_tree
+from vecu.config import RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
 from vecu.errors import Interrupted
 from vecu.estimators.registry import make_throttle_estimator
@@ -140,7 +140,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
 def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimator) -> None:
     """Open the buses and make every node of p.config's run, each with its hooks."""
     config = p.config
-    codec = functions.function_codec(config.params.ecu.instance)  # built once per process
+    codec = functions.function_codec(config.params.ecu.instance, config)  # once per process
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     n_ticks = p.n_ticks
@@ -163,7 +163,8 @@ def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimato
     p.fns = fns = build_functions(config, codec, make_estimator)
     for spec in functions.enabled(config):  # each function's truth-vs-output probe
         part, fn = plant_part(plant, spec.part_name), fns.get(spec.name)
-        if spec.probe is not None and part is not None and fn is not None:
+        if spec.probe is not None and fn is not None and (part is not None
+                                                          or spec.part_name is None):
             p.probes[spec.name] = spec.probe(part, fn, config, n_ticks)
     p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled(), rx_budget=config.params.ecu.rx)
     p.uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
@@ -332,7 +333,7 @@ def attach_xcp_server(ecu: EcuNode, config: RunConfig) -> XcpServer | None:
     reference page the defaults; a calibration is checked as `--set` is (validate_tree)."""
     from dataclasses import replace
 
-    return attach_xcp(ecu, config.params.ecu.xcp, config.params.ecu, ParamTree().ecu,
+    return attach_xcp(ecu, config.params.ecu.xcp, config.params.ecu, config.default_params().ecu,
                       config.seed, lambda ecu_tree: validate_tree(replace(config.params,
                                                                           ecu=ecu_tree)))
 

@@ -8,7 +8,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vecu import argtypes
-from vecu.cli import add_set_option, configure_logging, param_sets
+from vecu.cli import (
+    add_fmu_options,
+    add_set_option,
+    configure_logging,
+    fmu_binding,
+    param_sets,
+)
 
 if TYPE_CHECKING:
     from vecu.replay.summary import ReplaySummary, ScoreSection
@@ -42,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "this gateway config names; --out holds every bus (docs/gateway.md)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.* calibration only", params_file=True)
+    add_fmu_options(p)
     p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", type=argtypes.out_plot, metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
     prog = p.add_mutually_exclusive_group()
@@ -62,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
         channel=args.channel, fmt=args.fmt, estimator=args.estimator, progress=args.progress,
         sets=tuple(param_sets(args, only="ecu.")),
-        keep_series=bool(args.plot), gateway=args.gateway)
+        keep_series=bool(args.plot), gateway=args.gateway, fmu=fmu_binding(args))
     result = replay(config)
     if result.error and result.report.frames.read == 0:  # not a trace: no summary of nothing
         raise TraceReadError(None, result.error)

@@ -186,7 +186,11 @@ class EcuNode(BusNode):
         # per consumed key what receive() uses of its route, looked up once (_Plan)
         self._plans: dict[tuple[int, bool], _Plan] = {
             key: _plan(route) for key, route in self._consumers.items()}
-        self._armed: list[EcuFunction] = [] if arm_on_input else list(functions)
+        # arm_on_input: a function runs from its first input frame; one that reads no frame
+        # (an FMU without inputs) runs on the clock from the start
+        fed = {id(f) for r in self._consumers.values() for f in r.feeds}
+        self._armed: list[EcuFunction] = [f for f in functions
+                                          if not arm_on_input or id(f) not in fed]
         # routes whose first accepted frame has not come yet (arm_on_input only)
         self._unarmed: set[int] = {id(r) for r in self._consumers.values()} if arm_on_input else set()
         self._status = codec["ECU_Status"]

@@ -30,6 +30,7 @@ from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
 from vecu.errors import BadArgumentError, Interrupted
+from vecu.fmu.binding import FmuBinding
 from vecu.recorder import TraceWriteError
 from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
 from vecu.replay.scoring import TruthScorer
@@ -80,6 +81,7 @@ class ReplayConfig:
     idle_gap_s: float = IDLE_GAP_NS / NS_PER_S  # a longer silence is shortened to this
     keep_series: bool = False           # estimate/truth rows for a plot (ReplayResult.series)
     gateway: str | None = None          # GATEWAY.toml: the trace on its first bus, routed
+    fmu: FmuBinding | None = None       # an FMU as an ECU function (docs/fmu.md)
 
     def validate(self) -> None:
         for path, _ in self.sets:
@@ -240,9 +242,12 @@ def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
                                                list[EcuFunction], dict[tuple[int, bool], Route]]:
     """The ECU's codec, the trace's database, the signal map, fresh ECU functions and their
     routes from the trace's messages."""
-    run_cfg = RunConfig(kill_tps_at_s=None).with_params(
+    run_cfg = RunConfig(kill_tps_at_s=None)
+    if config.fmu is not None:
+        run_cfg = run_cfg.with_fmu(config.fmu)
+    run_cfg = run_cfg.with_params(
         config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
-    ecu_codec = registry.function_codec(run_cfg.params.ecu.instance)  # built once per process
+    ecu_codec = registry.function_codec(run_cfg.params.ecu.instance, run_cfg)  # once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
             else identity_map(trace_db))
@@ -460,6 +465,8 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
             fn_report[name] = FunctionReport(False, reason=smap.disabled[name])
         else:
             fn = next((f for f in functions if f.name == name), None)
+            if fn is None:  # not a function of this replay's ECU (an FMU without --fmu)
+                continue
             fn_report[name] = FunctionReport(
                 True, ran=name in armed, estimates_sent=getattr(fn, "estimates_sent", None),
                 reason=None if name in armed else "no input frames in the trace")

@@ -21,6 +21,7 @@ from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.errors import BadFileError, UserError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
+from vecu.fmu.binding import FmuBinding, load_binding
 from vecu.gateway import route_faults
 from vecu.gateway.routes import RoutingConfig
 from vecu.gateway.routes_config import load_routing_config, parse_routing_config
@@ -47,7 +48,7 @@ NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
-            "uds": list, "restbus": dict, "xcp": list, "gateway": (str, dict)}
+            "uds": list, "restbus": dict, "xcp": list, "gateway": (str, dict), "fmu": dict}
 PLANT_KEYS = {"noise_scale": NUMBER, **dict.fromkeys(functions.OPTIONAL, BOOL),
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, **dict.fromkeys(SENSORS, dict)}
@@ -188,8 +189,10 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
     route_keys: set[str] = set()
     if gateway is not None:
         route_keys = {r.key for r in gateway.frame_routes} | {r.key for r in gateway.signal_routes}
-    faults, disturbances, on_routes = _faults(chk, data.get("faults", []), duration, parts,
-                                              codec, restbus_node, route_keys)
+    faults, disturbances, on_routes = _faults(
+        chk, data.get("faults", []), duration, parts,
+        codec if codec is not None else functions.function_codec(),  # with the plug-ins' messages
+        restbus_node, route_keys)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
@@ -204,7 +207,8 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         sets += [(key, leaf, v) for leaf, v in shortcut_sets(**{name: value})]
     # [set]: any leaf of `vecu params`, last wins
     sets += [("set", leaf, value) for leaf, value in flatten_toml(data.get("set", {}))]
-    params = ParamTree()
+    fmu = _fmu(chk, data.get("fmu"), path)
+    params = ParamTree() if fmu is None else RunConfig().with_fmu(fmu).params
     try:
         for key, leaf, value in sets:  # noqa: B007 - `key` names the culprit in the except below
             params = apply_params(params, [(leaf, value)])
@@ -216,7 +220,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
         params=params, uds_steps=uds_steps, xcp_steps=xcp_steps, restbus=restbus,
-        restbus_disturbances=disturbances, **parts)
+        restbus_disturbances=disturbances, fmu=fmu, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
                     config, criteria, gateway, on_routes)
 
@@ -232,6 +236,19 @@ def _gateway(chk: _Checker, data: Any) -> RoutingConfig | None:
     if not routing.buses:
         raise chk.fail("gateway.buses", "expected [gateway.buses.NAME] tables")
     return routing
+
+
+def _fmu(chk: _Checker, data: Any, path: str) -> FmuBinding | None:
+    """[fmu]: file = the FMU (relative to the scenario), the map's [fmu] keys, and its
+    [fmu.inputs], [fmu.outputs], [fmu.parameters] tables (docs/fmu.md)."""
+    if data is None:
+        return None
+    if not isinstance(data.get("file"), str):
+        raise chk.fail("fmu.file", "expected the FMU's path (relative to the scenario)")
+    tables = ("inputs", "outputs", "parameters")
+    table = {"fmu": {k: v for k, v in data.items() if k not in (*tables, "file")},
+             **{t: data[t] for t in tables if t in data}}
+    return load_binding(str(Path(path).parent / data["file"]), path, table)
 
 
 def _restbus(chk: _Checker, data: Any, seed: int) -> RestbusConfig | None:
