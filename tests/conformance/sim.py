@@ -125,12 +125,14 @@ class FaultedEcu:
         each 0x78 restarting the wait with P2*client; 0x21: repeat (at most repeat_busy)."""
         ex = Exchange(payload)
         self.rx[RSP].send(payload)
-        start = self.t_ns
+        start, errors = self.t_ns, len(self.errors)
         while self.rx[RSP].layer.transmitting():
             self.step()
             if self.t_ns - start > 2000 * NS_PER_MS:
-                ex.error = "transport"
-                return ex
+                break
+        if len(self.errors) > errors or self.rx[RSP].layer.transmitting():
+            ex.error = "transport"  # can-isotp gave up the request (OVFLW, N_Bs, WAITs)
+            return ex
         ex.sent_ms = self.now_ms
         deadline, give_up = self.now_ms + P2_CLIENT_MS, self.now_ms + GIVE_UP_MS
         while self.now_ms < min(deadline, give_up):
