@@ -76,6 +76,10 @@ SMOKE: list[tuple[list[str], str]] = [
     (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
     (["restbus", str(ROOT / "vecu" / "dbc" / "vecu.dbc"), "--node", "PLANT", "--duration", "1"],
      r"vecu restbus: \d+ messages, \d+ frames in 1 s \(simulated clock"),
+    (["conformance", "list"], r"pending=N .*\n +client must: wait on.*fc_overflow .*canfd_frame"),
+    (["ecu", "--duration", "0.3", "--sync-timeout", "0", "--no-status", "--summary",
+      "faulty.json", "--diag-fault", "pending=3@0.1", "--diag-fault", "fc_wait@request=2"],
+     r"vecu ecu: 0\.\d s"),
     (["a2l", "--out", "smoke.a2l"], (r"smoke\.a2l: \d+ characteristics \(\d+ calibratable "
                                      r"live\), \d+ measurements; XCP on CAN 0x7F0 -> 0x7F1")),
 ]
@@ -111,6 +115,8 @@ USER_MISTAKES = [
     (["ecu", "--log", "x.bogus"], "x.bogus: cannot write log"),  # and no bus-not-shut-down warning
     (["gateway", "--config", "nope.toml"], "nope.toml"),
     (["gateway", "--doip-port", "70000"], "--doip-port"),
+    (["ecu", "--diag-fault", "bogus"], "unknown diagnostic fault 'bogus' (known: pending,"),
+    (["ecu", "--diag-fault", "pending=101"], "N must be an integer 1..100, got 101"),
 ]
 
 

@@ -19,7 +19,8 @@ from vecu.cli.outputs import check_outputs as check_outputs
 from vecu.errors import UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
-               "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway")
+               "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway",
+               "conformance")
 KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario",
                    "campaign", "excite", "identify", "figures")  # use estimators
 

@@ -57,7 +57,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--security-seed", type=argtypes.seed, default=None, metavar="N",
                    help="draw UDS security access seeds from N, reproducibly (for tests); "
                         "default: the OS's entropy, a new seed sequence on every start")
+    p.add_argument("--diag-fault", type=_diag_fault, action="append", default=[],
+                   metavar="NAME[=VALUE][@T0[-T1]]",
+                   help="commit a diagnostic fault on purpose (repeatable): from T0 to T1 s "
+                        "after start (default: always), or NAME[=VALUE]@request=N for the Nth "
+                        "request only; the faults and their rules: `vecu conformance list` "
+                        "(docs/conformance.md)")
     p.set_defaults(func=main)
+
+
+def _diag_fault(text: str) -> Any:
+    """argparse type: a checked diagnostic fault setting (one line naming the known faults)."""
+    from vecu.conformance.setting import parse_setting
+    from vecu.errors import BadArgumentError
+
+    try:
+        setting = parse_setting(text)
+    except BadArgumentError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if setting.fault.doip:
+        raise argparse.ArgumentTypeError(f"{setting.fault.name} is a DoIP fault (the gateway's); "
+                                         "`vecu ecu` commits the uds and isotp ones")
+    return setting
 
 
 def main(args: argparse.Namespace) -> int:
@@ -96,6 +117,14 @@ def main(args: argparse.Namespace) -> int:
         # a tester's UDS (docs/uds.md); security seeds from the OS's entropy unless asked for
         uds = attach_uds(ecu, config.params.ecu.uds, args.security_seed)
         xcp = attach_xcp_server(ecu, config)  # measurement and calibration (docs/xcp.md)
+        faults = None
+        if args.diag_fault:
+            from vecu.conformance.ecu_faults import attach_diag_faults
+            from vecu.errors import BadArgumentError
+
+            if uds is None:
+                raise BadArgumentError("--diag-fault needs the UDS server (ecu.uds.enabled)")
+            faults = attach_diag_faults(uds, args.diag_fault, source="schedule")
         proc.consume_only(ecu.consumed_ids)
         thr = fns.throttle
         accuracy = RunningStats()
@@ -149,6 +178,9 @@ def main(args: argparse.Namespace) -> int:
             summary = proc.summary(_ecu_summary(proc, ecu, fns, accuracy, sync, changes))
             if uds is not None:
                 summary["uds"] = uds.summary()
+            if faults is not None:  # each diagnostic fault's start / end, ECU time
+                summary["diag_faults"] = [{"t_s": t / 1e9, "fault": name, "on": on, "value": v}
+                                          for t, name, on, v in faults.events]
             if xcp is not None:
                 summary["xcp"] = xcp.summary()
             proc.write_summary(summary)

@@ -107,7 +107,7 @@ class EcuDiagFaults:
 
     def _request_fault(self, cur: DiagFaultSetting, msg: can.Message, t_ns: int) -> bool:
         name, v = cur.fault.name, int(cur.value)
-        fc = self._fc_frame
+        fc = self._raw
         if name in ("fc_wait", "fc_wait_excess"):
             for k in range(v):
                 self._at(t_ns + round(k * WAIT_INTERVAL_MS * _MS), fc(flow_control(1)))
@@ -190,7 +190,9 @@ class EcuDiagFaults:
         while due and due[0][0] <= t_ns:
             _, _, action = heapq.heappop(due)
             action(t_ns)
-        for key in [k for k, s in self._senders.items() if (s.poll(t_ns), s.done)[1]]:
+        for sender in self._senders.values():
+            sender.poll(t_ns)
+        for key in [k for k, s in self._senders.items() if s.done]:
             del self._senders[key]
 
     @property
@@ -251,10 +253,10 @@ class EcuDiagFaults:
         return lambda t: self.server.phys.send(payload)
 
     def _raw(self, data: bytes) -> Callable[[int], None]:
-        return lambda t: self.node.send(frame(self.cfg.response_id, data, t))
-
-    def _fc_frame(self, data: bytes) -> Callable[[int], None]:
-        return lambda t: self.node.send(frame(self.cfg.response_id, data, t))
+        """One frame of `data` from the ECU (its response ID): a flow control, a stray SF."""
+        def send(t: int) -> None:
+            self.node.send(frame(self.cfg.response_id, data, t))
+        return send
 
     def _deliver(self, msg: can.Message) -> Callable[[int], None]:
         return lambda t: self.server.deliver(msg, t)
