@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
+from typing import Any
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -43,3 +45,35 @@ def main_list(args: argparse.Namespace) -> int:
     except BrokenPipeError:  # `vecu conformance list | head`
         sys.stderr.close()
     return 0
+
+
+def diag_fault_type(doip: bool) -> Callable[[str], Any]:
+    """argparse type of --diag-fault: a checked setting (vecu.conformance.setting) of the ECU
+    (doip False) or the gateway (True); an unknown name or a bad value: one line naming the
+    known faults."""
+
+    def parse(text: str) -> Any:
+        from vecu.conformance.setting import parse_setting
+        from vecu.errors import BadArgumentError
+
+        try:
+            setting = parse_setting(text)
+        except BadArgumentError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+        if setting.fault.doip != doip:
+            who = ("a DoIP fault: `vecu gateway --diag-fault` commits it" if setting.fault.doip
+                   else "an ECU fault: `vecu ecu --diag-fault` commits it")
+            raise argparse.ArgumentTypeError(f"{setting.fault.name} is {who}")
+        return setting
+
+    parse.__name__ = "diagnostic fault"
+    return parse
+
+
+def add_diag_fault_option(p: argparse.ArgumentParser, doip: bool) -> None:
+    p.add_argument("--diag-fault", type=diag_fault_type(doip), action="append", default=[],
+                   metavar="NAME[=VALUE][@T0[-T1]]",
+                   help="commit a diagnostic fault on purpose (repeatable): from T0 to T1 s "
+                        "after start (default: always), or NAME[=VALUE]@request=N for the Nth "
+                        "request only; the faults and their rules: `vecu conformance list"
+                        f"{' --layer doip' if doip else ''}` (docs/conformance.md)")

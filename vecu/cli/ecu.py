@@ -13,6 +13,7 @@ from vecu.cli import (
     configure_logging,
     param_sets,
 )
+from vecu.cli.conformance import add_diag_fault_option
 from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 from vecu.instances import FRAME_STRIDE, MAX_INSTANCE
 from vecu.live.args import add_live_arguments, function_switches, live_options
@@ -57,28 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--security-seed", type=argtypes.seed, default=None, metavar="N",
                    help="draw UDS security access seeds from N, reproducibly (for tests); "
                         "default: the OS's entropy, a new seed sequence on every start")
-    p.add_argument("--diag-fault", type=_diag_fault, action="append", default=[],
-                   metavar="NAME[=VALUE][@T0[-T1]]",
-                   help="commit a diagnostic fault on purpose (repeatable): from T0 to T1 s "
-                        "after start (default: always), or NAME[=VALUE]@request=N for the Nth "
-                        "request only; the faults and their rules: `vecu conformance list` "
-                        "(docs/conformance.md)")
+    add_diag_fault_option(p, doip=False)
     p.set_defaults(func=main)
-
-
-def _diag_fault(text: str) -> Any:
-    """argparse type: a checked diagnostic fault setting (one line naming the known faults)."""
-    from vecu.conformance.setting import parse_setting
-    from vecu.errors import BadArgumentError
-
-    try:
-        setting = parse_setting(text)
-    except BadArgumentError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    if setting.fault.doip:
-        raise argparse.ArgumentTypeError(f"{setting.fault.name} is a DoIP fault (the gateway's); "
-                                         "`vecu ecu` commits the uds and isotp ones")
-    return setting
 
 
 def main(args: argparse.Namespace) -> int:
@@ -179,8 +160,7 @@ def main(args: argparse.Namespace) -> int:
             if uds is not None:
                 summary["uds"] = uds.summary()
             if faults is not None:  # each diagnostic fault's start / end, ECU time
-                summary["diag_faults"] = [{"t_s": t / 1e9, "fault": name, "on": on, "value": v}
-                                          for t, name, on, v in faults.events]
+                summary["diag_faults"] = faults.schedule.summary()
             if xcp is not None:
                 summary["xcp"] = xcp.summary()
             proc.write_summary(summary)

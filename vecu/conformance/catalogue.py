@@ -212,7 +212,7 @@ _RECORDS = (
     _f("doip_header_nack", 39, "doip", "a generic DoIP header NACK (0x0000) with code VALUE "
        "instead of the ACK", "report it; no hang", "ISO 13400-2:2019 §7.1.2 (generic header "
        "NACK codes)", ERROR, "", "code", 0, 0, 4),
-    _f("doip_bad_inverse_version", 40, "doip", "every message to the tester with an inverse "
+    _f("doip_bad_inverse_version", 40, "doip", "every message to the tester (from the routing activation response on) with an inverse "
        "protocol version that does not match the version", "discard those messages (header "
        "check): no answer, report it", "ISO 13400-2:2019 §7.1.2 (generic header check)", ERROR),
 )

@@ -9,31 +9,25 @@ from __future__ import annotations
 
 import heapq
 import itertools
-import logging
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import can
 
-from vecu.clock import NS_PER_MS, NS_PER_S
-from vecu.conformance.catalogue import (
-    DIAG_EV_KIND,
-    PENDING_INTERVAL_MS,
-    WAIT_INTERVAL_MS,
-)
+from vecu.clock import NS_PER_MS
+from vecu.conformance.catalogue import PENDING_INTERVAL_MS, WAIT_INTERVAL_MS
 from vecu.conformance.isotp_frames import (
     SegmentedSender,
     fd_single_frame,
     flow_control,
     frame,
 )
+from vecu.conformance.schedule import FaultSchedule
 from vecu.conformance.setting import DiagFaultSetting
-from vecu.faults import FAULT_SOURCES
 
 if TYPE_CHECKING:
     from vecu.uds.server import UdsServer
 
-log = logging.getLogger(__name__)
 _MS = NS_PER_MS
 # faults set through can-isotp's own parameters of the ECU's physical endpoint
 _PARAMS = {"fc_stmin": "stmin", "fc_blocksize": "blocksize", "padding_byte": "tx_padding"}
@@ -54,11 +48,11 @@ class EcuDiagFaults:
         self.server = server
         self.node = server.node
         self.cfg = server.cfg
-        self.settings = list(settings)
-        self.source = source
-        self.request_no = 0
+        codec = self.node.codec
+        fi = codec["FI_Event"] if "FI_Event" in codec else None  # noqa: SIM401 (no .get)
+        self.schedule = FaultSchedule(settings, self.cfg.response_id, fi, self.node.send, source)
+        self.settings = self.schedule.settings
         self.current: DiagFaultSetting | None = None
-        self._on: set[int] = set()        # settings (index) announced as active
         self._due: list[tuple[int, int, Callable[[int], None]]] = []
         self._seq = itertools.count()
         self._senders: dict[int, SegmentedSender] = {}  # FC ID -> sender
@@ -70,9 +64,6 @@ class EcuDiagFaults:
             if any(s.fault.name.startswith("functional_") for s in self.settings) else 0
         self.ids = frozenset((self.cfg.request_id + k, False) for k in range(1, extra + 1))
         self._defaults = {p: getattr(server.phys.layer.params, p) for p in _PARAMS.values()}
-        codec = self.node.codec
-        self._fi = codec["FI_Event"] if "FI_Event" in codec else None  # noqa: SIM401 (no .get)
-        self.events: list[tuple[int, str, bool, float]] = []  # (t_ns, fault, start, value)
 
     # ------------------------------------------------------------ node / server side
     def on_frame(self, msg: can.Message, t_ns: int) -> None:
@@ -96,9 +87,8 @@ class EcuDiagFaults:
             return True
         if not (_is_first(msg, 0) or _is_first(msg, 1)):
             return False
-        self.request_no += 1
         self._generation += 1
-        self._choose(t_ns)
+        self._choose(t_ns, new_request=True)
         cur = self.current
         if cur is None or cid != cfg.request_id or not _is_first(msg, 1) \
                 or cur.fault.layer != "isotp-rx":
@@ -185,7 +175,7 @@ class EcuDiagFaults:
 
     def poll(self, t_ns: int) -> None:
         """Once per tick, before the server takes frames in: due actions, senders, windows."""
-        self._choose(t_ns, window_only=True)
+        self._choose(t_ns)
         due = self._due
         while due and due[0][0] <= t_ns:
             _, _, action = heapq.heappop(due)
@@ -200,19 +190,9 @@ class EcuDiagFaults:
         return bool(self._due or self._senders)
 
     # ------------------------------------------------------------------ choosing
-    def _choose(self, t_ns: int, window_only: bool = False) -> None:
-        """The active setting now (the first that applies); FI_Event for each change."""
-        t_s = t_ns / NS_PER_S
-        now = {i for i, s in enumerate(self.settings)
-               if (s.request is None or not window_only) and s.active(t_s, self.request_no)}
-        if window_only:  # keep request=N settings as they are between requests
-            now |= {i for i in self._on if self.settings[i].request is not None}
-        for i in sorted(self._on - now):
-            self._announce(self.settings[i], False, t_ns)
-        for i in sorted(now - self._on):
-            self._announce(self.settings[i], True, t_ns)
-        self._on = now
-        cur = self.settings[min(now)] if now else None
+    def _choose(self, t_ns: int, new_request: bool = False) -> None:
+        sched = self.schedule
+        cur = sched.new_request(t_ns) if new_request else sched.update(t_ns)
         if cur is not self.current:
             self.current = cur
             self._busy_sent = 0
@@ -228,16 +208,6 @@ class EcuDiagFaults:
         params = self.server.phys.layer.params
         for key, value in values.items():
             params.set(key, value, validate=False)
-
-    def _announce(self, s: DiagFaultSetting, start: bool, t_ns: int) -> None:
-        self.events.append((t_ns, s.fault.name, start, s.value))
-        log.info("diagnostic fault %s %s", s, "on" if start else "off")
-        if self._fi is not None:
-            self.node.send(self._fi.frame({
-                "FI_EvMessageId": self.cfg.response_id, "FI_EvSignal": s.fault.code,
-                "FI_EvKind": DIAG_EV_KIND, "FI_EvActive": int(start),
-                "FI_EvSource": FAULT_SOURCES.get(self.source, 3), "FI_EvValue": s.value},
-                t_ns / NS_PER_S))
 
     # ------------------------------------------------------------------- actions
     def _at(self, t_ns: int, action: Callable[[int], None]) -> None:
