@@ -104,6 +104,7 @@ def main(args: argparse.Namespace) -> int:
             summary = proc.summary({"doip": entity.summary(), "routes": _routes(router)})
             if faults is not None:
                 summary["diag_faults"] = faults.schedule.summary()
+                summary["diag_fault_evidence"] = {"alive_responses": len(faults.alive_responses)}
             proc.write_summary(summary)
     finally:
         if entity is not None:

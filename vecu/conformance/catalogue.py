@@ -130,18 +130,18 @@ _RECORDS = (
     # ------------------------------------------------- ISO-TP, the ECU receives a request
     _f("fc_wait", 15, "isotp-rx", "flow control WAIT VALUE times (every 200 ms), then CTS",
        "restart N_Bs on each WAIT; no consecutive frame before the CTS; complete the request",
-       "ISO 15765-2:2016 §9.6.5.1 FS=WAIT, N_Bs", ANSWER, "no_cf_before_cts", "WAITs", 3, 1,
+       "ISO 15765-2:2016 §9.6.5.1 FS=WAIT, N_Bs", ANSWER, "cf_only_after_cts", "WAITs", 3, 1,
        N_WFTMAX),
     _f("fc_wait_excess", 16, "isotp-rx", "flow control WAIT VALUE times, beyond N_WFTmax, then "
        "CTS", "no consecutive frame before the CTS; wait on or abort, never loop forever",
-       "ISO 15765-2:2016 §9.6.5.1, N_WFTmax", EITHER, "no_cf_before_cts", "WAITs", 20,
+       "ISO 15765-2:2016 §9.6.5.1, N_WFTmax", EITHER, "cf_only_after_cts", "WAITs", 20,
        N_WFTMAX + 1, 100),
     _f("fc_overflow", 17, "isotp-rx", "flow control FS=OVFLW to the first frame",
        "abort the transmission (N_BUFFER_OVFLW): no consecutive frame",
-       "ISO 15765-2:2016 §9.6.5.1 FS=OVFLW", ERROR, "no_cf_after_fault"),
+       "ISO 15765-2:2016 §9.6.5.1 FS=OVFLW", ERROR, "cf_only_after_cts"),
     _f("fc_invalid_fs", 18, "isotp-rx", "flow control with the invalid flow status VALUE",
        "abort the transmission (N_INVALID_FS): no consecutive frame",
-       "ISO 15765-2:2016 §9.6.5.1, §9.8.3", ERROR, "no_cf_after_fault", "FS", 3, 3, 15),
+       "ISO 15765-2:2016 §9.6.5.1, §9.8.3", ERROR, "cf_only_after_cts", "FS", 3, 3, 15),
     _f("fc_stmin", 19, "isotp-rx", "flow control CTS with STmin VALUE (0x7F or reserved)",
        "reserved STmin: use the longest, 127 ms; never abort; consecutive frames >= 127 ms apart",
        "ISO 15765-2:2016 §9.6.5.5 (STmin)", ANSWER, "cf_gap_127ms", "STmin", 0xFA,
@@ -151,10 +151,10 @@ _RECORDS = (
        "ISO 15765-2:2016 §9.6.5.3 (BlockSize)", ANSWER, "cf_per_block", "BS", 1, 1, 15),
     _f("fc_late", 21, "isotp-rx", "the flow control VALUE ms after the first frame, beyond N_Bs",
        "time out at N_Bs (1000 ms) and abort: no consecutive frame after the late FC",
-       "ISO 15765-2:2016 §9.7 N_Bs", ERROR, "no_cf_after_fault", "ms", 1500, 1001, 60000),
+       "ISO 15765-2:2016 §9.7 N_Bs", ERROR, "cf_only_after_cts", "ms", 1500, 1001, 60000),
     _f("fc_never", 22, "isotp-rx", "no flow control to the first frame",
        "time out at N_Bs and report it; no hang", "ISO 15765-2:2016 §9.7 N_Bs", ERROR,
-       "no_cf_after_fault"),
+       "cf_only_after_cts"),
     # -------------------------------------------------- ISO-TP, the ECU sends a response
     _f("cf_wrong_sn", 23, "isotp-tx", "the second consecutive frame's sequence number off by "
        "VALUE", "abort the reception (N_WRONG_SN), report it", "ISO 15765-2:2016 §9.6.4.3, "
@@ -205,7 +205,7 @@ _RECORDS = (
     _f("doip_alive_check", 37, "doip", "an alive check request (0x0007) to the tester before "
        "the diagnostic response", "answer with an alive check response (0x0008) with its "
        "source address; take the diagnostic response", "ISO 13400-2:2019 §7.6 (alive check)",
-       ANSWER),
+       ANSWER, "alive_check_answered"),
     _f("doip_close_mid_response", 38, "doip", "the TCP connection closed after the ACK, before "
        "the response", "report the lost connection; no hang", "ISO 13400-2:2019 §7.3 (TCP "
        "socket handling)", ERROR),
