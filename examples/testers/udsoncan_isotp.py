@@ -24,10 +24,10 @@ class Ascii(udsoncan.DidCodec):
     def __init__(self, size: int) -> None:
         self.size = size
 
-    def encode(self, value):  # noqa: ANN001, ANN201 - udsoncan's codec interface
+    def encode(self, value: str) -> bytes:  # type: ignore[override]  # udsoncan's codec
         return value.encode("ascii")
 
-    def decode(self, data):  # noqa: ANN001, ANN201
+    def decode(self, data: bytes) -> str:  # type: ignore[override]
         return bytes(data).decode("ascii", errors="replace")
 
     def __len__(self) -> int:
