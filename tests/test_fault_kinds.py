@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from vecu.codec import builtin_dbc_path
-from vecu.conformance.catalogue import BY_CODE, DIAG_EV_KIND
 from vecu.errors import BadArgumentError
 from vecu.fault_kinds import E2E_KINDS, FRAME_KINDS, FaultKind, make_fault
 from vecu.restbus.disturb import KINDS as RESTBUS_KINDS
+from vecu.uds.diag_faults.catalogue import BY_CODE, DIAG_EV_KIND
 
 DB = cantools.database.load_file(str(builtin_dbc_path()))
 

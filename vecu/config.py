@@ -36,6 +36,7 @@ from vecu.plant.manifold import ManifoldPlantConfig
 from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
 from vecu.restbus.spec import RestbusConfig
 from vecu.uds.config import UdsConfig, UdsStep
+from vecu.uds.diag_faults.setting import DiagFaultSetting
 from vecu.xcp.config import XcpConfig, XcpStep, check_xcp
 
 if TYPE_CHECKING:
@@ -207,6 +208,8 @@ class RunConfig:
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
     restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
     restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline
+    # diagnostic faults the ECU commits on purpose (scenarios' [[diag_faults]]; docs/conformance.md)
+    diag_faults: tuple[DiagFaultSetting, ...] = ()
 
     def with_params(self, sets: Mapping[str, object] | Iterable[tuple[str, object]] = (),
                     **shortcuts: object) -> RunConfig:
@@ -229,6 +232,7 @@ class RunConfig:
             "databases": list(self.restbus.databases), "nodes": list(self.restbus.nodes),
             "e2e": self.restbus.e2e_path, "values": self.restbus.values_path}
         out["restbus_disturbances"] = [asdict(d) for d in self.restbus_disturbances]
+        out["diag_faults"] = [str(s) for s in self.diag_faults]
         out["uds_steps"] = [{k: v.hex(" ") if isinstance(v, bytes) else v
                              for k, v in asdict(u).items()} for u in self.uds_steps]
         out["noise_scale"] = self.params.plant.throttle.noise_scale

@@ -24,10 +24,10 @@ from doipclient.client import Parser
 from vecu.bus import BusNode, open_bus
 from vecu.clock import WallClock
 from vecu.conformance.doip_faults import DoipDiagFaults
-from vecu.conformance.setting import parse_setting
 from vecu.gateway.config import default_config
 from vecu.gateway.entity import DoipEntity
 from vecu.gateway.settings import settings_of
+from vecu.uds.diag_faults.setting import parse_setting
 
 TESTER, ECU = 0x0E00, 0x0010
 ANSWER = b"\x62\xf1\x90" + b"1VECU00SIM0000001"

@@ -16,10 +16,10 @@ from vecu.bus import open_bus
 from vecu.clock import NS_PER_MS, SimClock
 from vecu.codec import DbcCodec
 from vecu.config import RunConfig
-from vecu.conformance.ecu_faults import EcuDiagFaults, attach_diag_faults
-from vecu.conformance.setting import DiagFaultSetting
 from vecu.ecu.node import EcuNode
 from vecu.scheduler import Scheduler
+from vecu.uds.diag_faults.engine import EcuDiagFaults, attach_diag_faults
+from vecu.uds.diag_faults.setting import DiagFaultSetting
 from vecu.uds.server import attach_uds
 from vecu.uds.transport import Endpoint, to_can
 

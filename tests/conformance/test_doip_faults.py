@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from vecu.codec import DbcCodec
-from vecu.conformance.catalogue import DIAG_EV_KIND, FAULTS
 from vecu.live.netns import namespace_prefix, run_in_namespace
+from vecu.uds.diag_faults.catalogue import DIAG_EV_KIND, FAULTS
 
 HERE = Path(__file__).resolve().parent
 pytestmark = [pytest.mark.skipif(namespace_prefix()[0] is None,

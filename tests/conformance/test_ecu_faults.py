@@ -17,8 +17,8 @@ from tests.conformance.sim import (
     FaultedEcu,
     Seen,
 )
-from vecu.conformance.catalogue import DIAG_EV_KIND, FAULTS
-from vecu.conformance.setting import parse_setting
+from vecu.uds.diag_faults.catalogue import DIAG_EV_KIND, FAULTS
+from vecu.uds.diag_faults.setting import parse_setting
 
 CHECKS: dict[str, tuple[str, Callable[[FaultedEcu], None]]] = {}
 

@@ -57,8 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _fault_list(text: str) -> tuple[Any, ...]:
-    from vecu.conformance.setting import parse_setting
     from vecu.errors import BadArgumentError
+    from vecu.uds.diag_faults.setting import parse_setting
 
     try:
         return tuple(parse_setting(part) for part in text.split(",") if part.strip())
@@ -69,9 +69,9 @@ def _fault_list(text: str) -> tuple[Any, ...]:
 def main_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from vecu.conformance.catalogue import FAULTS
-    from vecu.conformance.setting import setting
     from vecu.errors import BadArgumentError
+    from vecu.uds.diag_faults.catalogue import FAULTS
+    from vecu.uds.diag_faults.setting import setting
 
     faults = args.faults or tuple(setting(n) for n, f in FAULTS.items() if f.doip == args.doip)
     if (args.interface is None) != (args.channel is None):
@@ -124,7 +124,7 @@ def _in_namespace(args: argparse.Namespace, faults: tuple[Any, ...]) -> int:
 
 
 def main_list(args: argparse.Namespace) -> int:
-    from vecu.conformance.catalogue import FAULTS
+    from vecu.uds.diag_faults.catalogue import FAULTS
 
     rows = [f for f in FAULTS.values() if args.layer in (None, f.layer)]
     if args.json:
@@ -146,13 +146,13 @@ def main_list(args: argparse.Namespace) -> int:
 
 
 def diag_fault_type(doip: bool) -> Callable[[str], Any]:
-    """argparse type of --diag-fault: a checked setting (vecu.conformance.setting) of the ECU
+    """argparse type of --diag-fault: a checked setting (vecu.uds.diag_faults.setting) of the ECU
     (doip False) or the gateway (True); an unknown name or a bad value: one line naming the
     known faults."""
 
     def parse(text: str) -> Any:
-        from vecu.conformance.setting import parse_setting
         from vecu.errors import BadArgumentError
+        from vecu.uds.diag_faults.setting import parse_setting
 
         try:
             setting = parse_setting(text)

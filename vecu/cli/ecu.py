@@ -100,8 +100,8 @@ def main(args: argparse.Namespace) -> int:
         xcp = attach_xcp_server(ecu, config)  # measurement and calibration (docs/xcp.md)
         faults = None
         if args.diag_fault:
-            from vecu.conformance.ecu_faults import attach_diag_faults
             from vecu.errors import BadArgumentError
+            from vecu.uds.diag_faults.engine import attach_diag_faults
 
             if uds is None:
                 raise BadArgumentError("--diag-fault needs the UDS server (ecu.uds.enabled)")

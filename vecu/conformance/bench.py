@@ -20,9 +20,9 @@ import can
 from vecu.bus import open_bus
 from vecu.clock import perf_s, sleep
 from vecu.conformance.judge import Frames, Ids, Verdict, judge
-from vecu.conformance.setting import DiagFaultSetting
 from vecu.errors import UnavailableError
 from vecu.live.children import spawn, stop_group
+from vecu.uds.diag_faults.setting import DiagFaultSetting
 
 READY_TIMEOUT_S = 60.0
 DOIP_TARGET = 0x0010  # the gateway's default route to the ECU at 0x7E0 / 0x7E8

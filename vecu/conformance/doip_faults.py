@@ -16,8 +16,8 @@ from doipclient import messages as m
 
 from vecu.clock import NS_PER_MS
 from vecu.codec import DbcCodec
-from vecu.conformance.schedule import FaultSchedule
-from vecu.conformance.setting import DiagFaultSetting
+from vecu.uds.diag_faults.schedule import FaultSchedule
+from vecu.uds.diag_faults.setting import DiagFaultSetting
 
 
 class DoipDiagFaults:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import can
 
-from vecu.conformance.catalogue import ANSWER, ERROR, N_BS_MS, DiagFault
+from vecu.uds.diag_faults.catalogue import ANSWER, ERROR, N_BS_MS, DiagFault
 
 Frames = list[tuple[float, can.Message]]
 NBS_S = N_BS_MS / 1000 + 0.1  # N_Bs with a margin for a loaded host

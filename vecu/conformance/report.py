@@ -8,8 +8,8 @@ import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
 
-from vecu.conformance.catalogue import FAULTS
 from vecu.conformance.judge import Verdict
+from vecu.uds.diag_faults.catalogue import FAULTS
 
 
 def write_junit(path: Path, verdicts: Sequence[Verdict], tester: str) -> None:

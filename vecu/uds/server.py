@@ -60,7 +60,7 @@ class UdsStats:
 
 
 class DiagHook(Protocol):
-    """What commits diagnostic faults on the server's path (vecu.conformance.ecu_faults)."""
+    """What commits diagnostic faults on the server's path (vecu.uds.diag_faults.engine)."""
 
     def take(self, msg: can.Message, t_ns: int) -> bool: ...
     def poll(self, t_ns: int) -> None: ...
@@ -98,7 +98,7 @@ class UdsServer:
         self._queue: deque[tuple[bytes, bool, int]] = deque()
         self._awake = False
         self.stats = UdsStats()
-        self.hook: DiagHook | None = None  # diagnostic faults (vecu.conformance.ecu_faults)
+        self.hook: DiagHook | None = None  # diagnostic faults (vecu.uds.diag_faults.engine)
         self.suppressed: bytes | None = None  # the last positive response suppressPosRsp held
         self.session = DEFAULT
         self._s3_deadline = 0

@@ -7,8 +7,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from vecu.conformance.catalogue import DiagFault, fault
 from vecu.errors import BadArgumentError
+from vecu.uds.diag_faults.catalogue import DiagFault, fault
 
 _SPEC = re.compile(r"^\s*([A-Za-z0-9_-]+)\s*(?:=\s*([^@\s]+))?\s*(?:@\s*(.+?))?\s*$")
 _WINDOW = re.compile(r"^([0-9.]+)(?:-([0-9.]+))?$")

@@ -10,7 +10,7 @@ from collections.abc import Callable
 import can
 
 from vecu.clock import NS_PER_MS, NS_PER_S
-from vecu.conformance.catalogue import N_BS_MS, DiagFault
+from vecu.uds.diag_faults.catalogue import N_BS_MS, DiagFault
 
 PAD = 0xCC
 CF_DATA = 7

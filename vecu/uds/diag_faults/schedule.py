@@ -1,5 +1,5 @@
 """Which diagnostic fault is active now (windows in seconds, `@request=N`), and its FI_Event
-frame for each start and end (FI_EvKind 31: vecu.conformance.catalogue) — shared by the ECU's
+frame for each start and end (FI_EvKind 31: vecu.uds.diag_faults.catalogue) — shared by the ECU's
 and the gateway's fault engines."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from vecu.clock import NS_PER_S
-from vecu.conformance.catalogue import DIAG_EV_KIND
-from vecu.conformance.setting import DiagFaultSetting
 from vecu.faults import FAULT_SOURCES
+from vecu.uds.diag_faults.catalogue import DIAG_EV_KIND
+from vecu.uds.diag_faults.setting import DiagFaultSetting
 
 log = logging.getLogger("vecu.conformance")
 

@@ -3,7 +3,7 @@ that changes the response path, the flow control of a request, or the frames of 
 the catalogue's record says. With no fault active the server's normal path (can-isotp) runs
 untouched; the ECU goes on estimating and broadcasting whatever the fault.
 
-Every start and end is an FI_Event frame (FI_EvKind 31, vecu.conformance.catalogue)."""
+Every start and end is an FI_Event frame (FI_EvKind 31, vecu.uds.diag_faults.catalogue)."""
 
 from __future__ import annotations
 
@@ -15,15 +15,15 @@ from typing import TYPE_CHECKING
 import can
 
 from vecu.clock import NS_PER_MS
-from vecu.conformance.catalogue import PENDING_INTERVAL_MS, WAIT_INTERVAL_MS
-from vecu.conformance.isotp_frames import (
+from vecu.uds.diag_faults.catalogue import PENDING_INTERVAL_MS, WAIT_INTERVAL_MS
+from vecu.uds.diag_faults.isotp_frames import (
     SegmentedSender,
     fd_single_frame,
     flow_control,
     frame,
 )
-from vecu.conformance.schedule import FaultSchedule
-from vecu.conformance.setting import DiagFaultSetting
+from vecu.uds.diag_faults.schedule import FaultSchedule
+from vecu.uds.diag_faults.setting import DiagFaultSetting
 
 if TYPE_CHECKING:
     from vecu.uds.server import UdsServer
