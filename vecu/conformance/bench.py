@@ -104,8 +104,8 @@ def run_one(cfg: BenchConfig, setting: DiagFaultSetting, work: Path) -> Verdict:
     try:
         _wait_ready(ready, procs, "vecu ecu" + (" / vecu gateway" if doip else ""))
         capture = Capture(open_bus(cfg.interface, cfg.channel))
-        with open(work / "tester.out", "w") as out:
-            tester = spawn(["sh", "-c", cfg.tester], stdout=out, stderr=out,
+        with open(work / "tester.out", "w") as out, open(work / "tester.err", "w") as terr:
+            tester = spawn(["sh", "-c", cfg.tester], stdout=out, stderr=terr,
                            env={**os.environ, **cfg.environment()})
             t0 = perf_s()
             code: int | None
@@ -129,7 +129,8 @@ def run_one(cfg: BenchConfig, setting: DiagFaultSetting, work: Path) -> Verdict:
     after = [(t, m) for t, m in frames if t >= t0]
     v = judge(setting.fault, setting.value, code, seconds if code is not None
               else cfg.timeout_s, after, cfg.ids, extra)
-    said = (work / "tester.out").read_text(errors="replace").strip().splitlines()
+    said = [line for name in ("tester.err", "tester.out")  # its last word: stdout's if any
+            for line in (work / name).read_text(errors="replace").strip().splitlines()]
     return replace(v, evidence=v.evidence + (f"; tester said: {said[-1][:200]}" if said else ""))
 
 
