@@ -135,10 +135,20 @@ def run_one(cfg: BenchConfig, setting: DiagFaultSetting, work: Path) -> Verdict:
 
 
 def run_bench(cfg: BenchConfig, progress: Callable[[Verdict], None] | None = None) -> list[Verdict]:
+    """Every fault in turn; a node that fails to start is an "error" verdict (its last words
+    as evidence), tried once more first, and the bench goes on."""
     verdicts = []
     for setting in cfg.faults:
-        with tempfile.TemporaryDirectory(prefix="vecu-conformance-") as tmp:
-            v = run_one(cfg, setting, Path(tmp))
+        for attempt in (1, 2):
+            with tempfile.TemporaryDirectory(prefix="vecu-conformance-") as tmp:
+                try:
+                    v = run_one(cfg, setting, Path(tmp))
+                    break
+                except UnavailableError as exc:
+                    said = (Path(tmp) / "nodes.err").read_text(errors="replace").strip()
+                    v = Verdict(setting.fault.name, setting.value, "error", None, 0.0,
+                                setting.fault.expect, "", f"{exc} (attempt {attempt}): "
+                                f"{said.splitlines()[-1] if said else 'no output'}")
         verdicts.append(v)
         if progress is not None:
             progress(v)

@@ -145,7 +145,7 @@ RULES: dict[str, Callable[[Frames, Ids, float, dict], tuple[bool, str]]] = {
 class Verdict:
     fault: str
     value: float
-    verdict: str       # pass, fail, hung
+    verdict: str       # pass, fail, hung; error: the bench could not start the ECU / gateway
     exit_code: int | None
     seconds: float
     rule: str

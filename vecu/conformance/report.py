@@ -37,7 +37,7 @@ def write_junit(path: Path, verdicts: Sequence[Verdict], tester: str) -> None:
 
 def write_html(directory: Path, verdicts: Sequence[Verdict], tester: str) -> Path:
     directory.mkdir(parents=True, exist_ok=True)
-    colour = {"pass": "#cfc", "fail": "#fcc", "hung": "#fc9"}
+    colour = {"pass": "#cfc", "fail": "#fcc", "hung": "#fc9", "error": "#ccc"}
     rows = "\n".join(
         f"<tr style='background:{colour[v.verdict]}'><td>{html.escape(v.fault)}</td>"
         f"<td>{html.escape(FAULTS[v.fault].layer)}</td><td><b>{v.verdict}</b></td>"
