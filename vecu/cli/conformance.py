@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Callable
 from typing import Any
 
 from vecu import argtypes
@@ -37,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "namespace (docs/conformance.md).")
     run.add_argument("--tester", required=True, metavar="COMMAND",
                      help="the tester, a shell command")
-    run.add_argument("--faults", type=_fault_list, default=None, metavar="NAME[=V],...",
+    run.add_argument("--faults", type=argtypes.checked(_fault_list, "fault list"), default=None, metavar="NAME[=V],...",
                      help="the faults to try (default: every ECU fault, or with --doip every "
                           "DoIP fault)")
     run.add_argument("--doip", action="store_true",
@@ -57,13 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _fault_list(text: str) -> tuple[Any, ...]:
-    from vecu.errors import BadArgumentError
     from vecu.uds.diag_faults.setting import parse_setting
 
-    try:
-        return tuple(parse_setting(part) for part in text.split(",") if part.strip())
-    except BadArgumentError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    return tuple(parse_setting(part) for part in text.split(",") if part.strip())
 
 
 def main_run(args: argparse.Namespace) -> int:
@@ -145,31 +140,23 @@ def main_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def diag_fault_type(doip: bool) -> Callable[[str], Any]:
-    """argparse type of --diag-fault: a checked setting (vecu.uds.diag_faults.setting) of the ECU
-    (doip False) or the gateway (True); an unknown name or a bad value: one line naming the
-    known faults."""
+def _diag_fault_setting(text: str, doip: bool) -> Any:
+    """A checked setting (vecu.uds.diag_faults.setting) of the ECU (doip False) or the gateway."""
+    from vecu.errors import BadArgumentError
+    from vecu.uds.diag_faults.setting import parse_setting
 
-    def parse(text: str) -> Any:
-        from vecu.errors import BadArgumentError
-        from vecu.uds.diag_faults.setting import parse_setting
-
-        try:
-            setting = parse_setting(text)
-        except BadArgumentError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-        if setting.fault.doip != doip:
-            who = ("a DoIP fault: `vecu gateway --diag-fault` commits it" if setting.fault.doip
-                   else "an ECU fault: `vecu ecu --diag-fault` commits it")
-            raise argparse.ArgumentTypeError(f"{setting.fault.name} is {who}")
-        return setting
-
-    parse.__name__ = "diagnostic fault"
-    return parse
+    setting = parse_setting(text)
+    if setting.fault.doip != doip:
+        who = ("a DoIP fault: `vecu gateway --diag-fault` commits it" if setting.fault.doip
+               else "an ECU fault: `vecu ecu --diag-fault` commits it")
+        raise BadArgumentError(f"{setting.fault.name} is {who}")
+    return setting
 
 
 def add_diag_fault_option(p: argparse.ArgumentParser, doip: bool) -> None:
-    p.add_argument("--diag-fault", type=diag_fault_type(doip), action="append", default=[],
+    p.add_argument("--diag-fault", type=argtypes.checked(
+                       lambda text: _diag_fault_setting(text, doip), "diagnostic fault"),
+                   action="append", default=[],
                    metavar="NAME[=VALUE][@T0[-T1]]",
                    help="commit a diagnostic fault on purpose (repeatable): from T0 to T1 s "
                         "after start (default: always), or NAME[=VALUE]@request=N for the Nth "
