@@ -1,2 +1,3 @@
-"""Tester conformance: diagnostic faults an ECU or the DoIP gateway commits on purpose (the
-catalogue), the engines that commit them, and the bench that judges a tester (docs/conformance.md)."""
+"""Tester conformance: the bench that judges a tester against each diagnostic fault (bench,
+judge, report) and the gateway's DoIP fault engine (docs/conformance.md). The catalogue, the
+settings and the ECU's fault engine are vecu.uds.diag_faults."""
