@@ -16,6 +16,7 @@ from vecu.codec import builtin_dbc_path
 from vecu.errors import BadArgumentError
 from vecu.fault_kinds import E2E_KINDS, FRAME_KINDS, FaultKind, make_fault
 from vecu.restbus.disturb import KINDS as RESTBUS_KINDS
+from vecu.uds.diag_faults.catalogue import BY_CODE, DIAG_EV_KIND
 
 DB = cantools.database.load_file(str(builtin_dbc_path()))
 
@@ -39,6 +40,8 @@ def test_fault_and_restbus_kinds_split_fi_evkind_without_overlap():
     # the DBC's tables: FI_EvKind is both (a restbus kind by its VAL_ name, e.g. rb_delay for
     # delay), RB_Kind the restbus kinds
     names = choices("FI_Event", "FI_EvKind")
+    # the diagnostic faults (vecu.conformance) share one code, their own code in FI_EvSignal
+    assert names.pop(DIAG_EV_KIND) == "diag" and DIAG_EV_KIND not in {*faults, *restbus}
     assert set(names) == set(faults) | set(restbus)
     assert {c: names[c] for c in faults} == faults
     assert choices("RB_Command", "RB_Kind") == {c: names[c] for c in restbus}
@@ -91,3 +94,8 @@ def test_the_fault_library_table_in_the_docs_is_the_records():
                 kind == FaultKind.SHORT_SUPPLY, (kind.label, rows[kind.label])
         else:
             assert float(shown.group(1)) == kind.default, (kind.label, rows[kind.label])
+
+
+def test_diagnostic_fault_codes_fit_fi_evsignal():
+    sig = DB.get_message_by_name("FI_Event").get_signal_by_name("FI_EvSignal")
+    assert all(0 < code < 1 << sig.length for code in BY_CODE)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from typing import Any
 
 SEED_MAX = 2**63 - 1
 NOISE_SCALE_MAX = 1000.0  # process-noise scale alpha: 1 is the paper's; beyond this, noise only
@@ -146,3 +147,18 @@ def bus_override(text: str) -> tuple[str, str, str]:
         raise argparse.ArgumentTypeError(f"expected NAME=INTERFACE:CHANNEL (e.g. "
                                          f"vehicle=socketcan:vcan1), got {text!r}")
     return name.strip(), interface.strip(), channel.strip()
+
+
+def checked(parse: Callable[[str], Any], what: str) -> Callable[[str], Any]:
+    """An argparse type from a parser that raises ValueError (e.g. a BadArgumentError) whose
+    message says it all: that message becomes argparse's one line (`vecu conformance`'s fault
+    settings)."""
+
+    def run(text: str) -> Any:
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    run.__name__ = what
+    return run

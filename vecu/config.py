@@ -37,6 +37,7 @@ from vecu.plant.manifold import ManifoldPlantConfig
 from vecu.plant.throttle import InputConfig, ThrottlePlantConfig
 from vecu.restbus.spec import RestbusConfig
 from vecu.uds.config import UdsConfig, UdsStep
+from vecu.uds.diag_faults.setting import DiagFaultSetting
 from vecu.xcp.config import XcpConfig, XcpStep, check_xcp
 
 if TYPE_CHECKING:
@@ -245,6 +246,8 @@ class RunConfig:
     restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
     restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline
     fmu: FmuBinding | None = None  # an FMU as an ECU function (with_fmu; docs/fmu.md)
+    # diagnostic faults the ECU commits on purpose (scenarios' [[diag_faults]]; docs/conformance.md)
+    diag_faults: tuple[DiagFaultSetting, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kill_tps_at_s is not None and math.isnan(self.kill_tps_at_s):
@@ -284,6 +287,7 @@ class RunConfig:
             "databases": list(self.restbus.databases), "nodes": list(self.restbus.nodes),
             "e2e": self.restbus.e2e_path, "values": self.restbus.values_path}
         out["restbus_disturbances"] = [asdict(d) for d in self.restbus_disturbances]
+        out["diag_faults"] = [str(s) for s in self.diag_faults]
         out["uds_steps"] = [{k: v.hex(" ") if isinstance(v, bytes) else v
                              for k, v in asdict(u).items()} for u in self.uds_steps]
         out["noise_scale"] = self.params.plant.throttle.noise_scale

@@ -47,6 +47,7 @@ from vecu.restbus.spec import build_plans
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler, TaskStats
 from vecu.summary import FrameCounts, RunSummary, to_json
+from vecu.uds.diag_faults.engine import attach_diag_faults
 from vecu.uds.server import UdsServer, attach_uds
 from vecu.uds.tester import SimTester
 from vecu.xcp.server import XcpServer, attach_xcp
@@ -168,6 +169,8 @@ def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimato
             p.probes[spec.name] = spec.probe(part, fn, config, n_ticks)
     p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled(), rx_budget=config.params.ecu.rx)
     p.uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
+    if config.diag_faults and p.uds is not None:  # on purpose (docs/conformance.md)
+        attach_diag_faults(p.uds, config.diag_faults, source="scenario")
     p.xcp = attach_xcp_server(ecu, config)
     for _, path, value in config.calibrations:  # a bad one is a user error before the run
         _check_calibration(p.xcp, path, value)

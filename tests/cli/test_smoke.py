@@ -77,6 +77,11 @@ SMOKE: list[tuple[list[str], str]] = [
     (["restbus", str(ROOT / "vecu" / "dbc" / "vecu.dbc"), "--node", "PLANT", "--duration", "1"],
      r"vecu restbus: \d+ messages, \d+ frames in 1 s \(simulated clock"),
     (["plugins"], r"no plug-ins installed|\S+ +\S+ +\S+ +\S+:\S+ +(ok|NOT LOADED)"),
+    (["conformance", "run", "--help"], r"usage: vecu conformance run .*--tester"),
+    (["conformance", "list"], r"pending=N .*\n +client must: wait on.*fc_overflow .*canfd_frame"),
+    (["ecu", "--duration", "0.3", "--sync-timeout", "0", "--no-status", "--summary",
+      "faulty.json", "--diag-fault", "pending=3@0.1", "--diag-fault", "fc_wait@request=2"],
+     r"vecu ecu: 0\.\d s"),
     (["a2l", "--out", "smoke.a2l"], (r"smoke\.a2l: \d+ characteristics \(\d+ calibratable "
                                      r"live\), \d+ measurements; XCP on CAN 0x7F0 -> 0x7F1")),
 ]
@@ -113,6 +118,11 @@ USER_MISTAKES = [
     (["gateway", "--config", "nope.toml"], "nope.toml"),
     (["gateway", "--doip-port", "70000"], "--doip-port"),
     (["run", "--fmu", "nope.fmu"], "--fmu and --fmu-map go together"),
+    (["ecu", "--diag-fault", "bogus"], "unknown diagnostic fault 'bogus' (known: pending,"),
+    (["ecu", "--diag-fault", "pending=101"], "N must be an integer 1..100, got 101"),
+    (["gateway", "--diag-fault", "pending"], "pending is an ECU fault"),
+    (["conformance", "run", "--tester", "true", "--faults", "fc_wait=0"],
+     "fc_wait: WAITs must be an integer 1..10, got 0"),
 ]
 
 

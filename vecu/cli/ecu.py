@@ -14,6 +14,7 @@ from vecu.cli import (
     param_sets,
     with_fmu,
 )
+from vecu.cli.conformance import add_diag_fault_option
 from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 from vecu.instances import FRAME_STRIDE, MAX_INSTANCE
 from vecu.live.args import add_live_arguments, function_switches, live_options
@@ -59,6 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--security-seed", type=argtypes.seed, default=None, metavar="N",
                    help="draw UDS security access seeds from N, reproducibly (for tests); "
                         "default: the OS's entropy, a new seed sequence on every start")
+    add_diag_fault_option(p, doip=False)
     p.set_defaults(func=main)
 
 
@@ -98,6 +100,14 @@ def main(args: argparse.Namespace) -> int:
         # a tester's UDS (docs/uds.md); security seeds from the OS's entropy unless asked for
         uds = attach_uds(ecu, config.params.ecu.uds, args.security_seed)
         xcp = attach_xcp_server(ecu, config)  # measurement and calibration (docs/xcp.md)
+        faults = None
+        if args.diag_fault:
+            from vecu.errors import BadArgumentError
+            from vecu.uds.diag_faults.engine import attach_diag_faults
+
+            if uds is None:
+                raise BadArgumentError("--diag-fault needs the UDS server (ecu.uds.enabled)")
+            faults = attach_diag_faults(uds, args.diag_fault, source="schedule")
         proc.consume_only(ecu.consumed_ids)
         thr = fns.throttle
         accuracy = RunningStats()
@@ -151,6 +161,8 @@ def main(args: argparse.Namespace) -> int:
             summary = proc.summary(_ecu_summary(proc, ecu, fns, accuracy, sync, changes))
             if uds is not None:
                 summary["uds"] = uds.summary()
+            if faults is not None:  # each diagnostic fault's start / end, ECU time
+                summary["diag_faults"] = faults.schedule.summary()
             if xcp is not None:
                 summary["xcp"] = xcp.summary()
             proc.write_summary(summary)

@@ -9,6 +9,7 @@ from typing import Any
 
 from vecu import argtypes
 from vecu.cli import configure_logging
+from vecu.cli.conformance import add_diag_fault_option
 from vecu.live.args import (
     add_bus_arguments,
     add_duration_argument,
@@ -46,6 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=argtypes.seed, default=0,
                    help="seed of the announcement delay, 0..2**63-1 (default 0)")
     add_process_arguments(p)
+    add_diag_fault_option(p, doip=True)
     p.set_defaults(func=main, uses_kernels=False)
 
 
@@ -98,6 +100,12 @@ def main(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise UnavailableError(f"--doip-bind {args.doip_bind} --doip-port {args.doip_port}: "
                                    f"{exc.strerror or exc}") from None
+        faults = None
+        if args.diag_fault:  # DoIP faults on purpose (docs/conformance.md)
+            from vecu.conformance.doip_faults import DoipDiagFaults
+
+            entity.faults = faults = DoipDiagFaults(args.diag_fault, config.logical_address,
+                                                    node.send, source="schedule")
         meter = proc.meter("gateway")
 
         def step(t_ns: int) -> None:
@@ -114,6 +122,9 @@ def main(args: argparse.Namespace) -> int:
         finally:
             summary = proc.summary({"doip": entity.summary(), "routes": _routes(router),
                                     **({"routing": buses.summary()} if buses else {})})
+            if faults is not None:
+                summary["diag_faults"] = faults.schedule.summary()
+                summary["diag_fault_evidence"] = {"alive_responses": len(faults.alive_responses)}
             proc.write_summary(summary)
     finally:
         if entity is not None:

@@ -24,7 +24,7 @@ import selectors
 import socket
 from collections import Counter
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any
 
 from doipclient import messages as m
 
@@ -32,6 +32,7 @@ from vecu.bus import BusNode
 from vecu.gateway import doip
 from vecu.gateway.activation import ActivationHandler
 from vecu.gateway.connection import Connection
+from vecu.gateway.roles import FaultHook, Identity, Router
 from vecu.gateway.settings import DoipSettings
 
 log = logging.getLogger("vecu.gateway")
@@ -40,28 +41,6 @@ RECV_BYTES = 65536
 MAX_READS_PER_STEP = 16  # per socket and step: one flooding tester cannot starve the others
 OUT_LIMIT_BYTES = 1 << 20  # queued for a tester that does not read: beyond, it is closed
 EXTRA_SOCKETS = 1  # connections beyond max_sockets that may ask (and be told 0x01)
-
-
-class Router(Protocol):
-    def submit(self, source: int, target: int, uds: bytes,
-               reply: Callable[[int, bytes], None]) -> int | None: ...
-
-    def cancel(self, source: int) -> None: ...
-
-
-class Identity(Protocol):
-    """What the entity announces (GatewayConfig)."""
-
-    @property
-    def vin(self) -> str: ...
-    @property
-    def eid(self) -> bytes: ...
-    @property
-    def gid(self) -> bytes: ...
-    @property
-    def logical_address(self) -> int: ...
-    @property
-    def tester_addresses(self) -> tuple[int, int]: ...
 
 
 def broadcast_address(bind: str) -> str:
@@ -99,6 +78,7 @@ class DoipEntity:
                                    "diag_nacks", "diag", "udp", "alive_checks", "bad_input")}
         self._logged: set[str] = set()
         self.reserved_bytes = 0  # payload memory held by messages being received
+        self.faults: FaultHook | None = None  # diagnostic faults (vecu.conformance.doip_faults)
 
     # ------------------------------------------------------------------ sockets
     def open(self) -> None:
@@ -159,6 +139,8 @@ class DoipEntity:
             self._send_udp(self._identity(), (self.announce_to, self.port), self.s.protocol_version,
                            "announcements")
         self.activation.tick(t_ns)
+        if self.faults is not None:
+            self.faults.tick(self, t_ns)
         for c in list(self.conns.values()):
             self._guarded(c, self._timers, t_ns)
             if c.out and not c.closed:
@@ -215,7 +197,8 @@ class DoipEntity:
     def send(self, c: Connection, msg: m.DoIPMessage) -> None:
         if c.closed:
             return
-        c.out += doip.pack(msg, c.version)
+        data = doip.pack(msg, c.version)
+        c.out += data if self.faults is None else self.faults.outgoing(c, data)
         self._flush(c)
         if len(c.out) > OUT_LIMIT_BYTES:
             self.bad("tester_not_reading", f"{c.peer}: more than {OUT_LIMIT_BYTES} bytes "
@@ -319,10 +302,12 @@ class DoipEntity:
         self.release(c)
         c.version = h.version
         msg = doip.unpack(h.payload_type, payload)
+        if self.faults is not None and self.faults.intercept(self, c, msg, t_ns):
+            return
         if isinstance(msg, m.RoutingActivationRequest):
             self.activation.request(c, msg, t_ns)
         elif isinstance(msg, m.DiagnosticMessage):
-            self._diagnostic(c, msg)
+            self.diagnostic(c, msg)
         elif isinstance(msg, m.AliveCheckResponse):
             self.activation.alive(c, msg.source_address)
         elif isinstance(msg, m.AliveCheckRequest):  # a tester asking: the entity is alive
@@ -374,7 +359,7 @@ class DoipEntity:
             self.drop(c, "general inactivity")
 
     # ------------------------------------------------------------------ diagnostics
-    def _diagnostic(self, c: Connection, msg: m.DiagnosticMessage) -> None:
+    def diagnostic(self, c: Connection, msg: m.DiagnosticMessage) -> None:
         """§7.8 Figure 11: SA check (0x02, socket closed), then the router's verdict."""
         sa, ta, uds = msg.source_address, msg.target_address, bytes(msg.user_data)
         if c.sa is None or sa != c.sa:

@@ -18,7 +18,7 @@ from vecu import functions
 from vecu.codec import DbcCodec, shared_codec
 from vecu.config import ParamTree, RunConfig, apply_params, shortcut_sets, validate_tree
 from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
-from vecu.errors import BadFileError, UserError
+from vecu.errors import BadArgumentError, BadFileError, UserError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
 from vecu.fmu.binding import FmuBinding, load_binding
@@ -31,6 +31,7 @@ from vecu.restbus.node import RestbusNode
 from vecu.restbus.spec import RestbusConfig, build_plans
 from vecu.tomlfile import read_toml
 from vecu.uds.config import UdsStep
+from vecu.uds.diag_faults.setting import DiagFaultSetting, setting_from_table
 from vecu.xcp.config import XcpStep
 
 # the diagnosed sensors of the ECU's functions (vecu.functions): short name -> its monitor's
@@ -48,7 +49,8 @@ NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
-            "uds": list, "restbus": dict, "xcp": list, "gateway": (str, dict), "fmu": dict}
+            "uds": list, "restbus": dict, "xcp": list, "gateway": (str, dict), "fmu": dict,
+            "diag_faults": list}
 PLANT_KEYS = {"noise_scale": NUMBER, **dict.fromkeys(functions.OPTIONAL, BOOL),
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, **dict.fromkeys(SENSORS, dict)}
@@ -195,6 +197,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         restbus_node, route_keys)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
+    diag_faults = _diag_faults(chk, data.get("diag_faults", []), duration)
     xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
     # (scenario key, tree path, value): a value the tree refuses names the key it came from
     sets: list[tuple[str, str, Any]] = []
@@ -220,7 +223,7 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
         params=params, uds_steps=uds_steps, xcp_steps=xcp_steps, restbus=restbus,
-        restbus_disturbances=disturbances, fmu=fmu, **parts)
+        restbus_disturbances=disturbances, fmu=fmu, diag_faults=diag_faults, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
                     config, criteria, gateway, on_routes)
 
@@ -421,6 +424,23 @@ def _uds_steps(chk: _Checker, items: list, duration: float) -> tuple[UdsStep, ..
             expect_nrc=nrc, expect_none=item.get("expect_none", False),
             **{k: _hex(chk, pre + k, item[k]) for k in
                ("expect", "expect_contains", "expect_absent") if k in item}))
+    return tuple(out)
+
+
+def _diag_faults(chk: _Checker, items: list, duration: float) -> tuple[DiagFaultSetting, ...]:
+    """[[diag_faults]]: name, value, at_s, until_s or request (vecu conformance list)."""
+    out = []
+    for i, item in enumerate(items):
+        pre = f"diag_faults[{i}]"
+        if not isinstance(item, dict):
+            raise chk.fail(pre, "expected a table")
+        try:
+            s = setting_from_table(item, pre)
+        except (BadArgumentError, TypeError, ValueError) as exc:
+            raise chk.fail(pre, str(exc)) from None
+        if s.start_s >= duration:
+            raise chk.fail(pre + ".at_s", f"{s.start_s:g} s is outside the run (0..{duration:g} s)")
+        out.append(s)
     return tuple(out)
 
 

@@ -15,6 +15,7 @@ import logging
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import can
 import numpy as np
@@ -22,10 +23,10 @@ from udsoncan import Response
 
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.ecu.node import EcuNode
-from vecu.ecu.sensor_monitor import SensorMonitor, SensorStatus
 from vecu.uds.config import UdsConfig
 from vecu.uds.dids import SNAPSHOT_DIDS, Did, build_dids
 from vecu.uds.dtcs import AVAILABILITY_MASK, DtcMemory, DtcRecord
+from vecu.uds.routines import ROUTINES, RUNNING, STOPPED, SelfTest
 from vecu.uds.security import SecurityAccess
 from vecu.uds.transport import Endpoint, to_can
 
@@ -37,38 +38,7 @@ ALL, EXT = (DEFAULT, EXTENDED), (EXTENDED,)
 FUNCTIONAL_SILENT = {C.ServiceNotSupported, C.SubFunctionNotSupported, C.RequestOutOfRange,
                      C.SubFunctionNotSupportedInActiveSession,
                      C.ServiceNotSupportedInActiveSession}
-SELF_TEST_MS = 200.0
-ROUTINES = {0x0201: "tps", 0x0203: "wheel", 0x0204: "swa"}  # sensor self-tests
-RUNNING, PASSED, FAILED, STOPPED = 1, 2, 3, 4
 Result = "bytes | int | None"
-
-
-class SelfTest:
-    """Routine: watch one sensor monitor for SELF_TEST_MS; passed when frames came, the status
-    stayed ok and never changed."""
-
-    def __init__(self, monitor: SensorMonitor) -> None:
-        self.mon = monitor
-        self.state = 0  # never started
-        self._t0 = 0
-        self._changes0 = 0
-        self._rx0: int | None = None
-        self.changes = 0
-
-    def start(self, t_ns: int) -> None:
-        self.state, self._t0 = RUNNING, t_ns
-        self._changes0, self._rx0 = len(self.mon.status_history), self.mon.last_rx_ns
-        self.changes = 0
-
-    def poll(self, t_ns: int) -> None:
-        if self.state == RUNNING and t_ns - self._t0 >= SELF_TEST_MS * NS_PER_MS:
-            mon = self.mon
-            self.changes = len(mon.status_history) - self._changes0
-            ok = mon.status == SensorStatus.OK and not self.changes and mon.last_rx_ns != self._rx0
-            self.state = PASSED if ok else FAILED
-
-    def record(self) -> bytes:
-        return bytes([self.state, int(self.mon.status), min(self.changes, 255)])
 
 
 @dataclass
@@ -87,6 +57,15 @@ class UdsStats:
     # ECU's clock (whole ticks: 0 when answered in the tick the request arrived; more when the
     # inbox, the request queue or the per-tick limits made it wait)
     latency_max_ms: float = 0.0
+
+
+class DiagHook(Protocol):
+    """What commits diagnostic faults on the server's path (vecu.uds.diag_faults.engine)."""
+
+    def take(self, msg: can.Message, t_ns: int) -> bool: ...
+    def poll(self, t_ns: int) -> None: ...
+    def respond(self, request: bytes, functional: bool, response: bytes | None,
+                t_ns: int) -> bytes | None: ...
 
 
 def flow_control_block_size(config: UdsConfig) -> int:
@@ -119,6 +98,8 @@ class UdsServer:
         self._queue: deque[tuple[bytes, bool, int]] = deque()
         self._awake = False
         self.stats = UdsStats()
+        self.hook: DiagHook | None = None  # diagnostic faults (vecu.uds.diag_faults.engine)
+        self.suppressed: bytes | None = None  # the last positive response suppressPosRsp held
         self.session = DEFAULT
         self._s3_deadline = 0
         self.security = SecurityAccess(rng, config.security_attempts,
@@ -149,6 +130,10 @@ class UdsServer:
 
     # ------------------------------------------------------------- node side
     def on_frame(self, msg: can.Message, t_ns: int) -> None:
+        if self.hook is None or not self.hook.take(msg, t_ns):
+            self.deliver(msg, t_ns)
+
+    def deliver(self, msg: can.Message, t_ns: int) -> None:
         if msg.arbitration_id == self.cfg.response_id:
             self.stats.echoes += 1
         elif len(self._inbox) >= self._inbox_max:
@@ -160,13 +145,15 @@ class UdsServer:
     def tick(self, t_ns: int) -> None:
         self._now = t_ns
         self.dtcs.update(t_ns)
-        if self._awake:
+        if self._awake or self.hook is not None:
             self._work(t_ns)
 
     def _work(self, t_ns: int) -> None:
         cfg, inbox, queue, stats = self.cfg, self._inbox, self._queue, self.stats
         functional_id = cfg.functional_id
         rx_ns = {}  # endpoint -> when its last frame taken in this tick came
+        if self.hook is not None:
+            self.hook.poll(t_ns)
         for _ in range(min(len(inbox), cfg.frames_per_tick)):
             msg, t_rx = inbox.popleft()
             ep = self.func if msg.arbitration_id == functional_id else self.phys
@@ -183,6 +170,8 @@ class UdsServer:
         for _ in range(min(len(queue), cfg.requests_per_tick)):
             payload, functional, t_rx = queue.popleft()
             response = self.handle(payload, functional, t_ns)
+            if self.hook is not None:
+                response = self.hook.respond(payload, functional, response, t_ns)
             stats.latency_max_ms = max(stats.latency_max_ms, (t_ns - t_rx) / NS_PER_MS)
             if response is not None:
                 self.phys.send(response)
@@ -237,6 +226,7 @@ class UdsServer:
         stats.positive += 1
         if spr:
             stats.suppressed += 1
+            self.suppressed = bytes([sid + 0x40]) + result  # type: ignore[operator]  # bytes here
             return None
         stats.responses += 1
         return bytes([sid + 0x40]) + result  # type: ignore[operator]  # an int (negative response) returned above: bytes here

@@ -15,6 +15,7 @@ from vecu.uds.security import key_from_seed
 from vecu.uds.transport import Endpoint, to_can
 
 NO_RESPONSE_MS = 500.0  # a step without a final response after this has none
+P2_STAR_MS = 5000.0     # after a 0x78: the wait restarts with P2* (ISO 14229-2 §7.2)
 
 
 @dataclass
@@ -24,6 +25,7 @@ class StepResult:
     response: bytes | None = None
     latency_ms: float | None = None
     done: bool = False
+    pending_ns: int | None = None  # the last 0x78 (response pending) for it
 
     def as_dict(self) -> dict:
         passed, _, want = self.step.judge(self.response)
@@ -60,7 +62,9 @@ class SimTester:
         for payload in phys.payloads():
             self._answer(payload, t_ns)
         for res in list(self._waiting):
-            if t_ns - res.sent_ns > NO_RESPONSE_MS * NS_PER_MS:  # type: ignore[operator]  # waiting: sent, so sent_ns is set
+            since, limit = ((res.sent_ns, NO_RESPONSE_MS) if res.pending_ns is None
+                            else (res.pending_ns, P2_STAR_MS))
+            if t_ns - since > limit * NS_PER_MS:  # type: ignore[operator]  # waiting: sent, so sent_ns is set
                 res.done = True
                 self._waiting.remove(res)
         results = self.results
@@ -81,6 +85,9 @@ class SimTester:
 
     def _answer(self, payload: bytes, t_ns: int) -> None:
         if payload[:1] == b"\x7f" and payload[2:3] == b"\x78":  # response pending: wait on
+            for waiting in self._waiting:
+                if waiting.step.request[:1] == payload[1:2]:
+                    waiting.pending_ns = t_ns
             return
         if payload[:2] == b"\x67\x01":
             self._seed = payload[2:6]
