@@ -52,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
     p.add_argument("--no-truth", dest="truth", action="store_false",
-                   help="leave the debug truth frames (vecu/dbc/vecu_truth.dbc) out of --log")
+                   help="leave the debug truth frames (dbc/vecu_truth.dbc) out of --log")
     p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", metavar="FILE.png", help="write a truth-vs-estimate plot")
     p.add_argument("--gateway", metavar="GATEWAY.toml",

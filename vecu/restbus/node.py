@@ -7,7 +7,7 @@ protects the payload with the message's profile (vecu.e2e, autosar-e2e), passes 
 active disturbances and sends it. On-change messages are polled at their cycle and sent when
 their payload changes (and once at the start); if-active messages are sent at their cycle while
 a signal differs from its start value. Disturbance starts and ends go on the bus as FI_Event
-frames (vecu/dbc/vecu.dbc), the same record vecu's own faults leave.
+frames (dbc/vecu.dbc), the same record vecu's own faults leave.
 """
 
 from __future__ import annotations
