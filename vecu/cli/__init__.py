@@ -19,7 +19,7 @@ from vecu.cli.outputs import check_outputs as check_outputs
 from vecu.errors import UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
-               "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway")
+               "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway", "dbc")
 KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario",
                    "campaign", "excite", "identify", "figures")  # use estimators
 

@@ -99,6 +99,11 @@ class DbcCodec:
     def lookup(self, msg: can.Message) -> FrameCodec | None:
         return self.by_id.get((msg.arbitration_id, msg.is_extended_id))
 
+    def dbc_text(self) -> str:
+        """Every message of this codec, at its instance's IDs, as one DBC text that cantools
+        loads alone (`vecu dbc export`: decoding a trace needs one file)."""
+        return str(self._db.as_dbc_string())
+
     def sent_by(self, node: str) -> set[tuple[int, bool]]:
         """(CAN ID, extended) of every message the DBC(s) give `node` as a sender."""
         return {(fc.frame_id, fc.is_extended) for fc in self._by_name.values()
