@@ -20,6 +20,7 @@ from typing import Any, Protocol
 
 import can
 import numpy as np
+from can.util import CAN_FD_DLC, dlc2len, len2dlc
 
 from vecu.can_message import message
 from vecu.codec import FrameCodec
@@ -199,6 +200,8 @@ class RestbusNode:
             st.counter = (st.counter + step) % modulo
         for d in active:
             buf = d.payload(buf, prot)
+        if fc.is_fd and len(buf) not in CAN_FD_DLC:  # e.g. 10 bytes: padded to 12, a valid length
+            buf += bytes(dlc2len(len2dlc(len(buf))) - len(buf))
         return message(t_s, fc.frame_id, fc.is_extended, buf, fc.is_fd)
 
     # ---------------------------------------------------------------- disturbances
