@@ -73,10 +73,14 @@ class SteeringSummary:
         det = self.detection
         smoothed = ("fixed-lag smoother: no output yet (the run is shorter than its lag)"
                     if self.smoother_lag_ms is None else
-                    f"fixed-lag smoother ({self.smoother_lag_ms} ms behind) "
-                    f"{self.swa_smoothed_error_deg.rms:.2f} deg")
-        line = (f"steering: SWA UKF RMS {self.swa_ukf_error_deg.rms:.2f} deg, {smoothed}, "
-                f"side-slip {self.side_slip_ukf_error_deg.rms:.3f} deg")
+                    f"fixed-lag smoother ({self.smoother_lag_ms:g} ms behind) "
+                    f"{self.swa_smoothed_error_deg.rms:.2f} deg"
+                    + (f" ({self.swa_ukf_error_deg.rms / self.swa_smoothed_error_deg.rms:.1f}x "
+                       "better than the live UKF)" if self.swa_smoothed_error_deg.rms else ""))
+        line = (f"steering, RMS error against the truth: steering-wheel angle (SWA) from yaw "
+                f"rate and lateral acceleration, live UKF {self.swa_ukf_error_deg.rms:.2f} deg "
+                f"(the fallback for the SWA sensor), {smoothed}; side-slip "
+                f"{self.side_slip_ukf_error_deg.rms:.3f} deg")
         if det.kill_time_s is not None:
             after = self.swa_broadcast_error_deg.after_kill
             line += (f"; SWA fault '{self.fault}' at {det.kill_time_s:.2f} s "
