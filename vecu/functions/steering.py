@@ -181,15 +181,21 @@ def _probe(part: LateralPart, fn: SteeringFunction, config: RunConfig,
 
 
 def _plot(st: SteeringSeries, ax: Any) -> None:
-    ax.plot(st.t_s, st.swa_sensor, color="tab:gray", lw=0.6, alpha=0.7, label="SWA sensor")
-    ax.plot(st.t_s, st.swa_true, color="black", lw=1.0, label="true SWA")
-    ax.plot(st.t_s, st.swa_est, color="tab:orange", lw=0.8, label="UKF estimate")
-    ax.plot(st.t_s, st.swa_broadcast, color="tab:red", lw=0.8, ls="--", label="broadcast")
+    # the noisy UKF estimate at the bottom, the truth wide and pale over it, so that the sensor
+    # and the broadcast that follow the truth closely stay visible on top (thin, dashed)
+    ax.plot(st.t_s, st.swa_est, color="tab:orange", lw=0.7, alpha=0.8, label="UKF estimate",
+            zorder=1)
+    ax.plot(st.t_s, st.swa_true, color="black", lw=2.4, alpha=0.3, label="true SWA", zorder=2)
+    ax.plot(st.t_s, st.swa_sensor, color="tab:blue", lw=0.7, label="SWA sensor", zorder=3)
+    ax.plot(st.t_s, st.swa_broadcast, color="tab:red", lw=0.9, ls=(0, (4, 3)),
+            label="broadcast", zorder=4)
     on_est = st.source == 1
     if on_est.any():
         ax.fill_between(st.t_s, 0, 1, where=on_est, transform=ax.get_xaxis_transform(),
                         color="tab:red", alpha=0.07, lw=0, label="broadcasting estimate")
     ax.set_ylabel("steering wheel (deg)")
+    lo, hi = ax.get_ylim()  # head room for the legend, above the traces rather than over them
+    ax.set_ylim(lo, hi + 0.35 * (hi - lo))
     ax.legend(loc="upper right", fontsize=8, ncol=5)
 
 
