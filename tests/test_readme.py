@@ -97,8 +97,8 @@ def test_the_numbers_table_quotes_the_stored_bench_figures():
     for start, key, shown in BENCH_FIGURES:
         (row,) = [r for first, r in rows.items() if first.startswith(start)]
         figure = shown.format(lookup(STORED, key))
-        assert figure in row, f"README row {start!r}: expected {figure!r} ({key} in " \
-                              "benchmarks/readme-bench.json)"
+        assert figure in row, \
+            f"README row {start!r}: expected {figure!r} ({key} in benchmarks/readme-bench.json)"
 
 
 @pytest.mark.slow
