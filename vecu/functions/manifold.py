@@ -46,7 +46,7 @@ class ManifoldSummary:
 
     def lines(self) -> list[str]:
         """For `vecu run`'s printed summary."""
-        return [(f"manifold ({self.filter.upper()} filter, {self.events} engine events, "
+        return [(f"manifold ({self.filter}, {self.events} engine events, "
                  f"{self.lost_events} lost), RMS error against the true value: "
                  f"P_im {self.p_im_error_kpa.rms:.3f} kPa, T_im {self.t_im_error_k.rms:.2f} K, "
                  f"CAC {self.cac_error_mg.rms:.2f} mg per cylinder; 6-event CAC prediction "
