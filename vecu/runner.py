@@ -35,6 +35,7 @@ from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, mono
 from vecu.codec import DbcCodec
 from vecu.config import ParamTree, RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
+from vecu.errors import Interrupted
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind
 from vecu.functions.base import Kill
@@ -125,7 +126,11 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
             warm_up(config)
         # one-time: loading (on a fresh install compiling) the kernels is not the run's speed
         kernel_load_s = ensure_kernels(config)
-        wall = execute(pipeline, progress)
+        watch = Stopwatch()
+        try:
+            wall = execute(pipeline, progress)
+        except KeyboardInterrupt:
+            raise interrupted(pipeline, watch.elapsed(), kernel_load_s) from None
         summary = summarise(pipeline, wall, kernel_load_s)
     finally:
         pipeline.close()
@@ -222,6 +227,20 @@ def execute(p: Pipeline, progress: Callable[[float, float], None] | None = None)
     if p.recorder is not None:  # frames sent after the ECU's last tick: stamped before end
         p.recorder.drain(end_ns, before_ns=end_ns)
     return wall
+
+
+def interrupted(p: Pipeline, wall: float, kernel_load_s: float) -> Interrupted:
+    """Ctrl-C part-way through execute(): the summary of the ticks that ran (the log keeps
+    their frames), as an Interrupted for the command line (--summary, exit 130)."""
+    planned = p.n_ticks
+    p.n_ticks = min(planned, p.clock.now_ns() // TICK_NS)
+    if p.ecu is not None and p.ecu_task is not None:
+        p.ecu.overruns = p.ecu_task.overruns
+    if p.recorder is not None:
+        p.recorder.drain(p.end_ns, before_ns=p.end_ns)
+    summary = summarise(p, wall, kernel_load_s)
+    return Interrupted(f"{p.n_ticks / 1000:g} of {planned / 1000:g} s simulated",
+                       to_json(summary))
 
 
 def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:

@@ -15,8 +15,9 @@ import traceback
 from typing import NoReturn
 
 import vecu
+from vecu.cli.outputs import check_output_args, output_state, report_interrupted
 from vecu.cli.outputs import check_outputs as check_outputs
-from vecu.errors import UserError
+from vecu.errors import Interrupted, UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
                "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway", "dbc")
@@ -89,7 +90,10 @@ def run_command(args: argparse.Namespace) -> int:
     """Run args.func(args) and map the outcome to an exit code (see the module docstring)."""
     from vecu.live.children import EXIT_TERMINATED, Terminated
 
+    before: dict[str, object] = {}
     try:
+        check_output_args(args)  # every output option of every subcommand, before any work
+        before = output_state(args)  # what an interrupted command kept: what changed since
         from vecu import kernels
 
         cold = kernels.cache_is_cold()  # VECU_KERNELS checked before any work starts
@@ -98,8 +102,10 @@ def run_command(args: argparse.Namespace) -> int:
             print("vecu: compiling the numba kernels on first use (about 40 s, once per install; "
                   "VECU_KERNELS=python skips them)", file=sys.stderr, flush=True)
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        return 130
+    except Interrupted as exc:  # Ctrl-C part-way, with a partial result
+        return report_interrupted(args, before, exc.done, exc.summary)
+    except KeyboardInterrupt:  # Ctrl-C anywhere else
+        return report_interrupted(args, before)
     except Terminated:  # a SIGTERM while children ran: they are stopped (vecu.live.children)
         return EXIT_TERMINATED
     except UserError as exc:

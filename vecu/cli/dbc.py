@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 from vecu import argtypes
-from vecu.cli import check_outputs
+from vecu.cli.outputs import check_output_dir
 from vecu.errors import BadFileError
 
 MERGED = "vecu_all.dbc"  # estimates, truth, harness frames (and plug-ins' own messages) in one
@@ -36,7 +36,7 @@ def main(args: argparse.Namespace) -> int:
     from vecu.codec import DEFAULT_DBC, TRUTH_DBC, builtin_dbc_path
     from vecu.functions import function_codec
 
-    check_outputs(report=args.dir)  # a directory vecu can create and write
+    check_output_dir(args.dir)  # a directory vecu can create and write, before any work
     out = Path(args.dir)
     targets = [out / DEFAULT_DBC, out / TRUTH_DBC, out / MERGED]
     clash = [str(t) for t in targets if t.exists()]

@@ -9,7 +9,6 @@ from typing import Any
 from vecu import argtypes
 from vecu.cli import (
     add_set_option,
-    check_outputs,
     configure_logging,
     param_sets,
 )
@@ -62,7 +61,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
 
     from vecu.assembly import build_functions, schedule_ecu
     from vecu.config import RunConfig
@@ -156,7 +154,7 @@ def main(args: argparse.Namespace) -> int:
         proc.close()
     if not args.quiet and summary is not None:
         print(format_ecu_summary(summary))
-    return 0
+    return LiveProcess.end(summary)
 
 
 def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:

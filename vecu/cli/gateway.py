@@ -7,7 +7,7 @@ import argparse
 from typing import Any
 
 from vecu import argtypes
-from vecu.cli import check_outputs, configure_logging
+from vecu.cli import configure_logging
 from vecu.live.args import (
     add_bus_arguments,
     add_duration_argument,
@@ -51,7 +51,6 @@ def main(args: argparse.Namespace) -> int:
     if args.print_config:
         print(DEFAULT_TOML, end="" if DEFAULT_TOML.endswith("\n") else "\n")
         return 0
-    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)
     config = load_gateway_config(args.config) if args.config else default_config()
 
     from vecu.bus import BusNode
@@ -101,7 +100,7 @@ def main(args: argparse.Namespace) -> int:
         proc.close()
     if not args.quiet and summary is not None:
         print(format_gateway_summary(summary))
-    return 0
+    return LiveProcess.end(summary)
 
 
 def request_ids(config: Any) -> set[tuple[int, bool]]:

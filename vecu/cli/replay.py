@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vecu import argtypes
-from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.cli import add_set_option, configure_logging, param_sets
 
 if TYPE_CHECKING:
     from vecu.replay.summary import ReplaySummary, ScoreSection
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the trace's DBC (repeatable; default: vecu's own DBCs)")
     p.add_argument("--map", dest="signal_map", metavar="MAP.toml",
                    help="signal map: which message.signal of --dbc feeds each ECU input")
-    p.add_argument("--out", metavar="FILE", help="write the ECU's frames; format by suffix")
+    p.add_argument("--out", type=argtypes.out_log, metavar="FILE", help="write the ECU's frames; format by suffix")
     p.add_argument("--with-inputs", action="store_true", help="also copy the trace's frames to --out")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--fast", action="store_true", help="simulated clock (default)")
@@ -39,8 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="reader when the suffix does not tell (asc, blf, log, trc, csv, mf4)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.* calibration only", params_file=True)
-    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
-    p.add_argument("--plot", metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
+    p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary")
+    p.add_argument("--plot", type=argtypes.out_plot, metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
     prog = p.add_mutually_exclusive_group()
     prog.add_argument("--progress", action="store_true", default=None, help="always show progress")
     prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show progress")
@@ -50,7 +50,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(out=args.out, summary=args.summary, plot=args.plot)  # before any work
 
     from vecu.replay.engine import ReplayConfig, replay
     from vecu.replay.source import TraceReadError
@@ -62,6 +61,8 @@ def main(args: argparse.Namespace) -> int:
         sets=tuple(param_sets(args, only="ecu.")),
         keep_series=bool(args.plot))
     result = replay(config)
+    if result.error and result.report.frames.read == 0:  # not a trace: no summary of nothing
+        raise TraceReadError(None, result.error)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
     if args.plot and result.series is not None:

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vecu import argtypes
-from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.cli import add_set_option, configure_logging, param_sets
 from vecu.errors import BadArgumentError
 from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 
@@ -53,11 +53,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="calibrate a live ecu.* leaf at S s (acts from the next tick, as an XCP "
                         "write then; docs/xcp.md), repeatable")
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
-    p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
+    p.add_argument("--log", type=argtypes.out_log, metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
     p.add_argument("--no-truth", dest="truth", action="store_false",
                    help="leave the debug truth frames (dbc/vecu_truth.dbc) out of --log")
-    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
-    p.add_argument("--plot", metavar="FILE.png", help="write a truth-vs-estimate plot")
+    p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary")
+    p.add_argument("--plot", type=argtypes.out_plot, metavar="FILE.png", help="write a truth-vs-estimate plot")
     p.add_argument("--gateway", metavar="GATEWAY.toml",
                    help="route between the buses this gateway config names; plant and ECU on its "
                         "first bus (docs/gateway.md 'Routing between buses')")
@@ -86,7 +86,6 @@ def _sets_at(items: list[str], duration: float) -> tuple[tuple[float, str, str],
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(log=args.log, summary=args.summary, plot=args.plot)  # before any work
 
     from vecu.runner import RunConfig, run
 

@@ -29,7 +29,7 @@ from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
-from vecu.errors import BadArgumentError
+from vecu.errors import BadArgumentError, Interrupted
 from vecu.recorder import TraceWriteError
 from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
 from vecu.replay.scoring import TruthScorer
@@ -112,6 +112,7 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
     config.validate()
     ecu_codec, trace_db, smap, functions, routes = _ecu_parts(config)
     live = config.speed is not None
+    stopped_at_s: float | None = None  # where Ctrl-C stopped the replay (replay time)
     source = TraceSource(config.trace, config.fmt,
                          idle_gap_ns=round(config.idle_gap_s * NS_PER_S))
     writer = _open_writer(config.out, locked=live)
@@ -144,7 +145,7 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
                     msg.channel = OUT_CHANNEL
                 writer.on_message_received(msg)
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
-                      arm_on_input=True, tap=on_sent)
+                      arm_on_input=True, tap=on_sent, tallied_rx=frozenset({UNKNOWN_ID}))
         tally = FrameTally()
         feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes,
                              writer if config.with_inputs else None,
@@ -156,19 +157,22 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
         show = config.progress if config.progress is not None else sys.stderr.isatty()
         progress = _Progress(source, clock, config.speed or 1.0,
                              config.progress_every_s if show else None)
-        if live:
-            _run_live(sched, clock, feeder, trace_end, progress)
-        else:
-            sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
-            gc.freeze()  # the set-up's objects out of the collector's way (live: _run_live)
-            try:
-                end_ns = 0
-                while not trace_end.reached:
-                    end_ns += STEP_NS
-                    sched.run_until(end_ns)
-                    progress.update()
-            finally:
-                gc.unfreeze()
+        try:
+            if live:
+                _run_live(sched, clock, feeder, trace_end, progress)
+            else:
+                sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
+                gc.freeze()  # the set-up's objects out of the collector's way (live: _run_live)
+                try:
+                    end_ns = 0
+                    while not trace_end.reached:
+                        end_ns += STEP_NS
+                        sched.run_until(end_ns)
+                        progress.update()
+                finally:
+                    gc.unfreeze()
+        except KeyboardInterrupt:  # Ctrl-C: the summary of what was replayed, then Interrupted
+            stopped_at_s = clock.now_ns() / NS_PER_S
         wall = progress.watch.elapsed()
         progress.close()
         ecu.overruns = ecu_task.overruns
@@ -182,12 +186,31 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
             bus.shutdown()
         if not live:
             ecu_bus.shutdown()
+    if ecu.rx.unknown_id:
+        log.warning("%s", unknown_id_tally(config.trace, ecu.rx.unknown_id, feeder.unknown_ids))
     summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
                        writer.frames if writer is not None else 0, kernel_load_s)
+    if stopped_at_s is not None:
+        raise Interrupted(f"{stopped_at_s:.3f} s of the trace ({source.stats.frames_read} frames "
+                          "read)", to_json(summary))
     return ReplayResult(summary, source.error, scorer.series)
 
 
 # ------------------------------------------------------------------ pieces
+UNKNOWN_ID = "unknown-id"  # the ECU's receive problem a replay tallies in one line
+TALLY_IDS_LISTED = 5
+
+
+def unknown_id_tally(trace: str, frames: int, keys: set[tuple[int, bool]]) -> str:
+    """One line for the frames whose IDs no database knows (a foreign trace), instead of a
+    warning per frame; the counts stay in the summary (frames.unknown_id)."""
+    ids = [f"0x{i:08X}" if ext else f"0x{i:03X}" for i, ext in sorted(keys)]
+    shown = ", ".join(ids[:TALLY_IDS_LISTED]) + (", ..." if len(ids) > TALLY_IDS_LISTED else "")
+    which = f"{len(ids)} ID{'s' if len(ids) != 1 else ''}: {shown}; " if ids else ""
+    return (f"{trace}: {frames} frame{'s' if frames != 1 else ''} with IDs not in the database "
+            f"({which}--dbc names the trace's own database)")
+
+
 def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
                                                list[EcuFunction], dict[tuple[int, bool], Route]]:
     """The ECU's codec, the trace's database, the signal map, fresh ECU functions and their
@@ -353,7 +376,10 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: Feeder, trace_end: _Tr
             sched.run_until(end)
             progress.update()
         thread.join()
-    finally:
+    finally:  # (after Ctrl-C too: the player stops before the summary reads the feeder)
+        feeder.done = True
+        player.stop()
+        thread.join(timeout=1.0)
         sys.setswitchinterval(previous)
         gc.unfreeze()
     if failure:
