@@ -87,3 +87,14 @@ def test_export_with_an_instance_moves_the_ecu_ids(tmp_path):
     merged = cantools.database.load_file(str(tmp_path / "vecu_all.dbc"))
     assert merged.get_message_by_name("ECU_ThrottleEstimate").frame_id == 0x200 + 0x60
     assert merged.get_message_by_name("TPS_Sensor").frame_id == 0x100
+
+
+@pytest.mark.parametrize("argv", [["dbc", "export"], ["scenario", "copy", "tps_dead"]])
+def test_a_bad_directory_is_one_line_before_any_work(argv, tmp_path, capsys):
+    afile = tmp_path / "x.blf"
+    afile.write_text("")
+    assert run_command(build_parser().parse_args([*argv, str(afile / "sub")])) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"vecu: error: {afile / 'sub'}: "), err
+    assert "is a file, not a directory" in err[0], err
+    assert not (tmp_path / "x.blf" / "sub").exists()
