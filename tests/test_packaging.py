@@ -5,14 +5,20 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import os
 import re
+import shutil
+import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:
     import tomli as tomllib
+
+import pytest
 
 from vecu.cli import build_parser
 
@@ -63,24 +69,31 @@ def test_the_smoke_runs_shipped_files_by_name_from_outside_the_checkout():
 
 
 def test_packages_are_found_not_listed():
+    """setup.py finds every package under vecu/ and adds vecu.dbc, which pyproject.toml maps to
+    the top-level dbc/ (the one place a package list is written)."""
     setuptools = PYPROJECT["tool"]["setuptools"]
-    assert "packages" not in setuptools or "find" in setuptools["packages"]
-    assert setuptools["packages"]["find"]["include"] == ["vecu", "vecu.*"]
+    assert "packages" not in setuptools
+    assert setuptools["package-dir"] == {"vecu.dbc": "dbc"}
+    setup_py = (REPO / "setup.py").read_text()
+    assert 'find_namespace_packages(include=["vecu", "vecu.*"])' in setup_py
+    assert '"vecu.dbc"' in setup_py
 
 
-def test_every_data_file_under_the_package_is_package_data():
+def test_every_data_file_is_package_data():
     """A file a subcommand reads at run time ships in the wheel only when a package-data glob
-    names it: a new kind of file under vecu/ must be added there."""
-    globs = PYPROJECT["tool"]["setuptools"]["package-data"]
-    pkg = REPO / "vecu"
-    data = [p for p in pkg.rglob("*") if p.is_file() and p.suffix not in (".py", ".pyc", ".nbi",
-                                                                            ".nbc")
+    names it (in its package's folder, dbc/ for vecu.dbc): a new kind of file must be added."""
+    setuptools = PYPROJECT["tool"]["setuptools"]
+    globs, folders = setuptools["package-data"], setuptools["package-dir"]
+    data = [p for folder in (REPO / "vecu", REPO / "dbc") for p in folder.rglob("*")
+            if p.is_file() and p.suffix not in (".py", ".pyc", ".nbi", ".nbc")
             and "__pycache__" not in p.parts]
-    assert len(data) >= 22  # 2 DBCs, 17 scenarios, 3 campaigns
+    assert len(data) >= 27  # 2 DBCs, 19 scenarios and their 3 companions, 3 campaigns
     for path in data:
         rel = path.relative_to(REPO)
-        covered = any(fnmatch.fnmatch(str(rel), str(Path(*package.split("."), pattern)))
-                      for package, patterns in globs.items() for pattern in patterns)
+        covered = any(
+            fnmatch.fnmatch(str(rel), str(Path(folders.get(package, package.replace(".", "/")),
+                                               pattern)))
+            for package, patterns in globs.items() for pattern in patterns)
         assert covered, f"{rel}: not matched by [tool.setuptools.package-data]"
 
 
@@ -92,3 +105,61 @@ def test_every_extra_a_hint_names_exists():
     assert named
     unknown = [f"{f}: vecu[{m}]" for f, m in named if not set(m.split(",")) <= extras]
     assert not unknown, unknown
+
+
+_BUILD = """
+import sys, tarfile
+from pathlib import Path
+from setuptools import build_meta
+out = Path(sys.argv[1])
+sdist = out / build_meta.build_sdist(str(out))
+with tarfile.open(sdist) as tar:
+    tar.extractall(out / "src", **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))
+(unpacked,) = (out / "src").iterdir()
+import os
+os.chdir(unpacked)
+print(out / build_meta.build_wheel(str(out)))
+"""
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    """vecu's wheel built as `python -m build` does (the sdist, then the wheel from it), from a
+    copy of the checkout's build inputs so that nothing is written into the checkout (~10 s)."""
+    pytest.importorskip("setuptools", minversion="77")
+    src, out = tmp_path_factory.mktemp("src"), tmp_path_factory.mktemp("dist")
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc")
+    for name in ("vecu", "dbc"):
+        shutil.copytree(REPO / name, src / name, ignore=ignore)
+    for name in ("pyproject.toml", "setup.py", "README.md", "LICENSE", "MANIFEST.in"):
+        shutil.copy(REPO / name, src / name)
+    done = subprocess.run([sys.executable, "-c", _BUILD, str(out)], cwd=src, capture_output=True,
+                          text=True, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return Path(done.stdout.strip().splitlines()[-1])
+
+
+def test_the_wheel_ships_the_top_level_dbcs_as_vecu_dbc(wheel, tmp_path):
+    """dbc/ is the DBCs' one source (no copy under vecu/); the wheel carries them at vecu/dbc/,
+    where an installed vecu loads them by name from outside any checkout."""
+    assert not (REPO / "vecu" / "dbc").exists()
+    sources = sorted(p.name for p in (REPO / "dbc").glob("*.dbc"))
+    assert sources == ["vecu.dbc", "vecu_truth.dbc"]
+    with zipfile.ZipFile(wheel) as whl:
+        names = whl.namelist()
+        assert sorted(n for n in names if n.startswith("vecu/dbc/")) == \
+            [f"vecu/dbc/{s}" for s in sources]
+        for s in sources:
+            assert whl.read(f"vecu/dbc/{s}") == (REPO / "dbc" / s).read_bytes()
+        whl.extractall(tmp_path / "site")
+    assert not any(n.startswith("dbc/") for n in names)
+    probe = ("from vecu.codec import DEFAULT_DBC, TRUTH_DBC, builtin_dbc_path, load_database; "
+             "p = builtin_dbc_path(); db = load_database([p, builtin_dbc_path(TRUTH_DBC)]); "
+             "print(p); print(db.get_message_by_name('ECU_ThrottleEstimate').frame_id)")
+    done = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, capture_output=True,
+                          text=True, check=False,
+                          env={**os.environ, "PYTHONPATH": str(tmp_path / "site")})
+    assert done.returncode == 0, done.stderr[-3000:]
+    path, frame_id = done.stdout.split()
+    assert Path(path) == tmp_path / "site" / "vecu" / "dbc" / "vecu.dbc"
+    assert int(frame_id) == 0x200

@@ -54,7 +54,7 @@ class EcuFunctions:
 def build_plant(config: RunConfig, codec: DbcCodec, bus: can.BusABC,
                 injector: FaultInjector | None = None, truth: bool = False) -> PlantNode:
     """The simulated vehicle with the parts of config's functions (vecu.functions); truth=True
-    adds the debug truth frames (vecu/dbc/vecu_truth.dbc) so that a recorded trace can be
+    adds the debug truth frames (dbc/vecu_truth.dbc) so that a recorded trace can be
     scored on its own."""
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     injector = injector if injector is not None else FaultInjector(rngs["faults"])

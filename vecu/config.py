@@ -226,7 +226,7 @@ class RunConfig:
     channel: str | None = None
     bitrate: int | None = None
     log_path: str | None = None
-    truth: bool = True  # with log_path: debug truth frames (vecu/dbc/vecu_truth.dbc) in the trace
+    truth: bool = True  # with log_path: debug truth frames (dbc/vecu_truth.dbc) in the trace
     keep_series: bool = False
     speed: bool = True  # longitudinal plant part + ECU speed function (Hernandez 2005)
     steering: bool = True  # lateral plant part + ECU steering function (Khalid)

@@ -136,7 +136,7 @@ UNBOUNDED = (-math.inf, math.inf)
 
 @dataclass(frozen=True)
 class KindSpec:
-    """Every fact of one fault kind: its FI_Kind / FI_EvKind code (vecu/dbc/vecu.dbc), what its
+    """Every fact of one fault kind: its FI_Kind / FI_EvKind code (dbc/vecu.dbc), what its
     value means (symbol: its name in a refusal, default: meaning), default and bounds (open_low:
     the lower bound itself refused), and its behaviour: a signal law, or a frame kind's
     `frames` / `per_tick` (e2e: it needs the message's E2E CRC and alive counter)."""

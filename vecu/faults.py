@@ -14,7 +14,7 @@ Two levels, one injector:
 
 The injector holds at most one signal fault per signal and one frame fault per message, takes
 commands from code, scenarios, the CLI or the FI_Command CAN frame, and logs every change
-(`events`); the plant announces each change on the bus as an FI_Event frame (vecu/dbc/vecu.dbc).
+(`events`); the plant announces each change on the bus as an FI_Event frame (dbc/vecu.dbc).
 With no frame-stage fault active the plant's send path is untouched (`frame_stage_active`).
 """
 
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 
 
 class FaultTarget(enum.IntEnum):
-    """Values match FI_Target in vecu/dbc/vecu.dbc (the FI_Command frame's short names)."""
+    """Values match FI_Target in dbc/vecu.dbc (the FI_Command frame's short names)."""
 
     TPS = 1
     SWA = 2
@@ -328,7 +328,7 @@ FAULT_SOURCES = {"api": 0, "schedule": 1, "scenario": 1, "can": 2}
 
 def fault_event_signals(codec: DbcCodec, site: FaultSite, kind: int, active: int, source: str,
                         value: float | None) -> dict[str, float]:
-    """FI_Event signals for one fault start (active=1) or end (active=0); see vecu/dbc/vecu.dbc."""
+    """FI_Event signals for one fault start (active=1) or end (active=0); see dbc/vecu.dbc."""
     fc = codec[site.message] if site.message in codec else None  # noqa: SIM401 (no .get)
     index = 0
     if fc is not None and site.signal is not None:

@@ -75,8 +75,12 @@ def test_the_summary_answers_by_fault_kind_with_intervals_that_fit(campaign):
         assert g["metrics"]["detected"]["mean_ci95"][1] <= 1
     assert s["flagged_runs"] == [{"run_id": FALSE_ALARM_RUN, "sim_seed": str(1000 + FALSE_ALARM_RUN),
                                   "alarms": ["false_alarm"]}]
+    assert "p5" not in fa and "p50" in lat  # no percentiles of true/false values
     text = format_summary(s)
-    assert "by fault.kind:" in text and "run 33 (false_alarm)" in text
+    assert "by fault.kind (mean [95 % interval]):" in text and "run 33 (false_alarm)" in text
+    assert "mean [95 % confidence interval of the mean" in text
+    (fa_line,) = [ln for ln in text.splitlines() if ln.strip().startswith("false_alarm ")]
+    assert "p50" not in fa_line
 
 
 class _Images(HTMLParser):

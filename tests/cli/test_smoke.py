@@ -74,7 +74,7 @@ SMOKE: list[tuple[list[str], str]] = [
     (["run", "--duration", "0.3", "--set", "plant.manifold.engine.zeta=0.7"], r"300 ticks"),
     (["run", "--duration", "0.2"], r"fixed-lag smoother: no output yet.*\noutputs: add --plot"),
     (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
-    (["restbus", str(ROOT / "vecu" / "dbc" / "vecu.dbc"), "--node", "PLANT", "--duration", "1"],
+    (["restbus", str(ROOT / "dbc" / "vecu.dbc"), "--node", "PLANT", "--duration", "1"],
      r"vecu restbus: \d+ messages, \d+ frames in 1 s \(simulated clock"),
     (["plugins"], r"no plug-ins installed|\S+ +\S+ +\S+ +\S+:\S+ +(ok|NOT LOADED)"),
     (["conformance", "run", "--help"], r"usage: vecu conformance run .*--tester"),
@@ -82,6 +82,7 @@ SMOKE: list[tuple[list[str], str]] = [
     (["ecu", "--duration", "0.3", "--sync-timeout", "0", "--no-status", "--summary",
       "faulty.json", "--diag-fault", "pending=3@0.1", "--diag-fault", "fc_wait@request=2"],
      r"vecu ecu: 0\.\d s"),
+    (["dbc", "export", "dbcs", "--force"], r"dbcs/vecu\.dbc\ndbcs/vecu_truth\.dbc\ndbcs/vecu_all\.dbc"),
     (["a2l", "--out", "smoke.a2l"], (r"smoke\.a2l: \d+ characteristics \(\d+ calibratable "
                                      r"live\), \d+ measurements; XCP on CAN 0x7F0 -> 0x7F1")),
 ]

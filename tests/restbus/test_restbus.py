@@ -6,16 +6,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cantools
 import e2e as autosar_e2e
 import numpy as np
 import pytest
+from can.util import CAN_FD_DLC, dlc2len, len2dlc
 
+from vecu.cli import build_parser, run_command
 from vecu.clock import SimClock
 from vecu.e2e import AliveCounterCheck
 from vecu.errors import BadFileError
 from vecu.restbus.node import RestbusNode
 from vecu.restbus.session import RestbusRun, run_restbus
-from vecu.restbus.spec import RestbusConfig, build_plans
+from vecu.restbus.spec import TOO_LONG, RestbusConfig, build_plans
 from vecu.scheduler import Scheduler
 
 NS_PER_MS = 1_000_000
@@ -70,12 +73,50 @@ def test_every_thirdparty_dbc_is_a_restbus_with_exact_periods(thirdparty):
                 assert plan.period_ns == round(want)
             elif plan.send_type == "on_change":  # constant start values: once, at the start
                 assert times == [0], (path.name, fc.name)
+        db = cantools.database.load_file(str(path), strict=False)
         for msg in frames:  # frame format and length as the database says; payload decodes
             plan = next(p for p in plans if p.codec.frame_id == msg.arbitration_id
                         and p.codec.is_extended == msg.is_extended_id)
-            assert msg.is_fd == plan.codec.is_fd and len(msg.data) == plan.codec.length
-            plan.codec.decode(msg.data)
+            assert msg.is_fd == plan.codec.is_fd
+            # a frame the bus can carry (no byte beyond it lost), the database's length or the
+            # next valid CAN FD length; cantools, reading the file itself, decodes every signal
+            assert len(msg.data) in (CAN_FD_DLC if msg.is_fd else range(9)), (path.name, msg)
+            assert len(msg.data) == dlc2len(len2dlc(plan.codec.length)), (path.name, msg)
+            decoded = db.decode_message(msg.arbitration_id, msg.data, decode_choices=False,
+                                        force_extended_id=msg.is_extended_id)
+            spec = db.get_message_by_frame_id(msg.arbitration_id
+                                              | (0x80000000 if msg.is_extended_id else 0))
+            assert (decoded if spec.is_multiplexed() else set(decoded) == {
+                s.name for s in spec.signals}), (path.name, plan.name)
     assert ran == len(dbcs(thirdparty)) and 0 < refused < ran
+
+
+def test_a_message_longer_than_its_frame_is_refused_and_counted(thirdparty, capsys):
+    """variable_dlc.dbc's TestMessage2 has 10 bytes on a classic frame: never sent truncated
+    (its last signal lost), but named on `vecu restbus`'s one line and counted in the summary."""
+    path = str(thirdparty / "dbc" / "variable_dlc.dbc")
+    result = run_restbus(RestbusRun(RestbusConfig((path,), default_cycle_ms=10.0),
+                                    duration_s=0.1))
+    s = result.summary
+    assert s["refused_too_long"] == ["TestMessage2"]
+    assert s["skipped"]["TestMessage2"].startswith(TOO_LONG)
+    assert "10 bytes, a classic CAN frame carries 8" in s["skipped"]["TestMessage2"]
+    assert s["per_message"] == {"TestMessage1": 10} and s["encode_errors"] == 0
+    assert run_command(build_parser().parse_args(
+        ["restbus", path, "--default-cycle", "10", "--duration", "0.1"])) == 0
+    out = capsys.readouterr()
+    assert out.out.count("TestMessage2") == 1 and not out.err
+    assert "not sent: 1 (too long for its frame: 10 bytes" in out.out
+
+
+def test_a_long_message_marked_can_fd_goes_out_as_can_fd(tmp_path):
+    """The same 10 bytes where the database says CAN FD: sent, padded to 12 (a valid FD length)."""
+    dbc = tmp_path / "fd10.dbc"
+    dbc.write_text(FD10_DBC)
+    _, node, frames = collect(RestbusConfig((str(dbc),), default_cycle_ms=10.0), 0.05)
+    assert frames and all(m.is_fd and len(m.data) == 12 for m in frames)
+    db = cantools.database.load_file(str(dbc))
+    assert db.decode_message(0x123, frames[0].data)["Last"] == 5
 
 
 def test_multiplexed_messages_cycle_through_every_multiplexer_selection(thirdparty):
@@ -241,3 +282,17 @@ def test_every_message_of_every_thirdparty_dbc_is_sent_or_skipped_with_its_reaso
             assert planned | set(skipped) == {fc.name for fc in db.by_id.values()}, path.name
             reasons |= set(skipped.values())
     assert "no cycle time" in reasons and "no sender and no cycle time" in reasons, reasons
+
+
+FD10_DBC = """VERSION ""
+BS_:
+BU_: Test
+BO_ 291 Fd10: 10 Test
+ SG_ First : 0|8@1+ (1,0) [0|255] "" Vector__XXX
+ SG_ Last : 72|8@1+ (1,0) [0|255] "" Vector__XXX
+BA_DEF_ BO_ "VFrameFormat" ENUM "StandardCAN","ExtendedCAN","reserved","reserved","reserved","reserved","reserved","reserved","reserved","reserved","reserved","reserved","reserved","reserved","StandardCAN_FD","ExtendedCAN_FD";
+BA_DEF_DEF_ "VFrameFormat" "StandardCAN";
+BA_ "VFrameFormat" BO_ 291 14;
+BA_DEF_ SG_ "GenSigStartValue" INT 0 255;
+BA_ "GenSigStartValue" SG_ 291 Last 5;
+"""

@@ -40,3 +40,16 @@ def test_report_of_a_scenario_named_with_a_slash(tmp_path: Path, capsys) -> None
     assert plots == [plot_file_name("tps/dead ../x")]
     assert f'src="{plots[0]}"' in (report / "index.html").read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "s.toml"]
+
+
+def test_dtc_histories_are_tables(tmp_path: Path, capsys) -> None:
+    """Each sensor's DTC history in the report is a table of (time, state), not a Python repr."""
+    scenario = tmp_path / "s.toml"
+    scenario.write_text('name = "dtc"\nduration_s = 0.8\n[[faults]]\ntarget = "tps"\n'
+                        'kind = "dead"\nstart_s = 0.2\n')
+    report = tmp_path / "report"
+    assert main(["scenario", "run", str(scenario), "--report", str(report), "--quiet"]) == 0
+    page = (report / "index.html").read_text()
+    assert "<th>time</th><th>DTC state</th>" in page
+    assert "<td>confirmed</td>" in page and "('confirmed'" not in page
+    assert "[(" not in page

@@ -64,7 +64,7 @@ def _quantile_ci(x: np.ndarray, q: float) -> tuple[float, float]:
 
 def describe(x: np.ndarray, binary: bool = False) -> dict[str, Any]:
     """n, mean and its 95 % interval (kind: proportion, constant or continuous), std, extremes,
-    5/50/95 % percentiles with their intervals."""
+    5/50/95 % percentiles with their intervals (not for a proportion)."""
     n = len(x)
     if n == 0:
         return {"n": 0}
@@ -81,6 +81,8 @@ def describe(x: np.ndarray, binary: bool = False) -> dict[str, Any]:
         ci, method = mean_interval(x)
         out.update(kind="continuous", mean_ci95=ci, ci_method=method)
     out.update(std=sd, min=float(x.min()), max=float(x.max()))
+    if binary:  # the percentiles of true/false values are 0 or 1: the share says it all
+        return out
     for q in (0.05, 0.5, 0.95):
         out[f"p{round(q * 100)}"] = float(np.quantile(x, q))
         out[f"p{round(q * 100)}_ci95"] = list(_quantile_ci(x, q))
@@ -144,9 +146,10 @@ def _figure():
 
 
 def _hist_png(data: list[np.ndarray], labels: list[str], title: str, path: Path,
-              panels: bool = False) -> None:
+              panels: bool = False, xlabel: str = "") -> None:
     """Histograms of `data` on shared bins: overlaid, or (panels) one panel per array stacked
-    on a shared x axis with its mean marked, as the paper's Figs. 4 and 5."""
+    on a shared x axis with its mean marked, as the paper's Figs. 4 and 5; xlabel: the metric
+    (with its unit) the x axis carries."""
     plt = _figure()
     filled = [d for d in data if len(d)]
     allv = np.concatenate(filled) if filled else np.zeros(1)
@@ -167,6 +170,7 @@ def _hist_png(data: list[np.ndarray], labels: list[str], title: str, path: Path,
             ax.set_title(f"{n}: {len(d)} runs, mean {significant(float(d.mean())) if len(d) else '-'}",
                          fontsize=9, loc="left")
         fig.suptitle(title, fontsize=10)
+        axes[-1, 0].set_xlabel(xlabel or title, fontsize=9)
         if log_x:
             axes[-1, 0].set_xscale("log")
     else:
@@ -175,6 +179,7 @@ def _hist_png(data: list[np.ndarray], labels: list[str], title: str, path: Path,
             if len(d):
                 ax.hist(d, bins=bins, histtype="step", linewidth=1.4, label=n)
         ax.set_title(title, fontsize=10)
+        ax.set_xlabel(xlabel or title)
         ax.set_ylabel("runs")
         ax.legend(fontsize=8)
         if log_x:
@@ -250,9 +255,9 @@ def _drive_figures(spec: CampaignSpec, rows: list[dict[str, str]], summary: dict
                      out / name)
         elif cats:
             data = [column([r for r in ok if r.get(col) == v], m) for v in present]
-            _hist_png(data, present, f"{m} by {col[5:]}", out / name, panels=True)
+            _hist_png(data, present, f"{m} by {col[5:]}", out / name, panels=True, xlabel=m)
         else:
-            _hist_png([column(rows, m)], [m], m, out / name)
+            _hist_png([column(rows, m)], [m], m, out / name, xlabel=m)
         figs.append((name, m))
     return figs
 
@@ -272,7 +277,9 @@ def write_report(spec: CampaignSpec, rows: list[dict[str, str]], summary: dict[s
                     "6-event CAC prediction error")
             names = [f"{m}_{k}" for m in METHODS]
             _hist_png([column(rows, n) for n in names], names, f"{what} ({len(rows)} runs)",
-                      out / name, panels=True)
+                      out / name, panels=True,
+                      xlabel=f"integrated {'|error|' if k == 'iae' else 'error²'} of the 6-event "
+                             "CAC prediction over the drive (Dutka 2006 Table 3's measure)")
             figs.append((name, what))
     else:
         figs = _drive_figures(spec, rows, summary, out)
@@ -375,12 +382,15 @@ def format_summary(summary: dict[str, Any]) -> str:
         lines.append("paper (Table 3, 2000 runs): direct OL-T 3646 / 13265, direct 4850 / 23385, "
                      "SDKF 3222 / 11487, EKF 3230 / 11516 (ratios SDKF 0.88 / 0.87 to OL-T)")
     else:
+        lines.append("  metric: runs, mean [95 % confidence interval of the mean; a true/false "
+                     "metric: its share]; p5 / p50 / p95 of the runs")
         for m, d in summary["metrics"].items():
             if d.get("n"):
-                lines.append(f"  {m:<22} n {d['n']:>5}  {_value(d)}  p5 {d['p5']:.4g}  "
-                             f"p50 {d['p50']:.4g}  p95 {d['p95']:.4g}")
+                pct = (f"  p5 {d['p5']:.4g}  p50 {d['p50']:.4g}  p95 {d['p95']:.4g}"
+                       if "p5" in d else "")
+                lines.append(f"  {m:<22} n {d['n']:>5}  {_value(d)}{pct}")
         for path, groups in summary.get("by", {}).items():
-            lines.append(f"by {path}:")
+            lines.append(f"by {path} (mean [95 % interval]):")
             for value, g in groups.items():
                 cells = [f"{m} {_value(d)}" for m, d in g["metrics"].items()
                          if d.get("n") and d["kind"] != "constant"]

@@ -21,7 +21,7 @@ from vecu.errors import BadArgumentError, Interrupted, UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
                "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway",
-               "plugins", "conformance")
+               "plugins", "conformance", "dbc")
 KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario",
                    "campaign", "excite", "identify", "figures")  # use estimators
 

@@ -66,6 +66,15 @@ def check_outputs(**paths: str | None) -> None:
         seen[key] = flag
 
 
+def check_output_dir(path: str) -> None:
+    """A positional output directory (`vecu scenario copy NAME DIR`, `vecu dbc export DIR`):
+    the same check as an out_dir option's, its error named by the path alone."""
+    try:
+        check_outputs(dir=OutputPath(path, "dir", ()))
+    except BadFileError as exc:
+        raise BadFileError(exc.path, exc.problem) from None
+
+
 def _check_one(path: str, flag: str, kind: str, suffixes: tuple[str, ...]) -> None:
     if kind == "dir":
         _check_dir(path)

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_live_arguments(p)
     add_set_option(p, "plant.*")
     p.add_argument("--truth", action="store_true",
-                   help="also send the debug truth frames (vecu/dbc/vecu_truth.dbc)")
+                   help="also send the debug truth frames (dbc/vecu_truth.dbc)")
     p.add_argument("--extra-load", type=argtypes.bounded(0.0, 100_000.0), default=0.0, metavar="FRAMES_PER_S",
                    help="pad the bus with this many extra ESC_Motion frames per second (copies of "
                         "the current one), for throughput tests; needs the speed part")

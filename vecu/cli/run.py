@@ -23,9 +23,12 @@ if TYPE_CHECKING:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run plant, fault injector and virtual ECU on a CAN bus",
-                       description="Run the throttle plant, the fault injector and the virtual ECU "
-                                   "on one python-can bus (default: in-process virtual bus, "
-                                   "simulated clock).")
+                       description="Run the plant (throttle body, one car's longitudinal and "
+                                   "lateral motion, V8 intake manifold), the fault injector and "
+                                   "the virtual ECU with its estimators (throttle, speed, "
+                                   "steering, manifold) on one python-can bus (default: "
+                                   "in-process virtual bus, simulated clock); prints each figure "
+                                   "against its reference.")
     p.add_argument("--duration", type=argtypes.run_seconds, default=10.0, metavar="S",
                    help=f"seconds, {argtypes.TICK_S:g}..{argtypes.RUN_MAX_S:g} (default 10)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed, 0..2**63-1 (default 0)")
@@ -34,10 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bitrate", type=argtypes.positive_int, help="bitrate for interfaces that need one")
     p.add_argument("--kill-tps-at", type=argtypes.kill_time, default="half", metavar="T",
                    help="inject the TPS fault at T s, or 'none' (default: half the duration)")
-    p.add_argument("--fault", default="dead",
-                   help="dead, short_supply, stuck, frames_stop, offset, gain, noise (default dead)")
+    p.add_argument("--fault", default="dead", metavar="KIND",
+                   help=f"TPS fault kind (default dead): {kinds_help()}")
     p.add_argument("--fault-value", type=argtypes.finite, metavar="X",
-                   help="offset in V (default 0.5), gain G in [0,1] (0.5), noise sigma in V (0.3)")
+                   help="the kind's value (see --fault; the TPS's unit: V)")
     p.add_argument("--kill-swa-at", type=argtypes.kill_time, default=None, metavar="T",
                    help="inject an SWA sensor fault at T s (default: none)")
     p.add_argument("--swa-fault", default="dead", metavar="KIND",
@@ -57,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", action="store_true", help="pace on the wall clock instead of simulated time")
     p.add_argument("--log", type=argtypes.out_log, metavar="FILE", help="write every frame; format by suffix (.log .asc .blf .mf4 ...)")
     p.add_argument("--no-truth", dest="truth", action="store_false",
-                   help="leave the debug truth frames (vecu/dbc/vecu_truth.dbc) out of --log")
+                   help="leave the debug truth frames (dbc/vecu_truth.dbc) out of --log")
     p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--plot", type=argtypes.out_plot, metavar="FILE.png", help="write a truth-vs-estimate plot")
     p.add_argument("--gateway", metavar="GATEWAY.toml",
@@ -126,6 +129,20 @@ def main(args: argparse.Namespace) -> int:
 OUTPUTS = (("plot", "--plot FILE.png"), ("log", "--log FILE.blf"), ("summary", "--summary FILE.json"))
 
 
+def kinds_help() -> str:
+    """Every fault kind with what its value means and its default (vecu.fault_kinds' records)."""
+    from vecu.fault_kinds import FaultKind
+
+    def value(k: FaultKind) -> str:
+        meaning = k.spec.meaning
+        if not meaning:
+            return ""
+        return f" (X: {meaning})" if "default" in meaning else \
+            f" (X: {meaning}, default {k.default:g})"
+    return ", ".join(k.label + value(k)
+                     for k in FaultKind if k is not FaultKind.CLEAR)
+
+
 def outputs_line(**given: str | None) -> str:
     """Where the run's evidence went, and the options that would keep the rest."""
     kept = [f"{what} {given[what]}" for what, _ in OUTPUTS if given.get(what)]
@@ -143,35 +160,74 @@ def format_summary(s: RunSummary) -> str:
     fr = s.frames
     load = (f"; kernels loaded in {s.kernel_load_s:.1f} s before, not counted"
             if s.kernel_load_s else "")
-    lines = [(f"vecu run: {s.sim_time_s:.3f} s in {s.wall_time_s:.2f} s wall "
-             f"({s.x_realtime}x real time, {s.kernels} kernels{load}), {s.ticks} ticks, "
+    lines = [(f"vecu run: {s.sim_time_s:.3f} s simulated in {s.wall_time_s:.2f} s wall "
+             f"({s.x_realtime}x real time, {s.kernels} kernels{load}), {s.ticks} ticks of 1 ms, "
              f"{s.overruns} overruns")]
     if det.kill_time_s is None:
         lines.append("TPS: no fault injected")
     elif det.detected:
         lines.append(f"TPS fault '{th.fault}' at {det.kill_time_s:.3f} s: detected as "
-                     f"{det.detected_as} after {det.detection_latency_ms:.1f} ms; "
+                     f"{det.detected_as} after {det.detection_latency_ms:.1f} ms (the sensor is "
+                     f"read every 1 ms); "
                      f"broadcasting the {th.final_source} (status {th.final_status})")
     else:
         lines.append(f"TPS fault '{th.fault}' at {det.kill_time_s:.3f} s: NOT detected")
     if det.false_alarm:
         lines.append(f"WARNING: TPS fault reported before any injection (at {det.detection_time_s} s)")
+    lines.append("throttle angle error against the true angle, deg (mean ± std; the angle "
+                 "spans 0-90 deg):")
+    sources = {"before fault": "TPS sensor", "after fault": th.final_source}
     for phase, label in ((th.before_kill, "before fault"), (th.after_kill, "after fault")):
         b, e = phase.broadcast_error_deg, phase.estimate_error_deg
         if b.n:
-            lines.append(f"  {label:12s} broadcast error {b.mean:+6.2f} ± {b.std:5.2f} deg | "
-                         f"estimator ({th.estimator}) {e.mean:+6.2f} ± {e.std:5.2f} deg")
+            what = f"broadcast ({sources[label]})"
+            lines.append(f"  {label:12s} {what:22s} {b.mean:+6.2f} ± "
+                         f"{b.std:5.2f} | {th.estimator} estimator {e.mean:+6.2f} ± {e.std:5.2f}")
+    lines.append("  " + throttle_verdict(s))
     rx = fr.ecu_rx
     lines.append(f"frames: sent {fr.sent} (plant {fr.plant_sent}, ecu {fr.ecu_sent}), "
                  f"ECU received {fr.received}, rejected {fr.rejected} "
                  f"(dlc {rx['dlc_errors']}, crc {rx['crc_errors']}, counter {rx['counter_errors']}, "
                  f"value {rx['value_errors']}, unknown id {rx['unknown_id']})")
     lines.append(f"broadcast: {th.missing_broadcasts} missing ticks, {th.nan_outputs} NaN")
-    for section in s.functions.values():  # the other functions, each in its own words
+    for name, section in s.functions.items():  # the other functions, each in its own words
         lines.extend(section.lines())
+        if name == "manifold":
+            lines.append("  " + manifold_verdict(s))
     if s.gateway is not None:
         lines.extend(gateway_lines(s.gateway))
     return "\n".join(lines)
+
+
+# the paper's filter as reference: Vargas 2015's ARM UKF run by `vecu eval throttle` (200 k steps,
+# noise scale 1), error std against the true angle; README 'Determinism and numbers'
+PAPER_UKF_STD_DEG = 12.2
+
+
+def throttle_verdict(s: RunSummary) -> str:
+    """The estimator's error against its reference, the paper's ARM UKF (at noise scale 1)."""
+    th = s.throttle
+    phase = th.after_kill if th.after_kill.estimate_error_deg.n else th.before_kill
+    std = phase.estimate_error_deg.std
+    if s.config.get("noise_scale") != 1.0 or th.estimator == "arm":
+        return (f"verdict: estimator std {std:.2f} deg (the paper's ARM UKF reference, "
+                f"{PAPER_UKF_STD_DEG} deg, holds for the production estimator at noise scale 1)")
+    word = "better than" if std < PAPER_UKF_STD_DEG else "NOT better than"
+    return (f"verdict: estimator std {std:.2f} deg, {word} the paper's ARM UKF "
+            f"({PAPER_UKF_STD_DEG} deg at noise scale 1, `vecu eval throttle`)")
+
+
+def manifold_verdict(s: RunSummary) -> str:
+    """P_im against its raw sensor: the MAP sensor's noise (Dutka 2006 Section IV, R_Pim)."""
+    from vecu.config import ParamTree
+
+    rms = s.functions["manifold"].p_im_error_kpa.rms
+    if any(k.startswith("plant.manifold") for k in s.config.get("params", {})):
+        return f"verdict: P_im {rms:.3f} kPa (no reference: the plant's manifold is changed)"
+    sigma = ParamTree().plant.manifold.noise.r_pim ** 0.5
+    word = "better than" if rms < sigma else "NOT better than"
+    return (f"verdict: P_im {rms:.3f} kPa, {word} the raw MAP sensor (noise σ {sigma:.3f} kPa, "
+            "Dutka 2006 Section IV)")
 
 
 def gateway_lines(figures: dict) -> list[str]:

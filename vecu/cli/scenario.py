@@ -31,6 +31,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "progress of a long scenario every 2 s)")
     r.set_defaults(func=main)
     register_list_show(ssub, "scenario")
+    c = ssub.add_parser("copy", help="copy a shipped scenario and its companion files to edit",
+                        description="Copy scenario NAME (shipped, or a file) into DIR with every "
+                                    "file it names by a relative path (restbus databases, E2E "
+                                    "and values files), at the same relative places: "
+                                    "`vecu scenario run DIR/NAME.toml` runs the copy as is.")
+    c.add_argument("name", metavar="NAME", help="a shipped scenario (`vecu scenario list`) or a file")
+    c.add_argument("dir", metavar="DIR", help="directory to copy into (created if missing)")
+    c.add_argument("--force", action="store_true", help="overwrite files of the same names")
+    c.set_defaults(func=copy_main, uses_kernels=False)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -64,3 +73,36 @@ def main(args: argparse.Namespace) -> int:
     print(f"vecu scenario: {len(outcomes) - len(failed)}/{len(outcomes)} passed"
           + (f"; failed: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0
+
+
+def copy_main(args: argparse.Namespace) -> int:
+    """`vecu scenario copy NAME DIR`: the file and its companions, nothing rewritten."""
+    import shutil
+
+    from vecu.cli.outputs import check_output_dir
+    from vecu.scenario.loader import companion_files
+    from vecu.shipped import resolve
+
+    check_output_dir(args.dir)  # a directory vecu can create and write, before any work
+    source = resolve("scenario", args.name)
+    out = Path(args.dir)
+    pairs = [(source, out / source.name)]
+    for rel in companion_files(source):
+        src, dst = source.parent / rel, out / rel
+        if not src.is_file():
+            raise BadFileError(str(source), f"names {rel}, which is not a file beside it")
+        if not dst.resolve().is_relative_to(out.resolve()):
+            raise BadFileError(str(source), f"names {rel}, outside its folder: copy it by hand")
+        pairs.append((src, dst))
+    clash = [str(d) for _, d in pairs if d.exists()]
+    if clash and not args.force:
+        raise BadFileError(clash[0], "exists (--force overwrites)")
+    try:
+        for src, dst in pairs:
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, dst)
+    except OSError as exc:
+        raise BadFileError(args.dir, f"cannot write: {exc.strerror}") from None
+    for _, dst in pairs:
+        print(dst)
+    return 0

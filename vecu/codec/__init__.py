@@ -15,6 +15,7 @@ from vecu.codec.database import (
     DEFAULT_DBC,
     TRUTH_DBC,
     DbcCodec,
+    builtin_dbc_dir,
     builtin_dbc_path,
     load_database,
     shared_codec,
@@ -25,6 +26,7 @@ from vecu.codec.signals import ArxmlE2E, SignalInfo
 
 __all__ = [
     "DEFAULT_DBC", "TRUTH_DBC", "ArxmlE2E", "BlockChecks", "BlockField", "BlockLayout", "DbcCodec",
-    "DbcLoadError", "E2ELayout", "FrameCodec", "Framer", "SignalInfo", "builtin_dbc_path",
+    "DbcLoadError", "E2ELayout", "FrameCodec", "Framer", "SignalInfo", "builtin_dbc_dir",
+    "builtin_dbc_path",
     "load_database", "shared_codec",
 ]

@@ -4,7 +4,6 @@ messages compiled once (vecu.codec.message.FrameCodec), looked up by name or by 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from importlib import resources
 from pathlib import Path
 
 import can
@@ -19,9 +18,17 @@ DEFAULT_DBC = "vecu.dbc"
 TRUTH_DBC = "vecu_truth.dbc"  # debug truth frames, sent only when recording
 
 
+def builtin_dbc_dir() -> Path:
+    """The folder of vecu's own DBCs: vecu/dbc/ inside an installed wheel (the build maps the
+    checkout's top-level dbc/ there: pyproject.toml's package-dir), else the checkout's dbc/
+    itself (an editable install or PYTHONPATH: the one source, never a copy)."""
+    packaged = Path(__file__).resolve().parents[1] / "dbc"
+    return packaged if packaged.is_dir() else packaged.parents[1] / "dbc"
+
+
 def builtin_dbc_path(name: str = DEFAULT_DBC) -> Path:
-    """Path of a DBC shipped with vecu (package data in vecu/dbc/)."""
-    return Path(str(resources.files("vecu.dbc").joinpath(name)))
+    """Path of a DBC shipped with vecu (dbc/ in the checkout, vecu/dbc/ in the wheel)."""
+    return builtin_dbc_dir() / name
 
 
 _ADD_BY_SUFFIX = {".arxml": "add_arxml_file", ".kcd": "add_kcd_file", ".sym": "add_sym_file"}
@@ -120,6 +127,11 @@ class DbcCodec:
 
     def lookup(self, msg: can.Message) -> FrameCodec | None:
         return self.by_id.get((msg.arbitration_id, msg.is_extended_id))
+
+    def dbc_text(self) -> str:
+        """Every message of this codec, at its instance's IDs, as one DBC text that cantools
+        loads alone (`vecu dbc export`: decoding a trace needs one file)."""
+        return str(self._db.as_dbc_string())
 
     def sent_by(self, node: str) -> set[tuple[int, bool]]:
         """(CAN ID, extended) of every message the DBC(s) give `node` as a sender."""

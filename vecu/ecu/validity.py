@@ -1,5 +1,5 @@
 """One validity state for every estimate the ECU shows: the CAN broadcast (the `*_Validity`
-signals of vecu/dbc/vecu.dbc, one value table), the UDS DIDs (`0x0n0F`, one byte) and the replay
+signals of dbc/vecu.dbc, one value table), the UDS DIDs (`0x0n0F`, one byte) and the replay
 scoring (vecu.replay.scoring) read the same codes.
 
 0 init: the filter has not been initialised from its first measurements; the value and its

@@ -27,8 +27,12 @@ def make(out: Path, quick: bool = False) -> list[tuple[Path, str]]:
         sv.append(np.linalg.svd(S, compute_uv=False))
     sv_db = 20 * np.log10(np.array(sv))
     fig, ax = plt.subplots(figsize=(8, 4))
-    ax.semilogx(ws, sv_db)
-    ax.axhline(design.peak.db, color="r", ls=":", lw=0.8)
+    lines = ax.semilogx(ws, sv_db)
+    for k, line in enumerate(lines):
+        line.set_label(f"σ{k + 1}(S(jω))" + (" (largest)" if k == 0 else ""))
+    ax.axhline(design.peak.db, color="r", ls=":", lw=0.8,
+               label=f"peak {design.peak.db:.2f} dB (paper 2.41 dB)")
+    ax.legend(fontsize=8, loc="lower right")
     ax.set_xlabel("frequency (rad/s)")
     ax.set_ylabel("singular values of S (dB)")
     ax.set_title(f"Hernandez 2005 Fig. 5: sensitivity singular values, q = 100: peak "

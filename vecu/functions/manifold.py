@@ -46,11 +46,12 @@ class ManifoldSummary:
 
     def lines(self) -> list[str]:
         """For `vecu run`'s printed summary."""
-        return [(f"manifold ({self.filter}, {self.events} engine events, {self.lost_events} lost): "
-                 f"P_im RMS {self.p_im_error_kpa.rms:.3f} kPa, T_im {self.t_im_error_k.rms:.2f} K, "
-                 f"CAC {self.cac_error_mg.rms:.2f} mg, 6-event CAC prediction "
+        return [(f"manifold ({self.filter}, {self.events} engine events, "
+                 f"{self.lost_events} lost), RMS error against the true value: "
+                 f"P_im {self.p_im_error_kpa.rms:.3f} kPa, T_im {self.t_im_error_k.rms:.2f} K, "
+                 f"CAC {self.cac_error_mg.rms:.2f} mg per cylinder; 6-event CAC prediction "
                  f"{self.cac_pred6_abs_error_pct.mean:.2f} % mean |error|; "
-                 f"{self.filter_us_per_event + self.cac_prediction_us_per_event:.0f} us/event "
+                 f"{self.filter_us_per_event + self.cac_prediction_us_per_event:.0f} us per event "
                  "(filter, CAC and prediction)")]
 
 

@@ -73,10 +73,14 @@ class SteeringSummary:
         det = self.detection
         smoothed = ("fixed-lag smoother: no output yet (the run is shorter than its lag)"
                     if self.smoother_lag_ms is None else
-                    f"fixed-lag smoother ({self.smoother_lag_ms} ms behind) "
-                    f"{self.swa_smoothed_error_deg.rms:.2f} deg")
-        line = (f"steering: SWA UKF RMS {self.swa_ukf_error_deg.rms:.2f} deg, {smoothed}, "
-                f"side-slip {self.side_slip_ukf_error_deg.rms:.3f} deg")
+                    f"fixed-lag smoother ({self.smoother_lag_ms:g} ms behind) "
+                    f"{self.swa_smoothed_error_deg.rms:.2f} deg"
+                    + (f" ({self.swa_ukf_error_deg.rms / self.swa_smoothed_error_deg.rms:.1f}x "
+                       "better than the live UKF)" if self.swa_smoothed_error_deg.rms else ""))
+        line = (f"steering, RMS error against the truth: steering-wheel angle (SWA) from yaw "
+                f"rate and lateral acceleration, live UKF {self.swa_ukf_error_deg.rms:.2f} deg "
+                f"(the fallback for the SWA sensor), {smoothed}; side-slip "
+                f"{self.side_slip_ukf_error_deg.rms:.3f} deg")
         if det.kill_time_s is not None:
             after = self.swa_broadcast_error_deg.after_kill
             line += (f"; SWA fault '{self.fault}' at {det.kill_time_s:.2f} s "
@@ -177,15 +181,21 @@ def _probe(part: LateralPart, fn: SteeringFunction, config: RunConfig,
 
 
 def _plot(st: SteeringSeries, ax: Any) -> None:
-    ax.plot(st.t_s, st.swa_sensor, color="tab:gray", lw=0.6, alpha=0.7, label="SWA sensor")
-    ax.plot(st.t_s, st.swa_true, color="black", lw=1.0, label="true SWA")
-    ax.plot(st.t_s, st.swa_est, color="tab:orange", lw=0.8, label="UKF estimate")
-    ax.plot(st.t_s, st.swa_broadcast, color="tab:red", lw=0.8, ls="--", label="broadcast")
+    # the noisy UKF estimate at the bottom, the truth wide and pale over it, so that the sensor
+    # and the broadcast that follow the truth closely stay visible on top (thin, dashed)
+    ax.plot(st.t_s, st.swa_est, color="tab:orange", lw=0.7, alpha=0.8, label="UKF estimate",
+            zorder=1)
+    ax.plot(st.t_s, st.swa_true, color="black", lw=2.4, alpha=0.3, label="true SWA", zorder=2)
+    ax.plot(st.t_s, st.swa_sensor, color="tab:blue", lw=0.7, label="SWA sensor", zorder=3)
+    ax.plot(st.t_s, st.swa_broadcast, color="tab:red", lw=0.9, ls=(0, (4, 3)),
+            label="broadcast", zorder=4)
     on_est = st.source == 1
     if on_est.any():
         ax.fill_between(st.t_s, 0, 1, where=on_est, transform=ax.get_xaxis_transform(),
                         color="tab:red", alpha=0.07, lw=0, label="broadcasting estimate")
     ax.set_ylabel("steering wheel (deg)")
+    lo, hi = ax.get_ylim()  # head room for the legend, above the traces rather than over them
+    ax.set_ylim(lo, hi + 0.35 * (hi - lo))
     ax.legend(loc="upper right", fontsize=8, ncol=5)
 
 

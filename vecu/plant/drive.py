@@ -140,7 +140,7 @@ class LongitudinalPart:
     of the drive at each tick; without a drive it makes its own from seed and sequence.
     """
 
-    truth_message = "TRUTH_Speed"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
+    truth_message = "TRUTH_Speed"  # its truth frame (dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "longitudinal"
     period_ns = 2 * NS_PER_MS
 

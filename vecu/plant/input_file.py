@@ -19,7 +19,7 @@ import numpy as np
 from vecu.errors import BadFileError
 
 T_COLUMN, U_COLUMN = "t_s", "u_V"
-U_MAX_V = 12.0  # the range of ETB_Voltage in vecu/dbc/vecu.dbc: what the wattmeter frame can carry
+U_MAX_V = 12.0  # the range of ETB_Voltage in dbc/vecu.dbc: what the wattmeter frame can carry
 CHUNK = 1000  # samples interpolated at a time
 
 

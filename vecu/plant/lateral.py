@@ -397,7 +397,7 @@ class LateralPart:
     accelerometer, speed) and the E2E-protected SWA_Sensor every 10 ms (sample t_ns / 10 ms of
     DrivenLateral). The fault injector acts on the SWA sensor (deg)."""
 
-    truth_message = "TRUTH_Steering"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
+    truth_message = "TRUTH_Steering"  # its truth frame (dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "lateral"
     period_ns = 10 * NS_PER_MS
 

@@ -36,7 +36,7 @@ class ManifoldPart:
     The engine speed and throttle setpoint are the drive's (vecu.plant.drive: the driveline
     behind the car's speed), one leg's profile after the other on the drive's clock."""
 
-    truth_message = "TRUTH_Manifold"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
+    truth_message = "TRUTH_Manifold"  # its truth frame (dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "manifold"
 
     def __init__(self, codec: DbcCodec, seed: int,
@@ -136,7 +136,7 @@ class PlantNode(BusNode):
         return frozenset({self._fi_key})
 
     def enable_truth(self, codec: DbcCodec) -> None:
-        """Send the debug truth frames of vecu/dbc/vecu_truth.dbc next to each part's sensor frames."""
+        """Send the debug truth frames of dbc/vecu_truth.dbc next to each part's sensor frames."""
         for part in [*self.parts, self.manifold]:
             name = getattr(part, "truth_message", None)  # a part's class names its truth frame
             if name is not None:
@@ -171,7 +171,7 @@ class PlantNode(BusNode):
         return True
 
     def _announce_faults(self) -> None:
-        """One FI_Event frame (vecu/dbc/vecu.dbc) per fault start / end, so a trace carries them."""
+        """One FI_Event frame (dbc/vecu.dbc) per fault start / end, so a trace carries them."""
         events = self.injector.events
         new, self._announced = events[self._announced:], len(events)
         if self._fi_event is None:

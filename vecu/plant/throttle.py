@@ -215,7 +215,7 @@ class ThrottlePart:
     on its own.
     """
 
-    truth_message = "TRUTH_Throttle"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
+    truth_message = "TRUTH_Throttle"  # its truth frame (dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "throttle"
     period_ns = NS_PER_MS
     AHEAD = 500  # ticks per ThrottlePlant.ticks call

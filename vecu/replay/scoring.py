@@ -1,5 +1,5 @@
 """Score a trace from frames alone: the ECU's estimate frames against the plant's debug truth
-frames (vecu/dbc/vecu_truth.dbc) recorded in the same trace.
+frames (dbc/vecu_truth.dbc) recorded in the same trace.
 
 Pairing: an estimate at time t is compared with the newest truth frame at or before t, if that
 truth is at most one period of its message old (each function's TruthChannel in its registry

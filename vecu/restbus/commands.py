@@ -1,4 +1,4 @@
-"""Live disturbance commands: the RB_Command frame (vecu/dbc/vecu.dbc, 0x6F2) that `vecu inject
+"""Live disturbance commands: the RB_Command frame (dbc/vecu.dbc, 0x6F2) that `vecu inject
 --restbus` sends and a running `vecu restbus` obeys.
 
 The target message is named by its CAN ID and frame format, its signal by a 1-based index

@@ -206,7 +206,7 @@ class Override(Disturbance):
 
 @dataclass(frozen=True)
 class Kind:
-    """One disturbance kind: class, FI_EvKind code (vecu/dbc/vecu.dbc), default value, bounds."""
+    """One disturbance kind: class, FI_EvKind code (dbc/vecu.dbc), default value, bounds."""
 
     cls: type[Disturbance]
     code: int

@@ -7,7 +7,7 @@ protects the payload with the message's profile (vecu.e2e, autosar-e2e), passes 
 active disturbances and sends it. On-change messages are polled at their cycle and sent when
 their payload changes (and once at the start); if-active messages are sent at their cycle while
 a signal differs from its start value. Disturbance starts and ends go on the bus as FI_Event
-frames (vecu/dbc/vecu.dbc), the same record vecu's own faults leave.
+frames (dbc/vecu.dbc), the same record vecu's own faults leave.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import Any, Protocol
 
 import can
 import numpy as np
+from can.util import CAN_FD_DLC, dlc2len, len2dlc
 
 from vecu.can_message import message
 from vecu.codec import FrameCodec
@@ -199,6 +200,8 @@ class RestbusNode:
             st.counter = (st.counter + step) % modulo
         for d in active:
             buf = d.payload(buf, prot)
+        if fc.is_fd and len(buf) not in CAN_FD_DLC:  # e.g. 10 bytes: padded to 12, a valid length
+            buf += bytes(dlc2len(len2dlc(len(buf))) - len(buf))
         return message(t_s, fc.frame_id, fc.is_extended, buf, fc.is_fd)
 
     # ---------------------------------------------------------------- disturbances

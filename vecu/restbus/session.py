@@ -18,7 +18,7 @@ from vecu.faults import ScheduledFault
 from vecu.recorder import Recorder
 from vecu.restbus.commands import CommandListener
 from vecu.restbus.node import RestbusNode, schedule_disturbances
-from vecu.restbus.spec import NO_CYCLE, RestbusConfig, build_plans
+from vecu.restbus.spec import NO_CYCLE, TOO_LONG, RestbusConfig, build_plans
 from vecu.rng import rng_streams
 from vecu.scheduler import Scheduler
 
@@ -117,6 +117,8 @@ def run_restbus(run: RestbusRun, on_second: Callable[[float], None] | None = Non
                    "wall_s": round(wall, 4), "clock": "wall" if run.realtime else "simulated",
                    "interrupted": interrupted,
                    "skipped_no_cycle_time": [n for n, why in skipped.items() if why == NO_CYCLE],
+                   "refused_too_long": [n for n, why in skipped.items()
+                                        if why.startswith(TOO_LONG)],
                    "skipped": skipped,  # every message of the databases not sent: its reason
                    "send_errors": errors[0], "overruns": sched.overruns,
                    "logged": recorder.frames if recorder else None, **node.summary(),

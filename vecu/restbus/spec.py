@@ -70,6 +70,19 @@ def _db_label(cfg: RestbusConfig) -> str:
 
 
 NO_CYCLE = "no cycle time"  # the reason of a chosen message that is not sent (--default-cycle)
+TOO_LONG = "too long for its frame"  # the reason of a message no CAN frame can carry
+CLASSIC_MAX, FD_MAX = 8, 64  # data bytes of a classic CAN / CAN FD frame (ISO 11898-1)
+
+
+def frame_problem(fc: FrameCodec) -> str | None:
+    """Why the message cannot go on the bus as its database defines it (None: it fits): a
+    classic frame carries 8 bytes, a CAN FD frame 64; sending more would lose the last signals."""
+    if fc.is_fd and fc.length > FD_MAX:
+        return f"{TOO_LONG}: {fc.length} bytes, a CAN FD frame carries {FD_MAX}"
+    if not fc.is_fd and fc.length > CLASSIC_MAX:
+        return (f"{TOO_LONG}: {fc.length} bytes, a classic CAN frame carries {CLASSIC_MAX} "
+                "(the database does not mark it CAN FD)")
+    return None
 
 
 def select_messages(db: DbcCodec, cfg: RestbusConfig) -> tuple[list[FrameCodec], dict[str, str]]:
@@ -111,7 +124,13 @@ def select_messages(db: DbcCodec, cfg: RestbusConfig) -> tuple[list[FrameCodec],
                            "(GenMsgCycleTime / ARXML timing): nothing to send periodically; "
                            "give --default-cycle MS to send them anyway")
     skipped.update((fc.name, NO_CYCLE) for fc in chosen if fc not in timed)
-    return timed, skipped
+    # refused, never sent truncated: the reason is the summary's, on `vecu restbus`'s one line
+    skipped.update((fc.name, why) for fc in timed if (why := frame_problem(fc)))
+    fit = [fc for fc in timed if fc.name not in skipped]
+    if not fit:
+        raise BadFileError(_db_label(cfg), f"no message to send fits its CAN frame: "
+                                           f"{_db_label(cfg)}: {skipped[timed[0].name]}")
+    return fit, skipped
 
 
 def parse_e2e(path: str, db: DbcCodec) -> dict[str, E2EProtection]:

@@ -276,6 +276,14 @@ def _restbus(chk: _Checker, data: Any, seed: int) -> RestbusConfig | None:
                          here(data.get("values")), cycle, seed)
 
 
+def companion_files(path: str | Path) -> list[str]:
+    """The files scenario `path` names by a relative path ([restbus] databases, e2e, values), as
+    written: what a copy of the scenario takes along so that it runs as is."""
+    restbus = read_toml(path, ScenarioError).get("restbus") or {}
+    named = [*restbus.get("databases", []), restbus.get("e2e"), restbus.get("values")]
+    return [p for p in named if isinstance(p, str) and not Path(p).is_absolute()]
+
+
 def restbus_checker(cfg: RestbusConfig, chk: _Checker) -> RestbusNode:
     """The restbus of cfg, built (every database and file check) but not scheduled: it checks
     the [[faults]] aimed at it."""

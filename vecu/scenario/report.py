@@ -97,9 +97,7 @@ def write_html(outcomes: list[ScenarioOutcome], report_dir: str) -> str:
         events = "".join(f"<li>{e['t_s']:.3f} s: {esc(str(e['target']))} {esc(e['kind'])}"
                          f"{' ' + esc(', '.join(e['ended'])) if e.get('ended') else ''}</li>"
                          for e in o.fault_events)
-        dtcs = "".join(f"<li>{esc(name)}: {esc(d['dtc'])} "
-                       f"{esc(str(d.get('dtc_history', [])))}</li>"
-                       for name, d in (o.diagnostics or {}).items())
+        dtcs = "".join(_dtc_table(name, d) for name, d in (o.diagnostics or {}).items())
         img = (f'<p><img src="{esc(Path(o.plot).name)}" alt="{esc(o.name)} plot"></p>'
                if o.plot else "")
         sections.append(
@@ -107,7 +105,7 @@ def write_html(outcomes: list[ScenarioOutcome], report_dir: str) -> str:
             f"<p>{esc(o.description)}</p>"
             + (f'<p class="fail">{esc(o.error)}</p>' if o.error else "")
             + f"<table><tr><th>criterion</th><th>measured</th><th>limit</th><th></th></tr>{crit}"
-            f"</table><p>Fault events:</p><ul>{events}</ul><p>DTCs:</p><ul>{dtcs}</ul>{img}")
+            f"</table><p>Fault events:</p><ul>{events}</ul><p>DTCs:</p>{dtcs}{img}")
     page = _PAGE.format(passed=sum(o.passed for o in outcomes), total=len(outcomes),
                         sim=sum(o.sim_s for o in outcomes), wall=sum(o.wall_s for o in outcomes),
                         rows="\n".join(rows), sections="\n".join(sections))
@@ -154,3 +152,14 @@ def plot_scenario(scenario: Scenario, result: RunResult, path: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def _dtc_table(sensor: str, diag: dict) -> str:
+    """One sensor's DTC: its final state and its history (time, state) as a table."""
+    esc = html.escape
+    history = diag.get("dtc_history", [])
+    rows = "".join(f"<tr><td>{t:.3f} s</td><td>{esc(str(state))}</td></tr>"
+                   for t, state in history)
+    return (f"<p>{esc(sensor)}: {esc(str(diag['dtc']))} at the end"
+            + (f"</p><table><tr><th>time</th><th>DTC state</th></tr>{rows}</table>"
+               if history else "; no change during the run</p>"))

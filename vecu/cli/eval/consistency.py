@@ -1,5 +1,5 @@
 """`vecu eval consistency`: every estimator's own covariance against the simulated truth (NEES,
-NIS, |z| tails over held-out seeds; issue 30), across the ECU functions."""
+NIS, |z| tails over held-out seeds), across the ECU functions."""
 
 from __future__ import annotations
 

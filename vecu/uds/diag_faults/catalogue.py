@@ -9,7 +9,7 @@ Timing parameters (defaults of vecu's ECU, docs/uds.md): P2server 50 ms, P2*serv
 (ISO 14229-2 §7.2); N_Bs = N_Cr = 1000 ms, N_WFTmax 10 (ISO 15765-2:2016 §9.7, §9.6.5.4);
 A_DoIP_Diagnostic_Message 2 s (ISO 13400-2 timing parameters).
 
-Each fault switched on or off is an FI_Event frame (vecu/dbc/vecu.dbc) with FI_EvKind 31
+Each fault switched on or off is an FI_Event frame (dbc/vecu.dbc) with FI_EvKind 31
 ("diag"): FI_EvSignal carries the record's `code`, FI_EvMessageId the CAN ID (or DoIP logical
 address) it acts on, FI_EvValue its parameter. FI_EvKind's codes 0-29 stay with the signal /
 frame faults and the restbus disturbances; the diagnostic faults get their own 8-bit code space

@@ -1,1 +1,0 @@
-"""DBC files shipped with vecu (installed as package data vecu.dbc)."""
