@@ -234,7 +234,7 @@ def open_baseline_virtual_bus(channel: str) -> can.BusABC:
 
 class SinkBus(can.BusABC):
     """A bus that receives nothing and drops what is sent (the fast-mode replay ECU's bus:
-    frames are handed in, sends are seen through BusNode.tap)."""
+    frames are handed in; the ECU hands what it sends to its sinks, vecu.ecu.sink)."""
 
     def __init__(self, channel: str = "sink") -> None:
         super().__init__(channel=channel)
@@ -384,15 +384,11 @@ class BusNode:
     raising; shed() bounds a tick's receive work; handler_failed() is the boundary a command
     handler's error stops at."""
 
-    def __init__(self, bus: can.BusABC, name: str,
-                 tap: Callable[[can.Message], None] | None = None,
-                 rx_budget: RxBudget = RxBudget()) -> None:
-        """tap, when given, sees every frame sent (replay: scoring and --out)."""
+    def __init__(self, bus: can.BusABC, name: str, rx_budget: RxBudget = RxBudget()) -> None:
         self.bus = bus
         self.node_name = name
         self.frames_sent = 0
         self.send_errors = 0
-        self.tap = tap
         self.rx_budget = rx_budget
         self.rx_shed = 0  # frames read past rx_budget.frames_per_tick and dropped undecoded
         self.rx_peak = 0  # the most frames read in one tick (at most the budget's two parts)
@@ -444,8 +440,6 @@ class BusNode:
         try:
             self.bus.send(msg)
             self.frames_sent += 1
-            if self.tap is not None:
-                self.tap(msg)
             return True
         except can.CanError as exc:
             self.send_errors += 1

@@ -12,7 +12,7 @@ server (UDS, XCP) do: such an error stops at BusNode.handler_failed, counted.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
@@ -20,14 +20,22 @@ import can
 
 from vecu.bus import BusNode, RxBudget
 from vecu.clock import NS_PER_MS, NS_PER_S
-from vecu.codec import DbcCodec, FrameCodec
+from vecu.codec import DbcCodec, FrameCodec, Values
 from vecu.e2e import AliveCounterCheck
 from vecu.ecu.sensor_monitor import Dtc, HostClock, SensorMonitor
+from vecu.ecu.sink import EstimateSink
 
 log = logging.getLogger(__name__)
 
 MAX_LOGGED_PER_KIND = 20  # rx problems logged individually before going quiet (still counted)
-Send = Callable[[can.Message], bool]
+
+
+class Send(Protocol):
+    """A function's send: a frame and the values it carries (a framer's two results:
+    `send(*framer(ts, ...))`); True when the bus took it."""
+
+    def __call__(self, msg: can.Message, values: Values | None = None) -> bool: ...
+
 Checked = tuple[bool, dict[str, float], list[str]]  # a frame's CRC ok, values, bad signals
 BUS_ERROR_LIMIT = 10  # error frames per ECU_Status period (100 ms) that confirm the bus DTC
 BUS_DTC_HEAL_MS = 5000.0
@@ -140,7 +148,7 @@ def _plan(route: Route) -> _Plan:
             route.subscription, route.subscription.on_values)
 
 
-def _muted(msg: can.Message) -> bool:
+def _muted(msg: can.Message, values: Values | None = None) -> bool:
     """The send of a node whose broadcast a tester stopped: nothing goes out."""
     return False
 
@@ -152,7 +160,7 @@ class EcuNode(BusNode):
                  routes: dict[tuple[int, bool], Route] | None = None,
                  rx_codec: DbcCodec | None = None, arm_on_input: bool = False,
                  tick_ns: int = NS_PER_MS, host_gap_ms: float = 0.0,
-                 tap: Callable[[can.Message], None] | None = None,
+                 sinks: Sequence[EstimateSink] = (),
                  rx_budget: RxBudget = RxBudget(), log_rx_problems: bool = True) -> None:
         """codec encodes the ECU's own frames. By default the functions consume their messages
         of that codec; `routes` (trace replay with a signal map) replaces that table, and
@@ -167,12 +175,15 @@ class EcuNode(BusNode):
         host_gap_ms (live bus): a sensor silence shorter than this while the sender's traffic
         at the sensor's rate stopped too is a stalled sender, not a silent sensor (HostClock;
         0 on the simulated clock).
-        tap (trace replay): sees every frame the node sends.
+        sinks (trace replay: the scorer, the --out writer): each takes every frame the node
+        sends, with the values it carries (vecu.ecu.sink), in order.
         rx_budget: frames taken in per tick, then shed (`ecu.rx.*`; frames handed to receive()
         directly, as a trace replay does, are never shed).
         log_rx_problems=False (a replay's kernel warm-up): frames it cannot take are counted,
         never logged."""
-        super().__init__(bus, "ecu", tap, rx_budget)
+        super().__init__(bus, "ecu", rx_budget=rx_budget)
+        self.sinks = tuple(sinks)
+        self._now_ns = 0  # the time of the tick (or received frame) being handled
         self._log_rx_problems = log_rx_problems
         self.codec = codec
         self.rx_codec = rx_codec if rx_codec is not None else codec
@@ -280,6 +291,15 @@ class EcuNode(BusNode):
     def function(self, name: str) -> EcuFunction | None:
         return next((f for f in self.functions if f.name == name), None)
 
+    def send(self, msg: can.Message, values: Values | None = None) -> bool:
+        """BusNode.send, then each sink takes the frame sent (values: what it carries, None
+        for a frame not made from values)."""
+        if not BusNode.send(self, msg):
+            return False
+        for sink in self.sinks:
+            sink.on_estimate(values, msg, self._now_ns)
+        return True
+
     # ---------------------------------------------------------------- receive
     def _problem(self, kind: str, msg: can.Message, detail: str = "") -> None:
         n = self._logged.get(kind, 0) + 1
@@ -298,6 +318,7 @@ class EcuNode(BusNode):
         decodes the trace in blocks), instead of checking it here; the same checks follow."""
         rx = self.rx
         rx.received += 1
+        self._now_ns = t_ns
         try:
             if msg.is_error_frame:
                 rx.error_frames += 1
@@ -380,7 +401,7 @@ class EcuNode(BusNode):
         last = self._last_tick_ns
         if last is not None and t_ns - last > self._tick_ns:  # releases skipped: not running
             host.stalled_ns += t_ns - last - self._tick_ns
-        self._last_tick_ns = t_ns
+        self._last_tick_ns = self._now_ns = t_ns
         recv = self.bus.recv
         n = self.rx_budget.frames_per_tick
         while (msg := recv(0.0)) is not None:

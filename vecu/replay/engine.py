@@ -26,9 +26,10 @@ from vecu import kernels, warmup
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import SinkBus, open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
-from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
+from vecu.codec import TRUTH_DBC, DbcCodec, Values, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
+from vecu.ecu.sink import EstimateSink
 from vecu.errors import BadArgumentError
 from vecu.recorder import TraceWriteError
 from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
@@ -134,17 +135,11 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
             buses += [player_bus, ecu_bus]
         else:
             ecu_bus = SinkBus("replay")
-        def on_sent(msg: can.Message) -> None:
-            t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
-            scorer.on_estimate(msg, t_ns)
-            if writer is not None:  # back on the trace's time base (skipped idle time too)
-                skipped = source.skipped_before(int(t_ns * config.speed) if live else t_ns)
-                msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
-                if msg.channel is None:
-                    msg.channel = OUT_CHANNEL
-                writer.on_message_received(msg)
+        sinks: list[EstimateSink] = [scorer]  # the ECU hands each frame it sends to these
+        if writer is not None:
+            sinks.append(_EstimateOut(writer, source, config.speed))
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
-                      arm_on_input=True, tap=on_sent)
+                      arm_on_input=True, sinks=sinks)
         tally = FrameTally()
         feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes,
                              writer if config.with_inputs else None,
@@ -249,6 +244,23 @@ class _OutputWriter(can.Listener):
 
     def stop(self) -> None:
         self.inner.stop()
+
+
+class _EstimateOut:
+    """The --out writer as an estimate sink (vecu.ecu.sink): each frame the ECU sends, back on
+    the trace's time base (its skipped idle time too; live: the ECU's time times the speed),
+    on OUT_CHANNEL unless it names its own."""
+
+    def __init__(self, writer: _OutputWriter, source: TraceSource, speed: float | None) -> None:
+        self.writer, self.source, self.speed = writer, source, speed
+
+    def on_estimate(self, values: Values | None, msg: can.Message, t_ns: int) -> None:
+        source, speed = self.source, self.speed
+        skipped = source.skipped_before(int(t_ns * speed) if speed is not None else t_ns)
+        msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
+        if msg.channel is None:
+            msg.channel = OUT_CHANNEL
+        self.writer.on_message_received(msg)
 
 
 class _TraceEnd:
