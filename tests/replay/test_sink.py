@@ -1,4 +1,4 @@
-"""The ECU's estimate sinks (vecu.ecu.sink): every frame the ECU sends reaches them with the
+"""The ECU's estimate sinks (vecu.bus.EstimateSink): every frame the ECU sends reaches them with the
 values it carries, equal to cantools' decode of that frame, and the replay's truth scorer
 scores those values without decoding a single frame the ECU sent."""
 

@@ -19,7 +19,7 @@ import can
 import numpy as np
 from cantools.database.can import Message
 
-from vecu.can_message import message
+from vecu.can_message import Values, message
 from vecu.codec.blocks import BlockChecks, BlockLayout, block_layout, encode_rows
 from vecu.codec.e2e_layout import e2e_layout
 from vecu.codec.signals import (
@@ -34,8 +34,6 @@ from vecu.codec.signals import (
 )
 from vecu.codec.source import MessageSource, compile_source, message_source
 
-# a message's signal values in the DBC's order (None: a multiplexed signal a frame lacks)
-Values = tuple[float | None, ...]
 # make(timestamp, *values in the message's signal order) -> (frame, the values it carries)
 Framer = Callable[..., tuple[can.Message, Values]]
 

@@ -18,12 +18,11 @@ from typing import Protocol
 
 import can
 
-from vecu.bus import BusNode, RxBudget
+from vecu.bus import BusNode, EstimateSink, RxBudget
 from vecu.clock import NS_PER_MS, NS_PER_S
 from vecu.codec import DbcCodec, FrameCodec, Values
 from vecu.e2e import AliveCounterCheck
 from vecu.ecu.sensor_monitor import Dtc, HostClock, SensorMonitor
-from vecu.ecu.sink import EstimateSink
 
 log = logging.getLogger(__name__)
 
@@ -176,14 +175,12 @@ class EcuNode(BusNode):
         at the sensor's rate stopped too is a stalled sender, not a silent sensor (HostClock;
         0 on the simulated clock).
         sinks (trace replay: the scorer, the --out writer): each takes every frame the node
-        sends, with the values it carries (vecu.ecu.sink), in order.
+        sends, with the values it carries (vecu.bus.EstimateSink), in order.
         rx_budget: frames taken in per tick, then shed (`ecu.rx.*`; frames handed to receive()
         directly, as a trace replay does, are never shed).
         log_rx_problems=False (a replay's kernel warm-up): frames it cannot take are counted,
         never logged."""
-        super().__init__(bus, "ecu", rx_budget=rx_budget)
-        self.sinks = tuple(sinks)
-        self._now_ns = 0  # the time of the tick (or received frame) being handled
+        super().__init__(bus, "ecu", rx_budget=rx_budget, sinks=sinks)
         self._log_rx_problems = log_rx_problems
         self.codec = codec
         self.rx_codec = rx_codec if rx_codec is not None else codec
@@ -291,15 +288,6 @@ class EcuNode(BusNode):
     def function(self, name: str) -> EcuFunction | None:
         return next((f for f in self.functions if f.name == name), None)
 
-    def send(self, msg: can.Message, values: Values | None = None) -> bool:
-        """BusNode.send, then each sink takes the frame sent (values: what it carries, None
-        for a frame not made from values)."""
-        if not BusNode.send(self, msg):
-            return False
-        for sink in self.sinks:
-            sink.on_estimate(values, msg, self._now_ns)
-        return True
-
     # ---------------------------------------------------------------- receive
     def _problem(self, kind: str, msg: can.Message, detail: str = "") -> None:
         n = self._logged.get(kind, 0) + 1
@@ -318,7 +306,7 @@ class EcuNode(BusNode):
         decodes the trace in blocks), instead of checking it here; the same checks follow."""
         rx = self.rx
         rx.received += 1
-        self._now_ns = t_ns
+        self.now_ns = t_ns
         try:
             if msg.is_error_frame:
                 rx.error_frames += 1
@@ -401,7 +389,7 @@ class EcuNode(BusNode):
         last = self._last_tick_ns
         if last is not None and t_ns - last > self._tick_ns:  # releases skipped: not running
             host.stalled_ns += t_ns - last - self._tick_ns
-        self._last_tick_ns = self._now_ns = t_ns
+        self._last_tick_ns = self.now_ns = t_ns
         recv = self.bus.recv
         n = self.rx_budget.frames_per_tick
         while (msg := recv(0.0)) is not None:

@@ -24,12 +24,11 @@ import can
 from vecu import functions as registry
 from vecu import kernels, warmup
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
-from vecu.bus import SinkBus, open_bus
+from vecu.bus import EstimateSink, SinkBus, open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, Values, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
-from vecu.ecu.sink import EstimateSink
 from vecu.errors import BadArgumentError
 from vecu.recorder import TraceWriteError
 from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
@@ -247,7 +246,7 @@ class _OutputWriter(can.Listener):
 
 
 class _EstimateOut:
-    """The --out writer as an estimate sink (vecu.ecu.sink): each frame the ECU sends, back on
+    """The --out writer as an estimate sink (vecu.bus.EstimateSink): each frame the ECU sends, back on
     the trace's time base (its skipped idle time too; live: the ECU's time times the speed),
     on OUT_CHANNEL unless it names its own."""
 

@@ -7,7 +7,7 @@ entry, vecu.functions: its max_age_ns). Estimates without truth are counted as u
 scored. Estimates their validity signal (TruthChannel.validity, vecu.ecu.validity) flags init or
 invalid are counted (`not_valid_estimates`), not scored: the ECU said they mean nothing.
 
-The scorer is one of the ECU's estimate sinks (vecu.ecu.sink): it scores the values each frame
+The scorer is one of the ECU's estimate sinks (vecu.bus.EstimateSink): it scores the values each frame
 carries as the ECU's framer hands them over (what a decoder of the frame would read), so it
 decodes no frame the ECU sent, only the trace's truth frames. A frame sent without its values
 (a plug-in's `send(msg)`) is decoded here instead.
@@ -87,7 +87,7 @@ class TruthScorer:
         self._latest[fc.name] = (t_ns, values)
 
     def on_estimate(self, values: Values | None, msg: can.Message, t_ns: int) -> None:
-        """A frame the ECU sent at t_ns with the values it carries (vecu.ecu.sink)."""
+        """A frame the ECU sent at t_ns with the values it carries (vecu.bus.EstimateSink)."""
         if not self.truth_frames and self.series is None:
             return
         key = (msg.arbitration_id, msg.is_extended_id)
