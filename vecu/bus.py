@@ -20,16 +20,16 @@ import queue
 import socket
 import struct
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import can
 from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.virtual import VirtualBus
 from can.typechecking import CanFilter
 
-from vecu.can_message import message
+from vecu.can_message import Values, message
 from vecu.clock import wall_time
 from vecu.errors import UnavailableError
 
@@ -234,7 +234,7 @@ def open_baseline_virtual_bus(channel: str) -> can.BusABC:
 
 class SinkBus(can.BusABC):
     """A bus that receives nothing and drops what is sent (the fast-mode replay ECU's bus:
-    frames are handed in, sends are seen through BusNode.tap)."""
+    frames are handed in; the ECU hands what it sends to its estimate sinks)."""
 
     def __init__(self, channel: str = "sink") -> None:
         super().__init__(channel=channel)
@@ -379,20 +379,31 @@ class RxBudget:
     catch_up_ticks: int = field(default=20, metadata={"bounds": (0, 1_000_000)})
 
 
+class EstimateSink(Protocol):
+    """Where a node's frames go besides the bus (the ECU's estimate sinks; trace replay: the
+    truth scorer and the `--out` writer): every frame the node sends, as it goes on the bus,
+    with the values it carries, so that nothing decodes a frame the node has just encoded."""
+
+    def on_estimate(self, values: Values | None, msg: can.Message, t_ns: int) -> None:
+        """msg sent at the node's time t_ns; values: the signals it carries in the DBC's order
+        as its decoder would give them (a codec framer's second result), None for a frame not
+        made from values (ECU_Status, ECU_Diag, a diagnostic response)."""
+
+
 class BusNode:
     """Base of the plant, ECU and restbus nodes: send() counts frames and failures instead of
     raising; shed() bounds a tick's receive work; handler_failed() is the boundary a command
     handler's error stops at."""
 
-    def __init__(self, bus: can.BusABC, name: str,
-                 tap: Callable[[can.Message], None] | None = None,
-                 rx_budget: RxBudget = RxBudget()) -> None:
-        """tap, when given, sees every frame sent (replay: scoring and --out)."""
+    def __init__(self, bus: can.BusABC, name: str, rx_budget: RxBudget = RxBudget(),
+                 sinks: Sequence[EstimateSink] = ()) -> None:
+        """sinks: each takes every frame sent, in order, at the node's time `now_ns`."""
         self.bus = bus
         self.node_name = name
         self.frames_sent = 0
         self.send_errors = 0
-        self.tap = tap
+        self.sinks = tuple(sinks)
+        self.now_ns = 0  # the time of what the node is handling (a subclass keeps it)
         self.rx_budget = rx_budget
         self.rx_shed = 0  # frames read past rx_budget.frames_per_tick and dropped undecoded
         self.rx_peak = 0  # the most frames read in one tick (at most the budget's two parts)
@@ -439,13 +450,15 @@ class BusNode:
             self._log.error("%s: %s failed (counted in handler_errors; further ones not logged)",
                             self.node_name, kind, exc_info=exc)
 
-    def send(self, msg: can.Message) -> bool:
-        """Send one frame; True when the bus took it (a failure is counted and logged)."""
+    def send(self, msg: can.Message, values: Values | None = None) -> bool:
+        """Send one frame; True when the bus took it (a failure is counted and logged). Then
+        each sink takes it (values: what it carries, None for a frame not made from values)."""
         try:
             self.bus.send(msg)
             self.frames_sent += 1
-            if self.tap is not None:
-                self.tap(msg)
+            if self.sinks:
+                for sink in self.sinks:
+                    sink.on_estimate(values, msg, self.now_ns)
             return True
         except can.CanError as exc:
             self.send_errors += 1

@@ -17,6 +17,9 @@ FIELDS = frozenset({"timestamp", "arbitration_id", "is_extended_id", "is_remote_
                      "bitrate_switch", "error_state_indicator"})
 _new = object.__new__
 _Message = can.Message
+# a message's signal values in the DBC's order (None: a multiplexed signal a frame lacks), as a
+# codec framer gives them beside its frame and a node's estimate sinks take them
+Values = tuple[float | None, ...]
 
 
 def _direct(timestamp: float, arbitration_id: int, is_extended_id: bool,

@@ -106,7 +106,7 @@ def test_block_encode_gives_the_framers_payloads(with_thirdparty, request):
             if left[k]:
                 refused += 1
                 continue
-            want = make(0.0, *(c[k] for c in cols))
+            want, _ = make(0.0, *(c[k] for c in cols))
             assert payloads[k].tobytes() == bytes(want.data), (fc.name, k)
             encoded += 1
     assert encoded > (5000 if not with_thirdparty else 50_000) and refused > 0

@@ -1,6 +1,7 @@
 """The generated frame() (FrameCodec.framer): make(ts, *values) gives exactly FrameCodec.frame's
-Message, or raises what frame() raises, on every message of vecu's DBCs and the third-party ones;
-the generated bad_values and decode_checked against the loop they replace."""
+Message, or raises what frame() raises, and beside it the values that Message carries (cantools'
+decode of its payload, though nothing decodes it), on every message of vecu's DBCs and the
+third-party ones; the generated bad_values and decode_checked against the loop they replace."""
 
 from __future__ import annotations
 
@@ -50,9 +51,20 @@ def test_framer_gives_frames_message(with_thirdparty, request):
                 with pytest.raises(type(exc)):
                     make(ts, *values)
                 continue
-            assert same_message(make(ts, *values), ref), (fc.name, names, values)
+            msg, carried = make(ts, *values)
+            assert same_message(msg, ref), (fc.name, names, values)
+            try:
+                decoded = fc.decode_cantools(msg.data)  # cantools, the reference
+            except Exception:  # noqa: BLE001 - cantools encoded what it cannot decode
+                decoded = {}
+            assert _same_numbers(carried, [decoded.get(n) for n in names]), (fc.name, values)
             checked += 1
     assert checked > 500
+
+
+def _same_numbers(a, b) -> bool:
+    """Equal number for number (NaN equal to NaN: a float signal may carry one)."""
+    return len(a) == len(b) and all(x == y or (x != x and y != y) for x, y in zip(a, b))
 
 
 def test_framer_refuses_names_that_are_not_the_signals():

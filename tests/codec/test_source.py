@@ -69,6 +69,8 @@ def test_the_golden_source_is_the_code_that_runs():
     data = fc.encode(values)
     assert ns["encode"](values) == data and fc.crc_ok(data)
     assert ns["decode_checked"](data) == fc.decode_checked(data) == (fc.decode(data), [])
-    assert ns["frame"](1.5, 0, 5, 6.0).data == fc.framer(("TPS_CRC", "TPS_AliveCounter",
-                                                          "TPS_Voltage"))(1.5, 0, 5, 6.0).data
+    msg, carried = ns["frame"](1.5, 0, 5, 6.0)
+    want = fc.framer(("TPS_CRC", "TPS_AliveCounter", "TPS_Voltage"))(1.5, 0, 5, 6.0)
+    assert msg.data == want[0].data and carried == want[1]
+    assert carried == tuple(fc.decode(msg.data).values())  # CRC as protected, 5 V saturated
     assert ns["bad_values"]({"TPS_Voltage": 5.5}) == ["TPS_Voltage"]

@@ -28,9 +28,9 @@ def test_one_step_per_sample_with_the_previous_input():
     sent = []
     for k, (u, y) in enumerate([(1.0, 10.0), (2.0, 20.0), (3.0, 30.0)]):  # a 3 ms stall
         fn._on_wattmeter({"ETB_Voltage": u, "ETB_Power": y}, k)
-    fn.run(3_000_000, lambda m: sent.append(m) or True)
+    fn.run(3_000_000, lambda m, values=None: sent.append(m) or True)
     assert est.steps == [(0.0, 10.0), (1.0, 20.0), (2.0, 30.0)]
-    fn.run(4_000_000, lambda m: sent.append(m) or True)  # no sample: predict with the last u
+    fn.run(4_000_000, lambda m, values=None: sent.append(m) or True)  # no sample: predict with the last u
     assert est.steps[-1] == (3.0, None)
     assert len(sent) == 2  # one broadcast per run
 
@@ -40,6 +40,6 @@ def test_backlog_is_bounded_and_counted():
     fn = ThrottleFunction(DbcCodec(), est)
     for k in range(MAX_BACKLOG + 7):
         fn._on_wattmeter({"ETB_Voltage": float(k), "ETB_Power": 1.0}, k)
-    fn.run(0, lambda m: True)
+    fn.run(0, lambda m, values=None: True)
     assert len(est.steps) == MAX_BACKLOG and fn.samples_dropped == 7
     assert est.steps[-1][0] == MAX_BACKLOG + 5  # u of the sample before the newest

@@ -212,11 +212,14 @@ def test_replay_scoring_skips_and_counts_init_frames():
 
     base = {"SPD_VehAccel": 0.0, "SPD_VehSpeedStd": 1.0, "SPD_AccelOffset": 0.0, "SPD_Mode": 0,
             "SPD_VehAccelStd": 0.5}
+    frame = est.framer([s.name for s in est.signals])  # as the ECU sends it: frame and values
     for k in range(400, 420):  # after the speed burn-in
         t = k * 2 * NS_PER_MS
         scorer.on_truth(msg(truth, {"TRU_VehSpeed": 87.0, "TRU_VehAccel": 0.0}), t)
         validity, speed = (INIT, 0.0) if k < 410 else (VALID, 87.5)
-        scorer.on_estimate(msg(est, {**base, "SPD_VehSpeed": speed, "SPD_Validity": validity}), t)
+        values = {**base, "SPD_VehSpeed": speed, "SPD_Validity": validity}
+        sent, carried = frame(t / 1e9, *(values.get(s.name, 0) for s in est.signals))
+        scorer.on_estimate(carried, sent, t)
     section = scorer.summary().functions["speed"]
     assert section.not_valid_estimates == 10
     err = section.errors["speed_error_kmh"]

@@ -21,12 +21,12 @@ from vecu.codec.database import (
     shared_codec,
 )
 from vecu.codec.e2e_layout import DbcLoadError, E2ELayout
-from vecu.codec.message import FrameCodec, Framer
+from vecu.codec.message import FrameCodec, Framer, Values
 from vecu.codec.signals import ArxmlE2E, SignalInfo
 
 __all__ = [
     "DEFAULT_DBC", "TRUTH_DBC", "ArxmlE2E", "BlockChecks", "BlockField", "BlockLayout", "DbcCodec",
-    "DbcLoadError", "E2ELayout", "FrameCodec", "Framer", "SignalInfo", "builtin_dbc_dir",
+    "DbcLoadError", "E2ELayout", "FrameCodec", "Framer", "SignalInfo", "Values", "builtin_dbc_dir",
     "builtin_dbc_path",
     "load_database", "shared_codec",
 ]

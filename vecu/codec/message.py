@@ -19,7 +19,7 @@ import can
 import numpy as np
 from cantools.database.can import Message
 
-from vecu.can_message import message
+from vecu.can_message import Values, message
 from vecu.codec.blocks import BlockChecks, BlockLayout, block_layout, encode_rows
 from vecu.codec.e2e_layout import e2e_layout
 from vecu.codec.signals import (
@@ -34,7 +34,8 @@ from vecu.codec.signals import (
 )
 from vecu.codec.source import MessageSource, compile_source, message_source
 
-Framer = Callable[..., can.Message]  # make(timestamp, *values in the message's signal order)
+# make(timestamp, *values in the message's signal order) -> (frame, the values it carries)
+Framer = Callable[..., tuple[can.Message, Values]]
 
 
 class FrameCodec:
@@ -99,7 +100,9 @@ class FrameCodec:
         self.source: MessageSource = message_source(
             self._message, saturate=self._saturate, checked=self._checked,
             protect=self._protect, decode_fallback=self.decode_cantools,
-            frame_fallback=self._frame_row, plain=self._fast)
+            frame_fallback=self._frame_row, plain=self._fast,
+            header=(None if self.e2e is None else
+                    (self.e2e.crc_signal, self.e2e.counter_signal, self.e2e.crc_byte)))
         made = compile_source(self.source)
         self._fast_encode, self._fast_decode, self._frame = made.encode, made.decode, made.frame
         self.bad_values: Callable[[Mapping[str, float]], list[str]] = made.bad_values
@@ -181,13 +184,21 @@ class FrameCodec:
         return message(timestamp, self.frame_id, self.is_extended, self.encode(values),
                        self.is_fd)
 
-    def _frame_row(self, timestamp: float, values: tuple) -> can.Message:
-        return self.frame(dict(zip((s.name for s in self.signals), values)), timestamp)
+    def _frame_row(self, timestamp: float, values: tuple) -> tuple[can.Message, Values]:
+        """frame()'s row of values the generated lines do not take: cantools encodes, and the
+        values are those of its payload (None: a multiplexed signal it does not carry; all
+        None when cantools cannot decode what it encoded, a multiplexer value it does not know)."""
+        names = [s.name for s in self.signals]
+        msg = self.frame(dict(zip(names, values)), timestamp)
+        decoded = {} if self.decode_problem(msg.data) else self.decode(msg.data)
+        return msg, tuple(decoded.get(name) for name in names)
 
     def framer(self, names: Sequence[str]) -> Framer:
-        """make(timestamp, *values): frame(dict(zip(names, values)), timestamp) in one generated
-        call (the source's frame()); names must be the message's signals in the DBC's order,
-        the order the caller passes the values in (a ValueError otherwise)."""
+        """make(timestamp, *values) -> (frame(dict(zip(names, values)), timestamp), the values
+        as that frame carries them: decode() of its payload, in the same order, computed from
+        the raw values encoded) in one generated call (the source's frame()); names must be the
+        message's signals in the DBC's order, the order the caller passes the values in (a
+        ValueError otherwise)."""
         if tuple(names) != tuple(s.name for s in self.signals):
             raise ValueError(f"{self.name}: framer names {list(names)} are not its signals in "
                              f"the DBC's order {[s.name for s in self.signals]}")

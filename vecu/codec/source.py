@@ -11,8 +11,11 @@ Message / Signal / conversion objects read once:
 - bad_values(values): the names of the range-checked signals present and NaN / inf or outside
   the DBC's [minimum, maximum];
 - decode_checked(data): (decode(data), bad_values of it) in one call (the receive path);
-- frame(ts, *values): the can.Message of encode(dict(zip(signal names, values))) with its slots
-  set directly (vecu.can_message), values in the DBC's signal order.
+- frame(ts, *values): (the can.Message of encode(dict(zip(signal names, values))) with its
+  slots set directly (vecu.can_message), the values as the frame carries them), values in the
+  DBC's signal order both ways; the values it returns are what decode() of its payload gives
+  (saturated, rounded to the signal's scale, the E2E CRC and alive counter as protected), from
+  the raw values it encoded: an estimate's sink takes them without decoding the frame again.
 
 A message outside the shift-and-mask layout (multiplexed, a container, overlapping signals,
 floats other than 32/64 bits) gets no encode / decode: decode_checked calls cantools' decode and
@@ -84,11 +87,13 @@ class _Field:
 def message_source(msg: Message, *, saturate: Sequence[tuple[str, float, float]],
                    checked: Sequence[Bounds], protect: Callable | None,
                    decode_fallback: Callable, frame_fallback: Callable,
-                   plain: bool = True) -> MessageSource:
+                   plain: bool = True, header: tuple[str, str, int] | None = None
+                   ) -> MessageSource:
     """The message's source text. saturate: (name, lo, hi) clipped on encode (NaN: lo);
-    checked: (name, lo, hi) of bad_values; protect: the E2E protector (in place) or None;
-    decode_fallback(data) / frame_fallback(ts, values): what a message outside the layout
-    (or plain=False, cantools only) uses."""
+    checked: (name, lo, hi) of bad_values; protect: the E2E protector (in place) or None, with
+    header its (CRC signal, alive counter signal, CRC byte); decode_fallback(data) /
+    frame_fallback(ts, values) -> (can.Message, values): what a message outside the layout (or
+    plain=False, cantools only) uses."""
     fields = _fields(msg) if plain else None
     w = _Writer({**_BASE, "_Refused": _Refused, "_decode": decode_fallback,
                  "_slow": frame_fallback, **({"_protect": protect} if protect else {})})
@@ -104,7 +109,7 @@ def message_source(msg: Message, *, saturate: Sequence[tuple[str, float, float]]
     lines += ["", "def bad_values(values):",
               *_indent(["bad = []", *_range_lines(w, checked, "values.get"), "return bad"])]
     lines += ["", *_decode(w, fields, checked=checked)]
-    lines += ["", *_frame(w, msg, fields, sat, protect is not None)]
+    lines += ["", *_frame(w, msg, fields, sat, header if protect is not None else None)]
     return MessageSource(msg.name, "\n".join(lines) + "\n", w.ns, fields is not None)
 
 
@@ -172,9 +177,10 @@ def _float_structs(f: _Field) -> tuple[str, str]:
 
 
 def _encode_signal(w: _Writer, f: _Field, sat: dict[str, tuple[float, float]],
-                   refuse: str) -> list[str]:
+                   refuse: str, keep: bool = False) -> list[str]:
     """Lines that OR signal f's raw bits into `le` / `be` from its physical value `v`
-    (saturated first when in sat), running `refuse` on a value they cannot take."""
+    (saturated first when in sat), running `refuse` on a value they cannot take; keep: also
+    `r<i>` = the raw value decode() reads back from those bits."""
     conv, i = f.conv, f.i
     lo, hi = _raw_range(f)
     if (type(conv) is IdentityConversion and not conv.is_float and not f.float_bits
@@ -200,8 +206,12 @@ def _encode_signal(w: _Writer, f: _Field, sat: dict[str, tuple[float, float]],
         if f.float_bits:
             as_float, as_int = _float_structs(f)
             out.append(f"r = {as_int}.unpack({as_float}.pack(r))[0]")
+            if keep:
+                out.append(f"r{i} = {as_float}.unpack({as_int}.pack(r))[0]")
         else:
             out.append(f"if not {lo} <= r <= {hi}: {refuse}")
+    if keep and not f.float_bits:
+        out.append(f"r{i} = r")
     if f.signed and not f.float_bits:
         out.append(f"r &= {(1 << f.length) - 1}")
     out.append(f"{f.kind} |= r << {f.shift}" if f.shift else f"{f.kind} |= r")
@@ -245,7 +255,7 @@ def _decode(w: _Writer, fields: list[_Field] | None, checked: Sequence[Bounds] |
             (("le", "little"), ("be", "big")) if any(f.kind == kind for f in fields)]
     out = []
     for f in fields:
-        i, conv = f.i, f.conv
+        i = f.i
         src = f"({f.kind} >> {f.shift})" if f.shift else f.kind
         body.append(f"r{i} = {src} & {(1 << f.length) - 1}")
         if f.float_bits:
@@ -253,20 +263,24 @@ def _decode(w: _Writer, fields: list[_Field] | None, checked: Sequence[Bounds] |
             body.append(f"r{i} = {as_float}.unpack({as_int}.pack(r{i}))[0]")
         elif f.signed:
             body.append(f"if r{i} > {(1 << (f.length - 1)) - 1}: r{i} -= {1 << f.length}")
-        if type(conv) is LinearConversion:
-            out.append(f"{f.name!r}: r{i} * {w.lit(conv.scale, f'_sc{i}')}"
-                       f" + {w.lit(conv.offset, f'_off{i}')}")
-        elif type(conv) is IdentityConversion:
-            out.append(f"{f.name!r}: r{i}")
-        else:
-            w.ns[f"_to_phys{i}"] = conv.raw_to_scaled
-            out.append(f"{f.name!r}: _to_phys{i}(r{i}, False)")
+        out.append(f"{f.name!r}: {_physical(w, f)}")
     values = "{" + ", ".join(out) + "}"
     if checked is None:
         return ["def decode(data):", *_indent([*body, f"return {values}"])]
     body += [f"values = {values}", "bad = []", *_range_lines(w, checked, "values"),
              "return values, bad"]
     return ["def decode_checked(data):", *_indent(body)]
+
+
+def _physical(w: _Writer, f: _Field) -> str:
+    """The expression of signal f's physical value from its raw value `r<i>` (decode's)."""
+    conv, i = f.conv, f.i
+    if type(conv) is LinearConversion:
+        return f"r{i} * {w.lit(conv.scale, f'_sc{i}')} + {w.lit(conv.offset, f'_off{i}')}"
+    if type(conv) is IdentityConversion:
+        return f"r{i}"
+    w.ns[f"_to_phys{i}"] = conv.raw_to_scaled
+    return f"_to_phys{i}(r{i}, False)"
 
 
 def _range_lines(w: _Writer, checked: Sequence[Bounds], read: str) -> list[str]:
@@ -288,7 +302,11 @@ def _range_lines(w: _Writer, checked: Sequence[Bounds], read: str) -> list[str]:
 
 
 def _frame(w: _Writer, msg: Message, fields: list[_Field] | None,
-           sat: dict[str, tuple[float, float]], protected: bool) -> list[str]:
+           sat: dict[str, tuple[float, float]], header: tuple[str, str, int] | None
+           ) -> list[str]:
+    """frame(ts, *values) -> (can.Message, the values as decode() reads them back); header:
+    the E2E (CRC signal, counter signal, CRC byte), whose values are read from the protected
+    payload."""
     args = [f"a{j}" for j in range(len(msg.signals))]
     row = f"({args[0]},)" if len(args) == 1 else f"({', '.join(args)})"
     head = [f"def frame({', '.join(['ts', *args])}):"]
@@ -296,29 +314,34 @@ def _frame(w: _Writer, msg: Message, fields: list[_Field] | None,
         return [*head, f"    return _slow(ts, {row})"]
     body = _zeros(fields)
     for f in fields:
-        body += [f"v = a{f.i}", *_encode_signal(w, f, sat, "raise _Refused")]
+        body += [f"v = a{f.i}", *_encode_signal(w, f, sat, "raise _Refused", keep=True)]
     body.append(f"buf = bytearray({_payload(fields, msg.length)})")
     # a refused value, or anything the lines raise on (round(inf)): FrameCodec.frame decides
     out = [*head, "    try:", *_indent(body, 2), "    except Exception:",
            f"        return _slow(ts, {row})"]
-    if protected:
-        out.append("    _protect(buf)")
-    return out + _indent(_message_lines(msg))
+    if header is not None:
+        crc, counter, at = header
+        index = {f.name: f.i for f in fields}
+        out += ["    _protect(buf)", f"    r{index[crc]} = buf[{at}]",
+                f"    r{index[counter]} = buf[{at + 1}] & 15"]
+    values = ", ".join(_physical(w, f) for f in fields)
+    values = f"({values},)" if len(fields) == 1 else f"({values})"
+    return out + _indent([*_message_lines(msg), f"return m, {values}"])
 
 
 def _message_lines(msg: Message) -> list[str]:
-    """`return message(ts, id, extended, buf, fd)` (vecu.can_message) with its slot
+    """`m = message(ts, id, extended, buf, fd)` (vecu.can_message) with its slot
     assignments written out; without DIRECT the call itself."""
     frame_id = f"0x{msg.frame_id:X}"
     if not DIRECT:
-        return [f"return _message(ts, {frame_id}, {msg.is_extended_frame}, buf, {msg.is_fd})"]
+        return [f"m = _message(ts, {frame_id}, {msg.is_extended_frame}, buf, {msg.is_fd})"]
     fields = {"timestamp": "ts", "arbitration_id": frame_id,
               "is_extended_id": msg.is_extended_frame, "is_remote_frame": False,
               "is_error_frame": False, "channel": None, "data": "buf", "dlc": msg.length,
               "is_fd": msg.is_fd, "is_rx": True, "bitrate_switch": False,
               "error_state_indicator": False}
     assert set(fields) == FIELDS
-    return ["m = _new(_Message)", *(f"m.{k} = {v}" for k, v in fields.items()), "return m"]
+    return ["m = _new(_Message)", *(f"m.{k} = {v}" for k, v in fields.items())]
 
 
 def _indent(lines: list[str], levels: int = 1) -> list[str]:

@@ -164,14 +164,14 @@ class ManifoldFunction:
             INIT if not flt.initialised else
             DEGRADED if flt.missing + sum(flt.rejected) + sum(flt.gated) != troubles else VALID)
         ts = t_ns / NS_PER_S
-        send(self._sigma_frame(ts, counter, validity, sd[0] / RAD_PER_DEG, sd[1], sd[2],
+        send(*self._sigma_frame(ts, counter, validity, sd[0] / RAD_PER_DEG, sd[1], sd[2],
                                s_cac * MG_PER_KG, s_cac6 * MG_PER_KG))
-        self.estimates_sent += send(self._out_frame(
+        self.estimates_sent += send(*self._out_frame(
             ts, x[1] / RAD_PER_DEG, x[3], x[4] - KELVIN_AT_0_DEGC, cac * MG_PER_KG,
             cac6 * MG_PER_KG))
         if self._adapt_frame is not None:
             sigma = math.sqrt(max(float(flt.P_post[6, 6]), 0.0))
-            self.estimates_sent += send(self._adapt_frame(
+            self.estimates_sent += send(*self._adapt_frame(
                 ts, 100.0 * (scale - 1.0), 100.0 * sigma, 100.0 * (x[7] - 1.0),
                 100.0 * (x[8] - 1.0), 100.0 * (x[9] - 1.0), 100.0 * (x[10] - 1.0)))
 

@@ -12,22 +12,29 @@ server (UDS, XCP) do: such an error stops at BusNode.handler_failed, counted.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
 import can
 
-from vecu.bus import BusNode, RxBudget
+from vecu.bus import BusNode, EstimateSink, RxBudget
 from vecu.clock import NS_PER_MS, NS_PER_S
-from vecu.codec import DbcCodec, FrameCodec
+from vecu.codec import DbcCodec, FrameCodec, Values
 from vecu.e2e import AliveCounterCheck
 from vecu.ecu.sensor_monitor import Dtc, HostClock, SensorMonitor
 
 log = logging.getLogger(__name__)
 
 MAX_LOGGED_PER_KIND = 20  # rx problems logged individually before going quiet (still counted)
-Send = Callable[[can.Message], bool]
+
+
+class Send(Protocol):
+    """A function's send: a frame and the values it carries (a framer's two results:
+    `send(*framer(ts, ...))`); True when the bus took it."""
+
+    def __call__(self, msg: can.Message, values: Values | None = None) -> bool: ...
+
 Checked = tuple[bool, dict[str, float], list[str]]  # a frame's CRC ok, values, bad signals
 BUS_ERROR_LIMIT = 10  # error frames per ECU_Status period (100 ms) that confirm the bus DTC
 BUS_DTC_HEAL_MS = 5000.0
@@ -140,7 +147,7 @@ def _plan(route: Route) -> _Plan:
             route.subscription, route.subscription.on_values)
 
 
-def _muted(msg: can.Message) -> bool:
+def _muted(msg: can.Message, values: Values | None = None) -> bool:
     """The send of a node whose broadcast a tester stopped: nothing goes out."""
     return False
 
@@ -152,7 +159,7 @@ class EcuNode(BusNode):
                  routes: dict[tuple[int, bool], Route] | None = None,
                  rx_codec: DbcCodec | None = None, arm_on_input: bool = False,
                  tick_ns: int = NS_PER_MS, host_gap_ms: float = 0.0,
-                 tap: Callable[[can.Message], None] | None = None,
+                 sinks: Sequence[EstimateSink] = (),
                  rx_budget: RxBudget = RxBudget(), log_rx_problems: bool = True,
                  tallied_rx: frozenset[str] = frozenset()) -> None:
         """codec encodes the ECU's own frames. By default the functions consume their messages
@@ -168,13 +175,14 @@ class EcuNode(BusNode):
         host_gap_ms (live bus): a sensor silence shorter than this while the sender's traffic
         at the sensor's rate stopped too is a stalled sender, not a silent sensor (HostClock;
         0 on the simulated clock).
-        tap (trace replay): sees every frame the node sends.
+        sinks (trace replay: the scorer, the --out writer): each takes every frame the node
+        sends, with the values it carries (vecu.bus.EstimateSink), in order.
         rx_budget: frames taken in per tick, then shed (`ecu.rx.*`; frames handed to receive()
         directly, as a trace replay does, are never shed).
         log_rx_problems=False (a replay's kernel warm-up): frames it cannot take are counted,
         never logged; tallied_rx: kinds of receive problem counted, not logged one by one (the
         caller reports them in one line: a replay's tally of IDs not in the database)."""
-        super().__init__(bus, "ecu", tap, rx_budget)
+        super().__init__(bus, "ecu", rx_budget=rx_budget, sinks=sinks)
         self._log_rx_problems = log_rx_problems
         self._tallied_rx = tallied_rx
         self.codec = codec
@@ -305,6 +313,7 @@ class EcuNode(BusNode):
         decodes the trace in blocks), instead of checking it here; the same checks follow."""
         rx = self.rx
         rx.received += 1
+        self.now_ns = t_ns
         try:
             if msg.is_error_frame:
                 rx.error_frames += 1
@@ -387,7 +396,7 @@ class EcuNode(BusNode):
         last = self._last_tick_ns
         if last is not None and t_ns - last > self._tick_ns:  # releases skipped: not running
             host.stalled_ns += t_ns - last - self._tick_ns
-        self._last_tick_ns = t_ns
+        self._last_tick_ns = self.now_ns = t_ns
         recv = self.bus.recv
         n = self.rx_budget.frames_per_tick
         while (msg := recv(0.0)) is not None:

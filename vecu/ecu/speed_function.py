@@ -134,7 +134,7 @@ class SpeedFunction:
             v_std, a_std = math.sqrt(var_v), math.sqrt(var_a)
         else:
             v_std, a_std = kf.speed_std_mps, kf.accel_std_mps2
-        self.estimates_sent += send(self._out_frame(
+        self.estimates_sent += send(*self._out_frame(
             t_ns / NS_PER_S, kf.speed_mps / MPS_PER_KMH, kf.accel_mps2, v_std / MPS_PER_KMH,
             kf.offset_mps2, mode, validity, a_std))
 

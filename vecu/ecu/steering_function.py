@@ -154,8 +154,8 @@ class SteeringFunction:
             validity = VALID
         self.validity, self.swa_std = validity, std
         ts = t_ns / NS_PER_S
-        send(self._sigma_frame(ts, std, ukf.side_slip_std_rad * DEG_PER_RAD))
-        self.estimates_sent += send(self._est_frame(
+        send(*self._sigma_frame(ts, std, ukf.side_slip_std_rad * DEG_PER_RAD))
+        self.estimates_sent += send(*self._est_frame(
             ts, 0, self._tx_counter, source, validity, angle, est, beta, int(status)))
         self._tx_counter = (self._tx_counter + 1) % self._modulo
         if lagged is not None:
@@ -164,9 +164,9 @@ class SteeringFunction:
         lag = self.lagged
         if lag:
             self.smoothed_validity = DEGRADED if self._slow[0] else VALID
-            send(self._smoothed_frame(ts, lag[1], lag[2], lag[0], 1, self.smoothed_validity))
+            send(*self._smoothed_frame(ts, lag[1], lag[2], lag[0], 1, self.smoothed_validity))
         else:
-            send(self._smoothed_frame(ts, 0.0, 0.0, 0, 0, INIT))
+            send(*self._smoothed_frame(ts, 0.0, 0.0, 0, 0, INIT))
 
     def status_signals(self) -> dict[str, int]:
         return {}

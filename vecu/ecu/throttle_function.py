@@ -155,7 +155,7 @@ class ThrottleFunction:
         self.angle, self.source, self.status = angle, source, status
         self.validity = validity = (INIT if not self._measured else
                                     DEGRADED if self._runs_without >= STALE_RUNS else VALID)
-        self.estimates_sent += send(self._est_frame(
+        self.estimates_sent += send(*self._est_frame(
             t_ns / NS_PER_S, 0, self._tx_counter, source, validity, angle, theta_hat, std,
             int(status)))
         self._tx_counter = (self._tx_counter + 1) % self._modulo

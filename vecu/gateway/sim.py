@@ -16,6 +16,7 @@ import can
 
 from vecu.assembly import PRIO_ECU, PRIO_RECORD, TICK_NS
 from vecu.bus import LaneBus, MergedEdges, SimLane
+from vecu.can_message import Values
 from vecu.clock import NS_PER_S, SimClock
 from vecu.errors import ConfigError
 from vecu.faults import ScheduledFault
@@ -40,7 +41,7 @@ PRIO_GATEWAY = (PRIO_ECU + PRIO_RECORD) // 2  # after the ECU's tick, before the
 class TraceGateway(can.Listener):
     """`vecu replay TRACE --gateway`: the trace's frames and the ECU's are the first bus's; the
     replay's feeder hands every trace frame here (on_message_received, at the simulated clock's
-    now), the ECU's tap its frames (receive), and tick() each 1 ms after the ECU gives the routed
+    now), the ECU its frames as an estimate sink (on_estimate), and tick() each 1 ms after the ECU gives the routed
     frames to `write` (each frame's channel its bus name). `copy_to` (--with-inputs): the trace's
     frames under the first bus's name."""
 
@@ -57,8 +58,9 @@ class TraceGateway(can.Listener):
             msg.channel = self.first
             self.copy_to.on_message_received(msg)
 
-    def receive(self, msg: can.Message, now_ns: int) -> None:
-        self.engine.receive(self.first, msg, now_ns)
+    def on_estimate(self, values: Values | None, msg: can.Message, t_ns: int) -> None:
+        """An estimate sink (vecu.bus.EstimateSink): the ECU's frames are the first bus's too."""
+        self.engine.receive(self.first, msg, t_ns)
 
     def tick(self, now_ns: int) -> None:
         for _, msg in self.engine.tick(now_ns):

@@ -29,7 +29,8 @@ Python runs as Python under every backend (a compiled call from Python costs mor
 piece itself); inside compiled code it is compiled with its caller. `constants(values)` and
 `record(dtype)` give a kernel's arguments in the form the active backend takes fast (a float64
 array or a structured array compiled; tuples of Python floats or a dict of named Python numbers
-as Python); `@kernel(setup=fn)` runs fn once before the
+as Python); `pack(*parts)` gives several read-only arrays as one argument (`part(p, i)`,
+`table(p, i)`, `numbers(p, i, n)` read them back). `@kernel(setup=fn)` runs fn once before the
 kernel is first compiled (an external symbol it links, say).
 
 A numpy form (`@kernel(python=numpy_fn)`): the python backend runs numpy_fn instead of the loops
@@ -397,3 +398,63 @@ def kernel(fn: Callable[..., Any] | None = None, *, python: Callable[..., Any] |
     if fn is None:
         return lambda f: Kernel(f, dict(options), python)
     return Kernel(fn, options, python)
+
+
+def pack(*parts: Any) -> Any:
+    """Several read-only kernel arguments (float arrays of one or two dimensions, tuples of
+    numbers) as one, each read back with `part(p, i)` / `table(p, i)` (part i of one / two
+    dimensions) in either backend. Compiled: one float64 array, a header (the number of parts,
+    their offsets, each part's rows and columns) then the parts flat, C order (numba types one
+    argument where it would type one per part, ~0.25 us each on every call from Python; a
+    tuple of floats costs more); as Python: the tuple of the parts as given (Python reads a
+    tuple of floats faster than an array). Made where the kernels' caller is built."""
+    if backend() != "numba":
+        return parts
+    flat = [np.ascontiguousarray(p, dtype=np.float64) for p in parts]
+    n = len(flat)
+    offsets = np.cumsum([1 + (n + 1) + 2 * n] + [a.size for a in flat])
+    shapes = [d for a in flat for d in (a.shape[0], a.shape[1] if a.ndim == 2 else 0)]
+    return np.concatenate([np.array([n, *offsets, *shapes], dtype=np.float64),
+                           *(a.ravel() for a in flat)])
+
+
+def _part_as_given(p: Any, i: int) -> Any:
+    return p[i]
+
+
+@kernel(python=_part_as_given)
+def part(p: Any, i: int) -> Any:
+    """Part i (one dimension) of a pack(): a view of the packed array compiled, the part as
+    given as Python."""
+    return p[int(p[1 + i]):int(p[2 + i])]
+
+
+@kernel(python=_part_as_given)
+def table(p: Any, i: int) -> Any:
+    """Part i (two dimensions) of a pack(): a C-ordered view of the packed array compiled,
+    the part as given as Python."""
+    n = int(p[0])
+    return p[int(p[1 + i]):int(p[2 + i])].reshape((int(p[n + 2 + 2 * i]),
+                                                     int(p[n + 3 + 2 * i])))
+
+
+def _link_fixed_tuple() -> None:
+    global _to_fixed_tuple
+    from numba.np.unsafe.ndarray import to_fixed_tuple
+
+    _to_fixed_tuple = to_fixed_tuple
+
+
+_to_fixed_tuple: Any = None  # numba's, linked before `numbers` is first compiled
+
+
+def _numbers_as_given(p: Any, i: int, n: int) -> Any:
+    return p[i]
+
+
+@kernel(python=_numbers_as_given, setup=_link_fixed_tuple)
+def numbers(p: Any, i: int, n: int) -> Any:
+    """Part i of a pack() given as a tuple of n numbers (for a kernel that takes a tuple):
+    compiled, that part of the packed array as a tuple of n floats; as Python, the part as
+    given."""
+    return _to_fixed_tuple(p[int(p[1 + i]):int(p[2 + i])], n)

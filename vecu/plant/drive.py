@@ -183,6 +183,6 @@ class LongitudinalPart:
         if data is not None:
             send(message(ts, self._msg.frame_id, self._msg.is_extended, data, self._msg.is_fd))
         else:
-            send(self._frame(ts, wheel / MPS_PER_KMH, accel))
+            send(self._frame(ts, wheel / MPS_PER_KMH, accel)[0])
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_VehSpeed": v / MPS_PER_KMH, "TRU_VehAccel": a}, ts))

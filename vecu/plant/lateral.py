@@ -430,11 +430,11 @@ class LateralPart:
         swa, beta = s.swa * DEG_PER_RAD, s.beta * DEG_PER_RAD
         self.swa, self.beta = swa, beta
         ts = t_ns / NS_PER_S
-        send(self._lat_frame(ts, s.meas_r * DEG_PER_RAD, s.meas_ay, s.meas_vx / MPS_PER_KMH))
+        send(self._lat_frame(ts, s.meas_r * DEG_PER_RAD, s.meas_ay, s.meas_vx / MPS_PER_KMH)[0])
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_SwAngle": swa, "TRU_SideSlip": beta}, ts))
         v = self.injector.apply(_SWA, s.meas_swa * DEG_PER_RAD)
         self.swa_sensor = v
         if v is not None:
-            send(self._swa_frame(ts, 0, self._counter, v))
+            send(self._swa_frame(ts, 0, self._counter, v)[0])
             self._counter = (self._counter + 1) % self._modulo

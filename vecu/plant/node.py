@@ -98,8 +98,8 @@ class ManifoldPart:
         self.truth[k] = (p_true, t_true, cac_true)
         self.truth.pop(k - 64, None)  # bounded: probes look back a few events only
         ts = t_ns / NS_PER_S
-        send(self._ev_frame(ts, k & 0xFF, n, sp * DEG_PER_RAD, ta * DEG_PER_RAD, p_kpa))
-        send(self._iat_frame(ts, k & 0xFF, t_meas - KELVIN_AT_0_DEGC))
+        send(self._ev_frame(ts, k & 0xFF, n, sp * DEG_PER_RAD, ta * DEG_PER_RAD, p_kpa)[0])
+        send(self._iat_frame(ts, k & 0xFF, t_meas - KELVIN_AT_0_DEGC)[0])
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_EventCounter": k & 0xFF, "TRU_MAP": p_true,
                                        "TRU_IMT": t_true - KELVIN_AT_0_DEGC, "TRU_CAC": cac_true * MG_PER_KG}, ts))

@@ -278,13 +278,13 @@ class ThrottlePart:
             if data is not None:  # encoded from the same clamped voltage and counter
                 send(message(ts, self._tps.frame_id, self._tps.is_extended, data, self._tps.is_fd))
             else:
-                send(self._tps_frame(ts, 0, self._counter, v))
+                send(self._tps_frame(ts, 0, self._counter, v)[0])
             self._counter = (self._counter + 1) % self._modulo
         data = self._watt_ahead[k]
         if data is not None:
             send(message(ts, self._watt.frame_id, self._watt.is_extended, data, self._watt.is_fd))
         else:
-            send(self._watt_frame(ts, u, y))
+            send(self._watt_frame(ts, u, y)[0])
         if self.truth_msg is not None:
             send(self.truth_msg.frame({"TRU_ThrottleAngle": theta, "TRU_MotorVoltage": u}, ts))
         self.theta = theta

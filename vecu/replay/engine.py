@@ -24,9 +24,9 @@ import can
 from vecu import functions as registry
 from vecu import kernels, warmup
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
-from vecu.bus import SinkBus, open_bus
+from vecu.bus import EstimateSink, SinkBus, open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
-from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
+from vecu.codec import TRUTH_DBC, DbcCodec, Values, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
 from vecu.errors import BadArgumentError, Interrupted
@@ -147,31 +147,20 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
             buses += [player_bus, ecu_bus]
         else:
             ecu_bus = SinkBus("replay")
-        out_channel = OUT_CHANNEL if routing is None else routing.buses[0].name
-
-        def to_out(msg: can.Message, t_ns: int) -> None:
-            if writer is not None:  # back on the trace's time base (skipped idle time too)
-                skipped = source.skipped_before(int(t_ns * config.speed) if live else t_ns)
-                msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
-                if msg.channel is None:
-                    msg.channel = out_channel
-                writer.on_message_received(msg)
-
+        out = _EstimateOut(writer, source, config.speed,
+                           OUT_CHANNEL if routing is None else routing.buses[0].name)
         copy_to: can.Listener | None = writer if config.with_inputs else None
+        sinks: list[EstimateSink] = [scorer]  # the ECU hands each frame it sends to these
         gateway = None
         if routing is not None:
             assert isinstance(clock, SimClock)
-            copy_to = gateway = TraceGateway(routing, clock, to_out, copy_to)
+            copy_to = gateway = TraceGateway(routing, clock, out.write, copy_to)
             sched.every(TICK_NS, gateway.tick, name="gateway", priority=PRIO_GATEWAY)
-
-        def on_sent(msg: can.Message) -> None:
-            t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
-            scorer.on_estimate(msg, t_ns)
-            if gateway is not None:
-                gateway.receive(msg, t_ns)
-            to_out(msg, t_ns)
+            sinks.append(gateway)
+        if writer is not None:
+            sinks.append(out)
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
-                      arm_on_input=True, tap=on_sent, tallied_rx=frozenset({UNKNOWN_ID}))
+                      arm_on_input=True, sinks=sinks, tallied_rx=frozenset({UNKNOWN_ID}))
         tally = FrameTally()
         feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes, copy_to,
                              player=player_bus, speed=config.speed or 1.0,
@@ -302,6 +291,29 @@ class _OutputWriter(can.Listener):
 
     def stop(self) -> None:
         self.inner.stop()
+
+
+class _EstimateOut:
+    """The --out writer as an estimate sink (vecu.bus.EstimateSink): each frame the ECU sends
+    (and, with --gateway, each routed frame: write), back on the trace's time base (its skipped
+    idle time too; live: the ECU's time times the speed), on `channel` unless it names its own."""
+
+    def __init__(self, writer: _OutputWriter | None, source: TraceSource, speed: float | None,
+                 channel: str) -> None:
+        self.writer, self.source, self.speed, self.channel = writer, source, speed, channel
+
+    def on_estimate(self, values: Values | None, msg: can.Message, t_ns: int) -> None:
+        self.write(msg, t_ns)
+
+    def write(self, msg: can.Message, t_ns: int) -> None:
+        if self.writer is None:
+            return
+        source, speed = self.source, self.speed
+        skipped = source.skipped_before(int(t_ns * speed) if speed is not None else t_ns)
+        msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
+        if msg.channel is None:
+            msg.channel = self.channel
+        self.writer.on_message_received(msg)
 
 
 class _TraceEnd:

@@ -96,7 +96,7 @@ def test_manifold_function_prediction_reuses_the_filter_step_exactly():
                       "ENG_ThrottleSetpoint": sp, "ENG_ThrottleAngle": sp + rng.normal(0, 0.5),
                       "ENG_MAP": 40.0 + 0.4 * k}, 0)
         fn._on_iat({"ENG_IntakeCounter": k & 0xFF, "ENG_IAT": 35.0}, 0)
-        fn.run(k * 1_000_000, lambda m: sent.append(m) or True)
+        fn.run(k * 1_000_000, lambda m, values=None: sent.append(m) or True)
         cac6 = fn.last[4]
         x = fn.filter.x_post
         u = EngineInput(sp * RAD_PER_DEG, 1500.0 + 10 * k)  # as the function computes it

@@ -54,7 +54,7 @@ class ToyFunction:
     timeouts = 0
 
     def __init__(self, codec: DbcCodec) -> None:
-        self._out = codec["TOY_Estimate"]
+        self._frame = codec["TOY_Estimate"].framer(("TOY_LevelEst",))
         self.estimate: float | None = None
         self._latest: float | None = None
         self.estimates_sent = 0
@@ -71,7 +71,7 @@ class ToyFunction:
         est = self._latest if self.estimate is None else (
             self.estimate + ALPHA * (self._latest - self.estimate))
         self.estimate = est
-        self.estimates_sent += send(self._out.frame({"TOY_LevelEst": est}, t_ns / NS_PER_S))
+        self.estimates_sent += send(*self._frame(t_ns / NS_PER_S, est))
 
     def status_signals(self) -> dict[str, int]:
         return {}

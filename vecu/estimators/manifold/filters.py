@@ -74,7 +74,7 @@ from vecu.estimators.manifold.model import (  # noqa: F401 (RICCATI_MODES, dare_
     r_matrix,
     sdc_matrices,
 )
-from vecu.estimators.manifold.sequences import filter_events, limits
+from vecu.estimators.manifold.sequences import event_constants, filter_events
 from vecu.models.manifold import (
     cylinder_air_charge,
     nominal_input,
@@ -297,7 +297,7 @@ class _ManifoldKF:
         return x, cac, cac6, scale, filter_s, lap()
 
     _runs = True  # whole runs of events go through filter_events (not the DARE modes)
-    _lim: np.ndarray | None = None  # the plausibility limits (limits(config)), on first use
+    _consts: Any = None  # filter_events' constants (event_constants), on first use
     _counts: np.ndarray
     _bufs: tuple | None = None
 
@@ -356,19 +356,20 @@ class _ManifoldKF:
                    u: EngineInput | None = None) -> int:
         """filter_events from event start; the state, counters and last inputs (u: the last
         event's, as given) taken from the events it ran. Returns the first event not run."""
-        args = self._kargs
-        if self._lim is None:
-            self._lim = limits(self.config)
+        kind = self._KIND
+        if self._consts is None:
+            args = self._kargs
+            self._consts = event_constants(self.config, args[0], args[1], args[2],
+                                           args[3] if kind == 2 else _NO_AC, args[-6:])
             self._counts = np.zeros((2, 3), dtype=np.int64)  # gated in a row, gated
-        gr, gated = self._counts
+        counts = self._counts
+        gr, gated = counts
         gr[0], gr[1], gr[2] = self._gated_run
         gated[0] = gated[1] = gated[2] = 0
         x, P, P_post = self.x.copy(), self.P.copy(), self.P_post.copy()
         last_pred = np.empty(len(x))
-        kind = self._KIND
-        stop = filter_events(kind, x, P, P_post, ys, us, start, self.events, gr, gated, xs, vs,
-                             last_pred, self._lim, args[0], args[1], args[2],
-                             args[3] if kind == 2 else _NO_AC, *args[-6:], horizon, cacs)
+        stop = filter_events(kind, x, P, P_post, ys, us, start, self.events, counts, xs, vs,
+                             last_pred, self._consts, horizon, cacs)
         if stop == start:
             return start
         self.events += stop - start

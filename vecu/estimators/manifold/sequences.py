@@ -25,11 +25,17 @@ from vecu.estimators.manifold.event import (
     input_fault,
     sdkf_event,
 )
-from vecu.kernels import kernel
+from vecu.kernels import kernel, numbers, pack, part, table
 from vecu.models.manifold import air_charge_of
+from vecu.models.manifold_integrator import N_CONSTS
 
 # plausibility limits vector of filter_events (filters.input_problem, ManifoldFilterConfig.y_ranges)
 (L_N_LO, L_N_HI, L_Y0_LO, L_Y0_HI, L_Y1_LO, L_Y1_HI, L_Y2_LO, L_Y2_HI) = range(8)
+
+
+# the parts of filter_events' constants (event_constants: one vecu.kernels.pack)
+(K_LIM, K_FC, K_Q, K_FD, K_AC, K_C, K_CD_ALPHA, K_CD_TABLE, K_PRS, K_ETA_RPM,
+ K_ETA_VAL) = range(11)
 
 
 def limits(config: Any) -> np.ndarray:
@@ -37,6 +43,13 @@ def limits(config: Any) -> np.ndarray:
     c = config
     return np.array([c.n_range[0], c.n_range[1], *c.y_ranges[0], *c.y_ranges[1],
                      *c.y_ranges[2]], dtype=np.float64)
+
+
+def event_constants(config: Any, fc: Any, Q: np.ndarray, fd: Any, ac: Any, tables: tuple) -> Any:
+    """filter_events' constants as one argument (vecu.kernels.pack, parts K_*): the
+    plausibility limits of a ManifoldFilterConfig, the filter constants, Q, the FD steps, the
+    adaptive constants (any three numbers for the other kinds) and the integrator's tables."""
+    return pack(limits(config), fc, Q, fd, ac, *tables)
 
 
 @kernel
@@ -49,17 +62,20 @@ def plausible(sp, n_rpm, p_a, t_a, t_cool, y0, y1, y2, lim):
 
 
 @kernel
-def filter_events(kind, x, P, P_post, ys, us, start, events_before, gated_run, gated, xs_out,
-                  var_out, last_pred, lim, fc, Q, fd, ac, c, cd_alpha, cd_table, prs, eta_rpm,
-                  eta_val, horizon, cac_out):
+def filter_events(kind, x, P, P_post, ys, us, start, events_before, counts, xs_out, var_out,
+                  last_pred, k, horizon, cac_out):
     """Events start.. of the "iterate" ManifoldSDKF (kind 0), ManifoldEKF (1) or
-    adaptive.ManifoldAdaptive (2, ac its constants, 11 states) from the state
-    (x, P, P_post; gated_run, gated counters), updated in place; xs_out[n] the posterior,
-    var_out[n] its variances (the diagonal of P_post),
-    last_pred the last event map output. With horizon > 0 also cac_out[n] = (the CAC at the
-    posterior, models.manifold.air_charge_of; the CAC `horizon` events ahead with the input
-    held, cac_predict.predict_events from the event map's output: predict_cac's numbers).
-    Returns the index of the first event not run."""
+    adaptive.ManifoldAdaptive (2, 11 states) from the state (x, P, P_post; counts: the gated
+    in a row and gated counters per channel), updated in place, with the constants k
+    (event_constants); xs_out[n] the posterior, var_out[n] its variances (the diagonal of
+    P_post), last_pred the last event map output. With horizon > 0 also cac_out[n] = (the CAC
+    at the posterior, models.manifold.air_charge_of; the CAC `horizon` events ahead with the
+    input held, cac_predict.predict_events from the event map's output: predict_cac's
+    numbers). Returns the index of the first event not run."""
+    lim, fc, Q, fd, ac = part(k, K_LIM), part(k, K_FC), table(k, K_Q), part(k, K_FD), part(k, K_AC)
+    c, cd_alpha, cd_table = numbers(k, K_C, N_CONSTS), part(k, K_CD_ALPHA), table(k, K_CD_TABLE)
+    prs, eta_rpm, eta_val = part(k, K_PRS), part(k, K_ETA_RPM), part(k, K_ETA_VAL)
+    gated_run, gated = counts[0], counts[1]
     nx = x.shape[0]
     xo = np.empty((3, nx))
     Po = np.empty((2, nx, nx))
