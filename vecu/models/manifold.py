@@ -1,18 +1,10 @@
 """Intake manifold and electronic throttle (Dutka et al. 2006, eq. 1-9), corrected: docs/models.md.
 
-Units (the paper's own, in which eq. 5, 6 and 8 hold literally): P in kPa, V in dm^3
-(kPa dm^3 = J), T in K, throttle angle alpha in rad, mass flow in kg/s, heat flow in W, N in rpm,
-time in s. Only the throttle-flow factor Xi of eq. 2-3 needs P_a in Pa (A_th is in m^2).
-
-State of one event n (the augmented x_n of eq. 10, 6 entries):
-    x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas)
-where (u_prev, alpha, alpha_prev) is the non-minimal actuator state x_ET of eq. 1.
-Input: EngineInput (throttle setpoint TA_SP in rad, N, P_a, T_a, T_coolant).
-
-Layers: the model's kernels (eq. 1 and 9 coefficients and event map, eq. 2-4 flow, eq. 8) and
-their functions on a parameter set; `integrate_manifold`, one event of eq. 5-6 in ROS2 sub-steps
-(vecu.models.manifold_integrator; the printed single Euler step diverges at large openings);
-`f`/`h`, the noise-free event map and output of the augmented model; steady states.
+The paper's units (eq. 5, 6 and 8 hold literally): kPa, dm^3, K, rad, kg/s, W, rpm, s; only Xi of
+eq. 2-3 needs P_a in Pa. Event state (eq. 10): x = (u_prev, alpha, alpha_prev, P_im, T_im,
+T_im.meas), (u_prev, alpha, alpha_prev) the actuator state x_ET of eq. 1; input EngineInput.
+Kernels for eq. 1/9, 2-4 and 8 and their functions on a parameter set; `integrate_manifold` (eq.
+5-6 by ROS2 sub-steps); `f`/`h` of the augmented model; steady states.
 """
 
 from __future__ import annotations

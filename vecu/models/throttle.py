@@ -1,15 +1,9 @@
 """Electronic throttle body model: piecewise-affine, 3 modes (Vargas et al. 2015, eq. 3-4, Table I).
 
-Pure equations and constants, shared by the plant simulator and the estimators.
-Eq. (3) is written once, as two kernels (vecu.kernels: compiled under numba, plain Python
-otherwise): `mode_step`, one mode's affine map with the sign terms given, and `eq3_step`, the
-switched system (mode by theta, sgn(rho), sgn(theta - 1)) built on it. The plant, the paper's
-UKFs, the particle filter's class matrices (read off mode_step) and Kalman stretches, and the
-identification all call them (small kernels: called from Python they run as Python).
-
-State x = [theta, rho, i]: valve angle theta in degrees (the paper's 0.1 factor dropped, see
-docs/models.md), angular velocity rho in the model's own units, motor current i in A.
-Input u: terminal voltage in V. Wattmeter measurement y = i**2 + v (eq. 4).
+Eq. (3) is written once, as two small kernels: `mode_step` (one mode's affine map) and `eq3_step`
+(the switched system), called by the plant, the UKFs, the particle filter and the identification.
+x = [theta, rho, i]: valve angle in degrees (the paper's 0.1 factor dropped, docs/models.md),
+angular velocity, motor current in A; u: terminal voltage in V; wattmeter y = i**2 + v (eq. 4).
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """Intake manifold simulator: the stochastic truth of Dutka et al. 2006 (eq. 10, Section IV noise).
 
-The model (eq. 1-9, the event integrator) is vecu.models.manifold; this module adds state, noise
-and the event-by-event simulation over a drive profile. The truth's event (`plant_step`: eq. 1,
-the integrator of eq. 5-6, eq. 9, Section IV's Q, the physical clamps) and its measurement
-(`measure`: Section IV's R, the sensor gains) are written once as kernels (vecu.kernels), and
-driven by one loop that is a kernel too, `truth_events`: simulate (a whole drive, on a float
-clock) and EventsAhead (vecu.plant.node.ManifoldPart's events computed ahead in blocks, on its
-integer-nanosecond clock).
-The noise rows are drawn in blocks of config.block from one stream (Generator.standard_normal
-fills them in order), so the block size never changes the numbers.
+The truth's event (`plant_step`: eq. 1, the eq. 5-6 integrator, eq. 9, Section IV's Q, the
+clamps) and its measurement (`measure`: Section IV's R, sensor gains) are kernels, driven by one
+kernel loop, `truth_events`, for `simulate` and the plant part's events ahead. The noise rows
+come in blocks of config.block from one stream, so the block size never changes the numbers.
 """
 
 # ruff: noqa: FURB136 (x if c else y in the kernels mirrors Python's min()/max(), NaN included)

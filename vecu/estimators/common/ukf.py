@@ -1,16 +1,10 @@
 """Generic unscented Kalman filter, exactly the paper's Step 3 (Vargas et al. 2015, Section II-A).
 
-Reference implementation and speed baseline (see ukf_fast.py for the n = 3 specialisation):
-
-- Step 2 / 2a / 2b: chi_j = x_hat + S Z_j with S = chol(P) and the fixed pattern of a SigmaSet.
-- Step 3, predict: chi_j <- f(chi_j, u); x_pred = sum w chi; Pxx = sum w (chi-x)(chi-x)^T + FF^T.
-- Step 3, update: gamma_j = h(chi_j) on the *propagated* points (no redraw after predict);
-  y_pred = sum w gamma; Pxy, Pyy = sum w (gamma-y)(gamma-y)^T + HH^T; G = Pxy Pyy^-1;
-  x = x_pred + G (y - y_pred); P = Pxx - G Pyy G^T.
-
-The same weights serve mean and covariance. Guards (vecu.estimators.common.covariance): P is
-symmetrised after each update, factorised with a fallback, and the filter resets to (x0, P0) when
-the state or covariance diverges (counted in `resets`). A non-finite y is treated as missing.
+Reference implementation and speed baseline (ukf_fast.py: the n = 3 specialisation). Step 2:
+chi_j = x + S Z_j, S = chol(P), Z a SigmaSet; Step 3: predict the points through f, update with
+h on the *propagated* points (no redraw), one set of weights for mean and covariance. Guards
+(common.covariance): P symmetrised, factored with a fallback, reset to (x0, P0) on divergence
+(`resets`); a non-finite y is missing.
 """
 
 from __future__ import annotations

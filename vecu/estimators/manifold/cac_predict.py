@@ -1,25 +1,11 @@
-"""Cylinder-air-charge (CAC) prediction 6 events ahead (Dutka 2006, Section IV, Table 1).
+"""Cylinder-air-charge (CAC) prediction HORIZON = 6 events ahead (Dutka 2006, Section IV, Table 1).
 
-The feedforward fuel controller needs the air charge of the cylinder whose fuel it injects now,
-HORIZON events later. At event n it takes a state x_n (measured or estimated), runs the model
-(actuator eq. 1 for the future throttle trajectory, manifold eq. 5-6, the plant's sub-stepped
-event map) over the next HORIZON events and returns
-    CAC_pred(n) = eta P_im V_cyl / (R T_im) at x_n+6 (kg per cylinder event),
-to be compared with the simulated CAC_actual(n + 6).
-
-What the controller knows at event n (decisions, docs/models.md "Manifold estimators"):
-- the throttle setpoints TA_SP,n..n+5 (known_setpoint=True, default): a drive-by-wire ECU delays
-  the pedal command by the prediction horizon, which is why a throttle model can predict the
-  throttle trajectory at all (the paper's ref. [1]); known_setpoint=False holds TA_SP,n;
-- the engine speed N_n only, held over the horizon (event period and eta_N from N_n);
-- nominal P_a, T_a, T_coolant.
-
-Four sources of x_n (the paper's Table 1 columns):
-- "direct": the readings: alpha = TA_n, alpha_prev = TA_n-1, u_prev = TA_SP,n-1, P_im = P_n,
-  T_im = T_im.meas = T_im.out,n (the slow IAT sensor, tau 8 s);
-- "direct_ol": the same, but T_im from an open-loop observer: the manifold model (P, T) run
-  without feedback, driven by the measured throttle angle (`open_loop_temperatures`);
-- "ekf", "sdkf": the filter posteriors x_n|n (vecu/estimators/manifold/filters.py).
+From a state x_n the model (eq. 1 for the future throttle, eq. 5-6 by the event integrator) runs
+HORIZON events: CAC_pred(n) = eta P_im V_cyl / (R T_im) at x_n+6, compared with CAC_actual(n+6).
+Known at event n (docs/models.md "Manifold estimators"): the setpoints TA_SP,n..n+5
+(known_setpoint, default; else TA_SP,n held), N_n held, nominal ambient. Sources of x_n (Table 1):
+"direct" (the readings), "direct_ol" (T_im from the open-loop observer
+`open_loop_temperatures`), "ekf", "sdkf" (the filter posteriors).
 """
 
 from __future__ import annotations

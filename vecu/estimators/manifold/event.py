@@ -1,25 +1,12 @@
-"""One engine event of the manifold EKF and SDKF (Dutka 2006, eq. 10-14), written once.
+"""One engine event of the manifold EKF and SDKF (Dutka 2006, eq. 10-14), written once as kernels.
 
-`sdkf_event` is a whole ManifoldSDKF event after the Python-side input checks: the SDC matrix
-A(x_n|n-1) of eq. 10 with the paper's A_IM (eq. 7, `sdc_matrix`), the prior covariance (one
-Riccati iteration P_n = A P_n-1|n-1 A^T + Q of eq. 14 with `iterate`, else the P handed in: the
-DARE modes solve eq. 14 in Python and pass its P), gating and the measurement update of eq. 13
-(`update`), clamping, both divergence checks and the mean through the event map of eq. 10 (the
-plant's integrator of eq. 5-6, vecu.models.manifold_integrator). `ekf_event` is the EKF event:
-the same update, then F = df/dx at x_n|n (analytic rows of eq. 1 and 9, one-sided differences
-of the integrator: `jacobian`) and P = F P F^T + Q. The adaptive filter's event
-(manifold.adaptive) and the runs of events (manifold.sequences) call these pieces.
-
-Each function is a `vecu.kernels.kernel`: numba-compiled under the numba backend, the same
-Python function under the python backend, on the same arguments (the integrator's tables,
-manifold_integrator.tables), so every
-path computes an event the same way. A
-kernel returns a status word: bits 0-2 the channels gated, DIVERGED (reset the filter), FALLBACK
-(the innovation covariance S is not positive definite or not finite: the filter factors it with
-covariance.cholesky_lower's jitter, then `apply_gain` and `sdkf_finish` / `ekf_finish`).
-
-numba's cache links the compiled integrator into these kernels' entries: vecu.kernels keys
-each entry by the code it was made of, so an edit of manifold_integrator.py recompiles them.
+`sdkf_event`: SDC matrix A(x_n|n-1) (eq. 7/10, `sdc_matrix`), the prior covariance (one Riccati
+iteration of eq. 14 with `iterate`, else the DARE's P handed in), gating and the update of eq. 13
+(`update`), clamping, divergence checks, the mean through the event map (eq. 5-6 integrator).
+`ekf_event`: the same update, then F = df/dx (`jacobian`) and P = F P F^T + Q. The adaptive
+filter and the runs of events (manifold.sequences) call these pieces. Status word: bits 0-2 the
+channels gated, DIVERGED, FALLBACK (S not positive definite: the filter factors it with jitter,
+then `apply_gain` and `sdkf_finish` / `ekf_finish`).
 """
 
 # ruff: noqa: FURB136 (x if c else y mirrors Python's min()/max(), NaN included)

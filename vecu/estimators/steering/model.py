@@ -1,22 +1,11 @@
 """Filter-side model for the steering-wheel angle and side-slip (after Khalid et al., eqs. 1-3).
 
-State x = [v_y, r, delta, delta_dot] (lateral velocity m/s, yaw rate rad/s, road-wheel angle rad
-and its rate): the paper's lateral (4) and yaw (11) motion on the single-track model of
-vecu.models.lateral, plus the steering angle as an estimated state driven by white delta_ddot
-(PSD q_delta: a steering-rate random walk). Steering-wheel angle = i_s * delta; side slip
-beta = atan(v_y / v_x). Input: the measured speed v_x (held over a step). Measurements
-y = [r, a_y] (gyro, accelerometer; the paper's eq. 2 with a nonlinear h).
-
-Discretisation (dt = 10 ms): Heun (explicit trapezoid) on the continuous dynamics, the input held:
-  k1 = g(x), x1 = x + dt k1, k2 = g(x1), x+ = x + dt/2 (k1 + k2).
-`jacobian_f` is the exact Jacobian of that map, I + dt/2 (A(x) + A(x1) (I + dt A(x))), and
-`jacobian_h` that of h; both are tested against finite differences (the EKF's).
-
-`accelerations` and `transition` are the one copy of the model's equations: vecu.kernels kernels
-on a constants vector (`constants`), which the UKF's kernels (vecu.estimators.steering.unscented)
-run compiled under the numba backend and as plain Python otherwise; small kernels, so that the
-EKF's Python calls run them as Python. Only scalar IEEE arithmetic and libm calls: both backends
-give the same bits.
+x = [v_y, r, delta, delta_dot]: the lateral (4) and yaw (11) motion of vecu.models.lateral plus
+the road-wheel angle driven by white delta_ddot (PSD q_delta). SWA = i_s delta, beta =
+atan(v_y / v_x); input v_x held over a step; y = [r, a_y] (eq. 2 with a nonlinear h).
+Heun on the continuous dynamics (dt = 10 ms): x+ = x + dt/2 (g(x) + g(x + dt g(x)));
+`jacobian_f` is that map's exact Jacobian, `jacobian_h` h's. `accelerations` and `transition`
+are the one copy of the equations, small kernels on a constants vector (`constants`).
 """
 
 from __future__ import annotations

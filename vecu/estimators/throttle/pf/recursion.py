@@ -1,13 +1,9 @@
-"""One tick of the throttle particle filter, written once: `filter_tick`, compiled under numba
-(one call per tick) and plain Python under the python backend (its particle step and
-resampling then run their numpy forms, vecu.kernels).
+"""One tick of the throttle particle filter, written once: `filter_tick` (vecu.kernels).
 
-A tick takes the next window offsets of the normal table, checks u and y, and runs either a
-Kalman-stretch tick (pf.kalman_stretch.mode3_tick) or a particle tick (pf_tick: the step
-pf.update.pf_step, a redo of a surprising step, renormalising, the decision to resample or to
-hand over), then the counters and the reported std. Its state is the filter's record (pf.state)
-in one float vector; what is rare goes back to the filter (pf.filter), flagged in the returned
-code: refilling the offsets, resampling, a hand-over to or from the Kalman filter, a restart.
+Checks u and y, then a Kalman-stretch tick (pf.kalman_stretch.mode3_tick) or a particle tick
+(pf_tick: pf.update.pf_step, a redo of a surprising step, renormalising, resample or hand-over),
+the counters and the reported std, on the state record (pf.state). What is rare (refilling the
+offsets, resampling, a hand-over, a restart) goes back to pf.filter, flagged in the return code.
 """
 
 

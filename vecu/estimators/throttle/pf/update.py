@@ -1,12 +1,9 @@
 """The particle step: eq. (3) prediction, then the prior current or the linearised optimal
 proposal with its predictive-likelihood weights (eq. 4), and the moments.
 
-`pf_step` is loops (compiled: branch-free passes that LLVM vectorises, exp_poly instead of a
-libm exp); its numpy form `numpy_step` is what the python backend runs (vecu.kernels). Same
-normal-table windows, same decisions, the prediction the same arithmetic; the update (one
-division, exp_poly) and the moments (sequential sums vs BLAS) agree to rounding
-(tests/estimators/throttle/test_update.py). Frames: F rows theta, rho, i, 1, sgn rho, theta^2,
-weight (pf.state.Frame); s: the state record (its step constants).
+`pf_step` is loops (compiled); its numpy form `numpy_step` runs under the python backend
+(vecu.kernels), agreeing to rounding (tests/estimators/throttle/test_update.py). Frame rows:
+theta, rho, i, 1, sgn rho, theta^2, weight (pf.state.Frame); s: the state record.
 """
 
 # The explicit `a if a < b else b` selects keep numpy's NaN semantics (np.minimum / np.clip
