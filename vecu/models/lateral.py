@@ -81,8 +81,7 @@ def tyre_consts(p: VehicleParams) -> TyreConsts:
 @kernel(small=True)
 def tyre_force(d: float, c: float, b: float, alpha: float) -> float:
     """Lateral tyre force F_y = D sin(C atan(B alpha)) (N) at slip angle alpha (rad): Pacejka's
-    magic formula without shifts (module docstring; the paper's tyre curve). The one copy: the
-    plant, the filters' model and the compiled steering kernels call it (a small kernel)."""
+    magic formula without shifts."""
     return d * math.sin(c * math.atan(b * alpha))
 
 
@@ -98,11 +97,7 @@ def tyre_force_slope(d: float, c: float, b: float, alpha: float) -> tuple[float,
 def lateral_motion(v_y: float, r: float, delta: float, v_x: float, d_f: float, b_f: float,
                    d_r: float, b_r: float, c: float, l_f: float, l_r: float, mass: float,
                    i_z: float) -> tuple[float, float]:
-    """(a_y, r') = ((F_yf cos delta + F_yr) / M, (l_f F_yf cos delta - l_r F_yr) / I_z): the
-    paper's lateral (4) and yaw (11) motion per axle, the tyre forces at the slip angles
-    (module docstring). a_y is also the accelerometer's quantity and v_y' = a_y - v_x r. The
-    one copy: the plant (`f`, `h`) and the filters' model (vecu.estimators.steering.model
-    .accelerations) call it."""
+    """(a_y, r'): the paper's lateral (4) and yaw (11) motion per axle; v_y' = a_y - v_x r."""
     ffc = tyre_force(d_f, c, b_f, delta - (v_y + l_f * r) / v_x) * math.cos(delta)
     fr = tyre_force(d_r, c, b_r, (l_r * r - v_y) / v_x)
     return (ffc + fr) / mass, (l_f * ffc - l_r * fr) / i_z
@@ -137,8 +132,7 @@ def motion_constants(p: VehicleParams, t: TyreConsts) -> tuple[float, ...]:
 def rk4_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: float, dt: float,
                cst: tuple[float, ...]) -> tuple[float, float]:
     """One RK4 step of `f` (eqs. 4, 11) from x = (v_y, r), the input (delta, v_x) linear from
-    (d0, v0) at the start to (d1, v1) at the end; cst: motion_constants. The one copy (the
-    plant's stepping, both backends; the sums in this order: the golden logs' bits)."""
+    (d0, v0) to (d1, v1); cst: motion_constants. The sums' order is the golden logs' bits."""
     df, bf, dr, br, c, lf, lr, m, iz = cst
     dm, vm = 0.5 * (d0 + d1), 0.5 * (v0 + v1)
     a, k1r = lateral_motion(vy, r, d0, v0, df, bf, dr, br, c, lf, lr, m, iz)

@@ -56,9 +56,8 @@ def event_coefficients(ts, zeta, omega0, tau):
 
 @kernel
 def event_map(co, u_prev, alpha, alpha_prev, sp, t, tm):
-    """(alpha_{n+1}, T_meas,n+1): the corrected eq. 1 and eq. 9 of one event with the
-    coefficients co = event_coefficients(...), input sp now and u_prev before, T_im,n = t. The
-    one copy: the plant, the filters' event map and the CAC prediction call it."""
+    """(alpha_{n+1}, T_meas,n+1): the corrected eq. 1 and eq. 9 of one event, co =
+    event_coefficients(...), input sp now and u_prev before, T_im,n = t."""
     a1, a2, b1, b2, a_t, b_t = co
     return a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, a_t * tm + b_t * t
 
@@ -125,22 +124,15 @@ def psi_choked(kappa: float) -> float:
 
 
 def flow_function(pr: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """psi(pr) with dpsi/dpr: choked (eq. 3), subsonic (eq. 2 with the square root over the whole
-    bracket), C1 quadratic near pr = 1 (flow_function_of).
-
-    For s = 1 - pr < s0 = 1 - pr_reg: psi = a s + b s|s| with psi and slope matched at s0, so the
-    infinite slope of eq. 2 at pr -> 1 is removed; the odd extension gives a small reverse flow
-    for pr > 1 (reached only through process noise at wide open throttle), saturated at -psi(s0).
-    """
+    """psi(pr) with dpsi/dpr: choked (eq. 3), subsonic (eq. 2, the root over the whole bracket),
+    and for s = 1 - pr < 1 - pr_reg the C1 quadratic psi = a s + b s|s| (no infinite slope at
+    pr -> 1; a small reverse flow for pr > 1, saturated)."""
     return flow_function_of(pr, tables(params)[0])
 
 
 def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
                   params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """Eq. 2-3: (mdot_at in kg/s, d mdot_at / dP_im in kg/s per kPa).
-
-    Xi = C_d A_th(alpha) P_a / sqrt(R_air T_a) with P_a converted to Pa (A_th in m^2).
-    """
+    """Eq. 2-3: (mdot_at in kg/s, d mdot_at / dP_im in kg/s per kPa); Xi with P_a in Pa."""
     c, cd_alpha, cd_table, prs, _, _ = tables(params)
     return throttle_flow_of(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs)
 
@@ -203,21 +195,11 @@ def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V
 
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
-    """Advance (P_im, T_im) by dt with alpha and u held (zero-order hold over the event).
-
-    M sub-steps (chosen once per event from the stiffness and the rates: the smallest M with
-    h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and |h dT/dt| <= dt_step_max,
-    h = dt/M, clamped to [1, max_substeps]), each a two-stage Rosenbrock step (ROS2, gamma =
-    1 + 1/sqrt 2; second order for any W) with the diagonal Jacobian W = diag(min(J_PP, 0),
-    min(J_TT, 0)) of eq. 5-6's right-hand side:
-        k1 = f(x) / (1 - gamma h W),  k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W),
-        x += h (1.5 k1 + 0.5 k2).
-    The throttle-flow pole (up to ~5000 1/s near pr = 1) is then damped for any h, and the
-    steady state of eq. 5-6 is an exact fixed point. Returns (P_im, T_im, M).
-    Implemented in vecu.models.manifold_integrator (per-event constants hoisted, loop inlined;
-    bit-identical to the same steps written plainly on throttle_flow, volumetric_efficiency and
-    heat_flow: vecu.bench.estimators.integrate_manifold_reference).
-    """
+    """Advance (P_im, T_im) by dt with alpha and u held: (P_im, T_im, M). Eq. 5-6 in M ROS2
+    sub-steps (gamma = 1 + 1/sqrt 2, W = diag(min(J_PP, 0), min(J_TT, 0))): k1 = f(x) /
+    (1 - gamma h W), k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W), x += h (1.5 k1 + 0.5 k2); M the
+    smallest with h (|J_PP| + |J_TT|) <= lam_dt_max and the dP, dT steps bounded. Damps the
+    throttle-flow pole for any h; the steady state is a fixed point (manifold_integrator)."""
     return _integrate_fast(p_im, t_im, alpha, u, dt, params)
 
 
@@ -251,11 +233,8 @@ def steady_state(
 def f(
     x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7, dt: float | None = None,
 ) -> np.ndarray:
-    """Noise-free eq. 10: one event of x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas).
-
-    The manifold sees alpha_n over the event (B_IM C_ET x_ET,n in eq. 10); the actuator moves to
-    alpha_{n+1} with the corrected eq. 1; the IAT sensor follows T_im,n (eq. 9). dt defaults to T_s.
-    """
+    """Noise-free eq. 10, one event: the manifold sees alpha_n (B_IM C_ET x_ET,n), the actuator
+    moves by the corrected eq. 1, the IAT sensor follows T_im,n (eq. 9); dt defaults to T_s."""
     ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
     co = event_coefficients(ts, params.zeta, params.omega0, params.tau_temp_s)

@@ -254,10 +254,6 @@ _integrate_event.fix_signature(_signature)
 
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
-    """Advance (P_im, T_im) by dt with alpha and u held; returns (P_im, T_im, M).
-
-    See vecu.models.manifold.integrate_manifold for the method (M ROS2 sub-steps with the
-    diagonal Jacobian); this is its implementation (the kernel `_integrate_event`).
-    """
+    """vecu.models.manifold.integrate_manifold: (P_im, T_im, M) by `_integrate_event`."""
     return _integrate_event(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt,
                             *tables(params))

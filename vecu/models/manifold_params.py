@@ -82,10 +82,6 @@ class ManifoldParams:
         """Displacement of one cylinder, V_d / n_cyl (the per-event volume of eq. 5-6)."""
         return self.v_d_dm3 / self.n_cyl
 
-    @property
-    def events_per_rev(self) -> float:
-        """Intake events per crank revolution (4-stroke): n_cyl / 2; Ts = 120/(n_cyl N)."""
-        return self.n_cyl / 2.0
 
     def throttle_floor_rad(self, n_rpm: float) -> float:
         """Idle/decel throttle floor (manifold.md), rad; N clamped to [n_idle, n_max]."""

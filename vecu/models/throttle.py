@@ -99,11 +99,8 @@ def clip_theta(theta: float) -> float:
 @kernel(small=True)
 def mode_step(p: Any, theta: Any, rho: Any, i: Any, u: Any, s_rho: Any, s_theta: Any
               ) -> tuple[Any, Any, Any]:
-    """Eq. (3) inside one mode, noise-free, before the clip: x_{k+1} = A_s x_k + B_s u_k + c_s
-    with c_s = (0, c1 s_rho + c2 s_theta + c3, 0); p is the mode's row (A12 .. C3). The paper
-    has s_rho = sgn(rho), s_theta = sgn(theta - 1) (eq3_step); the particle filter passes the
-    sign of its theta class and reads its class matrices off this function, its Kalman stretch
-    E[sgn rho]. Plain arithmetic: floats, or numpy arrays elementwise."""
+    """Eq. (3) inside one mode, noise-free, before the clip: x_{k+1} = A_s x_k + B_s u_k + c_s,
+    c_s = (0, c1 s_rho + c2 s_theta + c3, 0); p the mode's row (A12 .. C3). Floats or arrays."""
     return (theta + p[A12] * rho,
             p[A21] * theta + p[A22] * rho + p[A23] * i + p[C1] * s_rho + p[C2] * s_theta + p[C3],
             p[A32] * rho + p[A33] * i + p[B] * u)

@@ -128,12 +128,8 @@ class Drive:
 
 
 class LongitudinalPart:
-    """Longitudinal vehicle (Hernandez 2005): ESC_Motion (wheel speed, accelerometer) every 2 ms.
-
-    Sends the sensors of the drive's manoeuvres (vecu.plant.drive: the paper's 84 km/h ->
-    standstill braking first, then a launch-and-brake cycle and road legs), sample t_ns / 2 ms
-    of the drive at each tick; without a drive it makes its own from seed and sequence.
-    """
+    """Longitudinal vehicle (Hernandez 2005): ESC_Motion (wheel speed, accelerometer) every 2 ms,
+    sample t_ns / 2 ms of the drive (without one, its own from seed and sequence)."""
 
     truth_message = "TRUTH_Speed"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "longitudinal"

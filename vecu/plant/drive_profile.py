@@ -139,11 +139,8 @@ class _Builder:
 
 def us06_like(seed: int = 0, config: DriveProfileConfig = DriveProfileConfig(),
               params: ManifoldParams = V8_5L7) -> DriveProfile:
-    """Seeded aggressive cycle: idle, WOT launch to the rev limit, random maneuvers, back to idle.
-
-    Every cycle reaches both ends of the speed range (the launch upshifts at n_max, the cycle
-    returns to idle at least once in the middle and at the end). Same seed, same profile.
-    """
+    """Seeded aggressive cycle: idle, WOT launch to the rev limit, random maneuvers, back to idle
+    (both ends of the speed range every time). Same seed, same profile."""
     rng = rng_streams(seed, (STREAM,))[STREAM]
     b = _Builder(config.dt_s, params, rng)
     end = config.duration_s

@@ -1,10 +1,7 @@
-"""Single-track vehicle simulator: a seeded steering manoeuvre and in-vehicle sensors.
-
-The model (after Khalid, a sane single-track vehicle) is vecu.models.lateral; this module adds
-the manoeuvre, RK4 stepping and the eq. (3) sensors: `simulate_lateral`, a 300 s run at its own
-20-30 m/s (the offline evaluations), and `DrivenLateral`, the plant's vehicle sample by sample
-at the drive's speed (vecu.plant.drive: one car on the bus), and `LateralPart`, the plant node's
-part that sends its sensor frames.
+"""Single-track vehicle simulator (vecu.models.lateral, after Khalid): a seeded steering
+manoeuvre (`steering_commands`), RK4 stepping and the eq. (3) sensors. `simulate_lateral`: a
+300 s run at its own 20-30 m/s (offline); `DrivenLateral`: sample by sample at the drive's speed;
+`LateralPart`: the plant node's part that sends its sensor frames.
 """
 
 from __future__ import annotations
@@ -79,14 +76,9 @@ class LateralSensors:
 # --------------------------------------------------------------------------- manoeuvre
 @dataclass(frozen=True)
 class ManoeuvreConfig:
-    """Randomised 300 s manoeuvre (uniform draws from the 'steer.manoeuvre' stream).
-
-    Segments in random order, repeated until `duration_s`, separated by straight driving with
-    small corrections: sine steers (0.2-0.8 Hz), double lane changes, steady turns and a
-    0.2-1.5 Hz sweep. Amplitudes are set from a target steady-state lateral acceleration
-    (`ay_range`) at the current speed, so mu = 1 is never exceeded but the tyres are visibly
-    nonlinear at the top. The run starts in a steady curve (the plant starts at its steady state).
-    """
+    """Randomised 300 s manoeuvre (steering_commands): sine steers (0.2-0.8 Hz), double lane
+    changes, steady turns and a 0.2-1.5 Hz sweep, amplitudes from a steady-state a_y in
+    `ay_range` (mu = 1 never exceeded, the tyres visibly nonlinear at the top)."""
 
     duration_s: float = 300.0
     speed_range_mps: tuple[float, float] = (20.0, 30.0)
@@ -233,8 +225,7 @@ def advance_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: flo
 @kernel
 def sample_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: float,
                   cst: tuple[float, ...]) -> tuple[float, float, float]:
-    """(a_y at the sample, v_y and r one sample on): `h`'s a_y, then advance_motion; one
-    compiled call per sample of the plant (DrivenLateral)."""
+    """(a_y at the sample, v_y and r one sample on): `h`'s a_y, then advance_motion."""
     ay = lateral_motion(vy, r, d0, v0, cst[0], cst[1], cst[2], cst[3], cst[4], cst[5], cst[6],
                         cst[7], cst[8])[0]
     vy, r = advance_motion(vy, r, d0, v0, d1, v1, cst)

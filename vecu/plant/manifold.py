@@ -218,11 +218,9 @@ _PART_COLUMNS = [R_N, R_SP, R_Y, R_Y + 1, R_Y + 2, R_X + 3, R_X + 4, R_CAC]
 
 
 class EventsAhead:
-    """The truth's events computed ahead in blocks by one kernel call (truth_events on
-    ManifoldPart's integer-nanosecond clock), for
-    vecu.plant.node.ManifoldPart: noise rows from the stream in blocks of config.block, as
-    simulate draws them. The plant depends on nothing the ECU sends, so nothing can change its
-    course between the events computed and their frames."""
+    """The truth's events for vecu.plant.node.ManifoldPart, computed ahead in blocks by
+    truth_events on its integer-nanosecond clock, the noise drawn as simulate draws it (the
+    plant depends on nothing the ECU sends)."""
 
     AHEAD = 256  # events per kernel call (~1.3 s of driving at 2000 rpm)
 

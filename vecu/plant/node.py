@@ -31,10 +31,8 @@ log = logging.getLogger(__name__)
 
 
 class ManifoldPart:
-    """Engine intake (Dutka 2006) stepped once per engine event, Ts = 120 / (8 N): sends
-    ENG_Event (counter, N, throttle setpoint and angle, MAP) and ENG_Intake (IAT) at each event.
-    The engine speed and throttle setpoint are the drive's (vecu.plant.drive: the driveline
-    behind the car's speed), one leg's profile after the other on the drive's clock."""
+    """Engine intake (Dutka 2006), once per engine event (Ts = 120 / (8 N)): ENG_Event (counter,
+    N, setpoint, angle, MAP) and ENG_Intake (IAT); N and the setpoint are the drive's."""
 
     truth_message = "TRUTH_Manifold"  # its truth frame (vecu/dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "manifold"

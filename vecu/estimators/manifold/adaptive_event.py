@@ -33,7 +33,6 @@ N_XA = 11
 I_C, I_CTH, I_G, I_KZ, I_KW = range(6, 11)
 (A_C_LO, A_C_HI, A_FD_C, A_PR_FREEZE, A_ALPHA_GATE, A_G_LO, A_G_HI, A_K_LO, A_K_HI,
  A_FD_K) = range(10)
-N_ADAPT_CONSTS = 10
 ZETA_MAX = 0.99
 
 

@@ -55,14 +55,7 @@ def r_matrix(noise: ManifoldNoise = PAPER_NOISE) -> np.ndarray:
 
 def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
                  dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(A(x), B(x)) of eq. 10 with the paper's SDC factorisation (eq. 7), per event.
-
-    A_IM = [[1 - pi, (kappa-1) T_s Q_ext / (T_im V_im)],
-            [0, 1 - (kappa-1)/kappa pi + (kappa-1) T_s Q_ext / (V_im P_im)]],
-    B_IM = T_s mdot_at / alpha * [kappa R T_a / V_im, T_im (kappa R T_a - R T_im) / (V_im P_im)],
-    pi = kappa eta N V_d T_s / (120 V_im) (= kappa V_cyl eta / V_im at T_s = 120/(8N)).
-    B_IM C_ET goes into the alpha column of A (eq. 10); alpha >= ALPHA_SDC_MIN in the division.
-    """
+    """(A(x), B(x)) of eq. 10 with the paper's SDC factorisation (eq. 7): event.sdc_matrix."""
     ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     fc = model_constants(params)
     A = np.zeros((N_X, N_X))

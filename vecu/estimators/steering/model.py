@@ -43,9 +43,8 @@ class SteeringModel:
     q_delta: PSD of delta_ddot, rad^2/s^3: (200/16 deg/s^2)^2/Hz at the road wheel, i.e.
     (200 deg/s^2)^2/Hz at the steering wheel (the design note's 400 was second best in our sweep,
     docs/models.md). q_vy, q_r: white-noise PSDs on v_y', r' for model error (tyre curve,
-    discretisation, speed noise); raising them from 0.05 m/s^2 / 0.5 deg/s^2 to 0.2 / 2 cut the
-    smoother's error by a third (the filter then explains yaw transients less by delta). sigma_*: sensor noise matching vecu.plant.lateral.LateralSensors.
-    Prior: x0 = 0 (the filters start at 0, possibly in a curve) with std p0_std.
+    discretisation, speed noise; 0.2 / 2 cut the smoother's error by a third against 0.05 / 0.5).
+    sigma_*: vecu.plant.lateral.LateralSensors'. Prior: x0 = 0 with std p0_std.
     """
 
     params: VehicleParams = field(default_factory=VehicleParams)
@@ -105,9 +104,8 @@ def constants(model: SteeringModel) -> tuple[float, ...]:
 
 @kernel(small=True)
 def accelerations(vy: float, r: float, d: float, vx: float, cst: Any) -> tuple[float, float]:
-    """(a_y, r'): the paper's lateral (4) and yaw (11) motion, vecu.models.lateral
-    .lateral_motion (the plant's too) on the packed constants. a_y is also the accelerometer's
-    quantity (eq. 2's nonlinear h) and v_y' = a_y - v_x r."""
+    """(a_y, r'): the paper's lateral (4) and yaw (11) motion (models.lateral.lateral_motion)
+    on the packed constants; a_y is eq. 2's nonlinear h."""
     return lateral_motion(vy, r, d, vx, cst[DF], cst[BF], cst[DR], cst[BR], cst[C], cst[LF],
                           cst[LR], cst[M], cst[IZ])
 
@@ -217,8 +215,3 @@ def process_noise(model: SteeringModel) -> np.ndarray:
     Q[2, 3] = Q[3, 2] = q * dt ** 2 / 2.0
     Q[3, 3] = q * dt
     return Q
-
-
-def measurement_noise(model: SteeringModel) -> np.ndarray:
-    """R = diag(sigma_r^2, sigma_ay^2)."""
-    return np.diag([model.sigma_r ** 2, model.sigma_ay ** 2])

@@ -1,10 +1,8 @@
 """Filter-side throttle model (Vargas et al. 2015, eqs. 3-4) and the numpy UKF built on it.
 
-f(x, u): the noise-free eq. (3) step (vecu.models.throttle.eq3_step) with theta clipped to the
-mechanical stops [0, 90] deg, as in the plant (rho and i untouched).
-h(x) = i^2 (eq. 4). Q = FF^T = diag((alpha F_ii)^2), R = HH^T = 1. x0 = 0, P0 = I (Section III-C).
-Every filter takes its calibration, a ThrottleModel (the ECU's `ecu.throttle.model`; default
-Table I): the modes of eq. 3, the switching angles, F and H.
+f(x, u): eq. (3) (vecu.models.throttle.eq3_step), theta clipped to [0, 90] deg as in the plant;
+h(x) = i^2 (eq. 4); Q = diag((alpha F_ii)^2), R = 1, x0 = 0, P0 = I (Section III-C). The
+calibration is a ThrottleModel (default Table I).
 """
 
 from __future__ import annotations

@@ -1,14 +1,11 @@
 """The Kalman stretches of the throttle particle filter: a moment-matched Kalman filter while
 the whole posterior is well inside mode 3, and the hand-overs to and from the particles.
 
-There eq. (3) is linear (the class-3 matrix, read off mode_step; the tiny friction
-c1 sgn(rho), |c1| = 0.0055, uses E[sgn rho] = erf(rho / (sqrt 2 sigma_rho))), and eq. (4) is
-handled with the exact Gaussian moments of i^2: E = m^2 + P_ii, Var = 4 m^2 P_ii + 2 P_ii^2 + 1,
-Cov(x, i^2) = 2 m P[:, i]. Plain floats, unrolled 3x3 symmetric algebra, as kernels on the state
-x = (th, rh, ci, p00, p01, p02, p11, p12, p22) (the filter's record, pf.state: kf_x, kf_coef,
-kf_prm, kf_cfg). The stop at 90 deg is handled by censored-Gaussian moments after each
-prediction; mode3_leave says when the particles must take over again (a mode switch or a
-current whose sign is no longer certain within reach).
+There eq. (3) is linear (the class-3 matrix; friction c1 sgn(rho) by E[sgn rho] =
+erf(rho / (sqrt 2 sigma_rho))) and eq. (4) has exact Gaussian moments of i^2: E = m^2 + P_ii,
+Var = 4 m^2 P_ii + 2 P_ii^2 + 1, Cov(x, i^2) = 2 m P[:, i]. Kernels in plain floats on the
+record's kf_x = (th, rh, ci, p00, p01, p02, p11, p12, p22); the 90 deg stop by censored-Gaussian
+moments; mode3_leave says when the particles take over again.
 """
 
 # ruff: noqa: FURB136 (explicit selects: their NaN order, the same compiled and in Python)

@@ -35,17 +35,12 @@ ESS_FRACTION = 0.5  # resample when ESS < ESS_FRACTION * N
 
 @kernel(error_model="numpy")
 def pf_tick(FB, cur, mats, s, ztab, u, y, o1, o2, gated, check_kf):
-    """One particle tick of the bank FB from its frame cur into the other: the step
-    (pf.update.pf_step, with y unless NaN) from the set's extent
-    s.lo / s.hi, then its bookkeeping (lo, hi: 90 once lo is in mode 3, and the output from the
-    moments, report). A step with y whose weight sum kept no more than SURPRISE_FIT of the last
-    one's is redone from src with the same draws: as an outlier (predict only) if the mean
-    likelihood ratio is not above OUTLIER_FIT and fewer than MAX_GATED_IN_ROW were rejected in
-    a row, else with the careful update. Renormalisation below 1e-150. Then the decision:
-    resample into n_low while the lowest theta is below low_enter, n_high once above low_exit,
-    or when the ESS sw^2 / sw2 is below ESS_FRACTION n; else (check_kf) hand over to the Kalman
-    filter if all theta are in (kf_enter[0], kf_enter[1]) and all i > kf_enter[2]. Returns
-    (code, target count, gated, theta, std); broken moments (no weight left, NaN): LOST."""
+    """One particle tick of bank FB from frame cur into the other: pf_step (with y unless NaN),
+    redone with the same draws when the weight sum kept no more than SURPRISE_FIT of the last
+    (as an outlier if the likelihood ratio is not above OUTLIER_FIT and fewer than
+    MAX_GATED_IN_ROW were rejected in a row, else the careful update); renormalising; then
+    resample (resample_target) or (check_kf) a hand-over when all theta are in kf_enter[0:2] and
+    all i > kf_enter[2]. (code, target count, gated, theta, std); broken moments: LOST."""
     n = FB.shape[2]
     lo0, hi0, sw_old = s.lo, s.hi, s.sw
     rej = 0

@@ -203,16 +203,10 @@ def _proposal(wk: StepWork, w0, m, w, zq, yc, careful: bool) -> None:
 
 @kernel(error_model="numpy", python=numpy_step)  # x / 0 -> inf / NaN as numpy
 def pf_step(FB, cur, mats, s, ztab, u, lo_prev, hi_prev, o1, o2, mode, yc, extremes):
-    """One particle step of the bank FB from frame src = FB[cur] into frame dst = FB[1 - cur]
-    (rows 0-2 and 6 written; FB[2]: scratch rows).
-
-    mats: the 12x5 class matrices (the b u entries from s.class_b), ztab: the normal table's
-    rows (theta noise, prior current noise, proposal noise), lo_prev / hi_prev: the set's extent
-    (its classes are evaluated; mode 3: that class only), yc = y + y_shift. Returns (sum w,
-    sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i), NaN-propagating as
-    numpy's reductions; max theta is read only while min theta <= b2, both extremes otherwise
-    only with `extremes` (the numpy form computes them only then).
-    """
+    """One particle step of bank FB from frame FB[cur] into FB[1 - cur] (FB[2]: scratch); mats
+    the 12x5 class matrices, ztab the normal table's rows, lo_prev / hi_prev the set's extent,
+    yc = y + y_shift. (sum w, sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i),
+    NaN-propagating; the extremes only as the tick reads them (numpy_step's)."""
     src, dst, tmp = FB[cur], FB[1 - cur], FB[2]
     n = src.shape[1]
     th0, rh0, ci0, w0 = src[0], src[1], src[2], src[6]
