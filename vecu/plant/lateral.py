@@ -297,7 +297,7 @@ class DrivenLateral:
     call: the manoeuvre of steering_commands, each amplitude set for the fastest speed the drive
     reaches within AHEAD_S (so a_y stays within ay_range), the command
     faded out below STEER_GATE_MPS (nobody slaloms at walking pace), then the steering column's
-    low-pass. Stepped by `advance` (RK4) at and above V_KINEMATIC_MPS, held on the linear steady
+    low-pass. Stepped by `sample_motion` (RK4) at and above V_KINEMATIC_MPS, held on the linear steady
     state below it (0 at standstill). Sensors as simulate_lateral's, the speed reading >= 0."""
 
     def __init__(self, drive: Drive, seed: int, cfg: ManoeuvreConfig = ManoeuvreConfig(),
