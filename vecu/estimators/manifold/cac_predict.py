@@ -91,10 +91,8 @@ def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       config: CacPredictionConfig = CacPredictionConfig(),
                       eta_scale: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For events n = 0, stride, 2 stride, ... with n + horizon in range:
-    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg, all predictions in one kernel call
-    (predict_at_events: predict_cac's numbers). eta_scale: per event, the eta correction the
-    state came with (the adaptive filter's c; None: 1)."""
+    """(n, CAC_pred(n), CAC_actual(n + horizon)) in kg for n = 0, stride, ... (predict_at_events);
+    eta_scale: per event, the adaptive filter's c (None: 1)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
     pred = np.empty(len(idx))
@@ -112,10 +110,8 @@ def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
 def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0: float,
                            params: ManifoldParams = V8_5L7,
                            inputs: Sequence[EngineInput] | None = None) -> np.ndarray:
-    """T_im,n of the open-loop manifold observer over the events: (P, T) of eq. 5-6 from (p0,
-    t0) driven by the measured throttle angle TA_n (the last finite one), no feedback, with
-    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n
-    (the kernel open_loop_run)."""
+    """T_im,n of the open-loop observer: eq. 5-6 from (p0, t0) driven by the measured TA_n (the
+    last finite one) at N_n, no feedback; ambient from inputs (None: nominal); open_loop_run."""
     n_ev = len(ta_meas)
     out = np.empty(n_ev)
     if inputs is None:
@@ -208,12 +204,9 @@ def air_charge_gradient(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val):
 @kernel
 def air_charge_sigmas(x, P, Q, horizon, n_rpm, p_a, t_a, t_cool, fc, c, cd_alpha, cd_table, prs,
                       eta_rpm, eta_val):
-    """(sigma of the CAC at the posterior (x, P), sigma of the CAC `horizon` events ahead with
-    the input held), kg: first-order propagation g S g^T with g = air_charge_gradient at the
-    posterior and S the (P_im, T_im) block of P, then of the covariance predicted `horizon`
-    events with no measurement, S <- A S A^T + Q (the time update of eq. 14, A the SDC matrix
-    of eq. 7 / 10 at the posterior and the held input; the gradient stays at the posterior's
-    operating point). The first six states of x, P and Q are used."""
+    """(sigma of the CAC at the posterior, `horizon` events ahead with u held), kg: g S g^T with
+    g = air_charge_gradient and S the (P_im, T_im) block of P, then of S after `horizon` time
+    updates of eq. 14 (S <- A S A^T + Q, A the SDC matrix at the posterior)."""
     ts = 120.0 / (fc[F_NCYL] * n_rpm)  # models.manifold.sample_time
     A = np.zeros((6, 6))
     sdc_matrix(A, x, n_rpm, p_a, t_a, t_cool, ts, coefficients(ts, fc), fc[F_ALPHA_MIN], c,

@@ -300,11 +300,9 @@ def sdkf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, c, cd_alpha,
 @kernel
 def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans,
                run0, run1, run2, iterate, fc, Q, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """One ManifoldSDKF event from the prior (x, P; P_post the previous posterior) with the
-    checked input and the valid channels (bit i of chans; y_i their values, run_i their
-    gated-in-a-row counts). Writes xo = (prior x_n+1|n clamped, posterior x_n|n, event-map output
-    before clamping) and Po = (prior P_n|n-1, posterior P_n|n). Returns the channels gated (bits
-    0-2) | DIVERGED | FALLBACK (module docstring)."""
+    """One ManifoldSDKF event from the prior (x, P; P_post the last posterior), channels chans
+    (bits), readings y_i, gated runs run_i: xo = (next prior clamped, posterior, event-map output),
+    Po = (prior P_n|n-1, posterior); returns the status word."""
     Pn = Po[0]
     if iterate:  # one Riccati iteration of eq. 14: P = sym(A P_post A^T + Q)
         A = np.zeros((6, 6))
@@ -346,9 +344,8 @@ def ekf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, Q, fd, c, cd_
 @kernel
 def ekf_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans, run0, run1,
               run2, fc, Q, fd, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """One ManifoldEKF event from the prior (x, P) with the checked input and the valid
-    channels (as sdkf_event): the update, then ekf_finish. Writes xo, Po as sdkf_event (Po[0]
-    the new prior P_n+1|n); returns the gated channels | DIVERGED | FALLBACK."""
+    """One ManifoldEKF event (arguments and outputs as sdkf_event, Po[0] the new prior P_n+1|n):
+    the update, then ekf_finish."""
     gated = update(x, P, xo[1], Po[1], (y0, y1, y2), (run0, run1, run2), chans, fc)
     if gated & FALLBACK:
         return gated
