@@ -8,7 +8,7 @@ project and reset.
 
 `SteeringUKF`: P kept as its 10 distinct entries, chol4 (fallback covariance.cholesky_lower);
 default sigma set `ahsm(4, lam=0)` (the cubature rule: 2n points, weights 1/(2n); docs/models.md
-for why). Unlike common.ukf, the points are redrawn from (x_pred, P_pred) for the update, so Q
+for why). Unlike the throttle UKF (Vargas Step 3), the points are redrawn from (x_pred, P_pred) for the update, so Q
 reaches a_y within one step.
 
 step(v_x, yaw_rate, a_y): None = missing, implausible = rejected, beyond gate_sigma = gated (all
