@@ -1,22 +1,7 @@
-"""Single-track (bicycle) vehicle model: the pure equations shared by plant and estimators.
-
-After Khalid et al. (steering-wheel angle by an unscented smoother): the paper's eq. (4) lateral
-motion and eq. (11) yaw motion reduced to one axle each (its printed parameters and eqs. (6)-(14)
-are unusable; the model and numbers follow /work/shared/design/steering.md, see docs/models.md).
-SI units throughout: rad, rad/s, m, m/s, m/s^2, N.
-
-State x = [v_y, r] (lateral velocity, yaw rate); input u = [delta, v_x] (road-wheel angle,
-longitudinal speed, an exogenous input: the longitudinal motion is neglected as in the paper).
-  alpha_f = delta - (v_y + l_f r) / v_x,   alpha_r = -(v_y - l_r r) / v_x
-  F_y(alpha) = D sin(C atan(B alpha)),   D = mu F_z,  B = C_alpha / (C D)   (Pacejka, no shift)
-  v_y' = (F_yf cos delta + F_yr) / M - v_x r        (eq. 4, per axle)
-  r'   = (l_f F_yf cos delta - l_r F_yr) / I_z      (eq. 11, per axle, no l_s terms)
-  a_y  = (F_yf cos delta + F_yr) / M                (the accelerometer's quantity)
-Steering-wheel angle = i_s * delta. Sensors follow the paper's eq. (3): Y = G Y0 + nu, 0 <= G <= 1
-(G = 1 healthy, G = 0 dead), here with an optional bias (gyro offset for mismatch studies).
-`f`, `h` are pure functions of (x, u, params); vecu.plant.lateral does the stepping (RK4 at 5 ms,
-samples at 100 Hz) with seeded sensor noise.
-"""
+"""Single-track vehicle model after Khalid et al.: eq. (4) lateral and eq. (11) yaw motion, one
+axle each, Pacejka tyres; sensors eq. (3), Y = G Y0 + nu (+ optional bias). Pure `f`, `h` of
+(x, u, params), x = [v_y, r], u = [delta, v_x], SI units; equations and parameter sources:
+docs/models.md, "Steering › Plant"."""
 
 from __future__ import annotations
 

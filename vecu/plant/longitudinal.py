@@ -1,15 +1,6 @@
-"""Longitudinal vehicle, braking manoeuvres, wheel-speed sensor and accelerometer at 500 Hz.
-
-After Hernández 2005, Section 4 (numbers: docs/models.md); SI units, acceleration positive
-forward. Truth: a follows a commanded profile through a jerk limit, v is its integral, the car
-stays at rest once braked to 0. Wheel speed: v (1 - slip) + noise growing as 1/v below 10 km/h,
-dropouts (reads 0) below 5 km/h (Section 2.2.2), ABS slip cycles (variant "abs"), never < 0.
-Accelerometer: a + offset + pitch ringing after the stop + white noise, clipped to +-2 g.
-Manoeuvres: "paper" (~84 km/h, -8 m/s^2 to rest), "gentle" (~50 km/h, -3 m/s^2), "abs" (~84
-km/h, -9.5 m/s^2 with ABS slip), "launch_brake" (to ~40 km/h and back to rest), "road" (to
-72-108 km/h, cruise with new targets every 15 s, back to rest; ManoeuvreConfig.rolling: start
-at speed).
-"""
+"""Longitudinal vehicle, braking manoeuvres, wheel-speed sensor (Hernández 2005, Section 2.2.2)
+and accelerometer (Section 4) at 500 Hz; SI units, acceleration positive forward. Manoeuvres
+and sensor figures: docs/models.md, "Vehicle speed › Plant"."""
 
 from __future__ import annotations
 

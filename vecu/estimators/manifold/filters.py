@@ -1,20 +1,8 @@
-"""Event-rate intake-manifold filters (Dutka 2006): EKF and the state-dependent Kalman filter.
-
-Both run once per engine event (T_s = 120/(8N)) on the augmented model of eq. 10
-(manifold.model), Q and R of Section IV; step(y_n, u_n) updates with y_n, keeps x_n|n, then
-predicts x_n+1|n.
-
-- `ManifoldEKF`: mean through the event map f, P = F P F^T + Q with F = df/dx (event.ekf_event).
-- `ManifoldSDKF`: eq. 12-14, the SDC matrix A(x_n|n-1) (event.sdkf_event). `riccati`: "iterate"
-  (default, live: one Riccati iteration per event, warm-started; docs/models.md, "Manifold
-  estimators"), "doubling" (the DARE of eq. 14 per event by structure-preserving doubling) or
-  "scipy" (solve_discrete_are, the paper's way). The mean goes through f, not eq. 12's explicit
-  Euler step (docs/models.md, "Intake manifold").
-
-Guards: missing or implausible channels are rejected and counted, innovations beyond gate_sigma
-gated, bad inputs replaced by the last good one, the state clamped to a physical box, divergence
-resets; no input makes the outputs NaN. The event is one kernel call (manifold.event); the
-classes keep input checks, counters, resets, the DARE modes and the jittered fallback update.
+"""Event-rate intake-manifold filters (Dutka 2006) on the augmented model of eq. 10: `ManifoldEKF`
+(F = df/dx) and `ManifoldSDKF` (eq. 12-14; `riccati` "iterate", "doubling" or "scipy"), Q and R
+of Section IV. step(y_n, u_n) updates, keeps x_n|n, predicts x_n+1|n; the event is one kernel
+call (manifold.event). Guards and Riccati modes: docs/models.md, "Manifold estimators and CAC
+prediction".
 """
 
 from __future__ import annotations

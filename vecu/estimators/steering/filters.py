@@ -1,20 +1,10 @@
-"""Steering-wheel angle / side-slip filters on vecu.estimators.steering.model: UKF and EKF.
+"""Steering-wheel angle / side-slip filters (Khalid et al.) on steering.model: UKF and EKF.
 
-One step at 100 Hz: predict with the measured v_x (time update, eqs. 17-18 / 26), a linear
-update with the gyro r (H = [0, 1, 0, 0]), then the a_y update (eqs. 19-25: unscented in the UKF,
-linearised in the EKF); either reading may be missing. The equations are kernels in
-steering.model, steering.unscented and steering.rts; the classes check inputs, gate, count,
-project and reset.
-
-`SteeringUKF`: P kept as its 10 distinct entries, chol4 (fallback covariance.cholesky_lower);
-default sigma set `ahsm(4, lam=0)` (the cubature rule: 2n points, weights 1/(2n); docs/models.md
-for why). Unlike the throttle UKF (Vargas Step 3), the points are redrawn from (x_pred, P_pred) for the update, so Q
-reaches a_y within one step.
-
-step(v_x, yaw_rate, a_y): None = missing, implausible = rejected, beyond gate_sigma = gated (all
-counted; gating armed after gate_after_updates, max_gated_in_row then accepted); a bad v_x keeps
-the last good one, clipped at V_X_MIN; divergence resets. No input makes the outputs NaN.
-record=True writes each step into a steering.history.Ring for the smoothers (steering.smoothers).
+One 100 Hz step: time update with the measured v_x (eqs. 17-18 / 26), the linear gyro update,
+then the a_y update (eqs. 19-25: unscented in the UKF, linearised in the EKF). The kernels are in
+steering.model, .unscented and .rts; the classes check inputs, gate, count, project and reset
+(docs/models.md, "Steering › Filters — decisions"). record=True feeds a steering.history.Ring
+for steering.smoothers.
 """
 
 from __future__ import annotations

@@ -1,13 +1,7 @@
-"""The unscented Rauch-Tung-Striebel recursion over a steering filter's recorded forward pass
-(steering.history), each equation once, as kernels.
-
-The paper's backward recursion, Khalid et al. eqs. (27)-(28), is garbled (it linearises f and
-mixes filter gains into the smoothed covariance); this is the standard unscented RTS smoother
-(Saerkkae 2008) its text describes: `smoother_gain` G_k = C_k+1 P_k+1|k^-1, `backward_pass`
-x_k|T = x_k|k + G_k (x_k+1|T - x_k+1|k) (P_k|T: smoothers.rts_smooth). `record` closes a step's
-row and, for a fixed-lag smoother, adds the previous gain and runs the backward pass.
-The gain solves P_pred G^T = C^T with LAPACK dgesv (`solve4`): np.linalg.solve in Python,
-scipy's cython_lapack dgesv compiled (the same routine, bit-identical; linked by `_link_dgesv`).
+"""The unscented RTS recursion over a steering filter's recorded forward pass (steering.history),
+as kernels: the standard smoother (Saerkkae 2008) that Khalid et al.'s garbled eqs. (27)-(28)
+describe (docs/models.md, "Steering › Smoothers"). `smoother_gain` G_k = C_k+1 P_k+1|k^-1,
+`backward_pass` x_k|T = x_k|k + G_k (x_k+1|T - x_k+1|k); `solve4` is LAPACK dgesv.
 """
 
 from __future__ import annotations

@@ -1,15 +1,7 @@
 """The production throttle-angle estimator: particle filter + Kalman stretches on eq. (3) /
-eq. (4) of Vargas et al. 2015 (docs/models.md, "Production throttle estimator"), theta in deg,
-clipped to the stops [0, 90] after every step.
-
-Particles because y carries |i| only and near the mode switches (8 / 16 deg) the posterior is
-multi-modal; Gaussian filters lock there. The filter draws i from the linearised optimal
-proposal with its predictive-likelihood weights (pf.update), resamples systematically when the
-ESS drops below N/2 (pf.resample), uses `n_low` particles near the mode switches and `n_high`
-above them, and hands over to a moment-matched Kalman filter while the posterior is inside mode
-3 with a surely positive current (pf.kalman_stretch). rho is exact given (theta, rho, i).
-A tick is one pf.recursion.filter_tick call on the state record (pf.state); the rare outcomes
-it flags are finished here.
+eq. (4) of Vargas et al. 2015, theta in deg clipped to [0, 90] (docs/models.md, "Production
+throttle estimator"). A tick is one pf.recursion.filter_tick call on the state record
+(pf.state); the rare outcomes it flags are finished here.
 """
 
 from __future__ import annotations
