@@ -1,12 +1,7 @@
-"""The event integrator of eq. 5-6 (vecu.models.manifold.integrate_manifold), written for speed.
-
-The hot loop of every run (plant, filter, 6-event prediction). It computes what throttle_flow,
-volumetric_efficiency and heat_flow compute, in the same operations and order
-(vecu.bench.estimators.integrate_manifold_reference; tests/estimators/manifold/
-test_fast_paths.py), with the per-event constants hoisted and the ROS2 sub-step loop inlined in
-local floats. One kernel (`_integrate_event`) on float64 tables (`tables`); only scalar IEEE
-arithmetic, sqrt, cos and pow, so both backends give the same bits. Bad input fails as plain
-Python fails (ValueError/OverflowError, IndexError, ZeroDivisionError), never silently.
+"""The event integrator of eq. 5-6 (vecu.models.manifold.integrate_manifold), written for speed:
+one kernel (`_integrate_event`) on float64 tables (`tables`), the same operations and order as
+the plain model (docs/models.md, "Corrections to the printed equations"). Bad input fails as
+plain Python fails, never silently.
 """
 
 # ruff: noqa: FURB136 (x if c else y mirrors min()/max() exactly, NaN included, without a call)

@@ -1,13 +1,5 @@
-"""Driveline: the engine speed and throttle setpoint that carry the car at a given speed.
-
-The one car (docs/models.md "One car"), per 2 ms sample: tractive force F = M a + M g c_rr +
-rho/2 C_d A v^2 (M: the single-track model's mass); engine torque T = F r_w / (i_g i_f eta)
-while F > 0, else 0; pedal p = clip(T / T_max, 0, 1); setpoint = floor(N) + p (90 deg -
-floor(N)) (vecu.models.manifold_params' idle/decel floor). Six gears: up at n_up(d), down
-below n_down(d), d the pedal low-passed over demand_tau_s, no upshift on a closed throttle, N
-moved linearly over shift_s. N = max(N in gear, n_idle + p (n_stall - n_idle)): a torque
-converter slipping at launch and at walking pace.
-"""
+"""Driveline: the engine speed and throttle setpoint that carry the car at a given speed (road
+load, six gears, torque converter; docs/models.md, "One car")."""
 
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
-"""Small unrolled Cholesky factorisations (3x3, 4x4) and the 3x3 SPD inverse from the factor.
-
-The one copy for every filter that factors a small covariance in plain floats (throttle UKF and
-particle filter, steering UKF, manifold S = C P C^T + R); small kernels (vecu.kernels).
-Symmetric matrices are passed as their upper triangle row by row, lower factors come back row by
-row: 3x3 (p00, p01, p02, p11, p12, p22) -> (l00, l10, l11, l20, l21, l22), 4x4 likewise.
-Cholesky-Banachiewicz in the operation order the golden logs depend on. A pivot not > 0 (NaN
-included) gives ok = False and zeros; callers choose the fallback (`chol3_or_fallback` /
-`chol4_or_fallback`: covariance.cholesky_lower; `chol3_floored`: pivots floored).
+"""Small unrolled Cholesky factorisations (3x3, 4x4) and the 3x3 SPD inverse, the one copy for
+every filter that factors a small covariance in plain floats. Symmetric inputs as the upper
+triangle row by row, lower factors row by row; Cholesky-Banachiewicz in the operation order the
+golden logs depend on. A pivot not > 0 (NaN included) gives ok = False and zeros; the callers'
+fallback: `chol3_or_fallback` / `chol4_or_fallback` (covariance.cholesky_lower), `chol3_floored`.
 """
 
 from __future__ import annotations

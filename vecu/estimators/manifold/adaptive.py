@@ -1,12 +1,6 @@
-"""Adaptive manifold EKF: eq. 10 plus slowly varying parameters (docs/models.md "Adaptive air
-charge").
-
-x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas, c, c_th, g, k_zeta, k_omega): eta scaled
-by c, the throttle flow by c_th, the angle sensor TA = g alpha, the actuator of eq. 1 with zeta
-and omega0 scaled by k_zeta, k_omega. c, c_th are random walks (`eta_q`), the others constants
-(`act_q`), all boxed; each learns from its channel only (Schmidt consider updates). The CAC uses
-c_used = eta_scale_used(c, var c), the posterior mean under a spike-and-slab prior. The event is
-one kernel (adaptive_event); an undecidable event or a divergence resets (counted).
+"""Adaptive manifold EKF: eq. 10 plus slowly varying parameters c, c_th, g, k_zeta, k_omega
+(Schmidt consider updates, spike-and-slab c_used; docs/models.md, "Adaptive air charge"). The
+event is one kernel (adaptive_event); an undecidable event or a divergence resets (counted).
 """
 
 from __future__ import annotations

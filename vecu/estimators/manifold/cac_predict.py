@@ -1,11 +1,7 @@
-"""Cylinder-air-charge (CAC) prediction HORIZON = 6 events ahead (Dutka 2006, Section IV, Table 1).
-
-From a state x_n the model (eq. 1 for the future throttle, eq. 5-6 by the event integrator) runs
-HORIZON events: CAC_pred(n) = eta P_im V_cyl / (R T_im) at x_n+6, compared with CAC_actual(n+6).
-Known at event n (docs/models.md "Manifold estimators"): the setpoints TA_SP,n..n+5
-(known_setpoint, default; else TA_SP,n held), N_n held, nominal ambient. Sources of x_n (Table 1):
-"direct" (the readings), "direct_ol" (T_im from the open-loop observer
-`open_loop_temperatures`), "ekf", "sdkf" (the filter posteriors).
+"""Cylinder-air-charge prediction HORIZON = 6 events ahead (Dutka 2006, Section IV, Table 1):
+eq. 1 and eq. 5-6 run from x_n, CAC_pred(n) = eta P_im V_cyl / (R T_im) at x_n+6. Sources of x_n
+(Table 1): "direct", "direct_ol" (`open_loop_temperatures`), "ekf", "sdkf"; known inputs:
+docs/models.md, "Manifold estimators and CAC prediction".
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
-"""One engine event of the manifold EKF and SDKF (Dutka 2006, eq. 10-14), written once as kernels.
-
-`sdkf_event`: SDC matrix A(x_n|n-1) (eq. 7/10, `sdc_matrix`), the prior covariance (one Riccati
-iteration of eq. 14 with `iterate`, else the DARE's P handed in), gating and the update of eq. 13
-(`update`), clamping, divergence checks, the mean through the event map (eq. 5-6 integrator).
-`ekf_event`: the same update, then F = df/dx (`jacobian`) and P = F P F^T + Q. The adaptive
-filter and the runs of events (manifold.sequences) call these pieces. Status word: bits 0-2 the
-channels gated, DIVERGED, FALLBACK (S not positive definite: the filter factors it with jitter,
-then `apply_gain` and `sdkf_finish` / `ekf_finish`).
+"""One engine event of the manifold EKF and SDKF (Dutka 2006, eq. 10-14), written once as kernels:
+`sdkf_event` (SDC matrix of eq. 7/10, one Riccati iteration of eq. 14 or the DARE's P, the update
+of eq. 13, the mean through eq. 5-6), `ekf_event` (the same update, P = F P F^T + Q). Status
+word: bits 0-2 the channels gated, DIVERGED, FALLBACK (S not positive definite: the caller
+factors it with jitter, then `apply_gain` and `sdkf_finish` / `ekf_finish`).
 """
 
 # ruff: noqa: FURB136 (x if c else y mirrors Python's min()/max(), NaN included)

@@ -1,12 +1,6 @@
-"""Unscented Rauch-Tung-Striebel smoothers for the steering filters (after Khalid et al., eqs.
-27-28; the recursion: steering.rts). The backward pass uses the forward pass's own C_k+1,
-x_k+1|k, P_k+1|k (steering.history), never re-propagating; on an EKF run it is the extended RTS.
-
-- `rts_smooth(run)`: offline, over a stored filter run (steering.base.FilterRun).
-- `FixedLagSmoother`: live; after step k returns the smoothed estimate of step k - lag (a
-  `LaggedEstimate`), None during the first `lag` steps; equals rts_smooth on 0..k (tested);
-  `flush()` smooths the tail.
-"""
+"""Unscented RTS smoothers for the steering filters (Khalid et al. eqs. 27-28, the recursion in
+steering.rts): `rts_smooth(run)` offline, `FixedLagSmoother` live (docs/models.md, "Steering ›
+Smoothers")."""
 
 from __future__ import annotations
 

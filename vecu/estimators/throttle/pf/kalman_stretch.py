@@ -1,11 +1,7 @@
-"""The Kalman stretches of the throttle particle filter: a moment-matched Kalman filter while
-the whole posterior is well inside mode 3, and the hand-overs to and from the particles.
-
-There eq. (3) is linear (the class-3 matrix; friction c1 sgn(rho) by E[sgn rho] =
-erf(rho / (sqrt 2 sigma_rho))) and eq. (4) has exact Gaussian moments of i^2: E = m^2 + P_ii,
-Var = 4 m^2 P_ii + 2 P_ii^2 + 1, Cov(x, i^2) = 2 m P[:, i]. Kernels in plain floats on the
-record's kf_x = (th, rh, ci, p00, p01, p02, p11, p12, p22); the 90 deg stop by censored-Gaussian
-moments; mode3_leave says when the particles take over again.
+"""The Kalman stretches of the throttle particle filter: a moment-matched Kalman filter while the
+posterior is well inside mode 3 (eq. (3) linear, the exact Gaussian moments of eq. (4)'s i^2,
+the 90 deg stop by censored moments; docs/models.md, "Production throttle estimator"), and the
+hand-overs. Kernels on the record's kf_x = (th, rh, ci, p00, p01, p02, p11, p12, p22).
 """
 
 # ruff: noqa: FURB136 (explicit selects: their NaN order, the same compiled and in Python)
