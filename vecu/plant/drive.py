@@ -1,9 +1,6 @@
-"""The drive: one car's speed, acceleration and engine, read by every plant part tick by tick.
-
-The longitudinal manoeuvres (vecu.plant.longitudinal, after Hernandez 2005) are the car's motion
-on the 2 ms grid; the lateral part steers at their speed and the manifold part runs the engine
-the driveline (vecu.plant.driveline) puts behind them. Legs are made on demand, in order, from
-the seed alone. `LongitudinalPart` sends the drive's speed sensors (ESC_Motion).
+"""The drive: one car's speed, acceleration and engine, read by every plant part tick by tick
+(longitudinal manoeuvres after Hernandez 2005, the driveline behind them; docs/models.md, "One
+car"). `LongitudinalPart` sends the drive's speed sensors (ESC_Motion).
 """
 
 from __future__ import annotations

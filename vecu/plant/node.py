@@ -1,9 +1,6 @@
-"""Plant node: the simulated vehicle on the bus, one part per physical system.
-
-Each part (vecu.plant.part) steps its model at its own rate (a multiple of the 1 ms base tick)
-and sends its sensor frames: ThrottlePart (vecu.plant.throttle), LongitudinalPart
-(vecu.plant.drive), LateralPart (vecu.plant.lateral) and ManifoldPart, on the engine-event chain;
-the node owns the bus and obeys FI_Command frames for the fault injector.
+"""Plant node: the simulated vehicle on the bus, one part per physical system (vecu.plant.part),
+each stepped at its own rate and sending its sensor frames; the node owns the bus and obeys
+FI_Command frames for the fault injector (docs/architecture.md).
 """
 
 from __future__ import annotations

@@ -38,14 +38,9 @@ State = tuple[float, float, float, float]
 
 @dataclass(frozen=True)
 class SteeringModel:
-    """Model, noise and prior of the steering filters (docs/models.md, 'Steering-wheel angle').
-
-    q_delta: PSD of delta_ddot, rad^2/s^3: (200/16 deg/s^2)^2/Hz at the road wheel, i.e.
-    (200 deg/s^2)^2/Hz at the steering wheel (the design note's 400 was second best in our sweep,
-    docs/models.md). q_vy, q_r: white-noise PSDs on v_y', r' for model error (tyre curve,
-    discretisation, speed noise; 0.2 / 2 cut the smoother's error by a third against 0.05 / 0.5).
-    sigma_*: vecu.plant.lateral.LateralSensors'. Prior: x0 = 0 with std p0_std.
-    """
+    """Model, noise and prior of the steering filters: q_delta (PSD of delta_ddot), q_vy, q_r (model
+    error on v_y', r'), sensor sigmas, prior std p0_std (values and sweep: docs/models.md, "Steering ›
+    Filters — decisions")."""
 
     params: VehicleParams = field(default_factory=VehicleParams)
     dt_s: float = DT_S

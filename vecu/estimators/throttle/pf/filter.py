@@ -243,12 +243,7 @@ class ThrottleParticleFilter:
 
 def make_production_estimator(noise_scale: float = 1.0,
                               model: ThrottleModel = PAPER_THROTTLE) -> ThrottleParticleFilter:
-    """The ECU's throttle estimator (registry name 'production'), see ThrottleParticleFilter.
-
-    Near the mode switches the posterior is wider at the paper's noise (alpha = 1) than at a
-    quiet throttle: at alpha = 1, 800 particles there (paired against 1000 over 16 held-out
-    seeds x 200 k steps: error std +0.3 % +- 0.9 %; 600: +1.9 % +- 1.3 %, 500: +4.3 %), while
-    at alpha = 0.3 600 suffice (docs/models.md).
-    """
+    """The ECU's throttle estimator (registry name 'production'), see ThrottleParticleFilter; the
+    particle counts per noise level: docs/models.md, "Production throttle estimator"."""
     n_low = N_LOW_NOISY if noise_scale > NOISY_ALPHA else DEFAULT_N_LOW
     return ThrottleParticleFilter(noise_scale, n_low=n_low, model=model)

@@ -1,10 +1,7 @@
-"""The throttle particle filter's state: one record with named fields, and the particle sets.
-
-STATE is the record's layout (all float64), kept in a float64 vector (`new_state`) that
-filter_tick takes and views by name (`state_of`): a numpy record when compiled (a float vector
-argument keeps numba's fast dispatch), a StateView of the same memory in Python (ctypes fields,
-~10x faster than a numpy record's). A Bank per particle count holds the set, the next step's
-and scratch rows in one (3, 7, n) array.
+"""The throttle particle filter's state: one record with named fields (STATE, all float64, in the
+vector `new_state`, viewed by name with `state_of`: a numpy record compiled, a ctypes StateView
+in Python; docs/models.md, "Production throttle estimator"), and the particle Banks, one
+(3, 7, n) array per particle count.
 """
 
 from __future__ import annotations
