@@ -1,9 +1,6 @@
-"""5.7 L V8 intake manifold and electronic throttle parameters (Dutka 2006; design/manifold.md).
-
-The paper gives the model structure (eq. 1-9) and the noise covariances (Section IV) but no engine
-numbers; the engine values below are the physically checked set of shared/design/manifold.md.
-Units are the model's own (docs/models.md, "Intake manifold"): P in kPa, V in dm^3 (kPa dm^3 = J),
-T in K, throttle angle in rad, mass flow in kg/s, heat flow in W, engine speed in rpm.
+"""5.7 L V8 intake manifold and electronic throttle parameters for Dutka 2006's eq. 1-9 and
+Section IV noise (the paper gives no engine numbers: each value is commented with its source),
+in the model's units (docs/models.md, "Intake manifold › Units, Parameters").
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """Intake manifold simulator: the stochastic truth of Dutka et al. 2006 (eq. 10, Section IV noise).
-
-The truth's event (`plant_step`: eq. 1, the eq. 5-6 integrator, eq. 9, Section IV's Q, the
-clamps) and its measurement (`measure`: Section IV's R, sensor gains) are kernels, driven by one
-kernel loop, `truth_events`, for `simulate` and the plant part's events ahead. The noise rows
-come in blocks of config.block from one stream, so the block size never changes the numbers.
+Kernels `plant_step` (eq. 1, eq. 5-6, eq. 9, Section IV's Q, clamps) and `measure` (Section IV's
+R, sensor gains), driven by one loop, `truth_events`; noise rows come in blocks from one stream
+(the block size never changes the numbers).
 """
 
 # ruff: noqa: FURB136 (x if c else y in the kernels mirrors Python's min()/max(), NaN included)

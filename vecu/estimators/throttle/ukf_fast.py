@@ -1,9 +1,6 @@
-"""The paper's UKF (Step 3, any Step 2/2a/2b sigma set) specialised to the throttle (n = 3).
-
-Plain floats: unrolled Cholesky (chol3_or_fallback, the same covariance.cholesky_lower
-fallback), eq. (3) from vecu.models.throttle.eq3_step, the Step-3 sums in one pass. Matches the
-generic numpy Step 3 (vecu.bench.reference_ukf) to < 1e-9 relative (tests/estimators/common/
-test_ukf.py).
+"""The paper's UKF (Step 3, any Step 2/2a/2b sigma set) for the throttle (n = 3) in plain floats:
+unrolled Cholesky (chol3_or_fallback), eq. (3) by vecu.models.throttle.eq3_step, the Step-3 sums
+in one pass; within 1e-9 relative of the generic numpy Step 3 (vecu.bench.reference_ukf).
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
-"""One tick of the throttle particle filter, written once: `filter_tick` (vecu.kernels).
-
-Checks u and y, then a Kalman-stretch tick (pf.kalman_stretch.mode3_tick) or a particle tick
-(pf_tick: pf.update.pf_step, a redo of a surprising step, renormalising, resample or hand-over),
-the counters and the reported std, on the state record (pf.state). What is rare (refilling the
-offsets, resampling, a hand-over, a restart) goes back to pf.filter, flagged in the return code.
+"""One tick of the throttle particle filter, written once: `filter_tick` (vecu.kernels) checks u
+and y, runs a Kalman-stretch tick (pf.kalman_stretch) or a particle tick (pf_tick: pf.update,
+redo, renormalise, resample or hand-over) on the state record; rare outcomes go back to
+pf.filter, flagged in the return code.
 """
 
 
