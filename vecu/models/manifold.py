@@ -38,12 +38,9 @@ def sample_time(n_rpm: float, n_cyl: int = 8) -> float:
 
 @kernel
 def event_coefficients(ts, zeta, omega0, tau):
-    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts. The corrected eq. 1 for the actuator
-    (zeta, omega0), alpha_{n+1} = a1 alpha_n + a2 alpha_{n-1} + b1 u_n + b2 u_{n-1}: the exact
-    zero-order-hold discretisation of alpha'' = w0^2 (u - alpha) - 2 zeta w0 alpha', a1 = 2 a b,
-    a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b), a =
-    exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2); eq. 9 for
-    the IAT sensor (tau): a_T = exp(-ts / tau), b_T = 1 - a_T."""
+    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts: the corrected eq. 1 (the exact
+    zero-order-hold discretisation of the actuator; formulas in docs/models.md, "Corrections to the
+    printed equations") and eq. 9 for the IAT sensor, a_T = exp(-ts / tau), b_T = 1 - a_T."""
     zw = zeta * omega0
     w_et = omega0 * math.sqrt(1.0 - zeta * zeta)
     a = math.exp(-zw * ts)

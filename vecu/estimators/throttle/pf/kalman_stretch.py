@@ -22,12 +22,9 @@ from vecu.models.throttle import PAPER_THROTTLE, THETA_MAX_DEG, THETA_MIN_DEG, T
 
 @kernel
 def mode3_predict(x: Any, coef: Any, q_th: float, q_i: float, u: float) -> Any:
-    """The prediction on the state x: x' = M [x, 1, E sgn rho] with the class-3 matrix M (its
-    constant b u in the i row), P' = A P A^T + Q with A = M's first three columns, then the
-    censored-Gaussian moments at the 90 deg stop when it is within 4 sigma (theta' =
-    min(theta, 90); with b = (90 - m) / s: E = m Phi(b) - s phi(b) + 90 (1 - Phi(b)),
-    E[theta'^2] = (m^2 + s^2) Phi(b) - s (m + 90) phi(b) + 90^2 (1 - Phi(b)), and by Stein's
-    lemma Cov(theta', z) = Cov(theta, z) Phi(b))."""
+    """The prediction on the state x: x' = M [x, 1, E sgn rho] with the class-3 matrix M of eq. (3),
+    P' = A P A^T + Q (A = M's first three columns), then the censored-Gaussian moments at the 90 deg
+    stop within 4 sigma (docs/models.md, "Production throttle estimator")."""
     (a00, a01, a02, k0, s0, a10, a11, a12, k1, s1, a20, a21, a22, b, s2) = coef
     th, rh, ci, p00, p01, p02, p11, p12, p22 = x
     sr = math.sqrt(p11) if p11 > 1e-12 else 1e-6
