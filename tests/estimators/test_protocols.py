@@ -18,12 +18,11 @@ from vecu.estimators.steering.base import SteeringEstimator
 from vecu.estimators.steering.filters import SteeringEKF, SteeringUKF
 from vecu.estimators.steering.smoothers import FixedLagSmoother
 from vecu.estimators.throttle.base import ThrottleEstimator
-from vecu.estimators.throttle.model import NumpyThrottleUKF
 from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.plant.lateral import ManoeuvreConfig, simulate_lateral
 
 FAMILIES = [
-    (ThrottleEstimator, [lambda: FastThrottleUKF("ahsm"), lambda: NumpyThrottleUKF("ahsm"),
+    (ThrottleEstimator, [lambda: FastThrottleUKF("ahsm"),
                          lambda: make_throttle_estimator("production"),
                          lambda: make_throttle_estimator("open-loop")]),
     (SpeedEstimator, [SpeedKalmanFilter]),

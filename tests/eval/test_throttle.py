@@ -160,11 +160,11 @@ def _cli(argv: list[str]) -> int:
 
 
 def test_cli_json_and_table(capsys) -> None:
-    assert _cli(["eval", "throttle", "--steps", "3000", "--filters", "arm,agm-numpy",
+    assert _cli(["eval", "throttle", "--steps", "3000", "--filters", "arm,agm",
                  "--json", "--seed", "4"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["steps"] == 3000 and out["seed"] == 4 and out["burn_in"] == 1000
-    assert [r["filter"] for r in out["results"]] == ["arm", "agm-numpy"]
+    assert [r["filter"] for r in out["results"]] == ["arm", "agm"]
     assert _cli(["eval", "throttle", "--steps", "2000", "--filters", "ahsm",
                  "--noise-scale", "0.3"]) == 0
     text = capsys.readouterr().out

@@ -9,9 +9,9 @@ import math
 import sys
 from typing import Any
 
+from vecu.bench.reference_ukf import NumpyThrottleUKF
 from vecu.clock import Stopwatch
 from vecu.estimators.common.sigma_sets import PAPER_SETS
-from vecu.estimators.throttle.model import NumpyThrottleUKF
 from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.models import manifold
 from vecu.plant.throttle import simulate

@@ -17,11 +17,8 @@ if TYPE_CHECKING:
     from vecu.models.throttle import ThrottleModel
 
 _PAPER = ("ahsm", "arm", "agm")
-# Fast (plain-float) paper filters, their numpy reference versions, the model-only baseline and
-# the production estimator.
-THROTTLE_ESTIMATORS: tuple[str, ...] = (
-    *_PAPER, *(f"{s}-numpy" for s in _PAPER), "open-loop", "production",
-)
+# The paper filters (plain floats), the model-only baseline and the production estimator.
+THROTTLE_ESTIMATORS: tuple[str, ...] = (*_PAPER, "open-loop", "production")
 
 
 class EstimatorUnavailableError(UnavailableError, ValueError):
@@ -43,10 +40,6 @@ def make_throttle_estimator(name: str, noise_scale: float = 1.0,
         from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 
         return FastThrottleUKF(name, noise_scale, model=model or PAPER_THROTTLE)
-    if name.endswith("-numpy") and name[: -len("-numpy")] in _PAPER:
-        from vecu.estimators.throttle.model import NumpyThrottleUKF
-
-        return NumpyThrottleUKF(name[: -len("-numpy")], noise_scale, model or PAPER_THROTTLE)
     if name == "open-loop":
         from vecu.estimators.throttle.open_loop import OpenLoopThrottle
 

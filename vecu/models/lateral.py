@@ -1,22 +1,7 @@
-"""Single-track (bicycle) vehicle model: the pure equations shared by plant and estimators.
-
-After Khalid et al. (steering-wheel angle by an unscented smoother): the paper's eq. (4) lateral
-motion and eq. (11) yaw motion reduced to one axle each (its printed parameters and eqs. (6)-(14)
-are unusable; the model and numbers follow /work/shared/design/steering.md, see docs/models.md).
-SI units throughout: rad, rad/s, m, m/s, m/s^2, N.
-
-State x = [v_y, r] (lateral velocity, yaw rate); input u = [delta, v_x] (road-wheel angle,
-longitudinal speed, an exogenous input: the longitudinal motion is neglected as in the paper).
-  alpha_f = delta - (v_y + l_f r) / v_x,   alpha_r = -(v_y - l_r r) / v_x
-  F_y(alpha) = D sin(C atan(B alpha)),   D = mu F_z,  B = C_alpha / (C D)   (Pacejka, no shift)
-  v_y' = (F_yf cos delta + F_yr) / M - v_x r        (eq. 4, per axle)
-  r'   = (l_f F_yf cos delta - l_r F_yr) / I_z      (eq. 11, per axle, no l_s terms)
-  a_y  = (F_yf cos delta + F_yr) / M                (the accelerometer's quantity)
-Steering-wheel angle = i_s * delta. Sensors follow the paper's eq. (3): Y = G Y0 + nu, 0 <= G <= 1
-(G = 1 healthy, G = 0 dead), here with an optional bias (gyro offset for mismatch studies).
-`f`, `h` are pure functions of (x, u, params); vecu.plant.lateral does the stepping (RK4 at 5 ms,
-samples at 100 Hz) with seeded sensor noise.
-"""
+"""Single-track vehicle model after Khalid et al.: eq. (4) lateral and eq. (11) yaw motion, one
+axle each, Pacejka tyres; sensors eq. (3), Y = G Y0 + nu (+ optional bias). Pure `f`, `h` of
+(x, u, params), x = [v_y, r], u = [delta, v_x], SI units; equations and parameter sources:
+docs/models.md, "Steering › Plant"."""
 
 from __future__ import annotations
 
@@ -81,8 +66,7 @@ def tyre_consts(p: VehicleParams) -> TyreConsts:
 @kernel(small=True)
 def tyre_force(d: float, c: float, b: float, alpha: float) -> float:
     """Lateral tyre force F_y = D sin(C atan(B alpha)) (N) at slip angle alpha (rad): Pacejka's
-    magic formula without shifts (module docstring; the paper's tyre curve). The one copy: the
-    plant, the filters' model and the compiled steering kernels call it (a small kernel)."""
+    magic formula without shifts."""
     return d * math.sin(c * math.atan(b * alpha))
 
 
@@ -98,11 +82,7 @@ def tyre_force_slope(d: float, c: float, b: float, alpha: float) -> tuple[float,
 def lateral_motion(v_y: float, r: float, delta: float, v_x: float, d_f: float, b_f: float,
                    d_r: float, b_r: float, c: float, l_f: float, l_r: float, mass: float,
                    i_z: float) -> tuple[float, float]:
-    """(a_y, r') = ((F_yf cos delta + F_yr) / M, (l_f F_yf cos delta - l_r F_yr) / I_z): the
-    paper's lateral (4) and yaw (11) motion per axle, the tyre forces at the slip angles
-    (module docstring). a_y is also the accelerometer's quantity and v_y' = a_y - v_x r. The
-    one copy: the plant (`f`, `h`) and the filters' model (vecu.estimators.steering.model
-    .accelerations) call it."""
+    """(a_y, r'): the paper's lateral (4) and yaw (11) motion per axle; v_y' = a_y - v_x r."""
     ffc = tyre_force(d_f, c, b_f, delta - (v_y + l_f * r) / v_x) * math.cos(delta)
     fr = tyre_force(d_r, c, b_r, (l_r * r - v_y) / v_x)
     return (ffc + fr) / mass, (l_f * ffc - l_r * fr) / i_z
@@ -137,8 +117,7 @@ def motion_constants(p: VehicleParams, t: TyreConsts) -> tuple[float, ...]:
 def rk4_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: float, dt: float,
                cst: tuple[float, ...]) -> tuple[float, float]:
     """One RK4 step of `f` (eqs. 4, 11) from x = (v_y, r), the input (delta, v_x) linear from
-    (d0, v0) at the start to (d1, v1) at the end; cst: motion_constants. The one copy (the
-    plant's stepping, both backends; the sums in this order: the golden logs' bits)."""
+    (d0, v0) to (d1, v1); cst: motion_constants. The sums' order is the golden logs' bits."""
     df, bf, dr, br, c, lf, lr, m, iz = cst
     dm, vm = 0.5 * (d0 + d1), 0.5 * (v0 + v1)
     a, k1r = lateral_motion(vy, r, d0, v0, df, bf, dr, br, c, lf, lr, m, iz)

@@ -1,18 +1,10 @@
 """Intake manifold and electronic throttle (Dutka et al. 2006, eq. 1-9), corrected: docs/models.md.
 
-Units (the paper's own, in which eq. 5, 6 and 8 hold literally): P in kPa, V in dm^3
-(kPa dm^3 = J), T in K, throttle angle alpha in rad, mass flow in kg/s, heat flow in W, N in rpm,
-time in s. Only the throttle-flow factor Xi of eq. 2-3 needs P_a in Pa (A_th is in m^2).
-
-State of one event n (the augmented x_n of eq. 10, 6 entries):
-    x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas)
-where (u_prev, alpha, alpha_prev) is the non-minimal actuator state x_ET of eq. 1.
-Input: EngineInput (throttle setpoint TA_SP in rad, N, P_a, T_a, T_coolant).
-
-Layers: the model's kernels (eq. 1 and 9 coefficients and event map, eq. 2-4 flow, eq. 8) and
-their functions on a parameter set; `integrate_manifold`, one event of eq. 5-6 in ROS2 sub-steps
-(vecu.models.manifold_integrator; the printed single Euler step diverges at large openings);
-`f`/`h`, the noise-free event map and output of the augmented model; steady states.
+The paper's units (eq. 5, 6 and 8 hold literally): kPa, dm^3, K, rad, kg/s, W, rpm, s; only Xi of
+eq. 2-3 needs P_a in Pa. Event state (eq. 10): x = (u_prev, alpha, alpha_prev, P_im, T_im,
+T_im.meas), (u_prev, alpha, alpha_prev) the actuator state x_ET of eq. 1; input EngineInput.
+Kernels for eq. 1/9, 2-4 and 8 and their functions on a parameter set; `integrate_manifold` (eq.
+5-6 by ROS2 sub-steps); `f`/`h` of the augmented model; steady states.
 """
 
 from __future__ import annotations
@@ -46,12 +38,9 @@ def sample_time(n_rpm: float, n_cyl: int = 8) -> float:
 
 @kernel
 def event_coefficients(ts, zeta, omega0, tau):
-    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts. The corrected eq. 1 for the actuator
-    (zeta, omega0), alpha_{n+1} = a1 alpha_n + a2 alpha_{n-1} + b1 u_n + b2 u_{n-1}: the exact
-    zero-order-hold discretisation of alpha'' = w0^2 (u - alpha) - 2 zeta w0 alpha', a1 = 2 a b,
-    a2 = -a^2, b1 = 1 - a (b + zeta w0 g / w_ET), b2 = a^2 + a (zeta w0 g / w_ET - b), a =
-    exp(-zeta w0 ts), b = cos(w_ET ts), g = sin(w_ET ts), w_ET = w0 sqrt(1 - zeta^2); eq. 9 for
-    the IAT sensor (tau): a_T = exp(-ts / tau), b_T = 1 - a_T."""
+    """(a1, a2, b1, b2, a_T, b_T) of one event of length ts: the corrected eq. 1 (the exact
+    zero-order-hold discretisation of the actuator; formulas in docs/models.md, "Corrections to the
+    printed equations") and eq. 9 for the IAT sensor, a_T = exp(-ts / tau), b_T = 1 - a_T."""
     zw = zeta * omega0
     w_et = omega0 * math.sqrt(1.0 - zeta * zeta)
     a = math.exp(-zw * ts)
@@ -64,9 +53,8 @@ def event_coefficients(ts, zeta, omega0, tau):
 
 @kernel
 def event_map(co, u_prev, alpha, alpha_prev, sp, t, tm):
-    """(alpha_{n+1}, T_meas,n+1): the corrected eq. 1 and eq. 9 of one event with the
-    coefficients co = event_coefficients(...), input sp now and u_prev before, T_im,n = t. The
-    one copy: the plant, the filters' event map and the CAC prediction call it."""
+    """(alpha_{n+1}, T_meas,n+1): the corrected eq. 1 and eq. 9 of one event, co =
+    event_coefficients(...), input sp now and u_prev before, T_im,n = t."""
     a1, a2, b1, b2, a_t, b_t = co
     return a1 * alpha + a2 * alpha_prev + b1 * sp + b2 * u_prev, a_t * tm + b_t * t
 
@@ -133,22 +121,15 @@ def psi_choked(kappa: float) -> float:
 
 
 def flow_function(pr: float, params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """psi(pr) with dpsi/dpr: choked (eq. 3), subsonic (eq. 2 with the square root over the whole
-    bracket), C1 quadratic near pr = 1 (flow_function_of).
-
-    For s = 1 - pr < s0 = 1 - pr_reg: psi = a s + b s|s| with psi and slope matched at s0, so the
-    infinite slope of eq. 2 at pr -> 1 is removed; the odd extension gives a small reverse flow
-    for pr > 1 (reached only through process noise at wide open throttle), saturated at -psi(s0).
-    """
+    """psi(pr) with dpsi/dpr: choked (eq. 3), subsonic (eq. 2, the root over the whole bracket),
+    and for s = 1 - pr < 1 - pr_reg the C1 quadratic psi = a s + b s|s| (no infinite slope at
+    pr -> 1; a small reverse flow for pr > 1, saturated)."""
     return flow_function_of(pr, tables(params)[0])
 
 
 def throttle_flow(alpha: float, p_im: float, p_a: float, t_a: float,
                   params: ManifoldParams = V8_5L7) -> tuple[float, float]:
-    """Eq. 2-3: (mdot_at in kg/s, d mdot_at / dP_im in kg/s per kPa).
-
-    Xi = C_d A_th(alpha) P_a / sqrt(R_air T_a) with P_a converted to Pa (A_th in m^2).
-    """
+    """Eq. 2-3: (mdot_at in kg/s, d mdot_at / dP_im in kg/s per kPa); Xi with P_a in Pa."""
     c, cd_alpha, cd_table, prs, _, _ = tables(params)
     return throttle_flow_of(alpha, p_im, p_a, t_a, c, cd_alpha, cd_table, prs)
 
@@ -211,21 +192,11 @@ def heat_flow(t_im: float, t_a: float, t_cool: float, params: ManifoldParams = V
 
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
-    """Advance (P_im, T_im) by dt with alpha and u held (zero-order hold over the event).
-
-    M sub-steps (chosen once per event from the stiffness and the rates: the smallest M with
-    h (|J_PP| + |J_TT|) <= lam_dt_max, |h dP/dt| <= dp_step_max and |h dT/dt| <= dt_step_max,
-    h = dt/M, clamped to [1, max_substeps]), each a two-stage Rosenbrock step (ROS2, gamma =
-    1 + 1/sqrt 2; second order for any W) with the diagonal Jacobian W = diag(min(J_PP, 0),
-    min(J_TT, 0)) of eq. 5-6's right-hand side:
-        k1 = f(x) / (1 - gamma h W),  k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W),
-        x += h (1.5 k1 + 0.5 k2).
-    The throttle-flow pole (up to ~5000 1/s near pr = 1) is then damped for any h, and the
-    steady state of eq. 5-6 is an exact fixed point. Returns (P_im, T_im, M).
-    Implemented in vecu.models.manifold_integrator (per-event constants hoisted, loop inlined;
-    bit-identical to the same steps written plainly on throttle_flow, volumetric_efficiency and
-    heat_flow: vecu.bench.estimators.integrate_manifold_reference).
-    """
+    """Advance (P_im, T_im) by dt with alpha and u held: (P_im, T_im, M). Eq. 5-6 in M ROS2
+    sub-steps (gamma = 1 + 1/sqrt 2, W = diag(min(J_PP, 0), min(J_TT, 0))): k1 = f(x) /
+    (1 - gamma h W), k2 = (f(x + h k1) - 2 k1) / (1 - gamma h W), x += h (1.5 k1 + 0.5 k2); M the
+    smallest with h (|J_PP| + |J_TT|) <= lam_dt_max and the dP, dT steps bounded. Damps the
+    throttle-flow pole for any h; the steady state is a fixed point (manifold_integrator)."""
     return _integrate_fast(p_im, t_im, alpha, u, dt, params)
 
 
@@ -259,11 +230,8 @@ def steady_state(
 def f(
     x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7, dt: float | None = None,
 ) -> np.ndarray:
-    """Noise-free eq. 10: one event of x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas).
-
-    The manifold sees alpha_n over the event (B_IM C_ET x_ET,n in eq. 10); the actuator moves to
-    alpha_{n+1} with the corrected eq. 1; the IAT sensor follows T_im,n (eq. 9). dt defaults to T_s.
-    """
+    """Noise-free eq. 10, one event: the manifold sees alpha_n (B_IM C_ET x_ET,n), the actuator
+    moves by the corrected eq. 1, the IAT sensor follows T_im,n (eq. 9); dt defaults to T_s."""
     ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     u_prev, alpha, alpha_prev, p, t, tm = (float(v) for v in x)
     co = event_coefficients(ts, params.zeta, params.omega0, params.tau_temp_s)

@@ -1,27 +1,7 @@
-"""The event integrator of eq. 5-6 (vecu.models.manifold.integrate_manifold), written for speed.
-
-It is the hot loop of every run: the plant steps it once per engine event, the ECU's filter once
-and the 6-event air-charge prediction six times, each event ~15 sub-steps of two right-hand
-sides. It computes exactly what the model's functions (`throttle_flow`, `volumetric_efficiency`,
-`heat_flow`) compute, in the same floating-point operations and order (bit-identical to the
-plain steps, vecu.bench.estimators.integrate_manifold_reference; tests/estimators/manifold/
-test_fast_paths.py), but:
-- everything that is constant over one event is computed once per call: the throttle area and
-  the C_d table column at the held angle alpha, Xi's factor, eta_N(N) and the pumping constant of
-  the held input u, and the parameter set's constants (cached per ManifoldParams object);
-- the sub-step loop is inlined in plain local floats (no calls per right-hand side): the
-  right-hand side is written once and evaluated twice per sub-step, the second ROS2 stage
-  without the Jacobian terms it does not use;
-- the table lookups are `interp` (once per event), the kernel the model's functions use.
-
-The whole event is one compiled kernel (`_integrate_event`, vecu.kernels): numba when it is the
-active backend, the same Python function otherwise, on the same arguments (`tables`: float64
-arrays; the table values read into plain floats once per event). Only scalar IEEE arithmetic,
-sqrt, cos and pow are used (no fastmath, no reductions), so both backends give bit-identical
-results (tests/models/test_manifold_integrator.py); the table searches are `search_right`
-(CPython's bisect_right, written out).
-Bad input fails as the plain Python code fails (math.ceil's ValueError/OverflowError for a
-non-finite sub-step count, IndexError for a NaN table lookup, ZeroDivisionError), not silently.
+"""The event integrator of eq. 5-6 (vecu.models.manifold.integrate_manifold), written for speed:
+one kernel (`_integrate_event`) on float64 tables (`tables`), the same operations and order as
+the plain model (docs/models.md, "Corrections to the printed equations"). Bad input fails as
+plain Python fails, never silently.
 """
 
 # ruff: noqa: FURB136 (x if c else y mirrors min()/max() exactly, NaN included, without a call)
@@ -269,10 +249,6 @@ _integrate_event.fix_signature(_signature)
 
 def integrate_manifold(p_im: float, t_im: float, alpha: float, u: EngineInput, dt: float,
                        params: ManifoldParams = V8_5L7) -> tuple[float, float, int]:
-    """Advance (P_im, T_im) by dt with alpha and u held; returns (P_im, T_im, M).
-
-    See vecu.models.manifold.integrate_manifold for the method (M ROS2 sub-steps with the
-    diagonal Jacobian); this is its implementation (the kernel `_integrate_event`).
-    """
+    """vecu.models.manifold.integrate_manifold: (P_im, T_im, M) by `_integrate_event`."""
     return _integrate_event(p_im, t_im, alpha, u.p_a, u.t_a, u.t_cool, u.n_rpm, dt,
                             *tables(params))

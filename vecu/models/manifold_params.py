@@ -1,9 +1,6 @@
-"""5.7 L V8 intake manifold and electronic throttle parameters (Dutka 2006; design/manifold.md).
-
-The paper gives the model structure (eq. 1-9) and the noise covariances (Section IV) but no engine
-numbers; the engine values below are the physically checked set of shared/design/manifold.md.
-Units are the model's own (docs/models.md, "Intake manifold"): P in kPa, V in dm^3 (kPa dm^3 = J),
-T in K, throttle angle in rad, mass flow in kg/s, heat flow in W, engine speed in rpm.
+"""5.7 L V8 intake manifold and electronic throttle parameters for Dutka 2006's eq. 1-9 and
+Section IV noise (the paper gives no engine numbers: each value is commented with its source),
+in the model's units (docs/models.md, "Intake manifold › Units, Parameters").
 """
 
 from __future__ import annotations
@@ -82,10 +79,6 @@ class ManifoldParams:
         """Displacement of one cylinder, V_d / n_cyl (the per-event volume of eq. 5-6)."""
         return self.v_d_dm3 / self.n_cyl
 
-    @property
-    def events_per_rev(self) -> float:
-        """Intake events per crank revolution (4-stroke): n_cyl / 2; Ts = 120/(n_cyl N)."""
-        return self.n_cyl / 2.0
 
     def throttle_floor_rad(self, n_rpm: float) -> float:
         """Idle/decel throttle floor (manifold.md), rad; N clamped to [n_idle, n_max]."""

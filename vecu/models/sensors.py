@@ -15,13 +15,9 @@ def tps_law(v_at_0: float, v_at_90: float, theta_deg: float) -> float:
 
 @dataclass(frozen=True)
 class TpsCalibration:
-    """Throttle position sensor: linear angle-to-voltage law with electrical-fault margins.
-
-    The paper's sensor maps 0-90 deg onto 0-5 V. A sensor whose 0 deg is 0 V cannot tell a closed
-    throttle from an open circuit, so vecu uses the automotive practice of 0.5 V at 0 deg and
-    4.5 V at 90 deg inside the 0-5 V signal range; readings below `fault_low_v` or above
-    `fault_high_v` are electrical faults (docs/models.md). v_at_0=0, v_at_90=5 restores the paper's law.
-    """
+    """Throttle position sensor: linear angle-to-voltage law, 0.5 V at 0 deg and 4.5 V at 90 deg,
+    readings outside [fault_low_v, fault_high_v] electrical faults (docs/models.md, "TPS transfer
+    law"); v_at_0=0, v_at_90=5 restores the paper's 0-5 V law."""
 
     v_at_0: float = 0.5
     v_at_90: float = 4.5

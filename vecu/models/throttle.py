@@ -1,15 +1,9 @@
 """Electronic throttle body model: piecewise-affine, 3 modes (Vargas et al. 2015, eq. 3-4, Table I).
 
-Pure equations and constants, shared by the plant simulator and the estimators.
-Eq. (3) is written once, as two kernels (vecu.kernels: compiled under numba, plain Python
-otherwise): `mode_step`, one mode's affine map with the sign terms given, and `eq3_step`, the
-switched system (mode by theta, sgn(rho), sgn(theta - 1)) built on it. The plant, the paper's
-UKFs, the particle filter's class matrices (read off mode_step) and Kalman stretches, and the
-identification all call them (small kernels: called from Python they run as Python).
-
-State x = [theta, rho, i]: valve angle theta in degrees (the paper's 0.1 factor dropped, see
-docs/models.md), angular velocity rho in the model's own units, motor current i in A.
-Input u: terminal voltage in V. Wattmeter measurement y = i**2 + v (eq. 4).
+Eq. (3) is written once, as two small kernels: `mode_step` (one mode's affine map) and `eq3_step`
+(the switched system), called by the plant, the UKFs, the particle filter and the identification.
+x = [theta, rho, i]: valve angle in degrees (the paper's 0.1 factor dropped, docs/models.md),
+angular velocity, motor current in A; u: terminal voltage in V; wattmeter y = i**2 + v (eq. 4).
 """
 
 from __future__ import annotations
@@ -105,11 +99,8 @@ def clip_theta(theta: float) -> float:
 @kernel(small=True)
 def mode_step(p: Any, theta: Any, rho: Any, i: Any, u: Any, s_rho: Any, s_theta: Any
               ) -> tuple[Any, Any, Any]:
-    """Eq. (3) inside one mode, noise-free, before the clip: x_{k+1} = A_s x_k + B_s u_k + c_s
-    with c_s = (0, c1 s_rho + c2 s_theta + c3, 0); p is the mode's row (A12 .. C3). The paper
-    has s_rho = sgn(rho), s_theta = sgn(theta - 1) (eq3_step); the particle filter passes the
-    sign of its theta class and reads its class matrices off this function, its Kalman stretch
-    E[sgn rho]. Plain arithmetic: floats, or numpy arrays elementwise."""
+    """Eq. (3) inside one mode, noise-free, before the clip: x_{k+1} = A_s x_k + B_s u_k + c_s,
+    c_s = (0, c1 s_rho + c2 s_theta + c3, 0); p the mode's row (A12 .. C3). Floats or arrays."""
     return (theta + p[A12] * rho,
             p[A21] * theta + p[A22] * rho + p[A23] * i + p[C1] * s_rho + p[C2] * s_theta + p[C3],
             p[A32] * rho + p[A33] * i + p[B] * u)

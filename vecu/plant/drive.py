@@ -1,14 +1,6 @@
-"""The drive: one car's speed, acceleration and engine, read by every plant part tick by tick.
-
-Issue 29 item 6 ("one car"): the longitudinal, lateral and engine parts used to drive three cars
-(CHS_Lateral said 76 km/h while ESC_Motion had braked to 0). Now the longitudinal manoeuvres
-(vecu.plant.longitudinal, after Hernandez 2005: by default the paper's braking to standstill, a
-launch-and-brake cycle, then road legs; the last of a sequence repeats) are the car's motion on
-the 2 ms grid; the longitudinal part sends their sensors, the
-lateral part steers the single-track model at their speed, and the manifold part runs the engine
-the driveline (vecu.plant.driveline) puts behind them. Legs (one manoeuvre each) are made on
-demand, in order, from the seed alone, so the drive is the same whoever reads it first.
-`LongitudinalPart` is the plant node's part that sends the drive's speed sensors (ESC_Motion).
+"""The drive: one car's speed, acceleration and engine, read by every plant part tick by tick
+(longitudinal manoeuvres after Hernandez 2005, the driveline behind them; docs/models.md, "One
+car"). `LongitudinalPart` sends the drive's speed sensors (ESC_Motion).
 """
 
 from __future__ import annotations
@@ -133,12 +125,8 @@ class Drive:
 
 
 class LongitudinalPart:
-    """Longitudinal vehicle (Hernandez 2005): ESC_Motion (wheel speed, accelerometer) every 2 ms.
-
-    Sends the sensors of the drive's manoeuvres (vecu.plant.drive: the paper's 84 km/h ->
-    standstill braking first, then a launch-and-brake cycle and road legs), sample t_ns / 2 ms
-    of the drive at each tick; without a drive it makes its own from seed and sequence.
-    """
+    """Longitudinal vehicle (Hernandez 2005): ESC_Motion (wheel speed, accelerometer) every 2 ms,
+    sample t_ns / 2 ms of the drive (without one, its own from seed and sequence)."""
 
     truth_message = "TRUTH_Speed"  # its truth frame (dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "longitudinal"

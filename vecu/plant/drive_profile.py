@@ -1,12 +1,6 @@
-"""Seeded aggressive US06-like drive profile for the intake-manifold plant (Dutka 2006, Section IV).
-
-The paper replays 80 s of a logged US06 cycle (engine speed, ambient, throttle setpoint; Fig. 2).
-We have no log, so this builds one of the same character: a launch at wide-open throttle through
-the gears up to the rev limit, tip-ins, part-load cruise with throttle steps, snap tip-outs to the
-idle/decel throttle floor and returns to idle. Engine speed stays in [700, 5600] rpm; the throttle
-setpoint changes in steps ("snaps", the actuator of eq. 1 smooths them) and never goes below the
-floor 7.5 deg + 14.5 deg (N - 700)/5300 (manifold.md) nor above 90 deg.
-"""
+"""Seeded US06-like drive profile for the intake-manifold plant (Dutka 2006, Section IV, Fig. 2):
+N in [700, 5600] rpm, throttle setpoint steps within [floor(N), 90 deg] (docs/models.md, "Drive
+profile")."""
 
 # ruff: noqa: FURB136 (x if c else y in the kernel mirrors min()/max(), NaN included)
 from __future__ import annotations
@@ -139,11 +133,8 @@ class _Builder:
 
 def us06_like(seed: int = 0, config: DriveProfileConfig = DriveProfileConfig(),
               params: ManifoldParams = V8_5L7) -> DriveProfile:
-    """Seeded aggressive cycle: idle, WOT launch to the rev limit, random maneuvers, back to idle.
-
-    Every cycle reaches both ends of the speed range (the launch upshifts at n_max, the cycle
-    returns to idle at least once in the middle and at the end). Same seed, same profile.
-    """
+    """Seeded aggressive cycle: idle, WOT launch to the rev limit, random maneuvers, back to idle
+    (both ends of the speed range every time). Same seed, same profile."""
     rng = rng_streams(seed, (STREAM,))[STREAM]
     b = _Builder(config.dt_s, params, rng)
     end = config.duration_s

@@ -1,24 +1,5 @@
-"""Driveline: the engine speed and throttle setpoint that carry the car at a given speed.
-
-The one car (docs/models.md "One car"): the vehicle's speed v and acceleration a (the
-longitudinal manoeuvres, vecu.plant.drive) set the engine through a six-speed gearbox, final
-drive and tyres. Per 2 ms sample:
-
-- tractive force F = M a + M g c_rr + rho/2 C_d A v^2 (M: the single-track model's mass, so the
-  car is one car); engine torque T = F r_w / (i_g i_f eta) while F > 0, else 0 (braking, coast);
-- pedal p = clip(T / T_max, 0, 1); throttle setpoint = floor(N) + p (90 deg - floor(N)), the
-  manifold model's idle/decel floor (vecu.models.manifold_params) at p = 0;
-- gear shifts up when N in gear passes n_up(d) = n_up_0 + d (n_up_1 - n_up_0) under power (p > 0;
-  no upshift on a closed throttle), down when it falls below n_down(d), d the pedal low-passed
-  over demand_tau_s (a cruise's pedal flutter does not hunt gears); a shift moves N linearly
-  from the old ratio to the new one over shift_s; the first sample takes the highest gear that
-  would not shift down at once;
-- engine speed N = max(N in gear, n_idle + p (n_stall - n_idle)): a torque converter that slips
-  at launch (stall speed at full pedal) and at walking pace, and locks once the car is rolling.
-
-So at speed N / v is one of the gear ratios (times i_f 60 / (2 pi r_w)) outside the 0.3 s of a
-shift, at standstill N is idle, and the engine's load follows the car's acceleration.
-"""
+"""Driveline: the engine speed and throttle setpoint that carry the car at a given speed (road
+load, six gears, torque converter; docs/models.md, "One car")."""
 
 from __future__ import annotations
 

@@ -1,10 +1,6 @@
-"""The throttle input u(t) from a user's file (`vecu excite throttle --input FILE`).
-
-Format (docs/reproduction.md): CSV with a header row naming the columns `t_s` (time, s) and
-`u_V` (motor voltage, V) in any order and case, other columns ignored; `#` lines and blank lines
-are skipped. Times strictly increase; u lies in 0..U_MAX_V. The plant's u at each 1 ms tick is
-u(t) linearly interpolated between rows, held at the first row's value before it and at the
-last row's after it. A file that breaks any of this is a BadFileError naming it and the row.
+"""The throttle input u(t) from a user's file (`vecu excite throttle --input FILE`): CSV with
+columns `t_s`, `u_V` (format: docs/reproduction.md), u linearly interpolated at each 1 ms tick and
+held beyond the ends; a file that breaks the format is a BadFileError naming it and the row.
 """
 
 from __future__ import annotations

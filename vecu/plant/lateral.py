@@ -1,17 +1,14 @@
-"""Single-track vehicle simulator: a seeded steering manoeuvre and in-vehicle sensors.
-
-The model (after Khalid, a sane single-track vehicle) is vecu.models.lateral; this module adds
-the manoeuvre, RK4 stepping and the eq. (3) sensors: `simulate_lateral`, a 300 s run at its own
-20-30 m/s (the offline evaluations), and `DrivenLateral`, the plant's vehicle sample by sample
-at the drive's speed (vecu.plant.drive: one car on the bus), and `LateralPart`, the plant node's
-part that sends its sensor frames.
+"""Single-track vehicle simulator (vecu.models.lateral, after Khalid): a seeded steering
+manoeuvre (`steering_commands`), RK4 stepping and the eq. (3) sensors. `simulate_lateral`: a
+300 s run at its own 20-30 m/s (offline); `DrivenLateral`: sample by sample at the drive's speed;
+`LateralPart`: the plant node's part that sends its sensor frames.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import can
@@ -79,14 +76,9 @@ class LateralSensors:
 # --------------------------------------------------------------------------- manoeuvre
 @dataclass(frozen=True)
 class ManoeuvreConfig:
-    """Randomised 300 s manoeuvre (uniform draws from the 'steer.manoeuvre' stream).
-
-    Segments in random order, repeated until `duration_s`, separated by straight driving with
-    small corrections: sine steers (0.2-0.8 Hz), double lane changes, steady turns and a
-    0.2-1.5 Hz sweep. Amplitudes are set from a target steady-state lateral acceleration
-    (`ay_range`) at the current speed, so mu = 1 is never exceeded but the tyres are visibly
-    nonlinear at the top. The run starts in a steady curve (the plant starts at its steady state).
-    """
+    """Randomised 300 s manoeuvre (steering_commands): sine steers (0.2-0.8 Hz), double lane
+    changes, steady turns and a 0.2-1.5 Hz sweep, amplitudes from a steady-state a_y in
+    `ay_range` (mu = 1 never exceeded, the tyres visibly nonlinear at the top)."""
 
     duration_s: float = 300.0
     speed_range_mps: tuple[float, float] = (20.0, 30.0)
@@ -177,30 +169,43 @@ def _low_pass2(x: np.ndarray, hz: float, dt: float) -> np.ndarray:
     return y
 
 
+def steering_commands(cfg: ManoeuvreConfig, p: VehicleParams, rng: np.random.Generator, dt: float,
+                      speed_at: Callable[[int], float]) -> Iterator[np.ndarray]:
+    """The manoeuvre's raw steering-wheel command (rad), chunk by chunk from `rng`: a steady curve
+    (a_y 1.5-3 m/s^2) held 3-6 s and released over 1.5 s, then (straight driving with small
+    corrections, a segment) pairs, segments in random order; each amplitude set for
+    speed_at(index of the chunk's first sample). The one manoeuvre of simulate_lateral and
+    DrivenLateral."""
+    amp0 = _swa_for_ay(rng.uniform(1.5, 3.0), speed_at(0), p) * (1.0 if rng.uniform() < 0.5 else -1.0)
+    ramp = np.linspace(1.0, 0.0, int(1.5 / dt))
+    chunk = amp0 * np.concatenate([np.ones(int(rng.uniform(3.0, 6.0) / dt)), ramp])
+    k = chunk.size
+    yield chunk
+    order: list[str] = []
+    while True:
+        if not order:
+            order = list(cfg.segments)
+            rng.shuffle(order)
+        # Straight driving: small corrections, low-passed noise of ~1 deg at the wheel.
+        straight = np.convolve(rng.normal(0.0, 1.0 * RAD_PER_DEG, int(rng.uniform(2.0, 5.0) / dt)),
+                               np.ones(50) / 50 ** 0.5, mode="same")
+        seg = _segment(order.pop(), speed_at(k + straight.size), cfg, p, dt, rng)
+        k += straight.size + seg.size
+        yield np.concatenate([straight, seg])
+
+
 def steering_profile(cfg: ManoeuvreConfig, p: VehicleParams, rng: np.random.Generator,
                      dt: float = DT_S) -> tuple[np.ndarray, np.ndarray]:
     """(v_x, true steering-wheel angle) on the dt grid, both drawn from `rng`."""
     n = round(cfg.duration_s / dt) + 1
     v = _speed_profile(n, dt, cfg, rng)
-    # Start in a steady curve (ay 1.5-3 m/s^2), held 3-6 s, released over 1.5 s.
-    amp0 = _swa_for_ay(rng.uniform(1.5, 3.0), float(v[0]), p) * (1.0 if rng.uniform() < 0.5 else -1.0)
-    ramp = np.linspace(1.0, 0.0, int(1.5 / dt))
-    parts = [amp0 * np.concatenate([np.ones(int(rng.uniform(3.0, 6.0) / dt)), ramp])]
-    k = sum(len(q) for q in parts)
-    order: list[str] = []
-    while k < n:
-        if not order:
-            order = list(cfg.segments)
-            rng.shuffle(order)
-        straight = int(rng.uniform(2.0, 5.0) / dt)
-        # Straight driving: small corrections, low-passed noise of ~1 deg at the wheel.
-        parts.append(np.convolve(rng.normal(0.0, 1.0 * RAD_PER_DEG, straight), np.ones(50) / 50 ** 0.5,
-                                 mode="same"))
-        seg = _segment(order.pop(), float(v[min(k + straight, n - 1)]), cfg, p, dt, rng)
-        parts.append(seg)
-        k += straight + len(seg)
-    swa = np.concatenate(parts)[:n]
-    return v, _low_pass2(swa, cfg.column_hz, dt)
+    parts, k = [], 0
+    for chunk in steering_commands(cfg, p, rng, dt, lambda i: float(v[min(i, n - 1)])):
+        parts.append(chunk)
+        k += chunk.size
+        if k >= n:
+            break
+    return v, _low_pass2(np.concatenate(parts)[:n], cfg.column_hz, dt)
 
 
 @kernel
@@ -220,8 +225,7 @@ def advance_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: flo
 @kernel
 def sample_motion(vy: float, r: float, d0: float, v0: float, d1: float, v1: float,
                   cst: tuple[float, ...]) -> tuple[float, float, float]:
-    """(a_y at the sample, v_y and r one sample on): `h`'s a_y, then advance_motion; one
-    compiled call per sample of the plant (DrivenLateral)."""
+    """(a_y at the sample, v_y and r one sample on): `h`'s a_y, then advance_motion."""
     ay = lateral_motion(vy, r, d0, v0, cst[0], cst[1], cst[2], cst[3], cst[4], cst[5], cst[6],
                         cst[7], cst[8])[0]
     vy, r = advance_motion(vy, r, d0, v0, d1, v1, cst)
@@ -290,67 +294,44 @@ class LateralSample:
 
 class DrivenLateral:
     """The single-track vehicle at the drive's speed (vecu.plant.drive), one 10 ms sample per
-    call: the manoeuvre of ManoeuvreConfig (the steady curve at the start, straight driving with
-    corrections, segments in random order) made segment by segment, each amplitude set for the
-    fastest speed the drive reaches within AHEAD_S (so a_y stays within ay_range), the command
+    call: the manoeuvre of steering_commands, each amplitude set for the fastest speed the drive
+    reaches within AHEAD_S (so a_y stays within ay_range), the command
     faded out below STEER_GATE_MPS (nobody slaloms at walking pace), then the steering column's
-    low-pass. Stepped by `advance` (RK4) at and above V_KINEMATIC_MPS, held on the linear steady
+    low-pass. Stepped by `sample_motion` (RK4) at and above V_KINEMATIC_MPS, held on the linear steady
     state below it (0 at standstill). Sensors as simulate_lateral's, the speed reading >= 0."""
 
     def __init__(self, drive: Drive, seed: int, cfg: ManoeuvreConfig = ManoeuvreConfig(),
                  params: VehicleParams = VehicleParams(),
                  sensors: LateralSensors = LateralSensors()) -> None:
         rngs = rng_streams(seed, STREAMS)
-        self._rng, self._rs = rngs["steer.manoeuvre"], rngs["steer.sensors"]
-        self._drive, self._cfg, self._p, self._sensors = drive, cfg, params, sensors
+        self._rs = rngs["steer.sensors"]
+        self._drive, self._p, self._sensors = drive, params, sensors
         self._tc = tyre_consts(params)
         self._cst = motion_constants(params, self._tc)
         self._stride = round(DT_S / drive.dt_s)  # drive samples per lateral sample
         self._ahead = round(AHEAD_S / DT_S)
         self._col = math.exp(-2.0 * math.pi * cfg.column_hz * DT_S)
         self._cmd: deque[float] = deque()  # raw steering-wheel command of the samples to come (rad)
-        self._order: list[str] = []
         self._j = 0  # index of the next sample made by _command
         self._s1: float | None = None
         self._s2 = 0.0
         self._noise: list[list[float]] = []
-        self._start_curve()
+        self._chunks = steering_commands(cfg, params, rngs["steer.manoeuvre"], DT_S, self._v_ref)
         self._cur = self._command()
         d0, v0 = self._cur[0] / params.steering_ratio, self._cur[1]
         self._x = (steady_state(d0, v0, params) if v0 >= V_KINEMATIC_MPS
                    else linear_steady_state(d0, v0, params))
 
-    def _v_ref(self) -> float:
-        """The fastest speed within AHEAD_S of the next command sample (at least the gate's)."""
-        k = self._stride * (self._j + len(self._cmd))
+    def _v_ref(self, i: int) -> float:
+        """The fastest speed within AHEAD_S of command sample i (at least the gate's)."""
+        k = self._stride * i
         v = self._drive.speeds(k, k + self._stride * self._ahead)
         return max(float(v.max()), STEER_GATE_MPS[0])
-
-    def _start_curve(self) -> None:
-        """A steady curve (a_y 1.5-3 m/s^2) held 3-6 s, released over 1.5 s (as simulate_lateral)."""
-        rng = self._rng
-        amp0 = (_swa_for_ay(rng.uniform(1.5, 3.0), self._v_ref(), self._p)
-                * (1.0 if rng.uniform() < 0.5 else -1.0))
-        ramp = np.linspace(1.0, 0.0, int(1.5 / DT_S))
-        self._cmd.extend((amp0 * np.concatenate([np.ones(int(rng.uniform(3.0, 6.0) / DT_S)),
-                                                 ramp])).tolist())
-
-    def _extend(self) -> None:
-        """Straight driving with small corrections, then the next segment."""
-        rng = self._rng
-        if not self._order:
-            self._order = list(self._cfg.segments)
-            rng.shuffle(self._order)
-        straight = int(rng.uniform(2.0, 5.0) / DT_S)
-        self._cmd.extend(np.convolve(rng.normal(0.0, 1.0 * RAD_PER_DEG, straight),
-                                     np.ones(50) / 50 ** 0.5, mode="same").tolist())
-        self._cmd.extend(_segment(self._order.pop(), self._v_ref(), self._cfg, self._p, DT_S,
-                                  rng).tolist())
 
     def _command(self) -> tuple[float, float]:
         """(steering-wheel angle after the column, speed) of the next sample."""
         if not self._cmd:
-            self._extend()
+            self._cmd.extend(next(self._chunks).tolist())
         raw = self._cmd.popleft()
         v = self._drive.speed(self._stride * self._j)
         self._j += 1

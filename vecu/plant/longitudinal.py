@@ -1,22 +1,6 @@
-"""Longitudinal vehicle, braking manoeuvres, wheel-speed sensor and accelerometer at 500 Hz.
-
-After Hernández 2005, Section 4: a car at about 84 km/h brakes to standstill, sampled at 500 Hz;
-the variable-reluctance wheel-speed sensor is noisy and useless below 5 km/h (Section 2.2.2), the
-accelerometer is noisy, offset, and rings at 1-2 Hz (body pitch) when the car stops. SI units:
-speed in m/s, acceleration in m/s^2 (positive forward). See docs/models.md for the numbers.
-
-Truth: the longitudinal acceleration a follows a commanded profile through a jerk limit, the speed
-is its integral, and the car stays at rest once it reaches 0 while braking (it never reverses).
-Wheel-speed sensor: v (1 - slip) + noise whose std grows as 1/v below 10 km/h; below 5 km/h a
-growing share of samples read 0 (no pulses: dropout); slip cycles at ABS frequency while ABS is
-active (variant "abs", above 10 km/h); readings are >= 0 (the sensor cannot tell direction).
-Accelerometer: a + offset + pitch ringing after the stop + white noise, clipped to +-2 g.
-Manoeuvres: "paper" (~84 km/h, -8 m/s^2 to rest), "gentle" (~50 km/h, -3 m/s^2, eased near the
-end), "abs" (~84 km/h, -9.5 m/s^2 with ABS wheel slip), "launch_brake" (rest, ~2.5 m/s^2 to
-~40 km/h, -5 m/s^2 to rest, eased near the end), "road" (1 s at rest, ~2 m/s^2 to 72-108 km/h,
-30-60 s of cruise towards a new 72-108 km/h target every 15 s at 0.3-0.8 m/s^2, -3 m/s^2 to
-rest, eased; ManoeuvreConfig.rolling: start cruising at speed instead).
-"""
+"""Longitudinal vehicle, braking manoeuvres, wheel-speed sensor (Hernández 2005, Section 2.2.2)
+and accelerometer (Section 4) at 500 Hz; SI units, acceleration positive forward. Manoeuvres
+and sensor figures: docs/models.md, "Vehicle speed › Plant"."""
 
 from __future__ import annotations
 

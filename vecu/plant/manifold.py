@@ -1,14 +1,7 @@
 """Intake manifold simulator: the stochastic truth of Dutka et al. 2006 (eq. 10, Section IV noise).
-
-The model (eq. 1-9, the event integrator) is vecu.models.manifold; this module adds state, noise
-and the event-by-event simulation over a drive profile. The truth's event (`plant_step`: eq. 1,
-the integrator of eq. 5-6, eq. 9, Section IV's Q, the physical clamps) and its measurement
-(`measure`: Section IV's R, the sensor gains) are written once as kernels (vecu.kernels), and
-driven by one loop that is a kernel too, `truth_events`: simulate (a whole drive, on a float
-clock) and EventsAhead (vecu.plant.node.ManifoldPart's events computed ahead in blocks, on its
-integer-nanosecond clock).
-The noise rows are drawn in blocks of config.block from one stream (Generator.standard_normal
-fills them in order), so the block size never changes the numbers.
+Kernels `plant_step` (eq. 1, eq. 5-6, eq. 9, Section IV's Q, clamps) and `measure` (Section IV's
+R, sensor gains), driven by one loop, `truth_events`; noise rows come in blocks from one stream
+(the block size never changes the numbers).
 """
 
 # ruff: noqa: FURB136 (x if c else y in the kernels mirrors Python's min()/max(), NaN included)
@@ -223,11 +216,9 @@ _PART_COLUMNS = [R_N, R_SP, R_Y, R_Y + 1, R_Y + 2, R_X + 3, R_X + 4, R_CAC]
 
 
 class EventsAhead:
-    """The truth's events computed ahead in blocks by one kernel call (truth_events on
-    ManifoldPart's integer-nanosecond clock), for
-    vecu.plant.node.ManifoldPart: noise rows from the stream in blocks of config.block, as
-    simulate draws them. The plant depends on nothing the ECU sends, so nothing can change its
-    course between the events computed and their frames."""
+    """The truth's events for vecu.plant.node.ManifoldPart, computed ahead in blocks by
+    truth_events on its integer-nanosecond clock, the noise drawn as simulate draws it (the
+    plant depends on nothing the ECU sends)."""
 
     AHEAD = 256  # events per kernel call (~1.3 s of driving at 2000 rpm)
 

@@ -1,9 +1,6 @@
-"""Plant node: the simulated vehicle on the bus, one part per physical system.
-
-Each part (vecu.plant.part) steps its model at its own rate (a multiple of the 1 ms base tick)
-and sends its sensor frames: ThrottlePart (vecu.plant.throttle), LongitudinalPart
-(vecu.plant.drive), LateralPart (vecu.plant.lateral) and ManifoldPart, on the engine-event chain;
-the node owns the bus and obeys FI_Command frames for the fault injector.
+"""Plant node: the simulated vehicle on the bus, one part per physical system (vecu.plant.part),
+each stepped at its own rate and sending its sensor frames; the node owns the bus and obeys
+FI_Command frames for the fault injector (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -31,10 +28,8 @@ log = logging.getLogger(__name__)
 
 
 class ManifoldPart:
-    """Engine intake (Dutka 2006) stepped once per engine event, Ts = 120 / (8 N): sends
-    ENG_Event (counter, N, throttle setpoint and angle, MAP) and ENG_Intake (IAT) at each event.
-    The engine speed and throttle setpoint are the drive's (vecu.plant.drive: the driveline
-    behind the car's speed), one leg's profile after the other on the drive's clock."""
+    """Engine intake (Dutka 2006), once per engine event (Ts = 120 / (8 N)): ENG_Event (counter,
+    N, setpoint, angle, MAP) and ENG_Intake (IAT); N and the setpoint are the drive's."""
 
     truth_message = "TRUTH_Manifold"  # its truth frame (dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "manifold"

@@ -1,10 +1,6 @@
-"""Electronic throttle body simulator: stochastic eq. (3), the Section III-B excitation and the
-plant node's throttle part.
-
-The model itself (Table I, eq. 3-4) is vecu.models.throttle; this module adds one step with
-noise (`plant_step`), the ticks (measure, then step) over the plant's noise stream as one kernel
-(`advance_ticks`, vecu.kernels: compiled under numba, plain Python otherwise), the input
-generator, the offline `simulate` and `ThrottlePart`, which sends the sensor frames.
+"""Electronic throttle body simulator (Vargas 2015): stochastic eq. (3) (`plant_step`), the ticks
+as one kernel (`advance_ticks`), the Section III-B excitation, the offline `simulate` and
+`ThrottlePart`, which sends the sensor frames. The model itself is vecu.models.throttle.
 """
 
 from __future__ import annotations
@@ -82,9 +78,8 @@ def advance_ticks(st, u, noise, pos, rows, b1, b2, sig_theta, sig_i, h, tps_nois
 
 
 class ThrottlePlant:
-    """Stochastic eq. (3) with theta clipped to the stops, advanced a block of ticks at a time by
-    one kernel call (advance_ticks: compiled under numba, plain Python otherwise); the noise is
-    drawn in fixed-size blocks (the stream does not depend on how many ticks a call takes)."""
+    """Stochastic eq. (3), a block of ticks per advance_ticks call; the noise drawn in fixed-size
+    blocks (the stream does not depend on how many ticks a call takes)."""
 
     def __init__(self, config: ThrottlePlantConfig, rng: np.random.Generator) -> None:
         self.config = config
@@ -131,12 +126,8 @@ class InputConfig:
 
 
 def input_blocks(config: InputConfig, rng: np.random.Generator) -> Iterator[list[float]]:
-    """Yield successive chunks of u (V), clipped to [0, u_max].
-
-    The cutoff is redrawn every cutoff period; second-order sections keep the 0.01 Hz filter
-    stable at 1 kHz, and the filter state is carried across chunks and cutoff changes, so u is
-    continuous. Chunks are short (INPUT_CHUNK samples) so that live runs never stall on one.
-    """
+    """Successive chunks of u (V), clipped to [0, u_max]: the cutoff redrawn every period, the
+    filter (second-order sections, stable at 0.01 Hz) carried across chunks, so u is continuous."""
     zi = None
     level = 0.0
     remaining = 0
@@ -204,16 +195,10 @@ WATT_SIGNALS = ("ETB_Voltage", "ETB_Power")
 
 
 class ThrottlePart:
-    """Throttle body (Vargas 2015): TPS_Sensor (E2E) and ETB_Wattmeter every 1 ms.
-
-    Per tick k: u_k from the input generator, y_k and the TPS voltage measured on x_k, faults
-    applied, frames sent with timestamp t_k, then x_{k+1} = f(x_k, u_k) + F w_k (eq. 3). The
-    ticks are computed AHEAD at a time (ThrottlePlant.ticks: the plant depends on nothing the ECU
-    sends) and their frames encoded in blocks (FrameCodec.encode_rows: the framers' payloads),
-    the TPS frames as if each tick sends one with the sensor left as it is; a tick whose TPS
-    frame differs from that (a fault's voltage, a counter moved on by stopped frames) is framed
-    on its own.
-    """
+    """Throttle body (Vargas 2015): TPS_Sensor (E2E) and ETB_Wattmeter every 1 ms, measured on
+    x_k, faults applied, then x_{k+1} by eq. (3). Ticks are computed AHEAD at a time (the plant
+    depends on nothing the ECU sends) and framed in blocks; a tick whose TPS frame differs from
+    the block's (a fault, a counter moved on) is framed on its own."""
 
     truth_message = "TRUTH_Throttle"  # its truth frame (dbc/vecu_truth.dbc; PlantNode.enable_truth)
     name = "throttle"

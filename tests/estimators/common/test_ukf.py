@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from vecu.bench.reference_ukf import NumpyThrottleUKF, UnscentedFilter, f, h, process_noise_cov
 from vecu.estimators.common.covariance import (
     DivergenceBounds,
     cholesky_lower,
@@ -15,8 +16,6 @@ from vecu.estimators.common.covariance import (
     symmetrise,
 )
 from vecu.estimators.common.sigma_sets import PAPER_SETS, paper_set
-from vecu.estimators.common.ukf import UnscentedFilter
-from vecu.estimators.throttle.model import NumpyThrottleUKF, f, h, process_noise_cov
 from vecu.estimators.throttle.ukf_fast import FastThrottleUKF
 from vecu.models.throttle import F_DIAG
 from vecu.plant.throttle import simulate

@@ -1,10 +1,6 @@
-"""Numerical guards shared by every filter in vecu.
-
-- `symmetrise`: remove the asymmetry that rounding leaves in P after an update.
-- `cholesky_lower`: S with S S^T ~= P, never failing on a finite P: plain Cholesky, then Cholesky
-  with growing diagonal jitter, then eigenvalue clipping as the last resort.
-- `diverged`: the reset criterion (non-finite state or covariance, trace above a bound, state
-  magnitude above a bound). Filters reset to their prior and count the reset.
+"""Numerical guards shared by every filter in vecu: `symmetrise`, `cholesky_lower` (never fails on
+a finite P: jitter, then eigenvalue clipping), `diverged` (the reset criterion; filters reset to
+their prior and count it).
 """
 
 from __future__ import annotations

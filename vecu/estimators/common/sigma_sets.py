@@ -1,10 +1,6 @@
-"""The three sigma sets of Vargas et al. (2015), Section II-A, as fixed patterns.
-
-Every set is written as chi_j = x_hat + S @ Z[:, j], j = 0..N, with S = chol(P) (lower Cholesky
-factor, our choice of the paper's matrix square root) and one weight vector w used for both the
-mean and the covariance (Step 3). Column 0 is the paper's chi_0. Each set satisfies
-sum w = 1, sum_j w_j Z_j = 0 and sum_j w_j Z_j Z_j^T = I (checked by `moment_errors`), so the
-points reproduce x_hat and P exactly.
+"""The three sigma sets of Vargas et al. (2015), Section II-A, as fixed patterns: chi_j = x_hat +
+S Z[:, j], S = chol(P), one weight vector w for mean and covariance (Step 3), column 0 the
+paper's chi_0; sum w = 1, sum_j w_j Z_j = 0, sum_j w_j Z_j Z_j^T = I (`moment_errors`).
 """
 
 from __future__ import annotations

@@ -1,21 +1,8 @@
-"""Small unrolled Cholesky factorisations (3x3, 4x4) and the 3x3 SPD inverse from the factor.
-
-Written once for every filter that factors a small covariance in plain floats: the throttle UKF
-(3x3 sigma points) and particle filter (3x3 Kalman stretch), the lateral UKF and its kernels
-(4x4 sigma points), the manifold filters' innovation covariance S = C P C^T + R (3x3 factor and
-inverse, Python path and SDKF kernel). Each is a small `vecu.kernels.kernel`: compiled kernels
-compile it with them, called from Python it runs as Python. Symmetric matrices are passed as their
-upper triangle, row by row; lower factors come back row by row:
-
-  3x3  p = (p00, p01, p02, p11, p12, p22)                    -> (l00, l10, l11, l20, l21, l22)
-  4x4  p = (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33) -> (l00, l10, l11, l20, ..., l33)
-
-Standard Cholesky-Banachiewicz order: l_jj = sqrt(p_jj - sum_k<j l_jk^2) with the sum subtracted
-left to right, l_ij = (p_ij - sum_k<j l_ik l_jk) / l_jj. The operation order is the one every
-former copy used (the golden logs and the bit-identity tests depend on it). A pivot that is not
-> 0 (NaN included) gives ok = False and zeros; each caller keeps its own fallback:
-`chol3_or_fallback` / `chol4_or_fallback` (covariance.cholesky_lower: jitter, then eigenvalue
-clipping), `chol3_floored` (pivots floored, never failing) or the caller's general path.
+"""Small unrolled Cholesky factorisations (3x3, 4x4) and the 3x3 SPD inverse, the one copy for
+every filter that factors a small covariance in plain floats. Symmetric inputs as the upper
+triangle row by row, lower factors row by row; Cholesky-Banachiewicz in the operation order the
+golden logs depend on. A pivot not > 0 (NaN included) gives ok = False and zeros; the callers'
+fallback: `chol3_or_fallback` / `chol4_or_fallback` (covariance.cholesky_lower), `chol3_floored`.
 """
 
 from __future__ import annotations

@@ -1,23 +1,6 @@
-"""Adaptive manifold EKF: the paper's augmented model (eq. 10) plus slowly varying parameters
-(vecu decision, docs/models.md "Adaptive air charge").
-
-State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas, c, c_th, g, k_zeta, k_omega):
-eta_true(N, P) = c eta_calibrated(N, P), the throttle flow scaled by c_th (the C_d table), the
-angle sensor TA = g alpha, and the actuator of eq. 1 with zeta = k_zeta zeta_cal, omega0 =
-k_omega omega0_cal. c, c_th are random walks (`eta_q`), g, k_zeta, k_omega constants (`act_q`),
-all bounded to their boxes. What identifies them: TA against the known setpoint gives g and the
-actuator; at a steady state only the ratio of throttle flow to port flow shows in P_im (eta and
-C_d A_th errors are confounded there), the speed of the pressure transients (pumping time
-constant, proportional to 1/eta) separates them once the plate's own speed is known. Each
-parameter learns from its channel only (Schmidt consider updates on the others).
-
-The CAC and its 6-event prediction use c_used = eta_scale_used(c, var c): the posterior mean
-of c under a spike-and-slab prior (the engine is the calibrated one, or eta differs by ~
-`eta_slab_sd`), so an engine that is the calibrated one is not charged c's noise.
-
-The whole event is one kernel (`adaptive_event.adaptive_event`, compiled under numba; its Python function under
-the python backend). An event the kernel cannot decide (S not positive definite) or a divergence
-resets the filter (counted), the parameters back to 1 with their prior variances.
+"""Adaptive manifold EKF: eq. 10 plus slowly varying parameters c, c_th, g, k_zeta, k_omega
+(Schmidt consider updates, spike-and-slab c_used; docs/models.md, "Adaptive air charge"). The
+event is one kernel (adaptive_event); an undecidable event or a divergence resets (counted).
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
-"""The adaptive manifold EKF's event as one kernel (vecu.estimators.manifold.adaptive has the
-filter and the model it implements): event.ekf_event with five more states: the volumetric-
-efficiency correction c and the throttle-flow correction c_th (scaling the eta_N and C_d tables
-of the event integrator), the angle sensor's gain g (TA = g alpha) and the actuator's damping
-and natural-frequency corrections k_zeta, k_omega (zeta = k_zeta zeta_cal, omega0 = k_omega
-omega0_cal in eq. 1)."""
+"""The adaptive manifold EKF's event as one kernel: event.ekf_event with the parameter states c,
+c_th, g, k_zeta, k_omega of vecu.estimators.manifold.adaptive (docs/models.md, "Adaptive air
+charge")."""
 
 # ruff: noqa: FURB136 (x if c else y mirrors min()/max() exactly)
 from __future__ import annotations
@@ -33,7 +30,6 @@ N_XA = 11
 I_C, I_CTH, I_G, I_KZ, I_KW = range(6, 11)
 (A_C_LO, A_C_HI, A_FD_C, A_PR_FREEZE, A_ALPHA_GATE, A_G_LO, A_G_HI, A_K_LO, A_K_HI,
  A_FD_K) = range(10)
-N_ADAPT_CONSTS = 10
 ZETA_MAX = 0.99
 
 
@@ -95,13 +91,8 @@ def adaptive_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, ch
     n = x.shape[0]
     xp = xo[1]
     Pp = Po[1]
-    # Each parameter learns from the channel that sees it: g, k_zeta, k_omega from TA (the
-    # actuator's response to the known setpoint), c, c_th from P_im. The other channels treat
-    # them as considered parameters (Schmidt update: they and their covariance keep the prior),
-    # so one channel's own errors are not explained by another's parameters. The P_im update
-    # also considers c, c_th near wide open (the flow function is steep as P_im / P_a -> 1) and
-    # while the throttle leaves its model (TA innovation beyond eta_alpha_gate sigma).
-    # Sequential channel updates equal the joint one for a diagonal R.
+    # g, k_zeta, k_omega learn from TA, c, c_th from P_im; other channels consider them (Schmidt
+    # update; docs/models.md, "Adaptive air charge").
     e_alpha = y0 - x[I_G] * x[1]
     s_alpha = (x[I_G] * x[I_G] * P[1, 1] + 2.0 * x[I_G] * x[1] * P[1, I_G]
                + x[1] * x[1] * P[I_G, I_G] + fc[F_R0])

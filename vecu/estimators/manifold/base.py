@@ -13,15 +13,8 @@ from vecu.models.manifold_params import EngineInput, ManifoldParams
 
 @runtime_checkable
 class ManifoldEstimator(Protocol):
-    """An event-rate filter on the augmented model of eq. 10, x = (u_prev, alpha, alpha_prev,
-    P_im, T_im, T_im.meas), y = (TA, P_im, T_im.out) (ManifoldEKF, ManifoldSDKF).
-
-    step(y, u) at engine event n: update with y_n (None: predict only; a NaN or implausible
-    channel is rejected and counted, the others used), then predict x_n+1|n with the event's
-    input u_n (eqs. 12-14 for the SDKF). Returns the posterior x_n|n (a copy); afterwards
-    `last_prediction` is (u_n, f(x_n|n, u_n)), or None when the step reset the filter. The
-    outputs never become NaN: a diverged filter resets to its prior, counted in `resets`.
-    """
+    """An event-rate filter on the augmented model of eq. 10 (manifold.filters): step(y_n, u_n)
+    -> x_n|n, `last_prediction` (u_n, f(x_n|n, u_n)) or None after a reset; never NaN."""
 
     @property
     def name(self) -> str: ...

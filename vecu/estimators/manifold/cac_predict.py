@@ -1,25 +1,7 @@
-"""Cylinder-air-charge (CAC) prediction 6 events ahead (Dutka 2006, Section IV, Table 1).
-
-The feedforward fuel controller needs the air charge of the cylinder whose fuel it injects now,
-HORIZON events later. At event n it takes a state x_n (measured or estimated), runs the model
-(actuator eq. 1 for the future throttle trajectory, manifold eq. 5-6, the plant's sub-stepped
-event map) over the next HORIZON events and returns
-    CAC_pred(n) = eta P_im V_cyl / (R T_im) at x_n+6 (kg per cylinder event),
-to be compared with the simulated CAC_actual(n + 6).
-
-What the controller knows at event n (decisions, docs/models.md "Manifold estimators"):
-- the throttle setpoints TA_SP,n..n+5 (known_setpoint=True, default): a drive-by-wire ECU delays
-  the pedal command by the prediction horizon, which is why a throttle model can predict the
-  throttle trajectory at all (the paper's ref. [1]); known_setpoint=False holds TA_SP,n;
-- the engine speed N_n only, held over the horizon (event period and eta_N from N_n);
-- nominal P_a, T_a, T_coolant.
-
-Four sources of x_n (the paper's Table 1 columns):
-- "direct": the readings: alpha = TA_n, alpha_prev = TA_n-1, u_prev = TA_SP,n-1, P_im = P_n,
-  T_im = T_im.meas = T_im.out,n (the slow IAT sensor, tau 8 s);
-- "direct_ol": the same, but T_im from an open-loop observer: the manifold model (P, T) run
-  without feedback, driven by the measured throttle angle (`open_loop_temperatures`);
-- "ekf", "sdkf": the filter posteriors x_n|n (vecu/estimators/manifold/filters.py).
+"""Cylinder-air-charge prediction HORIZON = 6 events ahead (Dutka 2006, Section IV, Table 1):
+eq. 1 and eq. 5-6 run from x_n, CAC_pred(n) = eta P_im V_cyl / (R T_im) at x_n+6. Sources of x_n
+(Table 1): "direct", "direct_ol" (`open_loop_temperatures`), "ekf", "sdkf"; known inputs:
+docs/models.md, "Manifold estimators and CAC prediction".
 """
 
 from __future__ import annotations
@@ -105,10 +87,8 @@ def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
                       config: CacPredictionConfig = CacPredictionConfig(),
                       eta_scale: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For events n = 0, stride, 2 stride, ... with n + horizon in range:
-    (n, CAC_pred(n), CAC_actual(n + horizon)), CAC in kg, all predictions in one kernel call
-    (predict_at_events: predict_cac's numbers). eta_scale: per event, the eta correction the
-    state came with (the adaptive filter's c; None: 1)."""
+    """(n, CAC_pred(n), CAC_actual(n + horizon)) in kg for n = 0, stride, ... (predict_at_events);
+    eta_scale: per event, the adaptive filter's c (None: 1)."""
     hz = config.horizon
     idx = np.arange(0, len(cac_actual) - hz, max(1, config.stride))
     pred = np.empty(len(idx))
@@ -126,10 +106,8 @@ def prediction_errors(states: np.ndarray, ta_sp: np.ndarray, n_rpm: np.ndarray,
 def open_loop_temperatures(ta_meas: np.ndarray, n_rpm: np.ndarray, p0: float, t0: float,
                            params: ManifoldParams = V8_5L7,
                            inputs: Sequence[EngineInput] | None = None) -> np.ndarray:
-    """T_im,n of the open-loop manifold observer over the events: (P, T) of eq. 5-6 from (p0,
-    t0) driven by the measured throttle angle TA_n (the last finite one), no feedback, with
-    each event's ambient and coolant conditions (inputs; None: params' nominal ones) at N_n
-    (the kernel open_loop_run)."""
+    """T_im,n of the open-loop observer: eq. 5-6 from (p0, t0) driven by the measured TA_n (the
+    last finite one) at N_n, no feedback; ambient from inputs (None: nominal); open_loop_run."""
     n_ev = len(ta_meas)
     out = np.empty(n_ev)
     if inputs is None:
@@ -222,12 +200,9 @@ def air_charge_gradient(n_rpm, p_im, t_im, c, v_cyl, eta_rpm, eta_val):
 @kernel
 def air_charge_sigmas(x, P, Q, horizon, n_rpm, p_a, t_a, t_cool, fc, c, cd_alpha, cd_table, prs,
                       eta_rpm, eta_val):
-    """(sigma of the CAC at the posterior (x, P), sigma of the CAC `horizon` events ahead with
-    the input held), kg: first-order propagation g S g^T with g = air_charge_gradient at the
-    posterior and S the (P_im, T_im) block of P, then of the covariance predicted `horizon`
-    events with no measurement, S <- A S A^T + Q (the time update of eq. 14, A the SDC matrix
-    of eq. 7 / 10 at the posterior and the held input; the gradient stays at the posterior's
-    operating point). The first six states of x, P and Q are used."""
+    """(sigma of the CAC at the posterior, `horizon` events ahead with u held), kg: g S g^T with
+    g = air_charge_gradient and S the (P_im, T_im) block of P, then of S after `horizon` time
+    updates of eq. 14 (S <- A S A^T + Q, A the SDC matrix at the posterior)."""
     ts = 120.0 / (fc[F_NCYL] * n_rpm)  # models.manifold.sample_time
     A = np.zeros((6, 6))
     sdc_matrix(A, x, n_rpm, p_a, t_a, t_cool, ts, coefficients(ts, fc), fc[F_ALPHA_MIN], c,

@@ -1,25 +1,8 @@
-"""One engine event of the manifold EKF and SDKF (Dutka 2006, eq. 10-14), written once.
-
-`sdkf_event` is a whole ManifoldSDKF event after the Python-side input checks: the SDC matrix
-A(x_n|n-1) of eq. 10 with the paper's A_IM (eq. 7, `sdc_matrix`), the prior covariance (one
-Riccati iteration P_n = A P_n-1|n-1 A^T + Q of eq. 14 with `iterate`, else the P handed in: the
-DARE modes solve eq. 14 in Python and pass its P), gating and the measurement update of eq. 13
-(`update`), clamping, both divergence checks and the mean through the event map of eq. 10 (the
-plant's integrator of eq. 5-6, vecu.models.manifold_integrator). `ekf_event` is the EKF event:
-the same update, then F = df/dx at x_n|n (analytic rows of eq. 1 and 9, one-sided differences
-of the integrator: `jacobian`) and P = F P F^T + Q. The adaptive filter's event
-(manifold.adaptive) and the runs of events (manifold.sequences) call these pieces.
-
-Each function is a `vecu.kernels.kernel`: numba-compiled under the numba backend, the same
-Python function under the python backend, on the same arguments (the integrator's tables,
-manifold_integrator.tables), so every
-path computes an event the same way. A
-kernel returns a status word: bits 0-2 the channels gated, DIVERGED (reset the filter), FALLBACK
-(the innovation covariance S is not positive definite or not finite: the filter factors it with
-covariance.cholesky_lower's jitter, then `apply_gain` and `sdkf_finish` / `ekf_finish`).
-
-numba's cache links the compiled integrator into these kernels' entries: vecu.kernels keys
-each entry by the code it was made of, so an edit of manifold_integrator.py recompiles them.
+"""One engine event of the manifold EKF and SDKF (Dutka 2006, eq. 10-14), written once as kernels:
+`sdkf_event` (SDC matrix of eq. 7/10, one Riccati iteration of eq. 14 or the DARE's P, the update
+of eq. 13, the mean through eq. 5-6), `ekf_event` (the same update, P = F P F^T + Q). Status
+word: bits 0-2 the channels gated, DIVERGED, FALLBACK (S not positive definite: the caller
+factors it with jitter, then `apply_gain` and `sdkf_finish` / `ekf_finish`).
 """
 
 # ruff: noqa: FURB136 (x if c else y mirrors Python's min()/max(), NaN included)
@@ -313,11 +296,9 @@ def sdkf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, c, cd_alpha,
 @kernel
 def sdkf_event(x, P, P_post, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans,
                run0, run1, run2, iterate, fc, Q, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """One ManifoldSDKF event from the prior (x, P; P_post the previous posterior) with the
-    checked input and the valid channels (bit i of chans; y_i their values, run_i their
-    gated-in-a-row counts). Writes xo = (prior x_n+1|n clamped, posterior x_n|n, event-map output
-    before clamping) and Po = (prior P_n|n-1, posterior P_n|n). Returns the channels gated (bits
-    0-2) | DIVERGED | FALLBACK (module docstring)."""
+    """One ManifoldSDKF event from the prior (x, P; P_post the last posterior), channels chans
+    (bits), readings y_i, gated runs run_i: xo = (next prior clamped, posterior, event-map output),
+    Po = (prior P_n|n-1, posterior); returns the status word."""
     Pn = Po[0]
     if iterate:  # one Riccati iteration of eq. 14: P = sym(A P_post A^T + Q)
         A = np.zeros((6, 6))
@@ -359,9 +340,8 @@ def ekf_finish(xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, gated, fc, Q, fd, c, cd_
 @kernel
 def ekf_event(x, P, xo, Po, sp, n_rpm, p_a, t_a, t_cool, ts, y0, y1, y2, chans, run0, run1,
               run2, fc, Q, fd, c, cd_alpha, cd_table, prs, eta_rpm, eta_val):
-    """One ManifoldEKF event from the prior (x, P) with the checked input and the valid
-    channels (as sdkf_event): the update, then ekf_finish. Writes xo, Po as sdkf_event (Po[0]
-    the new prior P_n+1|n); returns the gated channels | DIVERGED | FALLBACK."""
+    """One ManifoldEKF event (arguments and outputs as sdkf_event, Po[0] the new prior P_n+1|n):
+    the update, then ekf_finish."""
     gated = update(x, P, xo[1], Po[1], (y0, y1, y2), (run0, run1, run2), chans, fc)
     if gated & FALLBACK:
         return gated

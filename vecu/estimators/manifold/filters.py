@@ -1,39 +1,8 @@
-"""Event-rate intake-manifold filters (Dutka 2006): EKF and the state-dependent Kalman filter.
-
-Both run once per engine event (T_s = 120/(8N)) on the augmented model of eq. 10
-(vecu/estimators/manifold/model.py): x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas),
-y = (TA, P_im, T_im.out), Q and R of Section IV.
-
-step(y, u) at event n: update with y_n (the measurement of x_n), store the posterior x_n|n
-(returned), then predict x_n+1|n with the event's input u_n (setpoint TA_SP,n, N_n, P_a, T_a, T_cool).
-
-- `ManifoldEKF`: recursive EKF; mean through the plant's sub-stepped event map f, F = df/dx at the
-  posterior (event.jacobian, in event.ekf_event), P = F P F^T + Q.
-- `ManifoldSDKF`: eq. 12-14. Gain K_n = P_n C^T (C P_n C^T + R)^-1 with P_n from the Riccati
-  equation of the SDC matrix A_n = A(x_n|n-1) (event.sdc_matrix). `riccati` selects
-  how P_n is obtained:
-    "iterate"  (default, live): ONE Riccati iteration per event, warm-started from the previous
-               event: P_n = A_n (P_n-1 - K_n-1 S_n-1 K_n-1^T) A_n^T + Q. For a frozen A it
-               converges to the DARE solution; A(x) moves slowly against that convergence, so the
-               gain is the same (docs/models.md, "Manifold estimators").
-    "doubling" the DARE of eq. 14 solved per event to convergence by the structure-preserving
-               doubling algorithm (quadratic convergence, 5-10 doublings; equals scipy to ~1e-12).
-    "scipy"    the DARE per event by scipy.linalg.solve_discrete_are (the paper's way; ms/event).
-  The mean goes through the same f as the EKF, not A x + B u (eq. 12 as printed is one explicit
-  Euler step of eq. 5-6, which diverges at large openings: docs/models.md, "Intake manifold").
-
-Guards (shared): y=None (or an all-invalid y) -> predict only; each channel that is NaN or outside
-its plausible range is rejected and counted, the others are used; innovations beyond gate_sigma are
-gated (at most max_gated_in_row in a row per channel); bad inputs u (NaN, absurd N) are replaced by
-the last good input and counted; the posterior state is clamped to a physical box; P is
-symmetrised and S = C P C^T + R factored with vecu.estimators.common.covariance.cholesky_lower; a
-non-finite or exploding state/covariance (covariance.diverged) resets the filter and is counted.
-No input can make the outputs NaN.
-
-The event after the input checks is one call of a kernel written once in
-vecu.estimators.manifold.event (sdkf_event, ekf_event): compiled under the numba backend, its
-Python function under the python backend; the classes here keep the orchestration (input checks,
-counters, resets, the DARE of the "doubling" / "scipy" modes, the jittered fallback update).
+"""Event-rate intake-manifold filters (Dutka 2006) on the augmented model of eq. 10: `ManifoldEKF`
+(F = df/dx) and `ManifoldSDKF` (eq. 12-14; `riccati` "iterate", "doubling" or "scipy"), Q and R
+of Section IV. step(y_n, u_n) updates, keeps x_n|n, predicts x_n+1|n; the event is one kernel
+call (manifold.event). Guards and Riccati modes: docs/models.md, "Manifold estimators and CAC
+prediction".
 """
 
 from __future__ import annotations
@@ -107,7 +76,6 @@ class _ManifoldKF:
                        *tables(self.params))
         self._P0 = np.diag(np.array(c.p0_diag, dtype=float))
         # a given x0 is the state; else the idle steady state until the first complete reading
-        # initialises it (_initialise; before issue 30 x0 was always "given": 25 kPa at start)
         self._x_given = x0 is not None
         if x0 is None:
             u0 = nominal_input(self.params.throttle_floor_rad(self.params.n_idle_rpm),
@@ -197,8 +165,7 @@ class _ManifoldKF:
 
     def _call_event(self, run: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                     u: EngineInput, ts: float, mask: int) -> int:
-        """The event kernel on the filter's prior (x, P) (ekf_event's and adaptive_event's
-        arguments; the SDKF's differ); its status word."""
+        """The event kernel on the filter's prior (x, P); its status word."""
         ly = self._last_y
         gr = self._gated_run
         return run(self.x, self.P, xo, Po, u.ta_sp, u.n_rpm, u.p_a, u.t_a, u.t_cool, ts, ly[0],
@@ -210,9 +177,8 @@ class _ManifoldKF:
         raise NotImplementedError
 
     def _event(self, y, u: EngineInput, ts: float, chans: list[int]) -> None:
-        """The event after the input checks: one call of the subclass's event kernel (prior
-        covariance, update, guards, prediction), a fallback update when S needs jitter, then
-        the counters, a reset or the new state."""
+        """The event after the input checks: the subclass's event kernel, the fallback update
+        when S needs jitter, then the counters, a reset or the new state."""
         run, finish = self._KERNELS
         args = self._kargs
         mask = 0
@@ -242,9 +208,8 @@ class _ManifoldKF:
 
     def _fallback(self, finish: Any, args: tuple, xo: np.ndarray, Po: np.ndarray,
                   u: EngineInput, ts: float, mask: int, code: int) -> int:
-        """S = C P C^T + R of the channels used was not positive definite (or not finite) for
-        the kernel: factor it with covariance.cholesky_lower (jitter, then eigenvalue clipping;
-        ValueError when not finite), then the same gain and the rest of the event."""
+        """S = C P C^T + R was not positive definite for the kernel: factor it with
+        covariance.cholesky_lower, then the same gain and the rest of the event."""
         gated = code & 7
         ch = [i for i in range(3) if mask >> i & 1 and not gated >> i & 1]
         prior = self._prior_of(Po)
@@ -264,13 +229,10 @@ class _ManifoldKF:
     def estimate(self, y0: float, y1: float, y2: float, u: EngineInput, horizon: int,
                  lap: Callable[[], float]) -> tuple[list[float], float, float, float, float,
                                                     float]:
-        """The ECU's event: step((y0, y1, y2), u), the CAC at the posterior and predicted
-        `horizon` events ahead with u held (the adaptive filter's eta correction applied):
-        (posterior, CAC, CAC+horizon, the eta scale used, seconds in the filter, seconds in
-        the prediction made apart). The usual event of the SDKF ("iterate") and the EKF is
-        one kernel call (filter_events over one event with the horizon: the prediction's time
-        counted in the filter's), the others step() and predict_cac, with the same numbers;
-        lap: the caller's Stopwatch.lap."""
+        """The ECU's event: step((y0, y1, y2), u) and the CAC now and `horizon` events ahead
+        with u held (eta correction applied): (posterior, CAC, CAC+horizon, eta scale, seconds
+        in the filter, seconds in the prediction). One filter_events call where it can, else
+        step() and predict_cac, with the same numbers; lap: the caller's Stopwatch.lap."""
         if self._KIND != 2 and self._initialised and self._runs:
             ys, us, xs, vs, cacs = self._buffers
             ys[0, 0], ys[0, 1], ys[0, 2] = y0, y1, y2
@@ -321,19 +283,15 @@ class _ManifoldKF:
                 gr[i] = 0
 
     def _commit_event(self, xo: np.ndarray, Po: np.ndarray, u: EngineInput) -> None:
-        """Take a kernel's output: next prior (xo[0], Po[0]), posterior (xo[1], Po[1]) and the
-        event map's output xo[2]."""
+        """Take a kernel's output: prior xo[0]/Po[0], posterior xo[1]/Po[1], event map xo[2]."""
         self.x, self.x_post = xo[0], xo[1]
         self.P, self.P_post = Po[0], Po[1]
         self.last_prediction = (u, xo[2])
 
     def run_events(self, ys: np.ndarray, us: np.ndarray) -> np.ndarray:
-        """step(ys[n], EngineInput(*us[n])) for every event n; the posteriors (events x states;
-        their variances, the diagonal of P_post, in `self.run_variances` afterwards).
-        ys: (events, 3) readings, us: (events, 5) inputs (TA_SP, N, P_a, T_a, T_cool). Runs of
-        events go through one filter_events call each (the same kernels, so the same numbers
-        and counters as stepping); the events the kernels hand back (bad inputs, rejected
-        readings, fallbacks, divergence) go through step()."""
+        """step(ys[n], EngineInput(*us[n])) for every event n: the posteriors (their variances
+        in `run_variances`). Runs of events go through filter_events, the events it hands back
+        through step(); same numbers and counters as stepping."""
         ys = np.ascontiguousarray(ys, dtype=np.float64)
         us = np.ascontiguousarray(us, dtype=np.float64)
         n_ev = len(ys)
@@ -385,10 +343,9 @@ class _ManifoldKF:
 
     # ---------------------------------------------------------------- public
     def step(self, y: Sequence[Any] | None, u: EngineInput) -> np.ndarray:
-        """One engine event: update with y_n (None: predict only), predict with u_n.
-        Returns the posterior x_n|n (a copy). Afterwards `last_prediction` is (u, f(x_n|n, u))
-        with the event map's output before clamping, or None when the step reset the filter
-        (lets a caller that runs the same model ahead from x_n|n skip that first event)."""
+        """One engine event: update with y_n (None: predict only), predict with u_n; the
+        posterior x_n|n (a copy). `last_prediction`: (u, f(x_n|n, u)) before clamping, None
+        after a reset."""
         self.events += 1
         self.last_prediction = None
         u = self._check_input(u)

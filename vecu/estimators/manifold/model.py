@@ -1,21 +1,9 @@
 """Filter-side augmented intake-manifold model (Dutka 2006, eq. 10-14 notation).
 
-Built on the model's functions (vecu/models/manifold.py) and the filters' event pieces
-(vecu/estimators/manifold/event.py: the SDC factorisation of eq. 7/10 and the Jacobian are
-written there once, for the kernels); no equation is restated here.
-
-State x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) (eq. 10), output y = C x =
-(TA, P_im, T_im.out) with C a row selection (indices 1, 3, 5). Units as the plant: rad, kPa, K.
-
-The event map f and output h are the plant's (vecu.models.manifold.f, h); F = df/dx is
-event.jacobian (analytic actuator and IAT rows; one-sided finite differences of the event
-integrator for the manifold rows, the step flipped where the sub-step count would change).
-- `sdc_matrices`: A(x), B(x) of eq. 10 with the paper's A_IM, B_IM (eq. 7) built from eq. 5-6 with
-  the corrected per-event pumping volume V_cyl; A(x) x + B(x) u is eq. 5-6 as printed (one Euler
-  step) for the manifold rows and exactly eq. 1/9 for the others. The SDKF uses A(x) for its
-  Riccati equation only (the throttle flow sits in the alpha column, so A_IM is stable at any
-  opening); its mean goes through `f`.
-- `q_matrix`, `r_matrix`: Section IV's Q and R (manifold_params.PAPER_NOISE).
+x = (u_prev, alpha, alpha_prev, P_im, T_im, T_im.meas) (eq. 10), y = C x = (TA, P_im, T_im.out),
+C selects 1, 3, 5; rad, kPa, K. f and h are the plant's (vecu.models.manifold), F is
+event.jacobian. `sdc_matrices`: A(x), B(x) of eq. 10 with the paper's A_IM, B_IM (eq. 7), for the
+SDKF's Riccati equation only (its mean goes through f). `q_matrix`, `r_matrix`: Section IV's Q, R.
 """
 
 from __future__ import annotations
@@ -67,14 +55,7 @@ def r_matrix(noise: ManifoldNoise = PAPER_NOISE) -> np.ndarray:
 
 def sdc_matrices(x: np.ndarray, u: EngineInput, params: ManifoldParams = V8_5L7,
                  dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(A(x), B(x)) of eq. 10 with the paper's SDC factorisation (eq. 7), per event.
-
-    A_IM = [[1 - pi, (kappa-1) T_s Q_ext / (T_im V_im)],
-            [0, 1 - (kappa-1)/kappa pi + (kappa-1) T_s Q_ext / (V_im P_im)]],
-    B_IM = T_s mdot_at / alpha * [kappa R T_a / V_im, T_im (kappa R T_a - R T_im) / (V_im P_im)],
-    pi = kappa eta N V_d T_s / (120 V_im) (= kappa V_cyl eta / V_im at T_s = 120/(8N)).
-    B_IM C_ET goes into the alpha column of A (eq. 10); alpha >= ALPHA_SDC_MIN in the division.
-    """
+    """(A(x), B(x)) of eq. 10 with the paper's SDC factorisation (eq. 7): event.sdc_matrix."""
     ts = sample_time(u.n_rpm, params.n_cyl) if dt is None else dt
     fc = model_constants(params)
     A = np.zeros((N_X, N_X))

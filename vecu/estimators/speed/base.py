@@ -8,15 +8,9 @@ from typing import Protocol, runtime_checkable
 
 @runtime_checkable
 class SpeedEstimator(Protocol):
-    """A filter fusing the wheel-speed sensor and the longitudinal accelerometer (the paper's
-    eq. 25 observer on speed and acceleration, here SpeedKalmanFilter at 2 ms).
-
-    step(wheel_speed, accel): predict one step, then update with the wheel speed (m/s) and the
-    accelerometer (m/s^2); None = missing (predict only, counted), non-finite or implausible =
-    rejected (counted). The outputs never become NaN: a diverged filter resets to the prior,
-    counted in `resets`. standstill / abs_mode: the filter holds the car at rest / follows the
-    upper wheel envelope under ABS slip.
-    """
+    """A filter fusing the wheel-speed sensor and the accelerometer (the paper's eq. 25 observer;
+    SpeedKalmanFilter at 2 ms): step(wheel_speed, accel) (m/s, m/s^2; None = missing); never NaN.
+    standstill / abs_mode: held at rest / following the upper wheel envelope under ABS slip."""
 
     @property
     def steps(self) -> int: ...

@@ -40,13 +40,8 @@ class LaggedEstimate:
 class SteeringEstimator(Protocol):
     """A filter (SteeringUKF, SteeringEKF) or a live smoother around one (FixedLagSmoother)
     tracking x = [v_y, r, delta, delta_dot] at 100 Hz (the paper's eqs. 1-3, 17-26).
-
-    step(v_x, yaw_rate, a_y): predict one model.dt_s with the measured speed v_x (m/s), then
-    update with the gyro r (rad/s) and the lateral accelerometer a_y (m/s^2). None = missing
-    (that part skipped, counted); non-finite or implausible = rejected (counted). Returns the
-    smoothed estimate of an earlier step for a fixed-lag smoother (None while the lag fills),
-    None for a filter. The outputs below are the current filtered estimate; they never become
-    NaN: a diverged filter resets to the prior, counted in `resets`.
+    step(v_x, yaw_rate, a_y) (m/s, rad/s, m/s^2; None = missing) returns a fixed-lag smoother's
+    lagged estimate, None for a filter; the outputs are the current filtered estimate, never NaN.
     """
 
     @property

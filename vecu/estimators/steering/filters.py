@@ -1,40 +1,10 @@
-"""Steering-wheel angle / side-slip filters on vecu.estimators.steering.model: UKF and EKF.
+"""Steering-wheel angle / side-slip filters (Khalid et al.) on steering.model: UKF and EKF.
 
-Both run the same step at 100 Hz: predict with the measured v_x (the paper's Step "time
-update", eqs. 17-18 / 26), then a linear Kalman update with the gyro r (H = [0, 1, 0, 0]: exact, no
-sigma points needed), then the a_y update (eqs. 19-25: unscented in the UKF, linearised in the
-EKF). Processing the two independent readings one after the other is exact for the linear one
-and lets either be missing on its own.
-
-The equations live once in kernels (vecu.kernels): the model in steering.model, the UKF's sigma
-points, predict, a_y moments and scalar update in steering.unscented, the smoother's gain and
-backward pass in steering.rts. One driver under every backend: the UKF's predict and a_y
-moments and the recording are kernel calls (compiled under numba, 3 calls per step; the same
-functions as plain Python otherwise, bit-identical). The classes here only check inputs, gate,
-count, project and reset.
-
-UKF (`SteeringUKF`): n = 4, P kept as its 10 distinct entries, unrolled Cholesky
-(common.small_linalg.chol4; fallback: covariance.cholesky_lower). Sigma set: any
-vecu.estimators.common.sigma_sets.SigmaSet with n = 4; default `ahsm(4, lam=0)`, the symmetric
-AHSM set generalised to n with lambda = 0, i.e. the third-degree spherical-radial cubature rule:
-2n points x +- sqrt(n) S e_i, weights 1/(2n), all positive (so P stays PSD) and the zero-weight
-centre point skipped (docs/models.md: why not the paper-throttle lam = 12 or a
-negative-centre-weight scaled set). Unlike vecu.estimators.common.ukf
-(Vargas Step 3), the points are redrawn from (x_pred, P_pred) for the update: here Q (the steering
-random walk) reaches a_y within one step and must be in Pxy.
-
-Inputs of `step(v_x, yaw_rate, a_y)`: None = missing (predict only / that update skipped,
-counted); non-finite or outside the plausible range = rejected (counted); innovations beyond
-gate_sigma are gated (counted; armed after gate_after_updates accepted readings; after
-max_gated_in_row in a row as many are accepted ungated); v_x: a bad reading keeps the
-last good one, below V_X_MIN it is clipped. Divergence (covariance.diverged_floats or a
-non-positive variance) resets to the prior and counts. Nothing the inputs contain makes the
-outputs NaN.
-
-With record=True each step writes (x_k|k, P_k|k, x_k|k-1, P_k|k-1, C_k = cov(x_k-1|k-1, x_k|k-1),
-v_x) into a steering.history.Ring of history_maxlen rows (None: unbounded) for the smoothers
-(steering.smoothers): the backward pass then reuses the forward pass's own v_x and sigma points
-(nothing is re-propagated, so the time-varying input cannot be mismatched).
+One 100 Hz step: time update with the measured v_x (eqs. 17-18 / 26), the linear gyro update,
+then the a_y update (eqs. 19-25: unscented in the UKF, linearised in the EKF). The kernels are in
+steering.model, .unscented and .rts; the classes check inputs, gate, count, project and reset
+(docs/models.md, "Steering › Filters — decisions"). record=True feeds a steering.history.Ring
+for steering.smoothers.
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
-"""The recorded forward pass of a steering filter: one float64 row per step in a ring (the one
-store of the filters and smoothers, under every kernel backend).
+"""The recorded forward pass of a steering filter: one float64 row per step in a ring.
 
-Row of step k (columns below): x_k|k, P_k|k (10 upper-triangle entries, common.small_linalg's
-order), x_k|k-1, P_k|k-1, C_k = cov(x_k-1|k-1, x_k|k-1) (16, row-major), the v_x of the predict
-into step k, and G_k = C_k+1 P_k+1|k^-1 (16, row-major; written when row k+1 arrives, by the
-smoother's kernels in vecu.estimators.steering.rts). The filters' kernels (steering.unscented)
-write x_pred, P_pred and C of the step into its row, rts.record the rest. Rows are written at
-`head` (mod capacity), the oldest of `count` rows is dropped first; maxlen None grows.
+Row k: x_k|k, P_k|k (10 upper-triangle entries), x_k|k-1, P_k|k-1, C_k = cov(x_k-1|k-1, x_k|k-1)
+(16, row-major), the v_x of the predict, G_k = C_k+1 P_k+1|k^-1 (16; written with row k+1 by
+steering.rts). Rows at `head` (mod capacity), the oldest dropped first; maxlen None grows.
 """
 
 from __future__ import annotations

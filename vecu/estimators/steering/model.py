@@ -1,22 +1,11 @@
 """Filter-side model for the steering-wheel angle and side-slip (after Khalid et al., eqs. 1-3).
 
-State x = [v_y, r, delta, delta_dot] (lateral velocity m/s, yaw rate rad/s, road-wheel angle rad
-and its rate): the paper's lateral (4) and yaw (11) motion on the single-track model of
-vecu.models.lateral, plus the steering angle as an estimated state driven by white delta_ddot
-(PSD q_delta: a steering-rate random walk). Steering-wheel angle = i_s * delta; side slip
-beta = atan(v_y / v_x). Input: the measured speed v_x (held over a step). Measurements
-y = [r, a_y] (gyro, accelerometer; the paper's eq. 2 with a nonlinear h).
-
-Discretisation (dt = 10 ms): Heun (explicit trapezoid) on the continuous dynamics, the input held:
-  k1 = g(x), x1 = x + dt k1, k2 = g(x1), x+ = x + dt/2 (k1 + k2).
-`jacobian_f` is the exact Jacobian of that map, I + dt/2 (A(x) + A(x1) (I + dt A(x))), and
-`jacobian_h` that of h; both are tested against finite differences (the EKF's).
-
-`accelerations` and `transition` are the one copy of the model's equations: vecu.kernels kernels
-on a constants vector (`constants`), which the UKF's kernels (vecu.estimators.steering.unscented)
-run compiled under the numba backend and as plain Python otherwise; small kernels, so that the
-EKF's Python calls run them as Python. Only scalar IEEE arithmetic and libm calls: both backends
-give the same bits.
+x = [v_y, r, delta, delta_dot]: the lateral (4) and yaw (11) motion of vecu.models.lateral plus
+the road-wheel angle driven by white delta_ddot (PSD q_delta). SWA = i_s delta, beta =
+atan(v_y / v_x); input v_x held over a step; y = [r, a_y] (eq. 2 with a nonlinear h).
+Heun on the continuous dynamics (dt = 10 ms): x+ = x + dt/2 (g(x) + g(x + dt g(x)));
+`jacobian_f` is that map's exact Jacobian, `jacobian_h` h's. `accelerations` and `transition`
+are the one copy of the equations, small kernels on a constants vector (`constants`).
 """
 
 from __future__ import annotations
@@ -49,15 +38,9 @@ State = tuple[float, float, float, float]
 
 @dataclass(frozen=True)
 class SteeringModel:
-    """Model, noise and prior of the steering filters (docs/models.md, 'Steering-wheel angle').
-
-    q_delta: PSD of delta_ddot, rad^2/s^3: (200/16 deg/s^2)^2/Hz at the road wheel, i.e.
-    (200 deg/s^2)^2/Hz at the steering wheel (the design note's 400 was second best in our sweep,
-    docs/models.md). q_vy, q_r: white-noise PSDs on v_y', r' for model error (tyre curve,
-    discretisation, speed noise); raising them from 0.05 m/s^2 / 0.5 deg/s^2 to 0.2 / 2 cut the
-    smoother's error by a third (the filter then explains yaw transients less by delta). sigma_*: sensor noise matching vecu.plant.lateral.LateralSensors.
-    Prior: x0 = 0 (the filters start at 0, possibly in a curve) with std p0_std.
-    """
+    """Model, noise and prior of the steering filters: q_delta (PSD of delta_ddot), q_vy, q_r (model
+    error on v_y', r'), sensor sigmas, prior std p0_std (values and sweep: docs/models.md, "Steering ›
+    Filters — decisions")."""
 
     params: VehicleParams = field(default_factory=VehicleParams)
     dt_s: float = DT_S
@@ -116,9 +99,8 @@ def constants(model: SteeringModel) -> tuple[float, ...]:
 
 @kernel(small=True)
 def accelerations(vy: float, r: float, d: float, vx: float, cst: Any) -> tuple[float, float]:
-    """(a_y, r'): the paper's lateral (4) and yaw (11) motion, vecu.models.lateral
-    .lateral_motion (the plant's too) on the packed constants. a_y is also the accelerometer's
-    quantity (eq. 2's nonlinear h) and v_y' = a_y - v_x r."""
+    """(a_y, r'): the paper's lateral (4) and yaw (11) motion (models.lateral.lateral_motion)
+    on the packed constants; a_y is eq. 2's nonlinear h."""
     return lateral_motion(vy, r, d, vx, cst[DF], cst[BF], cst[DR], cst[BR], cst[C], cst[LF],
                           cst[LR], cst[M], cst[IZ])
 
@@ -228,8 +210,3 @@ def process_noise(model: SteeringModel) -> np.ndarray:
     Q[2, 3] = Q[3, 2] = q * dt ** 2 / 2.0
     Q[3, 3] = q * dt
     return Q
-
-
-def measurement_noise(model: SteeringModel) -> np.ndarray:
-    """R = diag(sigma_r^2, sigma_ay^2)."""
-    return np.diag([model.sigma_r ** 2, model.sigma_ay ** 2])

@@ -1,22 +1,7 @@
-"""The unscented Rauch-Tung-Striebel recursion over a steering filter's recorded forward pass
-(vecu.estimators.steering.history), each equation once, as vecu.kernels kernels: compiled under
-the numba backend, the same Python functions otherwise.
-
-The paper's backward recursion, Khalid et al. eqs. (27)-(28), is garbled (it linearises f and
-mixes filter gains into the smoothed covariance); this is the standard unscented RTS smoother
-(Saerkkae 2008), which its text describes ("the smoothed property of the latent variable ...
-p(x(t) | y_0^T)"):
-  `smoother_gain`   G_k = C_k+1 P_k+1|k^-1       (C_k+1, P_k+1|k: the forward pass's own)
-  `backward_pass`   x_k|T = x_k|k + G_k (x_k+1|T - x_k+1|k)
-(the covariance P_k|T = P_k|k + G_k (P_k+1|T - P_k+1|k) G_k^T: smoothers.rts_smooth, the only
-user). `record` closes a step's row (x, P, v_x; the filter's kernel wrote the prediction) and,
-for a fixed-lag smoother, adds the previous row's gain and runs the backward pass over the
-window; `smooth_window` and `smooth_run` smooth a whole window / recorded run.
-
-The gain solves P_pred G^T = C^T with LAPACK dgesv (`solve4`): as plain Python np.linalg.solve,
-compiled a direct call of scipy.linalg.cython_lapack's dgesv (the same routine: bit-identical,
-tests/estimators/steering/test_backends.py; numba's own np.linalg.solve takes ~10 s to compile),
-linked by `_link_dgesv`, the kernels' setup (vecu.kernels).
+"""The unscented RTS recursion over a steering filter's recorded forward pass (steering.history),
+as kernels: the standard smoother (Saerkkae 2008) that Khalid et al.'s garbled eqs. (27)-(28)
+describe (docs/models.md, "Steering › Smoothers"). `smoother_gain` G_k = C_k+1 P_k+1|k^-1,
+`backward_pass` x_k|T = x_k|k + G_k (x_k+1|T - x_k+1|k); `solve4` is LAPACK dgesv.
 """
 
 from __future__ import annotations

@@ -1,17 +1,6 @@
-"""Unscented Rauch-Tung-Striebel smoothers for the steering filters (after Khalid et al., eqs.
-27-28; the recursion and why it is not the paper's printed one: vecu.estimators.steering.rts).
-
-C_k+1, x_k+1|k and P_k+1|k are the forward pass's own (steering.history), so the backward pass
-never re-propagates and always uses the v_x of that step. Fed an EKF run (C = P F^T) the same
-code is the extended RTS smoother.
-
-- `rts_smooth(run)`: offline, over a stored filter run (steering.base.FilterRun).
-- `FixedLagSmoother`: live; wraps a filter, and after step k returns the smoothed estimate of
-  step k - lag (a `LaggedEstimate`, flagged with its own step index and time: it is *lagged*), or
-  None during the first `lag` steps. Its output at step k equals rts_smooth on the run 0..k at
-  index k - lag (tested); `flush()` smooths the buffered tail at the end of a run. The gain and
-  the backward pass run in the filter's step (rts.record on its history ring).
-"""
+"""Unscented RTS smoothers for the steering filters (Khalid et al. eqs. 27-28, the recursion in
+steering.rts): `rts_smooth(run)` offline, `FixedLagSmoother` live (docs/models.md, "Steering ›
+Smoothers")."""
 
 from __future__ import annotations
 
@@ -53,14 +42,9 @@ def rts_smooth(run: FilterRun, covariance: bool = True) -> SmoothedRun:
 
 
 class FixedLagSmoother:
-    """Live fixed-lag unscented RTS smoother around a steering filter (module docstring); a
-    steering.base.SteeringEstimator.
-
-    step(v_x, yaw_rate, a_y) runs the filter and returns the estimate of `lag` steps ago; the
-    filter's current estimate stays available as `.filter` and through the outputs (swa_rad,
-    side_slip_rad, ...: the filtered, not the lagged values). Cost: `lag` 4x4 mat-vec products
-    per step (means only; the lagged covariance is not computed).
-    """
+    """Live fixed-lag unscented RTS smoother around a steering filter: step(...) returns the
+    estimate of `lag` steps ago, the outputs stay the filter's current ones. Means only: `lag`
+    4x4 mat-vec products per step."""
 
     def __init__(self, lag_s: float = 0.25, filt: _SteeringFilter | None = None) -> None:
         f = filt if filt is not None else SteeringUKF()

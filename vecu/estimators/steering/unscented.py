@@ -1,27 +1,11 @@
-"""The steering UKF's equations (Khalid et al., eqs. 16-26), each once, as vecu.kernels kernels:
-compiled under the numba backend, the same Python functions otherwise (the filter,
-vecu.estimators.steering.filters.SteeringUKF, only checks inputs, gates, counts and resets).
+"""The steering UKF's equations (Khalid et al., eqs. 16-26), each once, as kernels.
 
-  `sigma_offsets`  eq. 16: the sigma points chi_j = x + S z_j, S = chol(P) (lower), z_j the
-                   sigma set's pattern columns of non-zero weight (`pattern`);
-  `predict`        eqs. 17-18 (and 26's + Q): chi_j through the model's `transition`, weighted
-                   mean x_pred and covariance P_pred; when recording also the smoother's
-                   C = sum_j w_j (chi_j - x)(f(chi_j) - x_pred)^T, written with x_pred, P_pred
-                   into the step's history row (vecu.estimators.steering.history);
-  `ay_moments`     eqs. 19-22 for the accelerometer: points redrawn from (x, P), y_j = a_y(chi_j)
-                   (model.accelerations), mean, variance + sigma_ay^2 and P_xy;
-  `scalar_update`  eqs. 23-25 for one scalar reading from those moments: K = P_xy / s,
-                   x + K e, P - K P_xy^T (also the gyro's exact linear update, P_xy = P[:, 1]).
-
-`predict` / `ay_moments` factor P with the unrolled common.small_linalg.chol4; when P is not
-positive definite for it they return ok = False and the caller passes the fallback factor
-(small_linalg.chol4_or_fallback) to `predict_with_factor` / `ay_moments_with_factor`.
-
-Arguments: x, p as tuples (x 4, p the 10 upper-triangle entries); `cst` the constants vector
-(model.constants: the model, sigma_ay^2 and Q) and `pts` the pattern rows
-(z0..z3, w), as vecu.kernels.constants gives them (float64 arrays compiled, tuples as Python).
-Only scalar IEEE arithmetic and libm calls in a fixed order (no fastmath, no reductions): both
-backends give bit-identical results (tests/estimators/steering/test_backends.py).
+`sigma_offsets` (eq. 16: chi_j = x + S z_j, S = chol(P)); `predict` (eqs. 17-18, 26's + Q; when
+recording also the smoother's C = sum_j w_j (chi_j - x)(f(chi_j) - x_pred)^T into the history
+row); `ay_moments` (eqs. 19-22, points redrawn from (x, P)); `scalar_update` (eqs. 23-25: K =
+P_xy / s, also the gyro's exact linear update). A P that chol4 cannot factor returns ok = False;
+the caller passes chol4_or_fallback's factor to the `*_with_factor` forms. x, p as tuples (p the
+10 upper-triangle entries), `cst` model.constants, `pts` the pattern rows (z0..z3, w).
 """
 
 from __future__ import annotations

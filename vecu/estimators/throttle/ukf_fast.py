@@ -1,14 +1,6 @@
-"""The paper's UKF (Step 3 with any of the Step 2/2a/2b sigma sets) specialised to the throttle.
-
-Same algorithm, guards and reset semantics as ukf.UnscentedFilter + throttle_model, written for
-n = 3 and a scalar wattmeter reading in plain Python floats: unrolled 3x3 Cholesky
-(common.small_linalg.chol3_or_fallback), the sigma pattern pre-extracted into tuples, eq. (3)
-from its one source (vecu.models.throttle.eq3_step, Table I or the calibration given), and the
-Step-3 sums (x_pred, Pxx, y_pred, Pxy, Pyy) accumulated in one pass about the first propagated
-point.
-No numpy in the normal step; the (rare) Cholesky fallback reuses covariance.cholesky_lower so both
-implementations fall back identically. From the same (x, P) one step matches the numpy reference
-to < 1e-9 relative (tests/estimators/common/test_ukf.py; on free runs see docs/models.md for ARM/AGM at alpha = 1).
+"""The paper's UKF (Step 3, any Step 2/2a/2b sigma set) for the throttle (n = 3) in plain floats:
+unrolled Cholesky (chol3_or_fallback), eq. (3) by vecu.models.throttle.eq3_step, the Step-3 sums
+in one pass; within 1e-9 relative of the generic numpy Step 3 (vecu.bench.reference_ukf).
 """
 
 from __future__ import annotations

@@ -1,26 +1,7 @@
 """The production throttle-angle estimator: particle filter + Kalman stretches on eq. (3) /
-eq. (4) of Vargas et al. 2015 (vecu.models.throttle; docs/models.md, "Production throttle
-estimator"), theta in degrees, clipped to the stops [0, 90] after every step.
-
-Why particles: y carries |i| only, theta is inferred through the dynamics, and near the mode
-switches at 8 / 16 deg (rho flips its sign convention between mode 1 and modes 2/3; a mode-2 ->
-mode-3 crossing with large rho throws theta up by tens of degrees and i up to 40 A) the posterior
-is multi-modal; Gaussian filters lock there. The particle filter
-  * draws i from the locally linearised optimal proposal p(i_k | x_{k-1}, y_k) (eq. 4
-    linearised at each particle's predicted current m) and weights by the matching predictive
-    likelihood N(y; m^2 + s^2, S), S = 1 + 4 m^2 s^2 (pf.update);
-  * resamples (systematic) only when the effective sample size drops below N/2 (pf.resample);
-  * uses `n_low` particles while some particle is below LOW_ENTER_DEG (mode switches within
-    reach) and `n_high` once all are above LOW_EXIT_DEG (the count changes by resampling);
-  * hands over to a moment-matched Kalman filter while the whole posterior is inside mode 3
-    with a surely positive current (pf.kalman_stretch): there eq. (3) is linear (the 90 deg
-    stop is handled by censored-Gaussian moments) and the Kalman filter is as accurate as the
-    particles at a fraction of the cost.
-rho is noise-free given (theta, rho, i), so each particle carries its exact rho.
-
-A tick is one call of pf.recursion.filter_tick on the filter's state record (pf.state), the
-same code under both kernel backends; the rare outcomes it flags (offset refills, resampling,
-hand-overs, a restart) are finished here.
+eq. (4) of Vargas et al. 2015, theta in deg clipped to [0, 90] (docs/models.md, "Production
+throttle estimator"). A tick is one pf.recursion.filter_tick call on the state record
+(pf.state); the rare outcomes it flags are finished here.
 """
 
 from __future__ import annotations
@@ -64,16 +45,9 @@ LOCK_STD_DEG = 12.0
 
 
 class ThrottleParticleFilter:
-    """ThrottleEstimator: particle filter on eq. (3) / eq. (4), see the module docstring.
-
-    step(u_prev, y): propagate with eq. (3) and u_prev (theta noise, clip), then update with y_k
-    (eq. 4); y=None, non-finite or outside (Y_MIN_W, Y_MAX_W), or an isolated outlier: predict
-    only. theta_deg / theta_std_deg: posterior mean / std of theta (std x `std_inflation`,
-    floored at 0.3 deg, capped at 51 deg). Counters: resets (divergence restarts), rejected
-    (y gated out), resamples, resizes (particle-count changes), kalman_steps, careful_updates
-    (steps redone with the careful update).
-    Deterministic: all randomness comes from PCG64(seed); reset() replays the same sequence.
-    """
+    """ThrottleEstimator: step(u_prev, y) predicts with eq. (3), updates with y (eq. 4) unless
+    missing, implausible or an isolated outlier. Counters: resets, rejected, resamples, resizes,
+    kalman_steps, careful_updates. All randomness from PCG64(seed); reset() replays it."""
 
     def __init__(
         self, noise_scale: float = 1.0, n_high: int = DEFAULT_N_HIGH,
@@ -269,12 +243,7 @@ class ThrottleParticleFilter:
 
 def make_production_estimator(noise_scale: float = 1.0,
                               model: ThrottleModel = PAPER_THROTTLE) -> ThrottleParticleFilter:
-    """The ECU's throttle estimator (registry name 'production'), see ThrottleParticleFilter.
-
-    Near the mode switches the posterior is wider at the paper's noise (alpha = 1) than at a
-    quiet throttle: at alpha = 1, 800 particles there (paired against 1000 over 16 held-out
-    seeds x 200 k steps: error std +0.3 % +- 0.9 %; 600: +1.9 % +- 1.3 %, 500: +4.3 %), while
-    at alpha = 0.3 600 suffice (docs/models.md).
-    """
+    """The ECU's throttle estimator (registry name 'production'), see ThrottleParticleFilter; the
+    particle counts per noise level: docs/models.md, "Production throttle estimator"."""
     n_low = N_LOW_NOISY if noise_scale > NOISY_ALPHA else DEFAULT_N_LOW
     return ThrottleParticleFilter(noise_scale, n_low=n_low, model=model)

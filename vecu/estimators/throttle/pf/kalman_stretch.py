@@ -1,14 +1,7 @@
-"""The Kalman stretches of the throttle particle filter: a moment-matched Kalman filter while
-the whole posterior is well inside mode 3, and the hand-overs to and from the particles.
-
-There eq. (3) is linear (the class-3 matrix, read off mode_step; the tiny friction
-c1 sgn(rho), |c1| = 0.0055, uses E[sgn rho] = erf(rho / (sqrt 2 sigma_rho))), and eq. (4) is
-handled with the exact Gaussian moments of i^2: E = m^2 + P_ii, Var = 4 m^2 P_ii + 2 P_ii^2 + 1,
-Cov(x, i^2) = 2 m P[:, i]. Plain floats, unrolled 3x3 symmetric algebra, as kernels on the state
-x = (th, rh, ci, p00, p01, p02, p11, p12, p22) (the filter's record, pf.state: kf_x, kf_coef,
-kf_prm, kf_cfg). The stop at 90 deg is handled by censored-Gaussian moments after each
-prediction; mode3_leave says when the particles must take over again (a mode switch or a
-current whose sign is no longer certain within reach).
+"""The Kalman stretches of the throttle particle filter: a moment-matched Kalman filter while the
+posterior is well inside mode 3 (eq. (3) linear, the exact Gaussian moments of eq. (4)'s i^2,
+the 90 deg stop by censored moments; docs/models.md, "Production throttle estimator"), and the
+hand-overs. Kernels on the record's kf_x = (th, rh, ci, p00, p01, p02, p11, p12, p22).
 """
 
 # ruff: noqa: FURB136 (explicit selects: their NaN order, the same compiled and in Python)
@@ -29,12 +22,9 @@ from vecu.models.throttle import PAPER_THROTTLE, THETA_MAX_DEG, THETA_MIN_DEG, T
 
 @kernel
 def mode3_predict(x: Any, coef: Any, q_th: float, q_i: float, u: float) -> Any:
-    """The prediction on the state x: x' = M [x, 1, E sgn rho] with the class-3 matrix M (its
-    constant b u in the i row), P' = A P A^T + Q with A = M's first three columns, then the
-    censored-Gaussian moments at the 90 deg stop when it is within 4 sigma (theta' =
-    min(theta, 90); with b = (90 - m) / s: E = m Phi(b) - s phi(b) + 90 (1 - Phi(b)),
-    E[theta'^2] = (m^2 + s^2) Phi(b) - s (m + 90) phi(b) + 90^2 (1 - Phi(b)), and by Stein's
-    lemma Cov(theta', z) = Cov(theta, z) Phi(b))."""
+    """The prediction on the state x: x' = M [x, 1, E sgn rho] with the class-3 matrix M of eq. (3),
+    P' = A P A^T + Q (A = M's first three columns), then the censored-Gaussian moments at the 90 deg
+    stop within 4 sigma (docs/models.md, "Production throttle estimator")."""
     (a00, a01, a02, k0, s0, a10, a11, a12, k1, s1, a20, a21, a22, b, s2) = coef
     th, rh, ci, p00, p01, p02, p11, p12, p22 = x
     sr = math.sqrt(p11) if p11 > 1e-12 else 1e-6

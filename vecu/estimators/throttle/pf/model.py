@@ -1,17 +1,10 @@
 """The throttle particle filter's model: eq. (3) as class matrices, eq. (4)'s plausible range,
 and the reported estimate.
 
-Eq. (3) (Vargas et al. 2015, Table I, or the calibration the filter is given, a ThrottleModel)
-is split into four theta classes, inside each of which it is linear in
-[theta, rho, i, 1, sgn(rho)] (b1, b2: the mode switching angles, 8 and 16 deg in Table I); the
-matrices are read off the one source, vecu.models.throttle.mode_step, and the particle step
-(pf.update) and the Kalman stretches (pf.kalman_stretch) evaluate them:
-  class 0: theta <= 1        mode 1, sgn(theta - 1) = -1
-  class 1: 1 < theta <= b1   mode 1, sgn(theta - 1) = +1
-  class 2: b1 < theta <= b2  mode 2
-  class 3: theta > b2        mode 3
-(theta = 1 exactly has sgn 0 in eq. 3; the filter uses -1 there: a 0.007 change of rho on a
-measure-zero set.)
+Eq. (3) (Table I, or the calibration given) is linear in [theta, rho, i, 1, sgn(rho)] inside
+each of four theta classes, its matrices read off vecu.models.throttle.mode_step: class 0
+theta <= 1 (mode 1, sgn(theta - 1) = -1; also at theta = 1 exactly, a measure-zero change),
+class 1 1 < theta <= b1 (mode 1, +1), class 2 b1 < theta <= b2 (mode 2), class 3 theta > b2.
 """
 
 # ruff: noqa: FURB136 (explicit selects: their NaN order, the same compiled and in Python)

@@ -1,13 +1,7 @@
-"""One tick of the throttle particle filter, written once: `filter_tick`, compiled under numba
-(one call per tick) and plain Python under the python backend (its particle step and
-resampling then run their numpy forms, vecu.kernels).
-
-A tick takes the next window offsets of the normal table, checks u and y, and runs either a
-Kalman-stretch tick (pf.kalman_stretch.mode3_tick) or a particle tick (pf_tick: the step
-pf.update.pf_step, a redo of a surprising step, renormalising, the decision to resample or to
-hand over), then the counters and the reported std. Its state is the filter's record (pf.state)
-in one float vector; what is rare goes back to the filter (pf.filter), flagged in the returned
-code: refilling the offsets, resampling, a hand-over to or from the Kalman filter, a restart.
+"""One tick of the throttle particle filter, written once: `filter_tick` (vecu.kernels) checks u
+and y, runs a Kalman-stretch tick (pf.kalman_stretch) or a particle tick (pf_tick: pf.update,
+redo, renormalise, resample or hand-over) on the state record; rare outcomes go back to
+pf.filter, flagged in the return code.
 """
 
 
@@ -39,17 +33,12 @@ ESS_FRACTION = 0.5  # resample when ESS < ESS_FRACTION * N
 
 @kernel(error_model="numpy")
 def pf_tick(FB, cur, mats, s, ztab, u, y, o1, o2, gated, check_kf):
-    """One particle tick of the bank FB from its frame cur into the other: the step
-    (pf.update.pf_step, with y unless NaN) from the set's extent
-    s.lo / s.hi, then its bookkeeping (lo, hi: 90 once lo is in mode 3, and the output from the
-    moments, report). A step with y whose weight sum kept no more than SURPRISE_FIT of the last
-    one's is redone from src with the same draws: as an outlier (predict only) if the mean
-    likelihood ratio is not above OUTLIER_FIT and fewer than MAX_GATED_IN_ROW were rejected in
-    a row, else with the careful update. Renormalisation below 1e-150. Then the decision:
-    resample into n_low while the lowest theta is below low_enter, n_high once above low_exit,
-    or when the ESS sw^2 / sw2 is below ESS_FRACTION n; else (check_kf) hand over to the Kalman
-    filter if all theta are in (kf_enter[0], kf_enter[1]) and all i > kf_enter[2]. Returns
-    (code, target count, gated, theta, std); broken moments (no weight left, NaN): LOST."""
+    """One particle tick of bank FB from frame cur into the other: pf_step (with y unless NaN),
+    redone with the same draws when the weight sum kept no more than SURPRISE_FIT of the last
+    (as an outlier if the likelihood ratio is not above OUTLIER_FIT and fewer than
+    MAX_GATED_IN_ROW were rejected in a row, else the careful update); renormalising; then
+    resample (resample_target) or (check_kf) a hand-over when all theta are in kf_enter[0:2] and
+    all i > kf_enter[2]. (code, target count, gated, theta, std); broken moments: LOST."""
     n = FB.shape[2]
     lo0, hi0, sw_old = s.lo, s.hi, s.sw
     rej = 0

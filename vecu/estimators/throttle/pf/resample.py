@@ -44,15 +44,9 @@ def systematic_numpy(src: np.ndarray, dst: np.ndarray, n_new: int, u0: float) ->
 
 @kernel(error_model="numpy", python=systematic_numpy)
 def pf_resample(src, dst, n_new, u0):
-    """Systematic resampling of src's particles into dst's n_new (rows 0-2 copied, weights 1).
-
-    Copies of particle i: floor(W_i n_new / W + u0) - floor(W_{i-1} n_new / W + u0), W_i the
-    cumulative weights (the last one absorbs the rounding: the total is n_new). Destination k
-    takes the particle i with the k-th copy, i.e. the number of cumulative floors <= k: counted
-    per floor value, then a running sum, so no branch depends on the weights (a copy loop per
-    particle mispredicts on every particle). Returns n_new, or 0 if the weights are broken
-    (sum not finite and > 0).
-    """
+    """Systematic resampling of src's particles into dst's n_new (rows 0-2, weights 1): copies
+    of i = floor(W_i n_new / W + u0) - floor(W_{i-1} n_new / W + u0), W_i cumulative; placed by
+    counting floors (no branch on the weights). n_new, or 0 for broken weights."""
     n = src.shape[1]
     total = 0.0
     for i in range(n):

@@ -1,13 +1,7 @@
-"""The throttle particle filter's state: one record with named fields, and the particle sets.
-
-STATE is the record's layout (a numpy structured dtype, all float64). The filter keeps it in a
-float64 vector (`new_state`) that the tick (pf.recursion.filter_tick) takes as its one state
-argument and views by name (`state_of`, fields as attributes: s.lo, s.offs): compiled, a
-numpy record (a record argument would cost numba's slow type dispatch on every tick, a float
-vector its fast one); in Python, a StateView of the same memory (ctypes fields: a numpy
-record's field access costs ~0.5 us, ten times a float attribute's; array fields are numpy
-views). The particles live in a Bank per particle count: two frames (the set and the next
-step's) and scratch rows, one (3, 7, n) array.
+"""The throttle particle filter's state: one record with named fields (STATE, all float64, in the
+vector `new_state`, viewed by name with `state_of`: a numpy record compiled, a ctypes StateView
+in Python; docs/models.md, "Production throttle estimator"), and the particle Banks, one
+(3, 7, n) array per particle count.
 """
 
 from __future__ import annotations

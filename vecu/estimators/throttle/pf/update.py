@@ -1,12 +1,9 @@
 """The particle step: eq. (3) prediction, then the prior current or the linearised optimal
 proposal with its predictive-likelihood weights (eq. 4), and the moments.
 
-`pf_step` is loops (compiled: branch-free passes that LLVM vectorises, exp_poly instead of a
-libm exp); its numpy form `numpy_step` is what the python backend runs (vecu.kernels). Same
-normal-table windows, same decisions, the prediction the same arithmetic; the update (one
-division, exp_poly) and the moments (sequential sums vs BLAS) agree to rounding
-(tests/estimators/throttle/test_update.py). Frames: F rows theta, rho, i, 1, sgn rho, theta^2,
-weight (pf.state.Frame); s: the state record (its step constants).
+`pf_step` is loops (compiled); its numpy form `numpy_step` runs under the python backend
+(vecu.kernels), agreeing to rounding (tests/estimators/throttle/test_update.py). Frame rows:
+theta, rho, i, 1, sgn rho, theta^2, weight (pf.state.Frame); s: the state record.
 """
 
 # The explicit `a if a < b else b` selects keep numpy's NaN semantics (np.minimum / np.clip
@@ -206,16 +203,10 @@ def _proposal(wk: StepWork, w0, m, w, zq, yc, careful: bool) -> None:
 
 @kernel(error_model="numpy", python=numpy_step)  # x / 0 -> inf / NaN as numpy
 def pf_step(FB, cur, mats, s, ztab, u, lo_prev, hi_prev, o1, o2, mode, yc, extremes):
-    """One particle step of the bank FB from frame src = FB[cur] into frame dst = FB[1 - cur]
-    (rows 0-2 and 6 written; FB[2]: scratch rows).
-
-    mats: the 12x5 class matrices (the b u entries from s.class_b), ztab: the normal table's
-    rows (theta noise, prior current noise, proposal noise), lo_prev / hi_prev: the set's extent
-    (its classes are evaluated; mode 3: that class only), yc = y + y_shift. Returns (sum w,
-    sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i), NaN-propagating as
-    numpy's reductions; max theta is read only while min theta <= b2, both extremes otherwise
-    only with `extremes` (the numpy form computes them only then).
-    """
+    """One particle step of bank FB from frame FB[cur] into FB[1 - cur] (FB[2]: scratch); mats
+    the 12x5 class matrices, ztab the normal table's rows, lo_prev / hi_prev the set's extent,
+    yc = y + y_shift. (sum w, sum w theta, sum w theta^2, sum w^2, min theta, max theta, min i),
+    NaN-propagating; the extremes only as the tick reads them (numpy_step's)."""
     src, dst, tmp = FB[cur], FB[1 - cur], FB[2]
     n = src.shape[1]
     th0, rh0, ci0, w0 = src[0], src[1], src[2], src[6]

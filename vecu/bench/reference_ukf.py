@@ -1,16 +1,12 @@
-"""Generic unscented Kalman filter, exactly the paper's Step 3 (Vargas et al. 2015, Section II-A).
+"""The paper's UKF written generically in numpy (Vargas et al. 2015, Section II-A, Step 3): the
+same-run speed baseline of `vecu bench --only ukf` and the oracle the compiled throttle UKF
+(vecu.estimators.throttle.ukf_fast) is checked against in tests/estimators/common/test_ukf.py.
+Not an estimator: nothing in the ECU or the registry uses it.
 
-Reference implementation and speed baseline (see ukf_fast.py for the n = 3 specialisation):
-
-- Step 2 / 2a / 2b: chi_j = x_hat + S Z_j with S = chol(P) and the fixed pattern of a SigmaSet.
-- Step 3, predict: chi_j <- f(chi_j, u); x_pred = sum w chi; Pxx = sum w (chi-x)(chi-x)^T + FF^T.
-- Step 3, update: gamma_j = h(chi_j) on the *propagated* points (no redraw after predict);
-  y_pred = sum w gamma; Pxy, Pyy = sum w (gamma-y)(gamma-y)^T + HH^T; G = Pxy Pyy^-1;
-  x = x_pred + G (y - y_pred); P = Pxx - G Pyy G^T.
-
-The same weights serve mean and covariance. Guards (vecu.estimators.common.covariance): P is
-symmetrised after each update, factorised with a fallback, and the filter resets to (x0, P0) when
-the state or covariance diverges (counted in `resets`). A non-finite y is treated as missing.
+Step 2: chi_j = x + S Z_j, S = chol(P), Z a SigmaSet; Step 3: predict the points through f,
+update with h on the *propagated* points (no redraw), one set of weights for mean and
+covariance. Guards (common.covariance): P symmetrised, factored with a fallback, reset to
+(x0, P0) on divergence (`resets`); a non-finite y is missing.
 """
 
 from __future__ import annotations
@@ -25,7 +21,14 @@ from vecu.estimators.common.covariance import (
     diverged,
     symmetrise,
 )
-from vecu.estimators.common.sigma_sets import SigmaSet
+from vecu.estimators.common.sigma_sets import SigmaSet, paper_set
+from vecu.estimators.throttle.model import (
+    THROTTLE_BOUNDS,
+    X0,
+    measurement_noise_var,
+    process_noise_diag,
+)
+from vecu.models.throttle import F_DIAG, PAPER_THROTTLE, ThrottleModel, clip_theta, eq3_step
 
 TransitionFn = Callable[[np.ndarray, float], np.ndarray]
 MeasurementFn = Callable[[np.ndarray], np.ndarray]
@@ -125,3 +128,73 @@ class UnscentedFilter:
         if y is not None:
             self.update(y)
         self._chi = None
+
+
+# --- the throttle on it (eqs. 3-4, Section III-C) ----------------------------------------------
+
+
+def f(x: np.ndarray, u: float, model: ThrottleModel = PAPER_THROTTLE) -> np.ndarray:
+    """x_{k+1} = eq3_step(x_k, u_k) with theta clipped to [0, 90] (eq. 3 without w)."""
+    b1, b2 = model.mode_bounds_deg
+    th, rho, i = eq3_step(model.rows, b1, b2, float(x[0]), float(x[1]), float(x[2]), u)
+    return np.array([clip_theta(th), rho, i])
+
+
+def h(x: np.ndarray) -> np.ndarray:
+    """Wattmeter mean, eq. (4): y = i^2."""
+    return np.array([x[2] * x[2]])
+
+
+def process_noise_cov(noise_scale: float = 1.0,
+                      f_diag: tuple[float, float, float] = F_DIAG) -> np.ndarray:
+    """Q = FF^T, F = alpha diag(sqrt 0.35, 0, sqrt 0.18) (Table I's F by default)."""
+    return np.diag(process_noise_diag(noise_scale, f_diag))
+
+
+class NumpyThrottleUKF:
+    """The throttle UKF over UnscentedFilter: x0 = 0, P0 = I, Q = diag((alpha F_ii)^2), R = HH^T."""
+
+    def __init__(self, sigma_set: SigmaSet | str, noise_scale: float = 1.0,
+                 model: ThrottleModel = PAPER_THROTTLE) -> None:
+        s = paper_set(sigma_set) if isinstance(sigma_set, str) else sigma_set
+        self.name = f"{s.name}-numpy"
+        self.noise_scale = float(noise_scale)
+        self.model = model
+        fx = f if model == PAPER_THROTTLE else (lambda x, u: f(x, u, model))
+        self.ukf = UnscentedFilter(
+            fx, h, process_noise_cov(noise_scale, model.f_diag),
+            np.array([[measurement_noise_var(model.h_wattmeter)]]), s,
+            np.array(X0), np.eye(len(X0)), THROTTLE_BOUNDS,
+        )
+
+    @property
+    def resets(self) -> int:
+        return self.ukf.resets
+
+    def step(self, u_prev: float, y: float | None) -> None:
+        self.ukf.step(u_prev, y)
+
+    @property
+    def theta_deg(self) -> float:
+        return float(self.ukf.x[0])
+
+    @property
+    def theta_std_deg(self) -> float:
+        return float(np.sqrt(max(self.ukf.P[0, 0], 0.0)))
+
+    @property
+    def state(self) -> tuple[float, float, float]:
+        x = self.ukf.x
+        return float(x[0]), float(x[1]), float(x[2])
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.ukf.P.copy()
+
+    def set_state(self, x: tuple[float, float, float], P: np.ndarray) -> None:
+        """Overwrite the estimate (tests, warm starts)."""
+        self.ukf.x = np.array(x, dtype=float)
+        self.ukf.P = np.array(P, dtype=float)
+
+    def reset(self) -> None:
+        self.ukf.reset()
