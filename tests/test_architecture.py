@@ -431,7 +431,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
     5: ("plant", "restbus", "ecu", "uds", "xcp"),
     6: ("config", "assembly", "runner", "probes", "summary", "warmup", "functions"),
     7: ("replay", "scenario", "campaign", "eval", "bench", "live", "plot", "figures", "ident",
-        "gateway"),
+        "gateway", "fleet"),
     8: ("cli", "__main__"),
 }
 FLOOR_OF = {name: floor for floor, names in FLOORS.items() for name in names}

@@ -15,6 +15,7 @@ import logging
 import math
 import sys
 import threading
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from functools import cached_property
 from typing import Any
@@ -106,9 +107,12 @@ class ReplayResult:
         return to_json(self.report)
 
 
-def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayResult:
+def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
+           estimates: Callable[[can.Message, int], None] | None = None) -> ReplayResult:
     """Replay config.trace through the ECU; see the module docstring. feeder_type: the feeder
-    (tests pass their frame-by-frame oracle, a Feeder without block checks)."""
+    (tests pass their frame-by-frame oracle, a Feeder without block checks); estimates: called
+    with every frame the ECU sends and its time (ns on the replay's time base) as it is sent
+    (vecu.fleet's diff against the recording)."""
     config.validate()
     ecu_codec, trace_db, smap, functions, routes = _ecu_parts(config)
     live = config.speed is not None
@@ -137,6 +141,8 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
         def on_sent(msg: can.Message) -> None:
             t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
             scorer.on_estimate(msg, t_ns)
+            if estimates is not None:
+                estimates(msg, t_ns)
             if writer is not None:  # back on the trace's time base (skipped idle time too)
                 skipped = source.skipped_before(int(t_ns * config.speed) if live else t_ns)
                 msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
@@ -192,8 +198,7 @@ def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
                                                list[EcuFunction], dict[tuple[int, bool], Route]]:
     """The ECU's codec, the trace's database, the signal map, fresh ECU functions and their
     routes from the trace's messages."""
-    run_cfg = RunConfig(kill_tps_at_s=None).with_params(
-        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
+    run_cfg = _run_config(config)
     ecu_codec = registry.function_codec(run_cfg.params.ecu.instance)  # built once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
@@ -202,6 +207,16 @@ def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
                  if f.name not in smap.disabled]
     return ecu_codec, trace_db, smap, functions, _routes(config, smap, trace_db, ecu_codec,
                                                          functions)
+
+
+def _run_config(config: ReplayConfig) -> RunConfig:
+    return RunConfig(kill_tps_at_s=None).with_params(
+        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
+
+
+def ecu_codec_of(config: ReplayConfig) -> DbcCodec:
+    """The codec of the frames the replay's ECU sends (its instance's IDs)."""
+    return registry.function_codec(_run_config(config).params.ecu.instance)
 
 
 def warm_up_ecu(config: ReplayConfig) -> RxCounters:
@@ -446,4 +461,4 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
 
 
 __all__ = ["SCHEDULE_ERROR_LIMIT_US", "FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError",
-           "replay", "warm_up_ecu"]
+           "ecu_codec_of", "replay", "warm_up_ecu"]
