@@ -105,8 +105,12 @@ def replay_trace(fleet: FleetConfig, trace: str, name: str, out_dir: str) -> dic
         if bad:
             failed.append("criteria")
     row["status"] = "fail" if failed else "ok"
-    judged = fleet.diff is not None or fleet.criteria is not None
-    row["verdict"] = ("fail" if failed else "pass") if judged else "replayed"
+    if failed:
+        row["verdict"] = "fail"
+    elif fleet.criteria is None and row.get("diff") in (None, "none"):
+        row["verdict"] = "none"  # nothing judged: no diff asked, or no recording to diff with
+    else:
+        row["verdict"] = "pass"
     return row
 
 
