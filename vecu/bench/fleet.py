@@ -42,9 +42,13 @@ def bench_fleet(drives: int = 20, duration_s: float = 60.0, workers: int = 2) ->
         paths = [str(d / "drives" / f"drive{i:02d}.log") for i in range(drives)]
         lost: list[str] = []
         t0 = perf_s()
+        def failed(item: tuple[Any, ...], exc: BaseException) -> dict[str, Any]:
+            lost.append(f"{item[0]}: {exc}")
+            return {}
+
         run_rows(record_drive, [(p, duration_s, i + 1) for i, p in enumerate(paths)],
-                 [f"vecu-bench-record-{i}" for i in range(drives)], lambda row: None,
-                 lambda item, exc: lost.append(f"{item[0]}: {exc}") or {}, workers)
+                 [f"vecu-bench-record-{i}" for i in range(drives)], lambda row: None, failed,
+                 workers)
         record_s = perf_s() - t0
         if lost:
             raise RuntimeError(f"recording failed: {lost[0]}")
