@@ -178,6 +178,24 @@ def run_rows(fn: Callable[..., dict[str, Any]], items: Sequence[tuple[Any, ...]]
     return stopped_by
 
 
+def append_rows(path: Path, cols: list[str], bar: Progress, fn: Callable[..., dict[str, Any]],
+                items: Sequence[tuple[Any, ...]], keys: Sequence[str],
+                lost: Callable[[tuple[Any, ...], BaseException], dict[str, Any]],
+                workers: int | None, scheduler: str | None, retries: int) -> str | None:
+    """run_rows() with each row appended to the rows file at `path` as it finishes (flushed)
+    and counted on the progress line (status "ok" or not); the line is closed at the end."""
+    try:
+        with open(path, "a", newline="") as fh:
+            def keep(row: dict[str, Any]) -> None:
+                fh.write(format_row(cols, row))
+                fh.flush()
+                bar.update(row["status"] == "ok")
+
+            return run_rows(fn, items, keys, keep, lost, workers, scheduler, retries)
+    finally:
+        bar.close()
+
+
 def _quiet_shutdown(client: Any, cluster: Any, futures: list[Any]) -> None:
     """Cancel the queued tasks and stop the cluster, once, with nothing on the terminal but
     vecu's own line: a second Ctrl-C meanwhile does not cut the shutdown short (no orphan

@@ -20,10 +20,9 @@ from typing import Any, TextIO
 
 from vecu.campaign.cluster import (
     Progress,
+    append_rows,
     default_progress_stream,
-    format_row,
     header,
-    run_rows,
     write_sorted,
 )
 from vecu.campaign.cluster import read_rows as _read_rows
@@ -101,22 +100,13 @@ def run_campaign(spec: CampaignSpec, out: Path, workers: int | None = None,
     cols = columns(spec)
     bar = Progress(spec.runs, len(done), progress)
     if todo:
-        try:
-            with open(out / RUNS_CSV, "a", newline="") as fh:
-                def keep(row: dict[str, Any]) -> None:
-                    fh.write(format_row(cols, row))
-                    fh.flush()
-                    bar.update(row["status"] == "ok")
+        def lost(item: tuple[Any, ...], exc: BaseException) -> dict[str, Any]:
+            return {"run_id": item[1], "status": "error",
+                    "error": f"{type(exc).__name__}: {exc}"[:300]}
 
-                def lost(item: tuple[Any, ...], exc: BaseException) -> dict[str, Any]:
-                    return {"run_id": item[1], "status": "error",
-                            "error": f"{type(exc).__name__}: {exc}"[:300]}
-
-                stopped_by = run_rows(run_one, [(spec, i) for i in todo],
-                                      [f"vecu-run-{spec.seed}-{i}-{os.getpid()}" for i in todo],
-                                      keep, lost, workers, scheduler, retries=2)
-        finally:
-            bar.close()
+        stopped_by = append_rows(out / RUNS_CSV, cols, bar, run_one, [(spec, i) for i in todo],
+                                 [f"vecu-run-{spec.seed}-{i}-{os.getpid()}" for i in todo],
+                                 lost, workers, scheduler, retries=2)
         if stopped_by is not None:
             kept = len(read_rows(out / RUNS_CSV, cols))
             raise CampaignInterrupted(kept, spec.runs, out, stopped_by)

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from vecu.campaign.cluster import Progress, format_row, header, read_rows, run_rows, write_sorted
+from vecu.campaign.cluster import Progress, append_rows, header, read_rows, write_sorted
 from vecu.errors import BadArgumentError
 from vecu.fleet.report import write_outputs
 from vecu.fleet.task import COLUMNS, FleetConfig, lost_row, replay_trace
@@ -95,19 +95,10 @@ def run_fleet(traces: list[str], fleet: FleetConfig, out: Path, workers: int | N
     bar = Progress(len(traces), len(done & set(traces)), progress, label="vecu replay",
                    noun="traces")
     if todo:
-        try:
-            with open(out / RUNS_CSV, "a", newline="") as fh:
-                def keep(row: dict[str, Any]) -> None:
-                    fh.write(format_row(COLUMNS, row))
-                    fh.flush()
-                    bar.update(row["status"] == "ok")
-
-                items = [(fleet, t, names[t], str(out)) for t in todo]
-                keys = [f"vecu-trace-{os.getpid()}-{names[t]}" for t in todo]
-                stopped_by = run_rows(replay_trace, items, keys, keep, lost_row, workers,
-                                      scheduler, retries=1)
-        finally:
-            bar.close()
+        stopped_by = append_rows(out / RUNS_CSV, COLUMNS, bar, replay_trace,
+                                 [(fleet, t, names[t], str(out)) for t in todo],
+                                 [f"vecu-trace-{os.getpid()}-{names[t]}" for t in todo],
+                                 lost_row, workers, scheduler, retries=1)
         if stopped_by is not None:
             kept = len(read_rows(out / RUNS_CSV, COLUMNS, WHAT))
             raise FleetInterrupted(kept, len(traces), out, stopped_by)
