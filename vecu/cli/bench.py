@@ -54,7 +54,7 @@ SIZES: dict[str, tuple[Any, Any]] = {
     "uds_requests": (200, 20), "restbus_s": (10.0, 1.0),
     "xcp_commands": (200, 20), "xcp_daq_s": (5.0, 0.5),
     "gateway_requests": (300, 40), "gateway_s": (3.0, 1.0),
-    "fleet_drives": (20, 4), "fleet_s": (60.0, 5.0),
+    "fleet_drives": (20, 3), "fleet_s": (60.0, 3.0),
 }
 
 
