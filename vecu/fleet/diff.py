@@ -278,7 +278,15 @@ def _pair(rt: np.ndarray, ct: np.ndarray, window: int) -> tuple[np.ndarray, np.n
 
 
 def _decode(fc: FrameCodec, payloads: list[bytes], names: list[str]) -> np.ndarray:
-    """Rows of decoded values (vecu.codec), NaN where a payload does not decode."""
+    """Rows of decoded values (vecu.codec: all at once when every payload has the message's
+    length and the message a block layout, else frame by frame), NaN where a payload does not
+    decode."""
+    if payloads and all(len(p) == fc.length for p in payloads):
+        block = fc.check_block(list(payloads))
+        if block is not None:
+            col = {n: i for i, n in enumerate(block.names)}
+            return np.array([block.columns[col[n]] for n in names], dtype=float).T.reshape(
+                len(payloads), len(names))
     out = np.full((len(payloads), len(names)), np.nan)
     for i, data in enumerate(payloads):
         try:
