@@ -129,8 +129,11 @@ def open_client(workers: int | None, scheduler: str | None) -> tuple[Any, Any]:
     try:
         # the workers log only what is critical: a task's own error comes back as its row, and
         # a worker that loses its scheduler at an interrupt is not the user's business
+        # no dashboard; the scheduler's HTTP routes (health, metrics) on a free port, not on
+        # 8787: a second cluster on the machine (another vecu, a parallel test) is no clash
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.CRITICAL)
+                               dashboard_address=None, silence_logs=logging.CRITICAL,
+                               scheduler_kwargs={"dashboard_address": ":0"})
     finally:
         signal.signal(signal.SIGINT, previous)
     return Client(cluster), cluster
