@@ -1,7 +1,12 @@
-"""Shared test fixtures: paths to the repo and to the third-party data beside it."""
+"""Shared test fixtures: paths to the repo and to the third-party data beside it; under
+pytest-xdist, tests that pace processes on the wall clock run alone (see `wall_clock_alone`)."""
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -20,6 +25,48 @@ def thirdparty() -> Path:
     if not THIRDPARTY.is_dir():
         pytest.skip(f"third-party data not found at {THIRDPARTY}")
     return THIRDPARTY
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test file named *live* starts processes paced on the wall clock: mark it `alone`."""
+    for item in items:
+        if "live" in item.path.name:
+            item.add_marker(pytest.mark.alone)
+
+
+@contextlib.contextmanager
+def _locked(path: Path, mode: int) -> Iterator[None]:
+    with path.open("a") as f:
+        fcntl.flock(f, mode)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+@pytest.fixture(autouse=True)
+def wall_clock_alone(request: pytest.FixtureRequest,
+                     tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Under pytest-xdist (`-n`), a test marked `alone` (live processes, wall-clock figures) runs
+    while no other worker runs a test: it holds the workers' lock exclusively, every other test
+    holds it shared. A turnstile taken before either lets a waiting `alone` test in first."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        yield
+        return
+    shared = tmp_path_factory.getbasetemp().parent  # one folder for all workers of this run
+    alone = request.node.get_closest_marker("alone") is not None
+    mode = fcntl.LOCK_EX if alone else fcntl.LOCK_SH
+    turnstile = _locked(shared / "alone.turnstile", fcntl.LOCK_EX)
+    turnstile.__enter__()
+    try:
+        lock = _locked(shared / "alone.lock", mode)
+        lock.__enter__()
+    finally:
+        turnstile.__exit__(None, None, None)
+    try:
+        yield
+    finally:
+        lock.__exit__(None, None, None)
 
 
 @pytest.fixture(scope="session", autouse=True)

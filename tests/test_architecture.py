@@ -394,6 +394,10 @@ def test_layering():
     # the XCP slave stands on the ECU too (floor 5), beside the UDS server
     bad += _layer_violations("vecu.xcp", None, ("vecu.plant", "vecu.estimators.registry",
                                                 "vecu.uds"))
+    # an FMU is an ECU function (floor 5, ECU side): never the plant, estimators or servers
+    # (its output protection reads a restbus E2E file: vecu.restbus.spec)
+    bad += _layer_violations("vecu.fmu", None, ("vecu.plant", "vecu.estimators", "vecu.uds",
+                                                "vecu.xcp", "vecu.runner"))
     # the gateway routes into the ECUs' diagnostic channels on CAN: never the plant
     bad += _layer_violations("vecu.gateway", None, ("vecu.plant", "vecu.cli"))
     for name in FOUNDATION:
@@ -428,10 +432,10 @@ FLOORS: dict[int, tuple[str, ...]] = {
     3: ("bus", "codec", "e2e", "can_message", "fault_kinds",
         "faults", "scheduler", "recorder"),
     4: ("estimators",),
-    5: ("plant", "restbus", "ecu", "uds", "xcp"),
+    5: ("plant", "restbus", "ecu", "uds", "xcp", "fmu"),
     6: ("config", "assembly", "runner", "probes", "summary", "warmup", "functions"),
     7: ("replay", "scenario", "campaign", "eval", "bench", "live", "plot", "figures", "ident",
-        "gateway", "fleet"),
+        "gateway", "simulation", "pytest_plugin", "fleet"),
     8: ("cli", "__main__"),
 }
 FLOOR_OF = {name: floor for floor, names in FLOORS.items() for name in names}

@@ -11,9 +11,9 @@ may name the plant's and the ECU's configuration classes (docs/architecture.md).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import asdict, dataclass, field, fields, make_dataclass, replace
+from typing import TYPE_CHECKING, Any
 
 from vecu import params as ptree
 from vecu.bus import RxBudget
@@ -25,6 +25,7 @@ from vecu.errors import ConfigError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.fault_kinds import check_value
 from vecu.faults import FaultKind, ScheduledFault, parse_kind
+from vecu.fmu.binding import FmuBinding, NoFmu, parameter_tree
 from vecu.instances import ECU_NODE, MAX_INSTANCE, check_distinct, uds_ids, xcp_ids
 from vecu.models.lateral import VehicleParams
 from vecu.models.sensors import TpsCalibration
@@ -78,14 +79,46 @@ class EcuParams:
     uds: UdsConfig = field(default_factory=UdsConfig)  # diagnostics server (docs/uds.md)
     xcp: XcpConfig = field(default_factory=XcpConfig)  # measurement and calibration (docs/xcp.md)
     rx: RxBudget = field(default_factory=RxBudget)  # receive work per 1 ms tick (docs/live.md)
+    # an FMU's parameters, ecu.fmu.<instance>.<variable> (RunConfig.with_fmu; docs/fmu.md)
+    fmu: Any = field(default_factory=NoFmu)
+
+
+_EXTENDED: dict[tuple[tuple[str, Callable[[], Any]], ...], type] = {}
+
+
+def ecu_params() -> EcuParams:
+    """The default `ecu` half: EcuParams, with a field per plug-in subtree when there are any
+    (vecu.params.ecu_subtrees; a frozen subclass made once per set of subtrees, so that equal
+    trees compare equal)."""
+    extra = ptree.ecu_subtrees()
+    if not extra:
+        return EcuParams()
+    cls = _EXTENDED.get(extra)
+    if cls is None:
+        cls = _EXTENDED[extra] = make_dataclass(
+            "EcuParamsWithPlugins", [(name, Any, field(default_factory=factory))
+                                     for name, factory in extra],
+            bases=(EcuParams,), frozen=True, namespace={"__reduce__": _reduce_ecu})
+    return cls()
+
+
+def _reduce_ecu(ecu: EcuParams) -> tuple[Any, tuple[dict[str, Any]]]:
+    """Pickle an extended `ecu` half by value: rebuilt in the receiving process (a campaign's
+    or a scenario's worker) from its own plug-ins, which must be the same."""
+    return _restore_ecu, ({f.name: getattr(ecu, f.name) for f in fields(ecu)},)
+
+
+def _restore_ecu(values: dict[str, Any]) -> EcuParams:
+    return replace(ecu_params(), **values)
 
 
 @dataclass(frozen=True)
 class ParamTree:
-    """The whole parameter tree: `plant.*` (the truth) and `ecu.*` (the calibration)."""
+    """The whole parameter tree: `plant.*` (the truth) and `ecu.*` (the calibration; plug-in
+    functions' subtrees included, ecu_params)."""
 
     plant: PlantParams = field(default_factory=PlantParams)
-    ecu: EcuParams = field(default_factory=EcuParams)
+    ecu: EcuParams = field(default_factory=ecu_params)
 
     def set(self, sets: object) -> ParamTree:
         """A new tree with (path, value) pairs or a {path: value} mapping applied, checked."""
@@ -174,13 +207,17 @@ def validate_tree(tree: ParamTree) -> None:
     check_ecu_ids(tree.ecu)
 
 
+HALF_THE_DURATION = math.nan  # RunConfig.kill_tps_at_s's default: half the run, as `vecu run`
+
+
 @dataclass(frozen=True)
 class RunConfig:
-    """Everything `vecu run` needs; defaults are the demo (10 s, TPS dead at 5 s)."""
+    """Everything `vecu run` needs; defaults are the demo's, as `vecu run`'s (10 s, the TPS
+    dead at half the duration: kill_tps_at_s left at HALF_THE_DURATION)."""
 
     duration_s: float = 10.0
     seed: int = 0
-    kill_tps_at_s: float | None = 5.0
+    kill_tps_at_s: float | None = HALF_THE_DURATION
     fault: str = "dead"
     fault_value: float | None = None
     realtime: bool = False
@@ -207,6 +244,11 @@ class RunConfig:
     throttle_input: str | None = None  # a u(t) file driving the throttle (docs/reproduction.md)
     restbus: RestbusConfig | None = None  # a user's bus beside plant and ECU (docs/restbus.md)
     restbus_disturbances: tuple[ScheduledFault, ...] = ()  # its disturbance timeline
+    fmu: FmuBinding | None = None  # an FMU as an ECU function (with_fmu; docs/fmu.md)
+
+    def __post_init__(self) -> None:
+        if self.kill_tps_at_s is not None and math.isnan(self.kill_tps_at_s):
+            object.__setattr__(self, "kill_tps_at_s", self.duration_s / 2)  # frozen: once, here
 
     def with_params(self, sets: Mapping[str, object] | Iterable[tuple[str, object]] = (),
                     **shortcuts: object) -> RunConfig:
@@ -215,6 +257,19 @@ class RunConfig:
         pairs = list(sets.items()) if isinstance(sets, Mapping) else list(sets)
         pairs += shortcut_sets(**shortcuts)
         return replace(self, params=self.params.set(pairs)) if pairs else self
+
+    def with_fmu(self, binding: FmuBinding) -> RunConfig:
+        """This configuration with binding's FMU as an ECU function: its parameters become the
+        ecu.fmu.<instance> subtree (at the FMU's start values, then the map's [parameters]);
+        with_params afterwards overrides them."""
+        ecu = replace(self.params.ecu, fmu=parameter_tree(binding))
+        params = replace(self.params, ecu=ecu)
+        starts = [(f"ecu.fmu.{binding.name}.{k}", v) for k, v in binding.starts]
+        return replace(self, fmu=binding, params=ptree.apply_sets(params, starts))
+
+    def default_params(self) -> ParamTree:
+        """The default tree of this run's shape (an FMU's subtree at its start values)."""
+        return ParamTree(ecu=replace(ecu_params(), fmu=type(self.params.ecu.fmu)()))
 
     @property
     def estimator(self) -> str:
@@ -234,7 +289,10 @@ class RunConfig:
         out["noise_scale"] = self.params.plant.throttle.noise_scale
         out["estimator"] = self.estimator
         out["manifold_filter"] = self.params.ecu.manifold.filter
-        out["params"] = {leaf.path: leaf.value for leaf in ptree.differences(self.params, ParamTree())}
+        out["fmu"] = None if self.fmu is None else {
+            "fmu": self.fmu.fmu, "instance": self.fmu.name, "step_ms": self.fmu.step_ms}
+        out["params"] = {leaf.path: leaf.value
+                         for leaf in ptree.differences(self.params, self.default_params())}
         return out
 
     def validate(self) -> None:

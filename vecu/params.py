@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -110,6 +110,24 @@ MAX_TIME_S = 1e7
 MAX_SCALE = 1e3
 MAX_MAGNITUDE = 1e9
 UNIT_BOUNDS: dict[str, tuple[float, float]] = {"s": (0.0, MAX_TIME_S), "ms": (0.0, MAX_TIME_S * 1e3)}
+
+
+# ecu.* subtrees beyond the ECU's own fields: plug-in functions' calibrations. vecu.functions
+# adds a source of them on import; each source gives {name: factory of the subtree}
+SubtreeSource = Callable[[], Mapping[str, Callable[[], Any]]]
+_SUBTREE_SOURCES: list[SubtreeSource] = []
+
+
+def add_ecu_subtrees(source: SubtreeSource) -> None:
+    """Register a source of extra ecu.<name> subtrees (the registry of ECU functions)."""
+    if source not in _SUBTREE_SOURCES:
+        _SUBTREE_SOURCES.append(source)
+
+
+def ecu_subtrees() -> tuple[tuple[str, Callable[[], Any]], ...]:
+    """(name, factory) of every extra ecu.<name> subtree, in the sources' order."""
+    return tuple((name, factory) for source in _SUBTREE_SOURCES
+                 for name, factory in source().items())
 
 
 class ParamError(BadArgumentError):

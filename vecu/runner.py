@@ -33,8 +33,9 @@ from vecu.bus import (
 )
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock, monotonic_ns
 from vecu.codec import DbcCodec
-from vecu.config import ParamTree, RunConfig, validate_tree
+from vecu.config import RunConfig, validate_tree
 from vecu.ecu.node import EcuNode
+from vecu.errors import Interrupted
 from vecu.estimators.registry import make_throttle_estimator
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind
 from vecu.functions.base import Kill
@@ -125,7 +126,11 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
             warm_up(config)
         # one-time: loading (on a fresh install compiling) the kernels is not the run's speed
         kernel_load_s = ensure_kernels(config)
-        wall = execute(pipeline, progress)
+        watch = Stopwatch()
+        try:
+            wall = execute(pipeline, progress)
+        except KeyboardInterrupt:
+            raise interrupted(pipeline, watch.elapsed(), kernel_load_s) from None
         summary = summarise(pipeline, wall, kernel_load_s)
     finally:
         pipeline.close()
@@ -135,7 +140,7 @@ def run(config: RunConfig, progress: Callable[[float, float], None] | None = Non
 def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimator) -> None:
     """Open the buses and make every node of p.config's run, each with its hooks."""
     config = p.config
-    codec = functions.function_codec(config.params.ecu.instance)  # built once per process
+    codec = functions.function_codec(config.params.ecu.instance, config)  # once per process
     rngs = rng_streams(config.seed, ("throttle.input", "throttle.plant", "faults"))
     bus_args = {"interface": config.interface, "channel": config.channel, "bitrate": config.bitrate}
     n_ticks = p.n_ticks
@@ -158,7 +163,8 @@ def build(p: Pipeline, make_estimator: EstimatorFactory = make_throttle_estimato
     p.fns = fns = build_functions(config, codec, make_estimator)
     for spec in functions.enabled(config):  # each function's truth-vs-output probe
         part, fn = plant_part(plant, spec.part_name), fns.get(spec.name)
-        if spec.probe is not None and part is not None and fn is not None:
+        if spec.probe is not None and fn is not None and (part is not None
+                                                          or spec.part_name is None):
             p.probes[spec.name] = spec.probe(part, fn, config, n_ticks)
     p.ecu = ecu = EcuNode(ecu_bus, codec, fns.enabled(), rx_budget=config.params.ecu.rx)
     p.uds = attach_uds(ecu, config.params.ecu.uds, config.seed)
@@ -222,6 +228,20 @@ def execute(p: Pipeline, progress: Callable[[float, float], None] | None = None)
     if p.recorder is not None:  # frames sent after the ECU's last tick: stamped before end
         p.recorder.drain(end_ns, before_ns=end_ns)
     return wall
+
+
+def interrupted(p: Pipeline, wall: float, kernel_load_s: float) -> Interrupted:
+    """Ctrl-C part-way through execute(): the summary of the ticks that ran (the log keeps
+    their frames), as an Interrupted for the command line (--summary, exit 130)."""
+    planned = p.n_ticks
+    p.n_ticks = min(planned, p.clock.now_ns() // TICK_NS)
+    if p.ecu is not None and p.ecu_task is not None:
+        p.ecu.overruns = p.ecu_task.overruns
+    if p.recorder is not None:
+        p.recorder.drain(p.end_ns, before_ns=p.end_ns)
+    summary = summarise(p, wall, kernel_load_s)
+    return Interrupted(f"{p.n_ticks / 1000:g} of {planned / 1000:g} s simulated",
+                       to_json(summary))
 
 
 def summarise(p: Pipeline, wall: float, kernel_load_s: float) -> RunSummary:
@@ -313,7 +333,7 @@ def attach_xcp_server(ecu: EcuNode, config: RunConfig) -> XcpServer | None:
     reference page the defaults; a calibration is checked as `--set` is (validate_tree)."""
     from dataclasses import replace
 
-    return attach_xcp(ecu, config.params.ecu.xcp, config.params.ecu, ParamTree().ecu,
+    return attach_xcp(ecu, config.params.ecu.xcp, config.params.ecu, config.default_params().ecu,
                       config.seed, lambda ecu_tree: validate_tree(replace(config.params,
                                                                           ecu=ecu_tree)))
 

@@ -7,6 +7,7 @@ The factors are exact constants so that `x * FACTOR` is the one way each convers
 from __future__ import annotations
 
 import math
+from typing import Any
 
 RAD_PER_DEG = math.pi / 180.0  # deg -> rad: x_rad = x_deg * RAD_PER_DEG
 DEG_PER_RAD = 180.0 / math.pi  # rad -> deg: x_deg = x_rad * DEG_PER_RAD
@@ -40,3 +41,22 @@ def degc_to_kelvin(x: float) -> float:
 
 def kelvin_to_degc(x: float) -> float:
     return x - KELVIN_AT_0_DEGC
+
+
+def affine(src: str, dst: str) -> tuple[float, float]:
+    """(scale, offset) with x_dst = x_src * scale + offset between two unit names as DBCs and
+    FMUs write them (pint's registry: degC, K, km/h, m/s, kPa, mV, ...); (1, 0) when either is
+    empty or both are the same. ValueError naming the pair when pint cannot convert; ImportError
+    without pint (an optional dependency: `vecu[fmu]`)."""
+    if not src or not dst or src == dst:
+        return 1.0, 0.0
+    import pint
+
+    ureg: Any = pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
+    try:
+        zero = ureg.Quantity(0.0, src).to(dst).magnitude
+        one = ureg.Quantity(1.0, src).to(dst).magnitude
+    except Exception as exc:  # noqa: BLE001 - pint's undefined-unit and dimensionality errors
+        raise ValueError(f"cannot convert {src!r} to {dst!r}: "
+                         f"{str(exc).splitlines()[0]}") from None
+    return float(one - zero), float(zero)

@@ -131,12 +131,19 @@ GATEWAY = [rf"RDBI 0x0100 through the gateway \(doipclient\)\s+p50 {NUM} / p99 {
             rf"gateway / direct {NUM}x p50, {NUM}x p99"),
            rf"requests per second through the gateway: 1 tester {NUM}/s, 4 testers {NUM}/s",
            r"gateway process: .* bad inputs 0"]
+ROUTING = [(rf"taken, routed and sent by the gateway's step\s+{NUM} frames/s; python-can recv "
+            rf"alone {NUM} frames/s: {NUM}x"),
+           rf"routes\[0\] src->dst latency .* min/mean/p99/max {NUM}/{NUM}/{NUM}/{NUM} us",
+           r"can-gw beside vecu: skipped: no SocketCAN|vcan0 -> vcan1 on this kernel"]
 
 
 def test_bench_quick_gateway_group():
     """--only gateway (not in the default set: live processes in a namespace): two ECUs and the
-    gateway, the same request through DoIP and directly on CAN in one run."""
+    gateway, the same request through DoIP and directly on CAN in one run; the routing between
+    buses against a bare python-can receive."""
     out = _bench("--only", "gateway", timeout=GROUP_TIMEOUT_S)
+    missing = [p for p in ROUTING if not re.search(p, out)]  # in-process: everywhere
+    assert not missing, "\n".join(missing) + "\n" + out
     if namespace_prefix()[0] is None:
         assert "Gateway (DoIP -> CAN): skipped" in out
         return

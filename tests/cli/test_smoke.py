@@ -76,6 +76,7 @@ SMOKE: list[tuple[list[str], str]] = [
     (["campaign", "run", "--help"], r"usage: vecu campaign run .*--scheduler"),
     (["restbus", str(ROOT / "vecu" / "dbc" / "vecu.dbc"), "--node", "PLANT", "--duration", "1"],
      r"vecu restbus: \d+ messages, \d+ frames in 1 s \(simulated clock"),
+    (["plugins"], r"no plug-ins installed|\S+ +\S+ +\S+ +\S+:\S+ +(ok|NOT LOADED)"),
     (["a2l", "--out", "smoke.a2l"], (r"smoke\.a2l: \d+ characteristics \(\d+ calibratable "
                                      r"live\), \d+ measurements; XCP on CAN 0x7F0 -> 0x7F1")),
 ]
@@ -115,6 +116,7 @@ USER_MISTAKES = [
     (["ecu", "--log", "x.bogus"], "x.bogus: cannot write log"),  # and no bus-not-shut-down warning
     (["gateway", "--config", "nope.toml"], "nope.toml"),
     (["gateway", "--doip-port", "70000"], "--doip-port"),
+    (["run", "--fmu", "nope.fmu"], "--fmu and --fmu-map go together"),
 ]
 
 

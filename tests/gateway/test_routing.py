@@ -5,6 +5,7 @@ limit, timeout substitutes and the firewall."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import can
@@ -145,6 +146,29 @@ ids = [0x7E0, 0x7DF]
     assert engine.summary()["routes"]["routes[0] vehicle->powertrain"]["in"] == 1
 
 
+def test_frame_routes_match_the_id_and_its_11_or_29_bit_format(tmp_path):
+    """ids = [0x123] takes the 11-bit 0x123 only; id + mask above 0x7FF takes 29-bit frames."""
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + """
+[[routes]]
+from = "vehicle"
+to = "powertrain"
+ids = [0x123]
+[[routes]]
+from = "vehicle"
+to = "powertrain"
+id = 0x18FF0000
+mask = 0x1FFF0000
+""")))
+    frames = [(0x123, False), (0x123, True), (0x18FF0123, True), (0x0123, False),
+              (0x18FE0001, True), (0x18FF7FFF, True)]
+    for ms, (can_id, ext) in enumerate(frames):
+        engine.receive("vehicle", can.Message(arbitration_id=can_id, data=bytes([ms]),
+                                              is_extended_id=ext), ms * MS)
+    sent = [m for ms in range(len(frames)) for _, m in engine.tick(ms * MS)]
+    assert [(m.arbitration_id, m.is_extended_id, m.data[0]) for m in sent] == [
+        (0x123, False, 0), (0x18FF0123, True, 2), (0x123, False, 3), (0x18FF7FFF, True, 5)]
+
+
 def test_a_frame_route_forwards_e2e_untouched(tmp_path):
     """A protected frame copied by a frame route still passes the receiver's check
     (autosar-e2e P11, data ID = its CAN ID), counter and CRC as the sender made them."""
@@ -264,3 +288,46 @@ e2e = {{ profile = "P02", data_id_list = {ids} }}
     for n, m in enumerate(sent):
         assert autosar_e2e.p02.e2e_p02_check(bytearray(m.data), bytes(ids), length=0)
         assert m.data[1] & 0x0F == n % 16  # P02's counter: 0..15
+
+
+def test_check_and_forward_drops_frames_failing_their_e2e_check(tmp_path):
+    """e2e_check = true: a frame route passes the frames whose protection (the source
+    database's, autosar-e2e's check) holds and drops and counts the others."""
+    engine = RoutingEngine(load_routing_config(write_config(tmp_path, TWO_BUSES + """
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+messages = ["ECU_ThrottleEstimate"]
+e2e_check = true
+""")))
+    feed = {}
+    for ms in range(20):
+        f = _frame("ECU_ThrottleEstimate", {"THR_Angle": ms * 1.5, "THR_AliveCounter": ms % 15},
+                   ms * MS)
+        if ms % 4 == 3:
+            f.data[5] ^= 0x01  # one bit flipped after the CRC was computed
+        feed[ms] = [f]
+    sent = _run(engine, feed, 20)
+    assert [bytes(m.data) for _, _, m in sent] == [bytes(feed[ms][0].data) for ms in range(20)
+                                                    if ms % 4 != 3]
+    assert all(autosar_e2e.p11.e2e_p11_check(bytearray(m.data), 0x200) for _, _, m in sent)
+    route = engine.summary()["routes"]["routes[0] powertrain->vehicle"]
+    assert route["in"] == 20 and route["out"] == 15 and route["dropped"] == {"e2e": 5}
+
+
+@pytest.mark.parametrize("route, problem", [
+    ('messages = ["ECU_SpeedEstimate"]\ne2e_check = true',
+     "routes[0].e2e_check': no message of the route names an E2E protection"),
+    (('target = "VEH_Mux"\nsend = "on_change"\nsignals = { VEH_Yaw = "CHS_Lateral.LAT_YawRate" }'
+     '\ne2e_check = true'), "routes[0].e2e_check': belongs to a frame route"),
+])
+def test_e2e_check_errors(tmp_path, route, problem):
+    from vecu.gateway.config import GatewayConfigError
+
+    with pytest.raises(GatewayConfigError, match=re.escape(problem)):
+        load_routing_config(write_config(tmp_path, TWO_BUSES + f"""
+[[routes]]
+from = "powertrain"
+to = "vehicle"
+{route}
+"""))

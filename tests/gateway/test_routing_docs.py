@@ -23,7 +23,7 @@ def _blocks(kind: str) -> list[str]:
 
 
 def test_the_quick_start_runs_as_written(tmp_path):
-    (dbc,), (toml,), (command,) = _blocks("dbc"), _blocks("toml"), _blocks("sh")
+    (dbc,), toml, command = _blocks("dbc"), _blocks("toml")[0], _blocks("sh")[0]  # the first
     assert dbc == (DATA / "body.dbc").read_text()  # the tests' database is the doc's
     (tmp_path / "body.dbc").write_text(dbc)
     (tmp_path / "gw.toml").write_text(toml)

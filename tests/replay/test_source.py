@@ -110,7 +110,8 @@ def test_a_corrupt_mf4_is_one_line_without_the_readers_own_tracebacks(tmp_path):
     (tmp_path / "bad.mf4").write_bytes(b"MDF     4.10    " + bytes(48))
     res = _replay("bad.mf4", tmp_path, pythonpath=fake)
     assert res.returncode == 2 and res.stderr == (
-        "vecu: error: bad.mf4: cannot open trace: MdfException: Incomplete block in bad.mf4\n")
+        "vecu: error: bad.mf4: not an MF4 file (another format? try --format asc, blf, csv, db, "
+        "log, trc)\n")
 
 
 @pytest.mark.parametrize("damage", ["truncated", "overwritten"])

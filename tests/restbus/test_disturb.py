@@ -64,6 +64,7 @@ EXPECT = {
     "delay": (3, lambda v: all(t % 10 == 3 for t, *_ in v)),
     "cycle": (2.5, lambda v: len(v) == 40 and {b[0] - a[0] for a, b in pairwise(v)} == {25}),
     "dlc": (4, lambda v: all(n == 4 and not ok for _, n, ok, _ in v)),
+    "corrupt": (3, lambda v: len(v) == 100 and not any(ok for _, _, ok, _ in v)),
 }
 
 

@@ -66,15 +66,10 @@ def _start(out: Path, name: str, argv: list[str]) -> subprocess.Popen:
 
 
 def _direct_client(bus: Any) -> Any:
-    import isotp
-    from udsoncan.connections import PythonIsoTpConnection
+    from vecu.uds.transport import tester_connection
 
     req, resp = ECUS[0x0011]
-    stack = isotp.CanStack(bus, address=isotp.Address(isotp.AddressingMode.Normal_11bits,
-                                                      txid=req, rxid=resp))
-    conn = PythonIsoTpConnection(stack)
-    conn.open()
-    return conn
+    return tester_connection(bus, req, resp)
 
 
 def _timed(fn: Any) -> float:

@@ -60,7 +60,7 @@ class CampaignSpec:
 
 ENGINES = ("batch", "scalar")  # manifold studies: runs of events per compiled call, or stepped
 RUN_KEYS = {"manifold": {"duration_s": float, "stride": int, "engine": str},
-            "drive": {"duration_s": float, **dict.fromkeys(OPTIONAL, bool)}}
+            "drive": {"duration_s": float, **dict.fromkeys(OPTIONAL, bool), "gateway": Path}}
 
 
 def _fail(path: str, key: str, reason: str) -> BadFileError:
@@ -148,6 +148,13 @@ def read_campaign(path: str | Path) -> CampaignSpec:
         if want is None:
             raise _fail(path, f"run.{k}", f"unknown key for kind '{kind}' "
                                           f"(known: {', '.join(RUN_KEYS[kind])})")
+        if want is Path:  # a gateway config beside the campaign file: checked now, one line
+            if not isinstance(v, str):
+                raise _fail(path, f"run.{k}", f"expected a path, got {v!r}")
+            from vecu.gateway.routes_config import load_routing_config
+            run[k] = str(Path(path).parent / v)
+            if not load_routing_config(run[k]).buses:
+                raise _fail(path, f"run.{k}", f"{v} names no [buses.NAME] to route")
         if want is str and v not in ENGINES:
             raise _fail(path, f"run.{k}", f"expected one of {', '.join(ENGINES)}, got {v!r}")
         if want is bool and not isinstance(v, bool):

@@ -146,7 +146,12 @@ def drive_study(spec: CampaignSpec, d: RunDraw) -> dict[str, Any]:
                     params=tree_for(d),
                     **{name: bool(r.get(name, True)) for name in OPTIONAL})  # type: ignore[arg-type]  # the functions' bool switches
     cfg.validate()
-    result = run(cfg)
+    if r.get("gateway"):  # the run beside the routing between the buses of this gateway config
+        from vecu.gateway.routes_config import load_routing_config
+        from vecu.gateway.sim import run_with_gateway
+        result = run_with_gateway(cfg, load_routing_config(r["gateway"]))
+    else:
+        result = run(cfg)
     report = result.report
     out: dict[str, Any] = {}
     for name in metric_names(spec):

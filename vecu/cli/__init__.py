@@ -12,14 +12,16 @@ import importlib
 import logging
 import sys
 import traceback
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import vecu
+from vecu.cli.outputs import check_output_args, output_state, report_interrupted
 from vecu.cli.outputs import check_outputs as check_outputs
-from vecu.errors import UserError
+from vecu.errors import BadArgumentError, Interrupted, UserError
 
 SUBCOMMANDS = ("run", "eval", "bench", "plant", "ecu", "inject", "replay", "scenario", "params",
-               "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway")
+               "campaign", "excite", "identify", "figures", "restbus", "a2l", "gateway",
+               "plugins")
 KERNEL_COMMANDS = ("run", "eval", "bench", "plant", "ecu", "replay", "scenario",
                    "campaign", "excite", "identify", "figures")  # use estimators
 
@@ -89,7 +91,10 @@ def run_command(args: argparse.Namespace) -> int:
     """Run args.func(args) and map the outcome to an exit code (see the module docstring)."""
     from vecu.live.children import EXIT_TERMINATED, Terminated
 
+    before: dict[str, object] = {}
     try:
+        check_output_args(args)  # every output option of every subcommand, before any work
+        before = output_state(args)  # what an interrupted command kept: what changed since
         from vecu import kernels
 
         cold = kernels.cache_is_cold()  # VECU_KERNELS checked before any work starts
@@ -98,8 +103,10 @@ def run_command(args: argparse.Namespace) -> int:
             print("vecu: compiling the numba kernels on first use (about 40 s, once per install; "
                   "VECU_KERNELS=python skips them)", file=sys.stderr, flush=True)
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        return 130
+    except Interrupted as exc:  # Ctrl-C part-way, with a partial result
+        return report_interrupted(args, before, exc.done, exc.summary)
+    except KeyboardInterrupt:  # Ctrl-C anywhere else
+        return report_interrupted(args, before)
     except Terminated:  # a SIGTERM while children ran: they are stopped (vecu.live.children)
         return EXIT_TERMINATED
     except UserError as exc:
@@ -132,44 +139,50 @@ def add_set_option(p: argparse.ArgumentParser, scope: str, params_file: bool = F
                    help=f"override a parameter ({scope}; `vecu params` lists them), repeatable")
 
 
+def add_fmu_options(p: argparse.ArgumentParser) -> None:
+    """--fmu MODEL.fmu --fmu-map MAP.toml: an FMU as an ECU function (docs/fmu.md)."""
+    p.add_argument("--fmu", metavar="MODEL.fmu",
+                   help="an FMI 2.0 / 3.0 co-simulation FMU as an ECU function (needs --fmu-map; "
+                        "docs/fmu.md)")
+    p.add_argument("--fmu-map", metavar="MAP.toml",
+                   help="binds the FMU's inputs and outputs to DBC signals, its step and "
+                        "parameters (docs/fmu.md)")
+
+
+def fmu_binding(args: argparse.Namespace) -> Any:
+    """The FMU binding of --fmu / --fmu-map (None without), checked before any work (one line
+    per problem)."""
+    fmu, fmu_map = getattr(args, "fmu", None), getattr(args, "fmu_map", None)
+    if fmu is None and fmu_map is None:
+        return None
+    if fmu is None or fmu_map is None:
+        raise BadArgumentError("--fmu and --fmu-map go together (the map binds the FMU to the "
+                               "bus; docs/fmu.md)")
+    from vecu.fmu.binding import load_binding
+
+    return load_binding(fmu, fmu_map)
+
+
+def with_fmu(config: Any, args: argparse.Namespace) -> Any:
+    """config (a RunConfig) with the FMU of --fmu / --fmu-map; unchanged without."""
+    binding = fmu_binding(args)
+    return config if binding is None else config.with_fmu(binding)
+
+
 def param_sets(args: argparse.Namespace, only: str | None = None) -> list[tuple[str, str]]:
     """The --set pairs of args; `only` restricts them to one half of the tree."""
     from vecu.params import ParamError, parse_set_args
 
     pairs = parse_set_args(getattr(args, "sets", []) or [])
     if getattr(args, "params_file", None):
+        from vecu.simulation import read_params_file
+
         pairs = read_params_file(args.params_file, only) + pairs
     if only is not None:
         for path, _ in pairs:
             if not path.startswith(only):
                 raise ParamError(f"--set {path}: `vecu {args.command}` takes {only}* parameters "
                                  f"only")
-    return pairs
-
-
-def read_params_file(path: str, only: str | None = None) -> list[tuple[str, object]]:
-    """The (path, value) pairs of a PARAMS.toml: a [set] table of tree paths (dotted keys or
-    nested tables, as a scenario's [set]); every pair checked against the tree, a bad one a
-    BadFileError naming the file and the key. only: the half of the tree the command takes."""
-    from vecu.config import ParamTree
-    from vecu.errors import BadFileError
-    from vecu.params import ParamError, flatten_toml
-    from vecu.tomlfile import read_toml
-
-    doc = read_toml(path)
-    extra = sorted(set(doc) - {"set"})
-    if extra or not isinstance(doc.get("set"), dict):
-        raise BadFileError(path, "expected a [set] table of parameter paths (e.g. "
-                           '"ecu.throttle.model.mode3.b" = 0.05)'
-                           + (f", not {', '.join(extra)}" if extra else ""))
-    pairs = flatten_toml(doc["set"])
-    try:
-        for key, value in pairs:
-            if only is not None and not key.startswith(only):
-                raise ParamError(f"this command takes {only}* parameters only")
-            ParamTree().set([(key, value)])
-    except ParamError as exc:
-        raise BadFileError(path, f"[set] key '{key}': {exc}") from None
     return pairs
 
 

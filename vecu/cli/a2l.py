@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vecu.cli import add_set_option, param_sets
+from vecu import argtypes
+from vecu.cli import add_fmu_options, add_set_option, param_sets, with_fmu
 from vecu.live.args import add_function_switches, function_switches
 
 
@@ -17,9 +18,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "sensor inputs, monitor and DTC states MEASUREMENTs, IF_DATA "
                                    "XCP with the CAN IDs (ecu.xcp.master_id / slave_id) and the "
                                    "DAQ events. Give the same --set as to `vecu ecu` (docs/xcp.md).")
-    p.add_argument("--out", metavar="FILE.a2l", help="write here (default: standard output)")
+    p.add_argument("--out", type=argtypes.output("file", ".a2l"), metavar="FILE.a2l", help="write here (default: standard output)")
     add_set_option(p, "ecu.*: as the ECU will run")
     add_function_switches(p, "as `vecu ecu --no-{}`")
+    add_fmu_options(p)
     p.set_defaults(func=main)
 
 
@@ -32,14 +34,12 @@ def main(args: argparse.Namespace) -> int:
     from vecu.functions import function_codec
     from vecu.runner import attach_xcp_server
 
-    if args.out is not None and not args.out.endswith((".a2l", ".A2L")):
-        raise BadArgumentError(f"--out {args.out}: expected a .a2l file name")
-    config = RunConfig(kill_tps_at_s=None, **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
-                       ).with_params(param_sets(args, only="ecu."))
+    config = with_fmu(RunConfig(kill_tps_at_s=None, **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
+                                ), args).with_params(param_sets(args, only="ecu."))
     config.validate()
     if not config.params.ecu.xcp.enabled:
         raise BadArgumentError("ecu.xcp.enabled is false: the ECU serves no XCP, so no A2L")
-    codec = function_codec(config.params.ecu.instance)  # vecu's DBCs and the plug-in functions' own
+    codec = function_codec(config.params.ecu.instance, config)  # + plug-ins' and an FMU's DBCs
     bus = SinkBus()
     try:
         node = EcuNode(bus, codec, build_functions(config, codec).enabled())

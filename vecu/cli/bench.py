@@ -54,6 +54,7 @@ SIZES: dict[str, tuple[Any, Any]] = {
     "uds_requests": (200, 20), "restbus_s": (10.0, 1.0),
     "xcp_commands": (200, 20), "xcp_daq_s": (5.0, 0.5),
     "gateway_requests": (300, 40), "gateway_s": (3.0, 1.0),
+    "routing_frames": (20_000, 2_000), "routing_latency_frames": (1_000, 200),
     "fleet_drives": (20, 3), "fleet_s": (60.0, 3.0),
 }
 
@@ -135,8 +136,11 @@ def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
         out["xcp"] = bench_xcp(commands=int(size("xcp_commands")), daq_s=size("xcp_daq_s"))
     if groups is not None and "gateway" in groups:  # live processes in a namespace: when asked
         from vecu.bench.gateway import bench_gateway
+        from vecu.bench.routing import bench_routing
         out["gateway"] = bench_gateway(requests=int(size("gateway_requests")),
                                        seconds=size("gateway_s"))
+        out["gateway"]["routing"] = bench_routing(int(size("routing_frames")),
+                                                  int(size("routing_latency_frames")))
     if want("live"):
         from vecu.bench.live import bench_live
         out["live"] = bench_live(size("live_s", live_seconds), size("memory_min", memory_minutes),
@@ -211,7 +215,9 @@ def main(args: argparse.Namespace) -> int:
         print(format_xcp(res["xcp"]))
     if "gateway" in res:
         from vecu.bench.gateway import format_gateway
+        from vecu.bench.routing import format_routing
         print(format_gateway(res["gateway"]))
+        print(format_routing(res["gateway"]["routing"]))
     if "campaign" in res:
         from vecu.bench.campaign import format_campaign
         print(format_campaign(res["campaign"]))

@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from vecu import argtypes
-from vecu.cli import configure_logging
+from vecu.cli import check_outputs, configure_logging
 from vecu.cli.shipped import register_list_show
 
 
@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="local Dask worker processes (default: the machine's cores)")
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                        help="submit to a running Dask scheduler instead")
-    r.add_argument("--out", metavar="DIR", help="results directory (default: out/<name>)")
+    r.add_argument("--out", type=argtypes.out_dir, metavar="DIR", help="results directory (default: out/<name>)")
     r.add_argument("--resume", action="store_true", help="complete the runs missing in DIR")
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
     prog = r.add_mutually_exclusive_group()
@@ -70,6 +70,8 @@ def main_run(args: argparse.Namespace) -> int:
 
     spec = _spec(str(resolve("campaign", args.file)), args.runs, args.seed)
     out = Path(args.out) if args.out else Path("out") / spec.name
+    if not args.out:  # the default place, checked as --out is (before the cluster starts)
+        check_outputs(out=argtypes.OutputPath(str(out), "dir"))
     stream = (sys.stderr if args.progress else None) if args.progress is not None \
         else default_progress_stream()
     from vecu.campaign.engine import CampaignInterrupted

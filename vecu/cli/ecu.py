@@ -8,10 +8,11 @@ from typing import Any
 
 from vecu import argtypes
 from vecu.cli import (
+    add_fmu_options,
     add_set_option,
-    check_outputs,
     configure_logging,
     param_sets,
+    with_fmu,
 )
 from vecu.estimators.registry import ESTIMATORS  # names only: imports nothing heavy
 from vecu.instances import FRAME_STRIDE, MAX_INSTANCE
@@ -39,6 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"their DBC ID + N*0x{FRAME_STRIDE:X} (default 0: the DBC's IDs)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.*")
+    add_fmu_options(p)
     p.add_argument("--manifold-filter", default=None, choices=ESTIMATORS["manifold"].names,
                    help="manifold filter (default sdkf)")
     p.add_argument("--sync-timeout", type=argtypes.bounded(0.0, 3600.0), default=10.0, metavar="S",
@@ -62,7 +64,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
 
     from vecu.assembly import build_functions, schedule_ecu
     from vecu.config import RunConfig
@@ -80,11 +81,12 @@ def main(args: argparse.Namespace) -> int:
         sets.insert(0, ("ecu.instance", args.instance))
     if args.tps_timeout_cycles is not None:
         sets.append(("ecu.throttle.tps_monitor.timeout_cycles", args.tps_timeout_cycles))
-    config = RunConfig(duration_s=args.duration or 1.0, seed=args.seed, kill_tps_at_s=None,
-                       **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
-                       ).with_params(sets, noise_scale=args.noise_scale, estimator=args.estimator,
+    config = with_fmu(RunConfig(
+        duration_s=args.duration or 1.0, seed=args.seed, kill_tps_at_s=None,
+        **function_switches(args),  # type: ignore[arg-type]  # the functions' bool switches
+    ), args).with_params(sets, noise_scale=args.noise_scale, estimator=args.estimator,
                                      manifold_filter=args.manifold_filter)
-    codec = function_codec(config.params.ecu.instance)  # vecu's DBCs and the plug-in functions' own
+    codec = function_codec(config.params.ecu.instance, config)  # + plug-ins' and an FMU's DBCs
     config.validate()
     fns = build_functions(config, codec)
     proc = LiveProcess(live_options(args, "ecu"), codec, "VECU",
@@ -156,7 +158,7 @@ def main(args: argparse.Namespace) -> int:
         proc.close()
     if not args.quiet and summary is not None:
         print(format_ecu_summary(summary))
-    return 0
+    return LiveProcess.end(summary)
 
 
 def _ecu_summary(proc, ecu, fns, accuracy, sync, changes) -> dict[str, Any]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from vecu import argtypes
-from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.cli import add_set_option, configure_logging, param_sets
 
 DEFAULT_LOG = "throttle-excite.blf"
 DEFAULT_DURATION_S = 30.0
@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "linearly interpolated at each 1 ms tick, held after the last row "
                         "(docs/reproduction.md)")
     t.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
-    t.add_argument("--log", default=DEFAULT_LOG, metavar="FILE",
+    t.add_argument("--log", type=argtypes.out_log, default=DEFAULT_LOG, metavar="FILE",
                    help=f"trace file, format by suffix (default {DEFAULT_LOG})")
     t.add_argument("--no-truth", dest="truth", action="store_false",
                    help="leave the simulated truth frames out (a bench has none)")
@@ -45,7 +45,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(log=args.log)
     from vecu.functions import OPTIONAL
     from vecu.runner import RunConfig, run
 

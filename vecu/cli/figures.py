@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from vecu import argtypes
 from vecu.figures import FAMILIES
 
 
@@ -12,7 +13,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Run vecu and redraw each seed figure (titled with the "
                                    "paper's figure number) into --out; docs/reproduction.md "
                                    "sets them beside the papers'.")
-    p.add_argument("--out", default="figures", metavar="DIR", help="directory (default figures)")
+    p.add_argument("--out", type=argtypes.out_dir, default="figures", metavar="DIR", help="directory (default figures)")
     p.add_argument("--only", choices=FAMILIES, action="append", default=None,
                    help="one family (repeatable; default all)")
     p.add_argument("--quick", action="store_true", help="reduced lengths (CI): same figures")
@@ -22,12 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from vecu.errors import BadArgumentError
     from vecu.figures import make_figures
 
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise BadArgumentError(f"--out {args.out}: not a directory")
+    out = Path(args.out)  # checked before any work (vecu.cli.outputs)
     out.mkdir(parents=True, exist_ok=True)
     for path, note in make_figures(out, args.only or list(FAMILIES), quick=args.quick):
         print(f"{path}  {note}")

@@ -1,5 +1,6 @@
 """`vecu gateway`: a DoIP entity (ISO 13400-2) on TCP/UDP in front of the ECUs of a python-can
-bus, live on the wall clock like `vecu ecu` (docs/gateway.md)."""
+bus, and the routing between the CAN buses its config names ([buses.NAME], [[routes]],
+[[deny]]), live on the wall clock like `vecu ecu` (docs/gateway.md)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import argparse
 from typing import Any
 
 from vecu import argtypes
-from vecu.cli import check_outputs, configure_logging
+from vecu.cli import configure_logging
 from vecu.live.args import (
     add_bus_arguments,
     add_duration_argument,
@@ -32,6 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--print-config", action="store_true",
                    help="print the default config file and exit")
     add_bus_arguments(p)
+    p.add_argument("--bus", action="append", default=[], type=argtypes.bus_override,
+                   metavar="NAME=INTERFACE:CHANNEL",
+                   help="open the config's bus NAME on this python-can interface and channel "
+                        "instead of its [buses.NAME] arguments (repeatable)")
     p.add_argument("--doip-bind", default="127.0.0.1", metavar="ADDR",
                    help="IPv4 address of the DoIP sockets (default 127.0.0.1; 0.0.0.0: every "
                         "interface, needed for broadcast discovery)")
@@ -51,13 +56,22 @@ def main(args: argparse.Namespace) -> int:
     if args.print_config:
         print(DEFAULT_TOML, end="" if DEFAULT_TOML.endswith("\n") else "\n")
         return 0
-    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)
     config = load_gateway_config(args.config) if args.config else default_config()
+    from vecu.errors import BadArgumentError
+    from vecu.gateway.routes_config import load_routing_config
+
+    routing = load_routing_config(args.config) if args.config else None
+    if routing is not None and not routing.buses:
+        routing = None
+    if args.bus and routing is None:
+        raise BadArgumentError("--bus names a bus of the config's [buses.NAME]: give --config "
+                               "with buses to route between")
 
     from vecu.bus import BusNode
     from vecu.codec import DbcCodec
     from vecu.errors import UnavailableError
     from vecu.gateway.entity import DoipEntity
+    from vecu.gateway.live_routing import LiveRouting
     from vecu.gateway.router import DiagRouter
     from vecu.gateway.settings import settings_of
     from vecu.live.process import LiveProcess
@@ -68,7 +82,10 @@ def main(args: argparse.Namespace) -> int:
                        own_ids=request_ids(config))
     entity: DoipEntity | None = None
     summary: dict[str, Any] | None = None
+    buses: LiveRouting | None = None
     try:
+        if routing is not None:  # every bus opened before the run, each error one line
+            buses = LiveRouting(routing, tuple(args.bus))
         proc.consume_only({(r.response_id, r.extended_ids) for r in config.ecus})
         node = BusNode(proc.bus, "gateway")  # type: ignore[arg-type]  # LiveBus: python-can's send
         router = DiagRouter(node, config, proc.clock.now_ns)
@@ -86,6 +103,8 @@ def main(args: argparse.Namespace) -> int:
         def step(t_ns: int) -> None:
             entity.step(t_ns)  # DoIP in (requests submitted) and out
             router.step(t_ns)  # CAN in, requests out, replies to the testers (sent at once)
+            if buses is not None:
+                buses.step(t_ns)  # frames between the buses
 
         meter.stats = proc.sched.every(STEP_NS, meter.wrap(step), name="gateway", priority=10)
         proc.status_lines = lambda: [_status_line(entity)]
@@ -93,15 +112,18 @@ def main(args: argparse.Namespace) -> int:
         try:
             proc.run()
         finally:
-            summary = proc.summary({"doip": entity.summary(), "routes": _routes(router)})
+            summary = proc.summary({"doip": entity.summary(), "routes": _routes(router),
+                                    **({"routing": buses.summary()} if buses else {})})
             proc.write_summary(summary)
     finally:
         if entity is not None:
             entity.close()
+        if buses is not None:
+            buses.close()
         proc.close()
     if not args.quiet and summary is not None:
         print(format_gateway_summary(summary))
-    return 0
+    return LiveProcess.end(summary)
 
 
 def request_ids(config: Any) -> set[tuple[int, bool]]:
@@ -135,4 +157,13 @@ def format_gateway_summary(s: dict[str, Any]) -> str:
          f"responses, diagnostic NACKs {d['diag_nacks']}"),
         (f"  bad input {d['bad_input_total']} (generic NACKs {d['generic_nacks']}), "
          f"handler errors {sum(d['handler_errors'].values())}"),
-    ])
+    ] + (routing_lines(s["routing"]) if "routing" in s else []))
+
+
+def routing_lines(r: dict[str, Any]) -> list[str]:
+    """The buses joined and each route's figures (vecu.cli.run's lines)."""
+    from vecu.cli.run import gateway_lines
+
+    buses = ", ".join(f"{k} ({v})" for k, v in r["buses"].items())
+    return [f"  buses: {buses}; send errors {r['send_errors']}",
+            *(f"  {ln}" for ln in gateway_lines(r))]

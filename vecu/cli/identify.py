@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-from vecu.argtypes import positive_int
-from vecu.cli import add_set_option, check_outputs, param_sets
+from vecu.argtypes import out_plot, output, positive_int
+from vecu.cli import add_set_option, param_sets
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,8 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--map", dest="signal_map", metavar="MAP.toml",
                    help="signal map: [throttle] motor_voltage, motor_power, tps_voltage")
     t.add_argument("--format", dest="fmt", metavar="FMT", help="reader when the suffix does not tell")
-    t.add_argument("--out", metavar="PARAMS.toml", help="write the identified ECU calibration")
-    t.add_argument("--plot", metavar="F.png", help="Fig. 2: residual histograms, fitted Gaussians")
+    t.add_argument("--out", type=output("file", ".toml"), metavar="PARAMS.toml", help="write the identified ECU calibration")
+    t.add_argument("--plot", type=out_plot, metavar="F.png", help="Fig. 2: residual histograms, fitted Gaussians")
     t.add_argument("--json", action="store_true", help="print the result as JSON")
     t.add_argument("--free", default="", metavar="NAMES",
                    help="also fit these of the terms kept by default (c1,c2,c3; e.g. --free c1,c3)")
@@ -39,27 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.set_defaults(func=main)
 
 
-def _check_toml_out(path: str) -> None:
-    """--out must be a .toml file in a writable directory (checked before the fit)."""
-    import os
-
-    from vecu.errors import BadArgumentError
-
-    p = Path(path)
-    if p.suffix != ".toml":
-        raise BadArgumentError(f"--out {path}: the calibration is written as TOML (.toml)")
-    if p.is_dir():
-        raise BadArgumentError(f"--out {path}: is a directory")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir() or not os.access(parent, os.W_OK):
-        raise BadArgumentError(f"--out {path}: directory {parent} does not exist or is not "
-                               "writable")
-
-
 def main(args: argparse.Namespace) -> int:
-    check_outputs(plot=args.plot)
-    if args.out is not None:
-        _check_toml_out(args.out)
     from vecu.config import ParamTree
     from vecu.ident.report import fit_json, format_fit, params_toml, plot_residuals
     from vecu.ident.throttle import DEFAULT_FIXED, identify_throttle

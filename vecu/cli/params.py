@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from vecu.cli import add_set_option, param_sets
+from vecu.cli import add_fmu_options, add_set_option, fmu_binding, param_sets
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--changed", action="store_true",
                    help="only the parameters that differ from the defaults")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    add_fmu_options(p)
     p.set_defaults(func=main)
 
 
@@ -34,10 +35,14 @@ def _show(value: object) -> object:
 
 def main(args: argparse.Namespace) -> int:
     from vecu import params
-    from vecu.config import ParamTree
+    from vecu.config import RunConfig
 
-    default = ParamTree()
-    tree = default.set(param_sets(args))
+    config = RunConfig()
+    binding = fmu_binding(args)  # its parameters under ecu.fmu.<instance>.*
+    if binding is not None:
+        config = config.with_fmu(binding)
+    default = config.default_params()
+    tree = config.params.set(param_sets(args))
     rows = list(params.differences(tree, default) if args.changed else params.leaves(tree))
     rows = [r for r in rows if r.path.startswith(args.prefix)]
     if args.prefix and not rows and not args.changed:

@@ -9,7 +9,6 @@ from vecu import argtypes
 from vecu.cli import (
     UserInputError,
     add_set_option,
-    check_outputs,
     configure_logging,
     param_sets,
 )
@@ -48,7 +47,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(log=args.log, summary=args.summary, ready_file=args.ready_file)  # first
 
     from vecu.assembly import build_plant, schedule_plant
     from vecu.config import RunConfig
@@ -125,7 +123,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"  host delayed this plant: {h['skipped_sends']} ticks' frames never sent, "
                   f"{h['late_sends']} sent late (max lateness {h['max_lateness_ms']} ms); the "
                   "ECU's timeouts in that time are the host's doing, not a sensor's")
-    return 0
+    return LiveProcess.end(summary)
 
 
 class HostReport:

@@ -8,7 +8,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vecu import argtypes
-from vecu.cli import add_set_option, check_outputs, configure_logging, param_sets
+from vecu.cli import (
+    add_fmu_options,
+    add_set_option,
+    configure_logging,
+    fmu_binding,
+    param_sets,
+)
 
 if TYPE_CHECKING:
     from vecu.replay.summary import ReplaySummary, ScoreSection
@@ -29,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the trace's DBC (repeatable; default: vecu's own DBCs)")
     p.add_argument("--map", dest="signal_map", metavar="MAP.toml",
                    help="signal map: which message.signal of --dbc feeds each ECU input")
-    p.add_argument("--out", metavar="FILE", help="write the ECU's frames; format by suffix")
+    p.add_argument("--out", type=argtypes.out_log, metavar="FILE", help="write the ECU's frames; format by suffix")
     p.add_argument("--with-inputs", action="store_true", help="also copy the trace's frames to --out")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--fast", action="store_true", help="simulated clock (default)")
@@ -39,10 +45,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--channel", help="python-can channel for --speed")
     p.add_argument("--format", dest="fmt", metavar="FMT",
                    help="reader when the suffix does not tell (asc, blf, log, trc, csv, mf4)")
+    p.add_argument("--gateway", metavar="GATEWAY.toml",
+                   help="route the trace (its first bus) and the ECU's frames between the buses "
+                        "this gateway config names; --out holds every bus (docs/gateway.md)")
     p.add_argument("--estimator", default=None, help="throttle estimator (default production)")
     add_set_option(p, "ecu.* calibration only", params_file=True)
-    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
-    p.add_argument("--plot", metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
+    add_fmu_options(p)
+    p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary")
+    p.add_argument("--plot", type=argtypes.out_plot, metavar="FILE.png", help="plot the ECU's estimates (and truth if present)")
     prog = p.add_mutually_exclusive_group()
     prog.add_argument("--progress", action="store_true", default=None, help="always show progress")
     prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show progress")
@@ -83,7 +93,6 @@ def main(args: argparse.Namespace) -> int:
 
         return main_fleet(args, expand(args.traces))
     args.trace = args.traces[0]
-    check_outputs(out=args.out, summary=args.summary, plot=args.plot)  # before any work
 
     from vecu.replay.engine import ReplayConfig, replay
     from vecu.replay.source import TraceReadError
@@ -93,8 +102,10 @@ def main(args: argparse.Namespace) -> int:
         with_inputs=args.with_inputs, speed=args.speed, interface=args.interface,
         channel=args.channel, fmt=args.fmt, estimator=args.estimator, progress=args.progress,
         sets=tuple(param_sets(args, only="ecu.")),
-        keep_series=bool(args.plot))
+        keep_series=bool(args.plot), gateway=args.gateway, fmu=fmu_binding(args))
     result = replay(config)
+    if result.error and result.report.frames.read == 0:  # not a trace: no summary of nothing
+        raise TraceReadError(None, result.error)
     if args.summary:
         Path(args.summary).write_text(json.dumps(result.summary, indent=2) + "\n")
     if args.plot and result.series is not None:
@@ -136,6 +147,9 @@ def format_summary(s: ReplaySummary) -> str:
         e = s.schedule_error
         lines.append(f"schedule error: p50 {e['p50_us']} us, p99 {e['p99_us']} us, max "
                      f"{e['max_us']} us over {e['count']} frames")
+    if s.gateway is not None:
+        from vecu.cli.run import gateway_lines
+        lines += gateway_lines(s.gateway)
     if s.frames_written:
         lines.append(f"wrote {s.frames_written} frames to {s.config['out']}")
     return "\n".join(lines)

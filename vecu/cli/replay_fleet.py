@@ -7,7 +7,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from vecu.cli import check_outputs, param_sets
+from vecu.cli import check_outputs, fmu_binding, param_sets
 from vecu.errors import BadArgumentError
 
 SINGLE_ONLY = {"out": "--out (a fleet writes DIR/traces/NAME.FMT: --out-format FMT)",
@@ -39,7 +39,8 @@ def main_fleet(args: argparse.Namespace, traces: list[str]) -> int:
     check_outputs(junit=args.junit)
     base = ReplayConfig(trace="", dbc=tuple(args.dbc), signal_map=args.signal_map,
                         with_inputs=args.with_inputs, fmt=args.fmt, estimator=args.estimator,
-                        sets=tuple(param_sets(args, only="ecu.")), progress=False)
+                        sets=tuple(param_sets(args, only="ecu.")), progress=False,
+                        gateway=args.gateway, fmu=fmu_binding(args))
     base.validate()
     fleet = FleetConfig(
         base, fmt, None if args.diff is None else load_diff_spec(args.diff or None),

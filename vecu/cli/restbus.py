@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from vecu import argtypes
-from vecu.cli import check_outputs, configure_logging
+from vecu.cli import configure_logging
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,8 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bitrate", type=argtypes.positive_int, help="bitrate where needed")
     p.add_argument("--realtime", action="store_true",
                    help="pace on the wall clock (absolute deadlines) on a live bus")
-    p.add_argument("--log", metavar="FILE", help="write every frame; format by suffix")
-    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary")
+    p.add_argument("--log", type=argtypes.out_log, metavar="FILE", help="write every frame; format by suffix")
+    p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=main)
 
@@ -70,7 +70,6 @@ def parse_disturb(text: str):
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
-    check_outputs(log=args.log, summary=args.summary)
     from vecu.live.options import LiveOptions, bus_config
     from vecu.restbus.session import RestbusRun, run_restbus
     from vecu.restbus.spec import RestbusConfig
@@ -96,6 +95,10 @@ def main(args: argparse.Namespace) -> int:
               f"{len(s['disturbances'])} disturbance events; send errors {s['send_errors']}"
               + (f"; not sent: {len(s['skipped'])} ({_reasons(s['skipped'])})"
                  if s["skipped"] else ""))
+    if s["interrupted"]:  # Ctrl-C: the summary above is written; exit 130 (vecu.cli)
+        from vecu.errors import Interrupted
+
+        raise Interrupted(f"{s['duration_s']:.3g} s")
     return 0
 
 

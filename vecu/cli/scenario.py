@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from vecu import argtypes
-from vecu.cli import check_outputs, configure_logging
+from vecu.cli import configure_logging
 from vecu.cli.shipped import register_list_show
 from vecu.errors import BadArgumentError, BadFileError
 
@@ -22,8 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("files", nargs="+", metavar="FILE|NAME",
                    help="scenario .toml files or names of shipped ones (`vecu scenario list`); "
                         "an existing file wins over a name")
-    r.add_argument("--junit", metavar="OUT.xml", help="write JUnit XML")
-    r.add_argument("--report", metavar="DIR", help="write DIR/index.html with PNG plots")
+    r.add_argument("--junit", type=argtypes.out_file, metavar="OUT.xml", help="write JUnit XML")
+    r.add_argument("--report", type=argtypes.out_dir, metavar="DIR", help="write DIR/index.html with PNG plots")
     r.add_argument("--jobs", type=argtypes.bounded(1, 256, integer=True), default=1, metavar="N",
                    help="run N scenarios in parallel processes (default 1)")
     r.add_argument("--quiet", action="store_true",
@@ -40,7 +40,6 @@ def main(args: argparse.Namespace) -> int:
     from vecu.shipped import resolve
 
     configure_logging(quiet=True)  # errors only: the scenario lines are the output
-    check_outputs(junit=args.junit, report=args.report)
     scenarios = [load_scenario(resolve("scenario", f)) for f in args.files]
     names = [s.name for s in scenarios]
     dup = sorted({n for n in names if names.count(n) > 1})

@@ -27,8 +27,14 @@ def builtin_dbc_path(name: str = DEFAULT_DBC) -> Path:
 _ADD_BY_SUFFIX = {".arxml": "add_arxml_file", ".kcd": "add_kcd_file", ".sym": "add_sym_file"}
 
 
+DATABASE_KINDS = "DBC, ARXML, KCD or SYM"
+_CONTROL = bytes(range(32)).translate(None, b"\t\n\r\f")  # never in a text database
+
+
 def load_database(paths: Iterable[str | Path], strict: bool = True) -> cantools.database.Database:
-    """DBC files, or ARXML / KCD / SYM by their suffix, into one cantools database."""
+    """DBC files, or ARXML / KCD / SYM by their suffix, into one cantools database. A file that
+    is not one is a DbcLoadError in the user's words (a CAN trace, a binary file, cantools'
+    first line of a parse error); never the file's raw bytes."""
     db = cantools.database.Database(strict=strict)
     for path in paths:
         try:
@@ -36,8 +42,31 @@ def load_database(paths: Iterable[str | Path], strict: bool = True) -> cantools.
         except FileNotFoundError as exc:
             raise DbcLoadError(path, "no such file") from exc
         except Exception as exc:  # cantools raises many kinds; report them as one line
-            raise DbcLoadError(path, f"{type(exc).__name__}: {exc}".splitlines()[0]) from exc
+            raise DbcLoadError(path, _not_a_database(path, exc)) from exc
     return db
+
+
+def _not_a_database(path: str | Path, exc: Exception) -> str:
+    """Why path is no database, in one line: a trace by its suffix, binary content, or cantools'
+    message (its first line, the file's text quoted only when printable)."""
+    name = str(path).lower().removesuffix(".gz")
+    suffix = Path(name).suffix
+    if suffix in getattr(can.io.player, "MESSAGE_READERS", {}):
+        return (f"a CAN trace ({suffix}), not a database: expected {DATABASE_KINDS} files "
+                f"(`vecu replay` plays traces)")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError as os_exc:
+        return f"cannot read: {os_exc.strerror}"
+    if any(b in _CONTROL for b in head):
+        return f"a binary file, not a database: expected {DATABASE_KINDS} text files"
+    lines = str(exc).strip().splitlines()
+    first = lines[0] if lines else type(exc).__name__
+    if not first.isprintable() or len(first) > 200:
+        first = first.split(":", 1)[0]  # cantools' "Invalid syntax at line L, column C"
+    kind = _ADD_BY_SUFFIX.get(Path(path).suffix.lower(), "add_dbc_file")[4:-5].upper()
+    return f"not a valid {kind} file: {first}"
 
 
 _SHARED: dict[tuple, DbcCodec] = {}

@@ -24,6 +24,13 @@ class SignalInfo:
     is_signed: bool
     is_float: bool
 
+    @property
+    def integral(self) -> bool:
+        """Its physical values are whole numbers (an integer raw value, integer scale and
+        offset): what an integer or Boolean variable can take."""
+        return (not self.is_float and float(self.scale).is_integer()
+                and float(self.offset).is_integer())
+
 
 @dataclass(frozen=True)
 class ArxmlE2E:

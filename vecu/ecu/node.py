@@ -153,7 +153,8 @@ class EcuNode(BusNode):
                  rx_codec: DbcCodec | None = None, arm_on_input: bool = False,
                  tick_ns: int = NS_PER_MS, host_gap_ms: float = 0.0,
                  tap: Callable[[can.Message], None] | None = None,
-                 rx_budget: RxBudget = RxBudget(), log_rx_problems: bool = True) -> None:
+                 rx_budget: RxBudget = RxBudget(), log_rx_problems: bool = True,
+                 tallied_rx: frozenset[str] = frozenset()) -> None:
         """codec encodes the ECU's own frames. By default the functions consume their messages
         of that codec; `routes` (trace replay with a signal map) replaces that table, and
         `rx_codec` is the database that tells an ignored (known) ID from an unknown one.
@@ -171,9 +172,11 @@ class EcuNode(BusNode):
         rx_budget: frames taken in per tick, then shed (`ecu.rx.*`; frames handed to receive()
         directly, as a trace replay does, are never shed).
         log_rx_problems=False (a replay's kernel warm-up): frames it cannot take are counted,
-        never logged."""
+        never logged; tallied_rx: kinds of receive problem counted, not logged one by one (the
+        caller reports them in one line: a replay's tally of IDs not in the database)."""
         super().__init__(bus, "ecu", tap, rx_budget)
         self._log_rx_problems = log_rx_problems
+        self._tallied_rx = tallied_rx
         self.codec = codec
         self.rx_codec = rx_codec if rx_codec is not None else codec
         self.functions = functions
@@ -183,7 +186,11 @@ class EcuNode(BusNode):
         # per consumed key what receive() uses of its route, looked up once (_Plan)
         self._plans: dict[tuple[int, bool], _Plan] = {
             key: _plan(route) for key, route in self._consumers.items()}
-        self._armed: list[EcuFunction] = [] if arm_on_input else list(functions)
+        # arm_on_input: a function runs from its first input frame; one that reads no frame
+        # (an FMU without inputs) runs on the clock from the start
+        fed = {id(f) for r in self._consumers.values() for f in r.feeds}
+        self._armed: list[EcuFunction] = [f for f in functions
+                                          if not arm_on_input or id(f) not in fed]
         # routes whose first accepted frame has not come yet (arm_on_input only)
         self._unarmed: set[int] = {id(r) for r in self._consumers.values()} if arm_on_input else set()
         self._status = codec["ECU_Status"]
@@ -284,7 +291,7 @@ class EcuNode(BusNode):
     def _problem(self, kind: str, msg: can.Message, detail: str = "") -> None:
         n = self._logged.get(kind, 0) + 1
         self._logged[kind] = n
-        if n <= MAX_LOGGED_PER_KIND and self._log_rx_problems:
+        if n <= MAX_LOGGED_PER_KIND and self._log_rx_problems and kind not in self._tallied_rx:
             log.warning("ecu rx %s: id=0x%X dlc=%d data=%s %s%s", kind, msg.arbitration_id,
                         msg.dlc, bytes(msg.data).hex(), detail,
                         " (further ones counted, not logged)" if n == MAX_LOGGED_PER_KIND else "")

@@ -121,6 +121,12 @@ class EcuFunctionSpec:
     plot: Callable[[Any, Any], None] | None = None  # (its series, a matplotlib axes): a panel
     estimators: tuple[str, ...] = ()
     dbc: tuple[str, ...] = ()
+    # a plug-in's calibration: the factory of its frozen config dataclass, the subtree
+    # ecu.<name>.* of the parameter tree (`vecu params`, --set, XCP, A2L); build() reads it as
+    # getattr(config.params.ecu, name)
+    params: Callable[[], Any] | None = None
+    # DBC files a run's configuration adds (an FMU's databases), beside `dbc`
+    run_dbc: Callable[[RunConfig], tuple[str, ...]] | None = None
     label: str = ""  # its broadcast value with unit, a replay plot's axis (default: its name)
     # its hot paths, rows of `vecu bench --only breakdown`: (module, class or None, attribute,
     # row label)

@@ -10,18 +10,19 @@ from vecu.gateway.routes import DenyRule
 
 class Firewall:
     def __init__(self, rules: tuple[DenyRule, ...]) -> None:
-        self._by_bus: dict[str, list[DenyRule]] = {}
+        self._denied: dict[tuple[str, int], str] = {}  # (bus, CAN ID) -> the first rule's key
         for rule in rules:
-            self._by_bus.setdefault(rule.source, []).append(rule)
+            for can_id in rule.ids:
+                self._denied.setdefault((rule.source, can_id), rule.key)
         self.dropped: Counter[str] = Counter()  # rule key -> frames dropped
 
     def blocks(self, bus: str, can_id: int) -> bool:
         """True (and counted) when a rule of `bus` denies `can_id`."""
-        for rule in self._by_bus.get(bus, ()):
-            if can_id in rule.ids:
-                self.dropped[rule.key] += 1
-                return True
-        return False
+        key = self._denied.get((bus, can_id))
+        if key is None:
+            return False
+        self.dropped[key] += 1
+        return True
 
     def summary(self) -> dict[str, int]:
         return dict(self.dropped)

@@ -31,6 +31,19 @@ class FrameRoute:
     new_id: int | None = None
     min_interval_ns: int = 0
     delay_ns: int = 0
+    e2e_check: bool = False   # check-and-forward: frames failing their E2E check dropped
+
+    @property
+    def mask_extended(self) -> bool:
+        """An id/mask route matches 29-bit frames when its id or mask is above 0x7FF."""
+        return self.id_mask is not None and max(self.id_mask) > 0x7FF
+
+    def matches(self, can_id: int, extended: bool) -> bool:
+        """A frame of this ID and 11/29-bit format is one the route copies."""
+        if (can_id, extended) in self.ids:
+            return True
+        return (self.id_mask is not None and extended == self.mask_extended
+                and can_id & self.id_mask[1] == self.id_mask[0])
 
 
 @dataclass(frozen=True)

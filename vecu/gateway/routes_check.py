@@ -5,7 +5,7 @@ limit would otherwise cut it) and no target signal written by two routes."""
 from __future__ import annotations
 
 from vecu.gateway.config import _Check, _hex
-from vecu.gateway.routes import FrameRoute, RoutingConfig, SignalRoute
+from vecu.gateway.routes import RoutingConfig, SignalRoute
 
 Node = tuple[str, int]  # (bus, CAN ID)
 
@@ -48,18 +48,12 @@ def _edges(config: RoutingConfig, node: Node) -> list[tuple[str, Node]]:
         return []
     out: list[tuple[str, Node]] = []
     for r in config.frame_routes:
-        if r.source == bus and _matches(r, can_id):
+        if r.source == bus and r.matches(can_id, can_id > 0x7FF or r.mask_extended):
             out.append((r.key, (r.target, can_id if r.new_id is None else r.new_id)))
     for s in config.signal_routes:
         if s.source == bus and can_id in _source_ids(config, s):
             out.append((s.key, (s.target, config.bus(s.target).codec[s.message].frame_id)))
     return out
-
-
-def _matches(r: FrameRoute, can_id: int) -> bool:
-    if r.id_mask is not None and can_id & r.id_mask[1] == r.id_mask[0]:
-        return True
-    return any(i == can_id for i, _ in r.ids)
 
 
 def _source_ids(config: RoutingConfig, s: SignalRoute) -> set[int]:

@@ -19,6 +19,7 @@ from vecu.errors import BadFileError
 from vecu.gateway.config import GatewayConfigError, _Check, _hex
 from vecu.gateway.routes import BusSpec, DenyRule, FrameRoute, RoutingConfig, SignalMap, SignalRoute
 from vecu.gateway.routes_check import check_routes
+from vecu.gateway.signal_routes import source_protection
 from vecu.tomlfile import read_toml
 from vecu.units import DEG_PER_RAD, KELVIN_AT_0_DEGC, KMH_PER_MPS, MPS_PER_KMH, RAD_PER_DEG
 
@@ -32,10 +33,10 @@ UNIT_CONVERSIONS: dict[tuple[str, str], tuple[float, float]] = {
     ("degC", "K"): (1.0, KELVIN_AT_0_DEGC), ("K", "degC"): (1.0, -KELVIN_AT_0_DEGC),
 }
 BUS = {"interface": str, "channel": str, "bitrate": int, "fd": bool, "data_bitrate": int,
-       "dbc": list}
+       "port": int, "dbc": list}
 ROUTE = {"from": str, "to": str, "messages": list, "ids": list, "id": int, "mask": int,
          "min_interval_ms": float, "target": str, "send": str, "timeout_ms": float,
-         "signals": dict, "e2e": dict, "delay_ms": float}
+         "signals": dict, "e2e": dict, "delay_ms": float, "e2e_check": bool}
 E2E = {"profile": str, "data_id": int, "data_id_list": list, "data_id_mode": str, "offset": int,
        "length": int}
 DENY = {"from": str, "ids": list}
@@ -113,7 +114,7 @@ def _ms(chk: _Check, item: dict, name: str, key: str) -> int:
 
 
 def _frame_route(chk: _Check, item: dict, key: str, src: BusSpec, dst: BusSpec) -> FrameRoute:
-    for bad in ("send", "timeout_ms", "e2e"):
+    for bad in ("send", "timeout_ms", "e2e"):  # (e2e_check: frame routes only)
         if bad in item:
             raise chk.fail(f"{key}.{bad}", "belongs to a signal route (one with target/signals)")
     ids: set[tuple[int, bool]] = set()
@@ -137,12 +138,18 @@ def _frame_route(chk: _Check, item: dict, key: str, src: BusSpec, dst: BusSpec) 
         raise chk.fail(key, "a frame route needs messages, ids, or id with mask")
     if new_id is not None and len(ids) != 1:
         raise chk.fail(f"{key}.id", f"a new ID needs exactly one message, the route has {len(ids)}")
+    e2e_check = bool(item.get("e2e_check", False))
+    if e2e_check and not any(key_ in src.codec.by_id and source_protection(src.codec.by_id[key_])
+                             for key_ in ids):
+        raise chk.fail(f"{key}.e2e_check", "no message of the route names an E2E protection in "
+                                           f"the databases of bus {src.name!r}")
     return FrameRoute(key, src.name, dst.name, frozenset(ids), id_mask, new_id,
-                      _ms(chk, item, "min_interval_ms", key), _ms(chk, item, "delay_ms", key))
+                      _ms(chk, item, "min_interval_ms", key), _ms(chk, item, "delay_ms", key),
+                      e2e_check)
 
 
 def _signal_route(chk: _Check, item: dict, key: str, src: BusSpec, dst: BusSpec) -> SignalRoute:
-    for bad in ("messages", "ids", "mask", "id"):
+    for bad in ("messages", "ids", "mask", "id", "e2e_check"):
         if bad in item:
             raise chk.fail(f"{key}.{bad}", "belongs to a frame route (signal routes name target)")
     target = item.get("target")

@@ -34,7 +34,7 @@ from vecu.restbus.spec import arxml_protection
 
 
 class SignalRouter:
-    """One signal route: offer() every frame of its source bus, tick() each 1 ms."""
+    """One signal route: offer() each frame of its source messages, tick() each 1 ms."""
 
     def __init__(self, route: SignalRoute, source: DbcCodec, target: DbcCodec) -> None:
         self.route = route
@@ -62,9 +62,19 @@ class SignalRouter:
         self._protect = route.e2e.protector() if route.e2e is not None else None
         self._counter = 0
 
+    def source_ids(self) -> frozenset[tuple[int, bool]]:
+        """The (CAN ID, 29-bit) of its source messages."""
+        return frozenset((fc.frame_id, fc.is_extended) for fc, _ in self._sources.values())
+
+    def out_id(self) -> int:
+        """The CAN ID the route sends: its target message's."""
+        return self.target.frame_id
+
+    def out_keys(self) -> set[tuple[int, bool]]:
+        return {(self.target.frame_id, self.target.is_extended)}
+
     def offer(self, msg: can.Message, now_ns: int) -> None:
-        if msg.arbitration_id not in self._sources:
-            return
+        """A frame of one of its source messages (the engine looks it up), arrived at now_ns."""
         self.stats.frames_in += 1
         self._queue.append((now_ns, msg))
         self.stats.queued(len(self._queue))

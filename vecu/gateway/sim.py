@@ -10,13 +10,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 
 import can
 
 from vecu.assembly import PRIO_ECU, PRIO_RECORD, TICK_NS
 from vecu.bus import LaneBus, MergedEdges, SimLane
-from vecu.clock import SimClock
+from vecu.clock import NS_PER_S, SimClock
 from vecu.errors import ConfigError
+from vecu.faults import ScheduledFault
 from vecu.gateway.routes import RoutingConfig
 from vecu.gateway.routing import RoutingEngine
 from vecu.runner import (
@@ -35,25 +37,74 @@ CHANNEL_NAME_FORMATS = (".log", ".log.gz")  # candump: a channel is a name; else
 PRIO_GATEWAY = (PRIO_ECU + PRIO_RECORD) // 2  # after the ECU's tick, before the probes / log
 
 
+class TraceGateway(can.Listener):
+    """`vecu replay TRACE --gateway`: the trace's frames and the ECU's are the first bus's; the
+    replay's feeder hands every trace frame here (on_message_received, at the simulated clock's
+    now), the ECU's tap its frames (receive), and tick() each 1 ms after the ECU gives the routed
+    frames to `write` (each frame's channel its bus name). `copy_to` (--with-inputs): the trace's
+    frames under the first bus's name."""
+
+    def __init__(self, routing: RoutingConfig, clock: SimClock,
+                 write: Callable[[can.Message, int], None],
+                 copy_to: can.Listener | None) -> None:
+        self.engine = RoutingEngine(routing)
+        self.first = routing.buses[0].name
+        self.clock, self.write, self.copy_to = clock, write, copy_to
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.engine.receive(self.first, msg, self.clock.now_ns())
+        if self.copy_to is not None:
+            msg.channel = self.first
+            self.copy_to.on_message_received(msg)
+
+    def receive(self, msg: can.Message, now_ns: int) -> None:
+        self.engine.receive(self.first, msg, now_ns)
+
+    def tick(self, now_ns: int) -> None:
+        for _, msg in self.engine.tick(now_ns):
+            msg.is_rx = True  # as a recorder on that bus sees it (the run's --log)
+            self.write(msg, now_ns)
+
+
 class GatewayNode:
     """The routing engine with one endpoint on each bus's lane."""
 
-    def __init__(self, engine: RoutingEngine, endpoints: dict[str, can.BusABC]) -> None:
+    def __init__(self, engine: RoutingEngine, endpoints: dict[str, LaneBus]) -> None:
         self.engine = engine
         self.endpoints = endpoints
+        self._queues = [(name, bus.queue) for name, bus in endpoints.items()]  # no filters set
 
     def tick(self, now_ns: int) -> None:
         receive = self.engine.receive
-        for name, bus in self.endpoints.items():
-            while (msg := bus.recv(0.0)) is not None:
-                receive(name, msg, now_ns)
+        for name, q in self._queues:  # each lane endpoint's deque (LaneBus.recv without a call)
+            while q:
+                receive(name, q.popleft(), now_ns)
         for name, msg in self.engine.tick(now_ns):
             self.endpoints[name].send(msg)
 
 
+def schedule_route_faults(sched: Scheduler, engine: RoutingEngine,
+                          faults: tuple[ScheduledFault, ...]) -> None:
+    """Start (and end) each fault on its route, just before the gateway's tick then."""
+    for f in faults:
+        start = partial(_disturb, engine, f, True)
+        sched.at(round(f.start_s * NS_PER_S), start, name=f"route-fault-{f.kind}-{f.target}",
+                 priority=PRIO_GATEWAY - 1)
+        if f.end_s is not None:
+            end = partial(_disturb, engine, f, False)
+            sched.at(round(f.end_s * NS_PER_S), end, name=f"route-unfault-{f.kind}-{f.target}",
+                     priority=PRIO_GATEWAY - 1)
+
+
+def _disturb(engine: RoutingEngine, f: ScheduledFault, active: bool, t_ns: int) -> None:
+    engine.disturb(t_ns, f.target, f.kind, f.value, active)
+
+
 def run_with_gateway(config: RunConfig, routing: RoutingConfig,
-                     progress: Callable[[float, float], None] | None = None) -> RunResult:
-    """runner.run(config) with the gateway of `routing` beside plant and ECU."""
+                     progress: Callable[[float, float], None] | None = None,
+                     faults: tuple[ScheduledFault, ...] = ()) -> RunResult:
+    """runner.run(config) with the gateway of `routing` beside plant and ECU; `faults`: each
+    on the route its target names ("routes[i]", vecu.gateway.route_faults)."""
     if config.realtime:
         raise ConfigError("--gateway runs on the simulated clock (no --realtime)")
     if config.interface not in (None, "virtual"):
@@ -68,7 +119,7 @@ def run_with_gateway(config: RunConfig, routing: RoutingConfig,
     try:
         build(p)
         lanes = {first: p.lane, **{b.name: SimLane(b.name) for b in routing.buses[1:]}}
-        endpoints: dict[str, can.BusABC] = {name: lane.bus() for name, lane in lanes.items()}
+        endpoints = {name: lane.bus() for name, lane in lanes.items()}
         p.buses += endpoints.values()
         if p.recorder is not None:  # the first lane's log endpoint, then one per other lane
             first_edge = p.recorder.bus
@@ -82,6 +133,7 @@ def run_with_gateway(config: RunConfig, routing: RoutingConfig,
         node = GatewayNode(RoutingEngine(routing), endpoints)
         schedule(p)
         p.sched.every(TICK_NS, node.tick, name="gateway", priority=PRIO_GATEWAY)
+        schedule_route_faults(p.sched, node.engine, faults)
         kernel_load_s = ensure_kernels(config)
         wall = execute(p, progress)
         summary = replace(summarise(p, wall, kernel_load_s), gateway=node.engine.summary())

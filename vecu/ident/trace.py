@@ -91,7 +91,7 @@ def read_throttle_trace(path: str | Path, dbc: tuple[str, ...] = (), signal_map:
             if max_samples is not None and len(u) >= max_samples:
                 break
     if source.error and not u:
-        raise TraceFitError(path, source.error)
+        raise TraceFitError(None, source.error)  # it names the file
     data = ThrottleData(path, np.array(u), np.array(y), np.array(th))
     check_fit_support(data)
     return data

@@ -40,10 +40,10 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
 def add_process_arguments(p: argparse.ArgumentParser) -> None:
     """What every live process takes (`vecu plant`, `vecu ecu`, `vecu gateway`): its log,
     summary, ready file, pacing, status panel, receive filter and buffer, real-time, quiet."""
-    p.add_argument("--log", metavar="FILE", help="record every frame on the bus; format by suffix "
+    p.add_argument("--log", type=argtypes.out_log, metavar="FILE", help="record every frame on the bus; format by suffix "
                                                  "(.log .asc .blf ...), flushed on every exit")
-    p.add_argument("--summary", metavar="FILE.json", help="write the JSON summary on exit")
-    p.add_argument("--ready-file", metavar="FILE",
+    p.add_argument("--summary", type=argtypes.out_file, metavar="FILE.json", help="write the JSON summary on exit")
+    p.add_argument("--ready-file", type=argtypes.out_file, metavar="FILE",
                    help="write FILE when the bus is open and set-up is done (for scripts)")
     # default: vecu.live.options.DEFAULT_SPIN_US (not imported: the parser stays light)
     p.add_argument("--spin-us", type=argtypes.tick_us, default=50, metavar="US",

@@ -274,6 +274,17 @@ class LiveProcess:
             **extra,
         }
 
+    @staticmethod
+    def end(summary: dict[str, Any] | None) -> int:
+        """A node's exit code once its summary is written and printed: 0; after Ctrl-C (SIGINT)
+        an Interrupted (the command line's one line, exit 130). SIGTERM, the way scripts and
+        services stop a node, stays 0."""
+        if summary is not None and summary.get("stopped_by") == "SIGINT":
+            from vecu.errors import Interrupted
+
+            raise Interrupted(f"{summary['elapsed_s']:.1f} s")
+        return 0
+
     def write_summary(self, summary: dict[str, Any]) -> None:
         if self.opts.summary_path:
             Path(self.opts.summary_path).write_text(json.dumps(summary, indent=2) + "\n")

@@ -16,7 +16,7 @@ import math
 import sys
 import threading
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from typing import Any
 
@@ -30,7 +30,8 @@ from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
 from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
-from vecu.errors import BadArgumentError
+from vecu.errors import BadArgumentError, Interrupted
+from vecu.fmu.binding import FmuBinding
 from vecu.recorder import TraceWriteError
 from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
 from vecu.replay.scoring import TruthScorer
@@ -80,12 +81,16 @@ class ReplayConfig:
     progress_every_s: float = PROGRESS_EVERY_S  # wall time between progress lines
     idle_gap_s: float = IDLE_GAP_NS / NS_PER_S  # a longer silence is shortened to this
     keep_series: bool = False           # estimate/truth rows for a plot (ReplayResult.series)
+    gateway: str | None = None          # GATEWAY.toml: the trace on its first bus, routed
+    fmu: FmuBinding | None = None       # an FMU as an ECU function (docs/fmu.md)
 
     def validate(self) -> None:
         for path, _ in self.sets:
             if not path.startswith("ecu."):
                 raise BadArgumentError(f"--set {path}: a replay takes ecu.* parameters only (the "
                                        f"car is the one that recorded the trace)")
+        if self.gateway is not None and self.speed is not None:
+            raise BadArgumentError("--gateway replays on the simulated clock (no --speed)")
         if self.speed is not None and not (self.speed > 0 and self.speed < 1e4):
             raise BadArgumentError(f"--speed must be in (0, 10000), got {self.speed}")
         if not (math.isfinite(self.progress_every_s) and self.progress_every_s >= 0):
@@ -114,8 +119,16 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
     with every frame the ECU sends and its time (ns on the replay's time base) as it is sent
     (vecu.fleet's diff against the recording)."""
     config.validate()
+    routing = None
+    if config.gateway is not None:  # every problem of the file before any work
+        from vecu.gateway.routes_config import load_routing_config
+        from vecu.gateway.sim import PRIO_GATEWAY, TraceGateway
+        routing = load_routing_config(config.gateway)
+        if not routing.buses:
+            raise BadArgumentError(f"--gateway {config.gateway}: names no [buses.NAME] to route")
     ecu_codec, trace_db, smap, functions, routes = _ecu_parts(config)
     live = config.speed is not None
+    stopped_at_s: float | None = None  # where Ctrl-C stopped the replay (replay time)
     source = TraceSource(config.trace, config.fmt,
                          idle_gap_ns=round(config.idle_gap_s * NS_PER_S))
     writer = _open_writer(config.out, locked=live)
@@ -138,22 +151,35 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
             buses += [player_bus, ecu_bus]
         else:
             ecu_bus = SinkBus("replay")
+        out_channel = OUT_CHANNEL if routing is None else routing.buses[0].name
+
+        def to_out(msg: can.Message, t_ns: int) -> None:
+            if writer is not None:  # back on the trace's time base (skipped idle time too)
+                skipped = source.skipped_before(int(t_ns * config.speed) if live else t_ns)
+                msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
+                if msg.channel is None:
+                    msg.channel = out_channel
+                writer.on_message_received(msg)
+
+        copy_to: can.Listener | None = writer if config.with_inputs else None
+        gateway = None
+        if routing is not None:
+            assert isinstance(clock, SimClock)
+            copy_to = gateway = TraceGateway(routing, clock, to_out, copy_to)
+            sched.every(TICK_NS, gateway.tick, name="gateway", priority=PRIO_GATEWAY)
+
         def on_sent(msg: can.Message) -> None:
             t_ns = clock.now_ns() if not live else round(msg.timestamp * NS_PER_S)
             scorer.on_estimate(msg, t_ns)
             if estimates is not None:
                 estimates(msg, t_ns)
-            if writer is not None:  # back on the trace's time base (skipped idle time too)
-                skipped = source.skipped_before(int(t_ns * config.speed) if live else t_ns)
-                msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
-                if msg.channel is None:
-                    msg.channel = OUT_CHANNEL
-                writer.on_message_received(msg)
+            if gateway is not None:
+                gateway.receive(msg, t_ns)
+            to_out(msg, t_ns)
         ecu = EcuNode(ecu_bus, ecu_codec, functions, routes=routes, rx_codec=trace_db,
-                      arm_on_input=True, tap=on_sent)
+                      arm_on_input=True, tap=on_sent, tallied_rx=frozenset({UNKNOWN_ID}))
         tally = FrameTally()
-        feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes,
-                             writer if config.with_inputs else None,
+        feeder = feeder_type(source, ecu, trace_db, scorer, tally, routes, copy_to,
                              player=player_bus, speed=config.speed or 1.0,
                              clock=clock if isinstance(clock, WallClock) else None)
         ecu_task = schedule_ecu(sched, ecu)
@@ -162,19 +188,22 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
         show = config.progress if config.progress is not None else sys.stderr.isatty()
         progress = _Progress(source, clock, config.speed or 1.0,
                              config.progress_every_s if show else None)
-        if live:
-            _run_live(sched, clock, feeder, trace_end, progress)
-        else:
-            sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
-            gc.freeze()  # the set-up's objects out of the collector's way (live: _run_live)
-            try:
-                end_ns = 0
-                while not trace_end.reached:
-                    end_ns += STEP_NS
-                    sched.run_until(end_ns)
-                    progress.update()
-            finally:
-                gc.unfreeze()
+        try:
+            if live:
+                _run_live(sched, clock, feeder, trace_end, progress)
+            else:
+                sched.chain(0, feeder.release, name="trace", priority=PRIO_PLANT)
+                gc.freeze()  # the set-up's objects out of the collector's way (live: _run_live)
+                try:
+                    end_ns = 0
+                    while not trace_end.reached:
+                        end_ns += STEP_NS
+                        sched.run_until(end_ns)
+                        progress.update()
+                finally:
+                    gc.unfreeze()
+        except KeyboardInterrupt:  # Ctrl-C: the summary of what was replayed, then Interrupted
+            stopped_at_s = clock.now_ns() / NS_PER_S
         wall = progress.watch.elapsed()
         progress.close()
         ecu.overruns = ecu_task.overruns
@@ -188,18 +217,39 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
             bus.shutdown()
         if not live:
             ecu_bus.shutdown()
+    if ecu.rx.unknown_id:
+        log.warning("%s", unknown_id_tally(config.trace, ecu.rx.unknown_id, feeder.unknown_ids))
     summary = _summary(config, source, feeder, tally, ecu, smap, functions, scorer, wall,
                        writer.frames if writer is not None else 0, kernel_load_s)
+    if gateway is not None:
+        summary = replace(summary, gateway=gateway.engine.summary())
+    if stopped_at_s is not None:
+        raise Interrupted(f"{stopped_at_s:.3f} s of the trace ({source.stats.frames_read} frames "
+                          "read)", to_json(summary))
     return ReplayResult(summary, source.error, scorer.series)
 
 
 # ------------------------------------------------------------------ pieces
+UNKNOWN_ID = "unknown-id"  # the ECU's receive problem a replay tallies in one line
+TALLY_IDS_LISTED = 5
+
+
+def unknown_id_tally(trace: str, frames: int, keys: set[tuple[int, bool]]) -> str:
+    """One line for the frames whose IDs no database knows (a foreign trace), instead of a
+    warning per frame; the counts stay in the summary (frames.unknown_id)."""
+    ids = [f"0x{i:08X}" if ext else f"0x{i:03X}" for i, ext in sorted(keys)]
+    shown = ", ".join(ids[:TALLY_IDS_LISTED]) + (", ..." if len(ids) > TALLY_IDS_LISTED else "")
+    which = f"{len(ids)} ID{'s' if len(ids) != 1 else ''}: {shown}; " if ids else ""
+    return (f"{trace}: {frames} frame{'s' if frames != 1 else ''} with IDs not in the database "
+            f"({which}--dbc names the trace's own database)")
+
+
 def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
                                                list[EcuFunction], dict[tuple[int, bool], Route]]:
     """The ECU's codec, the trace's database, the signal map, fresh ECU functions and their
     routes from the trace's messages."""
     run_cfg = _run_config(config)
-    ecu_codec = registry.function_codec(run_cfg.params.ecu.instance)  # built once per process
+    ecu_codec = registry.function_codec(run_cfg.params.ecu.instance, run_cfg)  # once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
             else identity_map(trace_db))
@@ -210,13 +260,17 @@ def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
 
 
 def _run_config(config: ReplayConfig) -> RunConfig:
-    return RunConfig(kill_tps_at_s=None).with_params(
+    run_cfg = RunConfig(kill_tps_at_s=None)
+    if config.fmu is not None:
+        run_cfg = run_cfg.with_fmu(config.fmu)
+    return run_cfg.with_params(
         config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
 
 
 def ecu_codec_of(config: ReplayConfig) -> DbcCodec:
     """The codec of the frames the replay's ECU sends (its instance's IDs)."""
-    return registry.function_codec(_run_config(config).params.ecu.instance)
+    run_cfg = _run_config(config)
+    return registry.function_codec(run_cfg.params.ecu.instance, run_cfg)
 
 
 def warm_up_ecu(config: ReplayConfig) -> RxCounters:
@@ -368,7 +422,10 @@ def _run_live(sched: Scheduler, clock: WallClock, feeder: Feeder, trace_end: _Tr
             sched.run_until(end)
             progress.update()
         thread.join()
-    finally:
+    finally:  # (after Ctrl-C too: the player stops before the summary reads the feeder)
+        feeder.done = True
+        player.stop()
+        thread.join(timeout=1.0)
         sys.setswitchinterval(previous)
         gc.unfreeze()
     if failure:
@@ -424,6 +481,8 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
             fn_report[name] = FunctionReport(False, reason=smap.disabled[name])
         else:
             fn = next((f for f in functions if f.name == name), None)
+            if fn is None:  # not a function of this replay's ECU (an FMU without --fmu)
+                continue
             fn_report[name] = FunctionReport(
                 True, ran=name in armed, estimates_sent=getattr(fn, "estimates_sent", None),
                 reason=None if name in armed else "no input frames in the trace")
@@ -431,7 +490,8 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
         trace=config.trace,
         mode="live" if config.speed is not None else "fast",
         config={k: v for k, v in asdict(config).items()
-                if k not in ("progress", "progress_every_s", "keep_series")},
+                if k not in ("progress", "progress_every_s", "keep_series")
+                and not (k == "gateway" and v is None)},
         error=source.error,
         frames=ReplayFrames(
             read=st.frames_read,

@@ -74,6 +74,7 @@ class Feeder:
         self.clock = clock
         self.schedule_error = DurationHistogram(limit_us=SCHEDULE_ERROR_LIMIT_US)
         self._sorting: dict[tuple[int, bool], tuple[int, FrameCodec | None]] = {}  # _sort's
+        self.unknown_ids: set[tuple[int, bool]] = set()  # keys in no database (fast mode)
         self._chunks: Iterator[list[tuple[int, can.Message]]] | None = source.chunks(
             SMALL_CHUNK if self.live else CHUNK)
         # per frame handed on: its time (live: its due time), message, what to do, its block's
@@ -97,6 +98,7 @@ class Feeder:
             return (_TRUTH if key in truth else _TO_ECU), (fc if fc.block is not None else None)
         if key in self.db.by_id:
             return _COPY, self.db.by_id[key]
+        self.unknown_ids.add(key)
         return _TO_ECU, None  # unknown: the ECU counts it
 
     def _kind(self, msg: can.Message) -> tuple[int, FrameCodec | None]:

@@ -109,8 +109,44 @@ def reader_formats() -> list[str]:
     return sorted(s.lstrip(".") for s in getattr(player, "MESSAGE_READERS", {}))
 
 
+# python-can's readers by the user's name for their format ("FILE: not a BLF file"); another
+# reader a plug-in adds: "a .SUFFIX file"
+FORMAT_NAMES = {"asc": "a Vector ASC log", "blf": "a BLF file", "csv": "a python-can CSV log",
+                "db": "a python-can SQLite log", "log": "a candump -L log", "mf4": "an MF4 file",
+                "trc": "a PCAN TRC file"}
+
+
+def trace_format(path: str | Path, fmt: str | None = None) -> str:
+    """The format a trace is read as: fmt, else its suffix (before .gz) without the dot; a suffix
+    python-can has no reader for is a TraceReadError naming it and --format."""
+    if fmt is not None:
+        return fmt
+    name = str(path).removesuffix(".gz")
+    suffix = Path(name).suffix.lower()
+    formats = reader_formats()
+    if suffix.lstrip(".") in formats:
+        return suffix.lstrip(".")
+    known = f"python-can reads {', '.join(formats)}"
+    raise TraceReadError(path, f"unknown suffix {suffix}: use --format ({known})" if suffix
+                         else f"no suffix to tell the format: use --format ({known})")
+
+
+def not_a(fmt: str, size: int | None = None, nothing_read: bool = False) -> str:
+    """The user's words for a file that is not in format fmt, with what to try instead;
+    nothing_read: the reader raised nothing but found no frame either."""
+    name = FORMAT_NAMES.get(fmt, f"a .{fmt} file")
+    if size == 0:
+        return f"not {name} (the file is empty)"
+    hint = f"another format? try --format {', '.join(f for f in reader_formats() if f != fmt)}"
+    if fmt == "log":
+        hint = f"a plain candump? python-can reads `candump -L` output only; {hint}"
+    return f"no CAN frames in it (not {name}? {hint})" if nothing_read else f"not {name} ({hint})"
+
+
 def open_reader(path: str | Path, fmt: str | None = None) -> can.io.generic.MessageReader:
-    """python-can reader for path: by suffix (.asc .blf .log .trc .csv .mf4, + .gz), or fmt."""
+    """python-can reader for path: by suffix (.asc .blf .log .trc .csv .mf4, + .gz), or fmt. A file
+    the reader refuses is a TraceReadError in the user's words (not_a): python-can's exception
+    stays its __cause__ (shown with --debug), not the message."""
     path = str(path)
     if not os.path.exists(path):
         raise TraceReadError(path, "no such file")
@@ -119,6 +155,7 @@ def open_reader(path: str | Path, fmt: str | None = None) -> can.io.generic.Mess
         if fmt not in readers:
             raise BadArgumentError(f"unknown format {fmt!r} (python-can reads: "
                                    f"{', '.join(readers)})")
+    kind = trace_format(path, fmt)
     try:
         with quiet_reader_logs():
             if fmt is None:
@@ -129,13 +166,17 @@ def open_reader(path: str | Path, fmt: str | None = None) -> can.io.generic.Mess
                 return cls(gzip.open(path, mode="rt" if text else "rb"))
             return cls(file=path)
     except (ImportError, NotImplementedError) as exc:  # python-can: an optional package missing
-        need = ("the asammdf package: pip install 'vecu[mf4]'"
-                if (fmt or Path(path.removesuffix(".gz")).suffix.lower().lstrip(".")) == "mf4"
+        need = ("the asammdf package: pip install 'vecu[mf4]'" if kind == "mf4"
                 else f"an optional package: {exc}")
         raise TraceReadError(path, f"reading this format needs {need}") from exc
-    except Exception as exc:  # python-can raises many kinds; one line each
+    except OSError as exc:
+        if exc.strerror is None:  # gzip, struct and friends: the content, not the file system
+            _drop_half_built(exc)
+            raise TraceReadError(path, not_a(kind, _file_size(path))) from exc
+        raise TraceReadError(path, f"cannot read: {exc.strerror}") from exc
+    except Exception as exc:  # python-can raises many kinds: each a file it cannot read as kind
         _drop_half_built(exc)
-        raise TraceReadError(path, f"cannot open trace: {_one_line(exc)}") from exc
+        raise TraceReadError(path, not_a(kind, _file_size(path))) from exc
 
 
 def _one_line(exc: BaseException) -> str:
@@ -220,8 +261,7 @@ class TraceSource:
                 break
             except Exception as exc:  # noqa: BLE001 - a corrupt file must not crash the run
                 stats.frames_read, self._last_ts = seq, ts
-                self.error = (f"{self.path}: unreadable after frame {stats.frames_read}"
-                              f"{self._where()}: {_one_line(exc)}")
+                self.error = self._unreadable(exc)
                 break
             ts = msg.timestamp
             if t0 is None:
@@ -266,6 +306,9 @@ class TraceSource:
         stats.frames_read, self._last_ts = seq, ts
         if self.error is None:
             self.error = self._truncation()
+        if self.error is None and seq == 0 and self.size_bytes:  # a reader that skips lines
+            self.error = (f"{self.path}: "
+                          f"{not_a(trace_format(self.path, self.fmt), nothing_read=True)}")
         try:
             self._reader.stop()
         except Exception as exc:  # noqa: BLE001 - closing a reader that has failed may fail too
@@ -296,6 +339,17 @@ class TraceSource:
         self._gap_ends.append(t_ns - skipped)
         self._skipped_at.append(skipped)
         return skipped
+
+    def _unreadable(self, exc: BaseException) -> str:
+        """The read error in the user's words: not this format at all (nothing read), or
+        where the readable part ends; python-can's own words at debug level only."""
+        log.debug("%s: python-can's reader: %s", self.path, _one_line(exc))
+        kind = trace_format(self.path, self.fmt)
+        if self.stats.frames_read == 0:
+            return f"{self.path}: {not_a(kind, self.size_bytes)}"
+        name = FORMAT_NAMES.get(kind, f"a .{kind} file")
+        return (f"{self.path}: unreadable after frame {self.stats.frames_read}{self._where()}: "
+                f"the rest does not read as {name}")
 
     def _where(self) -> str:
         ts = self._last_ts

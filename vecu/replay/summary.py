@@ -101,3 +101,4 @@ class ReplaySummary:
     score: ReplayScore | None
     schedule_error: dict[str, Any] | None = field(default=None, metadata=OMIT_NONE)  # live only
     kernel_load_s: float = 0.0
+    gateway: dict[str, Any] | None = field(default=None, metadata=OMIT_NONE)  # --gateway: routes

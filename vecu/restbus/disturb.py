@@ -12,6 +12,8 @@ message (vecu.restbus.node):
     payload(buf, prot)     the protected payload (CRC wrong / fixed, DLC change)
     period(ns)             this message's cycle (cycle time x k)
     delay_ns               frames go out this much later (delay)
+
+A gateway route takes the frame-level kinds too (vecu.gateway.route_faults).
 """
 
 from __future__ import annotations
@@ -179,6 +181,20 @@ class DlcChange(Disturbance):
 
 
 @dataclass
+class Corrupt(Disturbance):
+    """Byte `value` of each frame has its bits inverted (past the frame's end: its last byte),
+    the payload's E2E protection left as it was: the receiver's check fails."""
+
+    kind: ClassVar[str] = "corrupt"
+
+    def payload(self, buf: bytearray, prot: E2EProtection | None) -> bytearray:
+        if buf:
+            i = min(round(self.value), len(buf) - 1)
+            buf[i] ^= 0xFF
+        return buf
+
+
+@dataclass
 class Override(Disturbance):
     """Signal `signal` carries `value` (saturated into its range by the encoder)."""
 
@@ -214,6 +230,7 @@ KINDS: dict[str, Kind] = {k.cls.kind: k for k in (
     Kind(CycleScale, 27, 2, (0.01, 1e4), "cycle time x k"),
     Kind(DlcChange, 28, 0, (0, 64), "frames sent with this many data bytes"),
     Kind(Override, 29, 0, (-1e300, 1e300), "the signal carries this value", "signal"),
+    Kind(Corrupt, 30, 0, (0, 63), "this data byte's bits inverted in every frame"),
 )}
 
 

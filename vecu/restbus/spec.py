@@ -210,7 +210,7 @@ def arxml_protection(fc: FrameCodec) -> E2EProtection | None:
     return prot
 
 
-def _protection(fc: FrameCodec, e2e: dict[str, E2EProtection], origin: str
+def protection_of(fc: FrameCodec, e2e: dict[str, E2EProtection], origin: str
                 ) -> tuple[E2EProtection | None, str]:
     """(the message's protection, where it comes from): E2E.toml, else the ARXML's properties,
     else vecu's <prefix>_CRC / _AliveCounter layout. ARXML properties vecu cannot apply are
@@ -256,7 +256,7 @@ def build_plans(cfg: RestbusConfig) -> tuple[list[MessagePlan], dict[str, str], 
                                                 str(cfg.values_path))
         send = send_type_of(fc)
         cycle = fc.cycle_time_ms or cfg.default_cycle_ms or ON_CHANGE_POLL_MS
-        prot, source = _protection(fc, e2e, _db_label(cfg))
+        prot, source = protection_of(fc, e2e, _db_label(cfg))
         period = round(cycle * NS_PER_MS)
         offset = round(len(plans) * cfg.stagger_ms * NS_PER_MS) % period
         plans.append(MessagePlan(fc, period, send, prot, sources, start, offset, source))

@@ -53,7 +53,12 @@ def run_scenario(scenario: Scenario, report_dir: str | None = None,
     cpu0 = process_s()
     progress = None if stream is None else Progress(scenario.name, stream, progress_interval_s)
     try:
-        result = run(scenario.config, progress=progress)
+        if scenario.gateway is not None:  # [gateway]: its routes beside plant and ECU
+            from vecu.gateway.sim import run_with_gateway
+            result = run_with_gateway(scenario.config, scenario.gateway, progress,
+                                      scenario.route_faults)
+        else:
+            result = run(scenario.config, progress=progress)
         cpu = process_s() - cpu0
         criteria = tuple(evaluate(scenario, result))
         plot = None

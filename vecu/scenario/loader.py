@@ -21,6 +21,10 @@ from vecu.ecu.sensor_monitor import DtcState, SensorMonitorConfig, SensorStatus
 from vecu.errors import BadFileError, UserError
 from vecu.estimators.registry import MANIFOLD_FILTERS, THROTTLE_ESTIMATORS
 from vecu.faults import FaultInjector, ScheduledFault, parse_kind, parse_site
+from vecu.fmu.binding import FmuBinding, load_binding
+from vecu.gateway import route_faults
+from vecu.gateway.routes import RoutingConfig
+from vecu.gateway.routes_config import load_routing_config, parse_routing_config
 from vecu.params import ParamError, flatten_toml
 from vecu.plant.longitudinal import MANOEUVRES
 from vecu.restbus.node import RestbusNode
@@ -44,7 +48,7 @@ NUMBER, INT, BOOL, STR = "a number", "an integer", "true or false", "a string"
 
 TOP_KEYS = {"name": STR, "description": STR, "duration_s": NUMBER, "seed": INT,
             "plant": dict, "ecu": dict, "set": dict, "faults": list, "criteria": dict,
-            "uds": list, "restbus": dict, "xcp": list}
+            "uds": list, "restbus": dict, "xcp": list, "gateway": (str, dict), "fmu": dict}
 PLANT_KEYS = {"noise_scale": NUMBER, **dict.fromkeys(functions.OPTIONAL, BOOL),
               "speed_manoeuvres": list}
 ECU_KEYS = {"estimator": STR, "manifold_filter": STR, **dict.fromkeys(SENSORS, dict)}
@@ -97,6 +101,8 @@ class Scenario:
     description: str
     config: RunConfig
     criteria: Criteria
+    gateway: RoutingConfig | None = None       # [gateway]: routing between buses beside the run
+    route_faults: tuple[ScheduledFault, ...] = ()  # [[faults]] on its routes ("routes[i]")
 
 
 class _Checker:
@@ -116,6 +122,10 @@ class _Checker:
         return data
 
     def typed(self, value: Any, want: Any, key: str) -> None:
+        if want == (str, dict):  # a file's path or the file's tables inline
+            if not isinstance(value, (str, dict)):
+                raise self.fail(key, f"expected a path or a table, got {_tname(value)}")
+            return
         ok = {NUMBER: isinstance(value, (int, float)) and not isinstance(value, bool),
               INT: isinstance(value, int) and not isinstance(value, bool),
               BOOL: isinstance(value, bool), STR: isinstance(value, str),
@@ -175,8 +185,14 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         monitors[sensor] = over
     restbus = _restbus(chk, data.get("restbus"), seed)
     restbus_node = restbus_checker(restbus, chk) if restbus is not None else None
-    faults, disturbances = _faults(chk, data.get("faults", []), duration, parts, codec,
-                                   restbus_node)
+    gateway = _gateway(chk, data.get("gateway"))
+    route_keys: set[str] = set()
+    if gateway is not None:
+        route_keys = {r.key for r in gateway.frame_routes} | {r.key for r in gateway.signal_routes}
+    faults, disturbances, on_routes = _faults(
+        chk, data.get("faults", []), duration, parts,
+        codec if codec is not None else functions.function_codec(),  # with the plug-ins' messages
+        restbus_node, route_keys)
     criteria = _criteria(chk, data.get("criteria", {}), duration, parts)
     uds_steps = _uds_steps(chk, data.get("uds", []), duration)
     xcp_steps = _xcp_steps(chk, data.get("xcp", []), duration)
@@ -191,7 +207,8 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         sets += [(key, leaf, v) for leaf, v in shortcut_sets(**{name: value})]
     # [set]: any leaf of `vecu params`, last wins
     sets += [("set", leaf, value) for leaf, value in flatten_toml(data.get("set", {}))]
-    params = ParamTree()
+    fmu = _fmu(chk, data.get("fmu"), path)
+    params = ParamTree() if fmu is None else RunConfig().with_fmu(fmu).params
     try:
         for key, leaf, value in sets:  # noqa: B007 - `key` names the culprit in the except below
             params = apply_params(params, [(leaf, value)])
@@ -203,9 +220,35 @@ def load_scenario(path: str | Path, codec: DbcCodec | None = None) -> Scenario:
         duration_s=duration, seed=seed, kill_tps_at_s=None, keep_series=duration <= MAX_SERIES_S,
         speed_manoeuvres=tuple(manoeuvres) if manoeuvres else None, faults=faults,
         params=params, uds_steps=uds_steps, xcp_steps=xcp_steps, restbus=restbus,
-        restbus_disturbances=disturbances, **parts)
+        restbus_disturbances=disturbances, fmu=fmu, **parts)
     return Scenario(path, data.get("name", Path(path).stem), data.get("description", ""),
-                    config, criteria)
+                    config, criteria, gateway, on_routes)
+
+
+def _gateway(chk: _Checker, data: Any) -> RoutingConfig | None:
+    """[gateway]: a gateway config inline, or `gateway = "GATEWAY.toml"` (relative to the
+    scenario file); the plant and ECU on its first bus (vecu.gateway.sim)."""
+    if data is None:
+        return None
+    if isinstance(data, str):
+        return load_routing_config(Path(chk.path).parent / data)
+    routing = parse_routing_config(data, chk.path)
+    if not routing.buses:
+        raise chk.fail("gateway.buses", "expected [gateway.buses.NAME] tables")
+    return routing
+
+
+def _fmu(chk: _Checker, data: Any, path: str) -> FmuBinding | None:
+    """[fmu]: file = the FMU (relative to the scenario), the map's [fmu] keys, and its
+    [fmu.inputs], [fmu.outputs], [fmu.parameters] tables (docs/fmu.md)."""
+    if data is None:
+        return None
+    if not isinstance(data.get("file"), str):
+        raise chk.fail("fmu.file", "expected the FMU's path (relative to the scenario)")
+    tables = ("inputs", "outputs", "parameters")
+    table = {"fmu": {k: v for k, v in data.items() if k not in (*tables, "file")},
+             **{t: data[t] for t in tables if t in data}}
+    return load_binding(str(Path(path).parent / data["file"]), path, table)
 
 
 def _restbus(chk: _Checker, data: Any, seed: int) -> RestbusConfig | None:
@@ -241,13 +284,16 @@ def restbus_checker(cfg: RestbusConfig, chk: _Checker) -> RestbusNode:
 
 
 def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
-            codec: DbcCodec | None, restbus: RestbusNode | None = None
-            ) -> tuple[tuple[ScheduledFault, ...], tuple[ScheduledFault, ...]]:
-    """[[faults]]: on vecu's own sensors and frames (the injector), or on a message of the
-    restbus (a restbus disturbance, vecu.restbus.disturb)."""
+            codec: DbcCodec | None, restbus: RestbusNode | None = None,
+            route_keys: set[str] | frozenset[str] = frozenset(),
+            ) -> tuple[tuple[ScheduledFault, ...], ...]:
+    """[[faults]]: on vecu's own sensors and frames (the injector), on a message of the
+    restbus (a restbus disturbance, vecu.restbus.disturb), or on a gateway route (its key,
+    vecu.gateway.route_faults): (faults, disturbances, route faults)."""
     injector = FaultInjector(np.random.default_rng(0), codec)
     out = []
     disturbances = []
+    on_routes = []
     for i, item in enumerate(items):
         pre = f"faults[{i}]."
         chk.table(item, FAULT_KEYS, pre)
@@ -259,6 +305,15 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
             raise chk.fail(pre + "start_s", f"{start:g} s is outside the run (0..{duration:g} s)")
         if end is not None and not start < end:
             raise chk.fail(pre + "end_s", f"{end:g} s is not after start_s = {start:g} s")
+        if item["target"] in route_keys:
+            try:
+                route_faults.check(item["kind"], item.get("value"))
+            except UserError as exc:
+                raise chk.fail(pre + "kind", str(exc)) from None
+            on_routes.append(ScheduledFault(item["target"], item["kind"], start,
+                                            None if end is None else float(end),
+                                            item.get("value")))
+            continue
         if restbus is not None and _on_restbus(restbus, item["target"]):
             try:
                 restbus.check(item["target"], item["kind"], item.get("value"))
@@ -285,7 +340,7 @@ def _faults(chk: _Checker, items: list, duration: float, parts: dict[str, bool],
                                            f"plant.{part} = true")
         out.append(ScheduledFault(item["target"], item["kind"], start,
                                   None if end is None else float(end), item.get("value")))
-    return tuple(out), tuple(disturbances)
+    return tuple(out), tuple(disturbances), tuple(on_routes)
 
 
 def _on_restbus(node: RestbusNode, target: str) -> bool:

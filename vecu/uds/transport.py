@@ -140,3 +140,15 @@ class Endpoint:
     def busy(self) -> bool:
         return bool(self._in or self.out) or self.layer.transmitting() \
             or self.layer.rx_state != self.layer.RxState.IDLE
+
+
+def tester_connection(bus: can.BusABC, request_id: int, response_id: int) -> Any:
+    """A tester's end on a live bus: can-isotp's threaded CanStack (normal 11-bit addressing,
+    its default parameters) in udsoncan's PythonIsoTpConnection, opened; close() it."""
+    from udsoncan.connections import PythonIsoTpConnection
+
+    stack = isotp.CanStack(bus, address=isotp.Address(
+        isotp.AddressingMode.Normal_11bits, txid=request_id, rxid=response_id))
+    conn = PythonIsoTpConnection(stack)
+    conn.open()
+    return conn
