@@ -173,3 +173,52 @@ def plant_rig():
     yield make
     for bus in buses:
         bus.shutdown()
+
+
+@pytest.fixture
+def dask_scheduler(tmp_path):
+    """A real `dask scheduler` and one `dask worker` process (one thread) on 127.0.0.1, started
+    in their own process groups and killed after the test; yields the scheduler's address."""
+    import json
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    pytest.importorskip("distributed")
+    dask = shutil.which("dask", path=str(Path(sys.executable).parent))
+    if dask is None:
+        pytest.skip("the dask command is not installed")
+    env = {**os.environ, "VECU_KERNELS": os.environ.get("VECU_KERNELS", "python"),
+           "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+
+    def spawn(args: list[str]) -> subprocess.Popen:
+        return subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                start_new_session=True, env=env)
+
+    def kill(proc: subprocess.Popen) -> None:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+
+    sched_file = tmp_path / "scheduler.json"
+    scheduler = spawn([dask, "scheduler", "--host", "127.0.0.1", "--port", "0",
+                       "--no-dashboard", "--scheduler-file", str(sched_file)])
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert sched_file.exists(), "dask scheduler did not start"
+        worker = spawn([dask, "worker", "--scheduler-file", str(sched_file), "--nthreads", "1",
+                        "--nworkers", "1", "--no-dashboard"])
+        address = json.loads(sched_file.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        yield address
+    finally:
+        if worker is not None:
+            kill(worker)
+        kill(scheduler)
+        assert scheduler.poll() is not None and (worker is None or worker.poll() is not None)

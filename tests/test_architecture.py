@@ -435,7 +435,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
     5: ("plant", "restbus", "ecu", "uds", "xcp", "fmu"),
     6: ("config", "assembly", "runner", "probes", "summary", "warmup", "functions"),
     7: ("replay", "scenario", "campaign", "eval", "bench", "live", "plot", "figures", "ident",
-        "gateway", "simulation", "pytest_plugin", "conformance"),
+        "gateway", "simulation", "pytest_plugin", "conformance", "fleet"),
     8: ("cli", "__main__"),
 }
 FLOOR_OF = {name: floor for floor, names in FLOORS.items() for name in names}

@@ -108,6 +108,18 @@ def test_bench_quick_only(group):
     assert not others, f"--only {group} also ran {others}"
 
 
+FLEET = (rf"--workers 2 {NUM} s incl\. cluster start \({NUM}x\): ratio {NUM} .*\n"
+         r"  results identical: rows True, output traces True; verdicts \{'pass': 3\}, errors 0")
+
+
+@pytest.mark.slow
+def test_bench_quick_fleet_group():
+    """--only fleet (not in the default set: minutes at full size): drives recorded and replayed
+    one by one and on a LocalCluster of 2 workers, the same rows and output traces."""
+    out = _bench("--only", "fleet", timeout=FULL_TIMEOUT_S)
+    assert re.search(FLEET, out), out
+
+
 def test_bench_quick_campaign_group():
     """--only campaign (not in the default set: minutes at full size) on a real LocalCluster."""
     out = _bench("--only", "campaign", timeout=GROUP_TIMEOUT_S)

@@ -5,7 +5,6 @@ run that raises is a row, not a lost campaign; the Table 3 ordering holds at a s
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -75,43 +74,17 @@ def test_one_and_two_workers_give_the_same_bytes(small, reference, tmp_path):
             "<img src='hist_iae.png'") in report
 
 
-def _spawn(args: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True, env=ENV)
-
-
 def _kill(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(10)
 
 
-def test_remote_scheduler_and_worker_processes_give_the_same_bytes(small, reference, tmp_path):
-    dask = shutil.which("dask", path=str(Path(sys.executable).parent))
-    if dask is None:
-        pytest.skip("the dask command is not installed")
-    sched_file = tmp_path / "scheduler.json"
-    scheduler = _spawn([dask, "scheduler", "--host", "127.0.0.1", "--port", "0",
-                        "--no-dashboard", "--scheduler-file", str(sched_file)])
-    worker = None
-    try:
-        deadline = time.monotonic() + 60
-        while not sched_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert sched_file.exists(), "dask scheduler did not start"
-        worker = _spawn([dask, "worker", "--scheduler-file", str(sched_file), "--nthreads", "1",
-                         "--nworkers", "1", "--no-dashboard"])
-        import json
-
-        address = json.loads(sched_file.read_text())["address"]
-        assert address.startswith("tcp://127.0.0.1:")
-        out = tmp_path / "remote"
-        run_campaign(small, out, scheduler=address)
-        assert (out / RUNS_CSV).read_bytes() == (reference / RUNS_CSV).read_bytes()
-    finally:
-        if worker is not None:
-            _kill(worker)
-        _kill(scheduler)
+def test_remote_scheduler_and_worker_processes_give_the_same_bytes(small, reference, tmp_path,
+                                                                  dask_scheduler):
+    out = tmp_path / "remote"
+    run_campaign(small, out, scheduler=dask_scheduler)
+    assert (out / RUNS_CSV).read_bytes() == (reference / RUNS_CSV).read_bytes()
 
 
 def test_resume_completes_a_cut_file_without_running_anything_twice(small, reference, tmp_path):

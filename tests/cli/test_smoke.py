@@ -111,6 +111,10 @@ def test_run_log_is_a_candump_trace_of_every_frame(recorded) -> None:
 USER_MISTAKES = [
     (["run", "--duration", "1", "--kill-tps-at", "5"], "kill time 5.0 s is outside the run"),
     (["replay", "missing.log"], "missing.log: no such file"),
+    (["replay", "missing.log", "nothing*.blf", "--out-dir", "f"], "missing.log: no such file"),
+    (["replay", "{bad_scenario}", "{bad_scenario}"], "need --out-dir DIR"),
+    (["replay", "{bad_scenario}", "--out-dir", "f", "--diff", "{bad_scenario}"],
+     "bad.toml: unknown key 'duration_s'"),
     (["scenario", "run", "{bad_scenario}"], "bad.toml: key 'plant.wheels': unknown key"),
     (["eval", "steering", "--duration", "0.1"], "--duration: expected 1..3600 s"),
     (["eval", "consistency", "--estimators", "brakes"], "--estimators: expected names from"),

@@ -52,8 +52,9 @@ def test_a_replayed_bus_routes_as_the_run_did(tmp_path):
 
 def test_replay_gateway_errors_before_any_work(tmp_path):
     gw = write_config(tmp_path, "[buses.a]\ninterface = \"virtual\"\ndbc = [\"nope.dbc\"]\n")
-    done = _vecu("replay", "missing.log", "--gateway", str(gw), cwd=tmp_path)
+    (tmp_path / "t.log").write_text("(0.000000) can0 100#00\n")  # a trace: the config is at fault
+    done = _vecu("replay", "t.log", "--gateway", str(gw), cwd=tmp_path)
     assert done.returncode == 2 and done.stderr.count("\n") == 1
     assert "buses.a.dbc" in done.stderr
-    done = _vecu("replay", "missing.log", "--gateway", str(gw), "--speed", "1", cwd=tmp_path)
+    done = _vecu("replay", "t.log", "--gateway", str(gw), "--speed", "1", cwd=tmp_path)
     assert done.returncode == 2 and "no --speed" in done.stderr

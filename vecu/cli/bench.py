@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 GROUPS = ("campaign", "ukf", "bus", "pipeline", "live", "replay", "ecu", "breakdown", "kernels",
-          "uds", "restbus", "xcp", "gateway")
+          "uds", "restbus", "xcp", "gateway", "fleet")
 
 
 _groups = argtypes.name_list(GROUPS)  # --only: one group or several, comma-separated (pipeline,replay)
@@ -55,6 +55,7 @@ SIZES: dict[str, tuple[Any, Any]] = {
     "xcp_commands": (200, 20), "xcp_daq_s": (5.0, 0.5),
     "gateway_requests": (300, 40), "gateway_s": (3.0, 1.0),
     "routing_frames": (20_000, 2_000), "routing_latency_frames": (1_000, 200),
+    "fleet_drives": (20, 3), "fleet_s": (60.0, 3.0),
 }
 
 
@@ -127,6 +128,9 @@ def collect(quick: bool, only: str | frozenset[str] | None, estimator: str,
         out["campaign"] = bench_campaign(runs=int(size("campaign_runs")),
                                          duration_s=size("campaign_s"),
                                          baseline_runs=int(size("campaign_baseline_runs")))
+    if groups is not None and "fleet" in groups:  # minutes at full size: only when asked for
+        from vecu.bench.fleet import bench_fleet
+        out["fleet"] = bench_fleet(drives=int(size("fleet_drives")), duration_s=size("fleet_s"))
     if groups is not None and "xcp" in groups:  # needs pyxcp (vecu[test]): only when asked for
         from vecu.bench.xcp import bench_xcp
         out["xcp"] = bench_xcp(commands=int(size("xcp_commands")), daq_s=size("xcp_daq_s"))
@@ -217,6 +221,9 @@ def main(args: argparse.Namespace) -> int:
     if "campaign" in res:
         from vecu.bench.campaign import format_campaign
         print(format_campaign(res["campaign"]))
+    if "fleet" in res:
+        from vecu.bench.fleet import format_fleet
+        print(format_fleet(res["fleet"]))
     if "live" in res:
         from vecu.bench.live import format_live
         print(format_live(res["live"]))

@@ -28,7 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "(default): simulated clock, faster than real time, bit-identical across runs. "
                     "--speed X: send the trace onto a python-can bus at X times the recorded pace "
                     "with the ECU listening, and report the schedule error.")
-    p.add_argument("trace", help="trace file")
+    p.add_argument("traces", nargs="+", metavar="TRACE|DIR|GLOB",
+                   help="trace file; several, directories (every trace in them) or globs make a "
+                        "fleet, replayed on Dask (--out-dir)")
     p.add_argument("--dbc", action="append", default=[], metavar="FILE",
                    help="the trace's DBC (repeatable; default: vecu's own DBCs)")
     p.add_argument("--map", dest="signal_map", metavar="MAP.toml",
@@ -55,11 +57,42 @@ def register(sub: argparse._SubParsersAction) -> None:
     prog.add_argument("--progress", action="store_true", default=None, help="always show progress")
     prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show progress")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    fleet = p.add_argument_group("fleet (several traces, on Dask; docs/replay.md 'Fleet')")
+    fleet.add_argument("--out-dir", metavar="DIR",
+                       help="fleet results: runs.csv, summary.json, report.html, traces/")
+    fleet.add_argument("--out-format", metavar="FMT",
+                       help="write each trace's ECU frames as DIR/traces/NAME.FMT (blf, log, ...)")
+    where = fleet.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=argtypes.bounded(1, 1024, integer=True), metavar="N",
+                       help="local Dask worker processes (default: the machine's cores)")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="submit to a running Dask scheduler instead")
+    fleet.add_argument("--resume", action="store_true",
+                       help="complete the traces missing in --out-dir")
+    fleet.add_argument("--junit", metavar="OUT.xml", help="JUnit XML, one test case per trace")
+    fleet.add_argument("--diff", nargs="?", const="", default=None, metavar="DIFF.toml",
+                       help="compare every ECU frame with the one recorded (tolerances: "
+                            "DIFF.toml, default one LSB per signal)")
+    fleet.add_argument("--criteria", metavar="FILE.toml",
+                       help="scenario criteria judged on each trace ([criteria], [truth])")
     p.set_defaults(func=main)
+
+
+FLEET_ONLY = ("out_dir", "out_format", "resume", "junit", "diff", "criteria", "workers",
+              "scheduler")
 
 
 def main(args: argparse.Namespace) -> int:
     configure_logging(args.quiet)
+    from vecu.fleet.traces import expand
+
+    single = (len(args.traces) == 1 and Path(args.traces[0]).is_file()
+              and not any(getattr(args, k) not in (None, False) for k in FLEET_ONLY))
+    if not single:
+        from vecu.cli.replay_fleet import main_fleet
+
+        return main_fleet(args, expand(args.traces))
+    args.trace = args.traces[0]
 
     from vecu.replay.engine import ReplayConfig, replay
     from vecu.replay.source import TraceReadError

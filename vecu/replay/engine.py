@@ -15,6 +15,7 @@ import logging
 import math
 import sys
 import threading
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from typing import Any
@@ -111,9 +112,12 @@ class ReplayResult:
         return to_json(self.report)
 
 
-def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayResult:
+def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
+           extra_sinks: Sequence[EstimateSink] = ()) -> ReplayResult:
     """Replay config.trace through the ECU; see the module docstring. feeder_type: the feeder
-    (tests pass their frame-by-frame oracle, a Feeder without block checks)."""
+    (tests pass their frame-by-frame oracle, a Feeder without block checks); extra_sinks: more estimate
+    sinks, handed every frame the ECU sends with its values and time (ns on the replay's time
+    base) as it is sent, after the scorer (vecu.fleet's diff against the recording)."""
     config.validate()
     routing = None
     if config.gateway is not None:  # every problem of the file before any work
@@ -150,7 +154,7 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder) -> ReplayRe
         out = _EstimateOut(writer, source, config.speed,
                            OUT_CHANNEL if routing is None else routing.buses[0].name)
         copy_to: can.Listener | None = writer if config.with_inputs else None
-        sinks: list[EstimateSink] = [scorer]  # the ECU hands each frame it sends to these
+        sinks: list[EstimateSink] = [scorer, *extra_sinks]  # the ECU hands each frame it sends to these
         gateway = None
         if routing is not None:
             assert isinstance(clock, SimClock)
@@ -231,11 +235,7 @@ def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
                                                list[EcuFunction], dict[tuple[int, bool], Route]]:
     """The ECU's codec, the trace's database, the signal map, fresh ECU functions and their
     routes from the trace's messages."""
-    run_cfg = RunConfig(kill_tps_at_s=None)
-    if config.fmu is not None:
-        run_cfg = run_cfg.with_fmu(config.fmu)
-    run_cfg = run_cfg.with_params(
-        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
+    run_cfg = _run_config(config)
     ecu_codec = registry.function_codec(run_cfg.params.ecu.instance, run_cfg)  # once per process
     trace_db = _trace_database(config.dbc, ecu_codec)
     smap = (load_signal_map(config.signal_map, trace_db) if config.signal_map
@@ -244,6 +244,20 @@ def _ecu_parts(config: ReplayConfig) -> tuple[DbcCodec, DbcCodec, SignalMap,
                  if f.name not in smap.disabled]
     return ecu_codec, trace_db, smap, functions, _routes(config, smap, trace_db, ecu_codec,
                                                          functions)
+
+
+def _run_config(config: ReplayConfig) -> RunConfig:
+    run_cfg = RunConfig(kill_tps_at_s=None)
+    if config.fmu is not None:
+        run_cfg = run_cfg.with_fmu(config.fmu)
+    return run_cfg.with_params(
+        config.sets, estimator=config.estimator, manifold_filter=config.manifold_filter)
+
+
+def ecu_codec_of(config: ReplayConfig) -> DbcCodec:
+    """The codec of the frames the replay's ECU sends (its instance's IDs)."""
+    run_cfg = _run_config(config)
+    return registry.function_codec(run_cfg.params.ecu.instance, run_cfg)
 
 
 def warm_up_ecu(config: ReplayConfig) -> RxCounters:
@@ -517,4 +531,4 @@ def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: F
 
 
 __all__ = ["SCHEDULE_ERROR_LIMIT_US", "FrameTally", "ReplayConfig", "ReplayResult", "TraceReadError",
-           "replay", "warm_up_ecu"]
+           "ecu_codec_of", "replay", "warm_up_ecu"]

@@ -362,6 +362,12 @@ def _on_restbus(node: RestbusNode, target: str) -> bool:
     return True
 
 
+def parse_criteria(path: str, data: Any) -> Criteria:
+    """A `[criteria]` table on its own (e.g. a fleet replay's --criteria file): the same keys and
+    checks as a scenario's, every part present, no run length to hold fault times to."""
+    return _criteria(_Checker(path), data, math.inf, dict.fromkeys(SENSOR_PART.values(), True))
+
+
 def _criteria(chk: _Checker, data: dict, duration: float, parts: dict[str, bool]) -> Criteria:
     schema = {**GLOBAL_CRITERIA, **dict.fromkeys(SENSORS, dict), "bus": dict}
     chk.table(data, schema, "criteria.")

@@ -36,15 +36,17 @@ def plot_file_name(name: str) -> str:
     return f"{stem}-{digest}.png"
 
 
-def write_junit(outcomes: list[ScenarioOutcome], path: str) -> None:
-    """One <testcase> per scenario; each failed criterion is a <failure> line."""
+def write_junit(outcomes: list[ScenarioOutcome], path: str, suite_name: str = "vecu scenarios",
+                classname: str = "vecu.scenarios") -> None:
+    """One <testcase> per scenario (per trace of a fleet replay, vecu.fleet); each failed
+    criterion is a <failure> line."""
     failures = sum(1 for o in outcomes if not o.passed and not o.error)
     errors = sum(1 for o in outcomes if o.error)
-    suite = ET.Element("testsuite", name="vecu scenarios", tests=str(len(outcomes)),
+    suite = ET.Element("testsuite", name=suite_name, tests=str(len(outcomes)),
                        failures=str(failures), errors=str(errors),
                        time=f"{sum(o.wall_s for o in outcomes):.3f}")
     for o in outcomes:
-        case = ET.SubElement(suite, "testcase", classname="vecu.scenarios", name=o.name,
+        case = ET.SubElement(suite, "testcase", classname=classname, name=o.name,
                              file=o.path, time=f"{o.wall_s:.3f}")
         props = ET.SubElement(case, "properties")
         for key, value in (("sim_time_s", f"{o.sim_s:g}"), ("x_realtime", f"{o.x_realtime:.2f}"),
@@ -65,13 +67,14 @@ def write_junit(outcomes: list[ScenarioOutcome], path: str) -> None:
 
 
 _PAGE = """<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>vecu scenario report</title>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
 <style>body{{font-family:sans-serif;margin:2em;max-width:1200px}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px;text-align:left}}.pass{{color:#070}}.fail{{color:#b00}}
 img{{max-width:100%}}</style></head><body>
-<h1>vecu scenario report</h1>
-<p>{passed} of {total} scenarios passed; {sim:.1f} s simulated in {wall:.1f} s wall.</p>
-<table><tr><th>scenario</th><th>result</th><th>simulated</th><th>x real time (wall)</th>
+<h1>{title}</h1>
+<p>{passed} of {total} {noun} passed; {sim:.1f} s simulated in {wall:.1f} s wall.</p>
+{head}
+<table><tr><th>{item}</th><th>result</th><th>simulated</th><th>x real time (wall)</th>
 <th>x real time (CPU)</th><th>file</th></tr>
 {rows}</table>
 {sections}
@@ -79,8 +82,10 @@ img{{max-width:100%}}</style></head><body>
 """
 
 
-def write_html(outcomes: list[ScenarioOutcome], report_dir: str) -> str:
-    """report_dir/index.html (plots are written next to it by the runner)."""
+def write_html(outcomes: list[ScenarioOutcome], report_dir: str, title: str = "vecu scenario report",
+               file: str = "index.html", head: str = "", noun: str = "scenarios") -> str:
+    """report_dir/FILE (plots are written next to it by the runner); head: HTML after the
+    totals (a fleet replay's plot)."""
     out = Path(report_dir)
     out.mkdir(parents=True, exist_ok=True)
     esc = html.escape
@@ -106,10 +111,11 @@ def write_html(outcomes: list[ScenarioOutcome], report_dir: str) -> str:
             + (f'<p class="fail">{esc(o.error)}</p>' if o.error else "")
             + f"<table><tr><th>criterion</th><th>measured</th><th>limit</th><th></th></tr>{crit}"
             f"</table><p>Fault events:</p><ul>{events}</ul><p>DTCs:</p>{dtcs}{img}")
-    page = _PAGE.format(passed=sum(o.passed for o in outcomes), total=len(outcomes),
+    page = _PAGE.format(title=html.escape(title), noun=noun, item=noun.rstrip("s"), head=head,
+                        passed=sum(o.passed for o in outcomes), total=len(outcomes),
                         sim=sum(o.sim_s for o in outcomes), wall=sum(o.wall_s for o in outcomes),
                         rows="\n".join(rows), sections="\n".join(sections))
-    path = out / "index.html"
+    path = out / file
     path.write_text(page, encoding="utf-8")
     return str(path)
 
