@@ -13,8 +13,9 @@ import pytest
 from vecu.live.netns import namespace_prefix, run_in_namespace
 
 ROOT = Path(__file__).resolve().parents[2]
-pytestmark = pytest.mark.skipif(namespace_prefix()[0] is None,
-                                reason=namespace_prefix()[1] or "n/a")
+pytestmark = [pytest.mark.skipif(namespace_prefix()[0] is None,
+                                 reason=namespace_prefix()[1] or "n/a"),
+              pytest.mark.alone]  # live processes on the wall clock
 RUN = r'''
 import subprocess, sys, time
 from pathlib import Path

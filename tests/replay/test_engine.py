@@ -229,6 +229,7 @@ def test_cli_replay_bad_input_is_one_line(recorded, tmp_path, capsys, argv, need
     assert rc == 2 and needle in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.alone  # paced on the wall clock
 def test_live_replay_sends_every_frame_and_reports_the_schedule_error(recorded, tmp_path):
     trace, _ = recorded
     short = tmp_path / "short.blf"

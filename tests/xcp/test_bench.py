@@ -3,7 +3,11 @@ that broadcast also sampled (the DAQ did not take a broadcast tick)."""
 
 from __future__ import annotations
 
+import pytest
+
 from vecu.bench.xcp import bench_xcp, format_xcp
+
+pytestmark = pytest.mark.alone  # live processes on the wall clock
 
 
 def test_bench_xcp_quick():
