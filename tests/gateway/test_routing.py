@@ -5,6 +5,8 @@ limit, timeout substitutes and the firewall."""
 
 from __future__ import annotations
 
+import collections
+import copy
 import re
 from pathlib import Path
 
@@ -24,9 +26,17 @@ VECU = DbcCodec()
 BODY = cantools.database.load_file(str(DATA / "body.dbc"))
 
 
+_SENT: collections.Counter[str] = collections.Counter()
+
+
 def _frame(name: str, values: dict[str, float], t_ns: int):
+    """name's frame as its sender makes it: its alive counter (P11: 0..14) one up each call."""
     fc = VECU[name]
     full = {**fc.start_values, **values}
+    for sig in fc.start_values:
+        if sig.endswith("_AliveCounter"):
+            full[sig] = values.get(sig, _SENT[name] % 15)
+    _SENT[name] += 1
     return fc.frame(full, t_ns / 1e9)
 
 
@@ -88,6 +98,20 @@ def test_a_broken_source_crc_is_dropped(engine):
               for _, _, m in sent if m.arbitration_id == 1280]
     assert values == [40.0, 40.0, 40.0]
     assert engine.summary()["routes"]["routes[1] powertrain->vehicle"]["dropped"] == {"e2e": 1}
+
+
+def test_a_repeated_source_counter_is_dropped_a_jump_is_used(engine):
+    """The source's alive counter after its CRC: the same frame again (counter repeated, a
+    stale frame) is dropped and counted; a frame after lost ones (counter jumped) is used."""
+    first = _frame("ECU_ThrottleEstimate", {"THR_Angle": 40.0}, 0)
+    _frame("ECU_ThrottleEstimate", {"THR_Angle": 50.0}, MS)  # lost on the way
+    jumped = _frame("ECU_ThrottleEstimate", {"THR_Angle": 60.0}, 2 * MS)
+    sent = _run(engine, {0: [first], 1: [copy.deepcopy(first)], 21: [jumped]}, 61)
+    values = [BODY.decode_message(1280, bytes(m.data))["VEH_Throttle"]
+              for _, _, m in sent if m.arbitration_id == 1280]
+    assert values == [40.0, 40.0, 60.0, 60.0]  # at 0, 20 (the copy at 1 ms dropped), 40, 60 ms
+    assert engine.summary()["routes"]["routes[1] powertrain->vehicle"]["dropped"] == {
+        "e2e_repeated": 1}
 
 
 def test_timeout_gives_the_target_its_initial_value(engine):

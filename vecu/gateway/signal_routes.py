@@ -8,8 +8,8 @@ target message (another database), as AUTOSAR Com's signal gateway does (ComGwMa
   multiplexed target is sent with the selector value its mapped signals need.
 - E2E: a source message whose database names a protection (an ARXML's E2E properties, else
   vecu's `<prefix>_CRC` / `_AliveCounter` layout) is checked (autosar-e2e through vecu.e2e: the
-  CRC and what else the profile's header holds); a frame that fails is dropped and counted, its
-  values unused.
+  CRC and what else the profile's header holds, then its alive counter: a repeated counter is a
+  stale frame); a frame that fails is dropped and counted, its values unused.
   The target is protected with the route's own profile (AUTOSAR E2E, the gateway as its new
   sender), the counter advancing by one per frame sent.
 - Sending: cyclic (the target's database cycle time), on_change (a frame when a value changed)
@@ -27,7 +27,7 @@ import can
 
 from vecu.can_message import message
 from vecu.codec import DbcCodec, FrameCodec
-from vecu.e2e import E2EConfigError, E2EProtection
+from vecu.e2e import AliveCounterCheck, E2EConfigError, E2EProtection
 from vecu.gateway.route_stats import RouteStats
 from vecu.gateway.routes import SignalMap, SignalRoute
 from vecu.restbus.spec import arxml_protection
@@ -42,12 +42,17 @@ class SignalRouter:
         self.target = fc = target[route.message]
         self._sources: dict[int, tuple[FrameCodec, list[SignalMap]]] = {}
         self._checks: dict[int, Callable[[bytes | bytearray], bool]] = {}
+        self._counters: dict[int, tuple[E2EProtection, AliveCounterCheck]] = {}
         for m in route.signals:
             sfc = source[m.message]
             self._sources.setdefault(sfc.frame_id, (sfc, []))[1].append(m)
             prot = source_protection(sfc)
             if prot is not None:
                 self._checks[sfc.frame_id] = prot.checker()
+                # a repeated counter is a stale frame (E2E status REPEATED); a jump is frames
+                # lost on the way (OK, some lost): its data is fresh and is used
+                self._counters[sfc.frame_id] = (prot, AliveCounterCheck(
+                    prot.counter_modulo, max_delta=prot.counter_modulo - 1))
         self._initial = {m.target: fc.start_values[m.target] for m in route.signals}
         self.values: dict[str, float] = dict(fc.start_values)
         self.values.update({name: float(v) for name, v in route.mux})
@@ -112,9 +117,14 @@ class SignalRouter:
             self.stats.drop("length")
             return
         check = self._checks.get(msg.arbitration_id)
-        if check is not None and not check(msg.data):
-            self.stats.drop("e2e")
-            return
+        if check is not None:
+            if not check(msg.data):
+                self.stats.drop("e2e")
+                return
+            prot, alive = self._counters[msg.arbitration_id]
+            if not alive.check(prot.counter(msg.data)):
+                self.stats.drop("e2e_repeated")
+                return
         try:
             decoded = sfc.decode(msg.data)
         except Exception:  # noqa: BLE001 - whatever cantools raises for a payload it cannot read
