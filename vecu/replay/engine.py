@@ -27,13 +27,13 @@ from vecu import kernels, warmup
 from vecu.assembly import PRIO_ECU, PRIO_PLANT, TICK_NS, build_functions, schedule_ecu
 from vecu.bus import EstimateSink, SinkBus, open_bus
 from vecu.clock import NS_PER_MS, NS_PER_S, SimClock, Stopwatch, WallClock
-from vecu.codec import TRUTH_DBC, DbcCodec, Values, builtin_dbc_path
+from vecu.codec import TRUTH_DBC, DbcCodec, builtin_dbc_path
 from vecu.config import RunConfig
 from vecu.ecu.node import EcuFunction, EcuNode, Route, RxCounters, native_routes
 from vecu.errors import BadArgumentError, Interrupted
 from vecu.fmu.binding import FmuBinding
-from vecu.recorder import TraceWriteError
 from vecu.replay.feeder import SCHEDULE_ERROR_LIMIT_US, Feeder, FrameTally
+from vecu.replay.output import OUT_CHANNEL, EstimateOut, open_writer
 from vecu.replay.scoring import TruthScorer
 from vecu.replay.signal_map import (
     SignalMap,
@@ -54,7 +54,6 @@ from vecu.summary import to_json
 
 log = logging.getLogger(__name__)
 
-OUT_CHANNEL = "vecu"  # channel name of the ECU's frames in --out
 PLAYER_SPIN_NS = 100_000
 SWITCH_INTERVAL_S = 2e-5
 STEP_NS = NS_PER_S // 10  # the scheduler runs this much simulated time between progress checks
@@ -131,7 +130,7 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
     stopped_at_s: float | None = None  # where Ctrl-C stopped the replay (replay time)
     source = TraceSource(config.trace, config.fmt,
                          idle_gap_ns=round(config.idle_gap_s * NS_PER_S))
-    writer = _open_writer(config.out, locked=live)
+    writer = open_writer(config.out, locked=live)
     buses: list[can.BusABC] = []
     player_bus: can.BusABC | None = None
     try:
@@ -151,7 +150,7 @@ def replay(config: ReplayConfig, feeder_type: type[Feeder] = Feeder,
             buses += [player_bus, ecu_bus]
         else:
             ecu_bus = SinkBus("replay")
-        out = _EstimateOut(writer, source, config.speed,
+        out = EstimateOut(writer, source, config.speed,
                            OUT_CHANNEL if routing is None else routing.buses[0].name)
         copy_to: can.Listener | None = writer if config.with_inputs else None
         sinks: list[EstimateSink] = [scorer, *extra_sinks]  # the ECU hands each frame it sends to these
@@ -283,51 +282,6 @@ def warm_up_ecu(config: ReplayConfig) -> RxCounters:
     finally:
         bus.shutdown()
     return ecu.rx
-
-
-class _OutputWriter(can.Listener):
-    """The --out writer: counts frames; locked in a live replay, where the player thread copies
-    inputs and the ECU thread writes estimates."""
-
-    def __init__(self, inner: can.Listener, locked: bool) -> None:
-        self.inner = inner
-        self.lock = threading.Lock() if locked else None
-        self.frames = 0
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if self.lock is None:
-            self.inner.on_message_received(msg)
-            self.frames += 1
-        else:
-            with self.lock:
-                self.inner.on_message_received(msg)
-                self.frames += 1
-
-    def stop(self) -> None:
-        self.inner.stop()
-
-
-class _EstimateOut:
-    """The --out writer as an estimate sink (vecu.bus.EstimateSink): each frame the ECU sends
-    (and, with --gateway, each routed frame: write), back on the trace's time base (its skipped
-    idle time too; live: the ECU's time times the speed), on `channel` unless it names its own."""
-
-    def __init__(self, writer: _OutputWriter | None, source: TraceSource, speed: float | None,
-                 channel: str) -> None:
-        self.writer, self.source, self.speed, self.channel = writer, source, speed, channel
-
-    def on_estimate(self, values: Values | None, msg: can.Message, t_ns: int) -> None:
-        self.write(msg, t_ns)
-
-    def write(self, msg: can.Message, t_ns: int) -> None:
-        if self.writer is None:
-            return
-        source, speed = self.source, self.speed
-        skipped = source.skipped_before(int(t_ns * speed) if speed is not None else t_ns)
-        msg.timestamp += (source.t0_s or 0.0) + skipped / NS_PER_S
-        if msg.channel is None:
-            msg.channel = self.channel
-        self.writer.on_message_received(msg)
 
 
 class _TraceEnd:
@@ -462,15 +416,6 @@ def _routes(config: ReplayConfig, smap: SignalMap, trace_db: DbcCodec, ecu_codec
     routes = native_routes(ecu_codec, functions)
     return {k: r for k, r in routes.items() if r.codec.name in trace_db
             and (trace_db[r.codec.name].frame_id, trace_db[r.codec.name].is_extended) == k}
-
-
-def _open_writer(path: str | None, locked: bool) -> _OutputWriter | None:
-    if path is None:
-        return None
-    try:
-        return _OutputWriter(can.Logger(path), locked)
-    except (ValueError, OSError, ImportError) as exc:
-        raise TraceWriteError(path, f"cannot write: {exc}") from exc
 
 
 def _summary(config: ReplayConfig, source: TraceSource, feeder: Feeder, tally: FrameTally,
