@@ -54,7 +54,8 @@ def test_simulate_is_vecu_run_with_the_same_defaults_and_a_typed_summary(tmp_pat
 def test_the_documented_example_test_file_passes_under_the_plugin(tmp_path):
     env = {**os.environ, "VECU_KERNELS": "python", "PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1",
            "PYTHONPATH": str(ROOT)}
-    example = ROOT / "examples" / "python" / "test_my_ecu.py"
+    example = tmp_path / "test_my_ecu.py"  # the user's own test file, in their own folder
+    example.write_text((ROOT / "examples" / "python" / "test_my_ecu.py").read_text())
     done = subprocess.run([sys.executable, "-m", "pytest", "-p", "vecu.pytest_plugin", "-q",
                            "-p", "no:cacheprovider", str(example)], capture_output=True,
                           text=True, cwd=tmp_path, env=env, timeout=600, check=False)

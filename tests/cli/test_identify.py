@@ -32,7 +32,9 @@ def test_excite_identify_and_run_on_the_calibration(tmp_path, capsys) -> None:
 def test_a_bad_params_file_is_one_line_naming_it(tmp_path, capsys, text, problem) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(text)
-    assert main(["replay", "no-such.blf", "--params", str(bad)]) == 2
+    trace = tmp_path / "t.log"
+    trace.write_text("(0.000000) can0 100#00\n")
+    assert main(["replay", str(trace), "--params", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"vecu: error: {bad}: ") and problem in err and "\n" not in err
 

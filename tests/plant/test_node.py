@@ -172,9 +172,9 @@ def test_throttle_ticks_computed_ahead_send_what_stepping_sends(backend):
             v = inj.apply(FaultTarget.TPS, cal.voltage(theta) + cfg.tps_noise_v * w[3])
             if v is not None:
                 v = min(max(v, 0.0), 5.0)
-                send(make_tps(ts, 0, st["counter"], v))
+                send(make_tps(ts, 0, st["counter"], v)[0])
                 st["counter"] = (st["counter"] + 1) % 15
-            send(make_watt(ts, u, i * i + m.h_wattmeter * w[2]))
+            send(make_watt(ts, u, i * i + m.h_wattmeter * w[2])[0])
             send(truth.frame({"TRU_ThrottleAngle": theta, "TRU_MotorVoltage": u}, ts))
             x[:] = plant_step.py(m.rows, *m.mode_bounds_deg, cfg.noise_scale * m.f_diag[0],
                                  cfg.noise_scale * m.f_diag[2], theta, rho, i, u, w[0], w[1])
@@ -202,7 +202,7 @@ def test_longitudinal_frames_encoded_per_manoeuvre_are_the_framers():
     sent = []
     for k in range(first + 300):
         part.tick(2 * k * NS_PER_MS, lambda m: sent.append(m) or True)
-        want = make(sent[-1].timestamp, part.wheel / MPS_PER_KMH, part.accel)
+        want = make(sent[-1].timestamp, part.wheel / MPS_PER_KMH, part.accel)[0]
         assert bytes(sent[-1].data) == bytes(want.data), k
         assert (sent[-1].arbitration_id, sent[-1].dlc, sent[-1].is_extended_id) == (
             want.arbitration_id, want.dlc, want.is_extended_id)
@@ -241,7 +241,7 @@ def test_tps_frames_of_a_fault_are_the_framers(kind, backend):
     for m in frames:
         values = tps.decode(m.data)
         counters.append(int(values["TPS_AliveCounter"]))
-        ref = make(m.timestamp, 0, counters[-1], values["TPS_Voltage"])
+        ref = make(m.timestamp, 0, counters[-1], values["TPS_Voltage"])[0]
         assert bytes(m.data) == bytes(ref.data)
     assert all((b - a) % 15 == 1 for a, b in zip(counters, counters[1:]))
     if kind != FaultKind.NOISE:

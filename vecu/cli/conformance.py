@@ -50,8 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                        "(default 30)")
     run.add_argument("--doip-port", type=argtypes.bounded(1, 65535, integer=True),
                      default=13400, metavar="N", help="the gateway's DoIP port (default 13400)")
-    run.add_argument("--junit", metavar="OUT.xml", help="write a JUnit file: one case per fault")
-    run.add_argument("--report", metavar="DIR", help="write DIR/index.html, the table")
+    run.add_argument("--junit", type=argtypes.out_file, metavar="OUT.xml",
+                     help="write a JUnit file: one case per fault")
+    run.add_argument("--report", type=argtypes.out_dir, metavar="DIR",
+                     help="write DIR/index.html, the table")
     run.set_defaults(func=main_run, uses_kernels=False)
 
 

@@ -58,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show progress")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     fleet = p.add_argument_group("fleet (several traces, on Dask; docs/replay.md 'Fleet')")
-    fleet.add_argument("--out-dir", metavar="DIR",
+    fleet.add_argument("--out-dir", type=argtypes.out_dir, metavar="DIR",
                        help="fleet results: runs.csv, summary.json, report.html, traces/")
     fleet.add_argument("--out-format", metavar="FMT",
                        help="write each trace's ECU frames as DIR/traces/NAME.FMT (blf, log, ...)")
@@ -69,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="submit to a running Dask scheduler instead")
     fleet.add_argument("--resume", action="store_true",
                        help="complete the traces missing in --out-dir")
-    fleet.add_argument("--junit", metavar="OUT.xml", help="JUnit XML, one test case per trace")
+    fleet.add_argument("--junit", type=argtypes.out_file, metavar="OUT.xml",
+                       help="JUnit XML, one test case per trace")
     fleet.add_argument("--diff", nargs="?", const="", default=None, metavar="DIFF.toml",
                        help="compare every ECU frame with the one recorded (tolerances: "
                             "DIFF.toml, default one LSB per signal)")
