@@ -25,7 +25,9 @@ def test_live_restbus_keeps_its_cycles_and_obeys_rb_commands(tmp_path, thirdpart
     tester = open_bus(interface="virtual", channel="rb-live-test")
     try:
         worker.start()
-        time.sleep(0.5)
+        first = tester.recv(timeout=30)  # the restbus runs: its first frame (start-up may be slow)
+        assert first is not None
+        time.sleep(0.3)
         tester.send(command_for((db,), "BREMSE_33", "stop", None))
         time.sleep(0.4)
         tester.send(command_for((db,), "BREMSE_33", "clear", None))

@@ -45,6 +45,7 @@ def _wait(sim: XcpSim, sim_ms: int) -> None:
         time.sleep(0.001)
 
 
+@pytest.mark.alone  # the master's thread against the ECU's ticks: no other test beside it
 def test_daq_samples_the_throttle_estimate_every_tick_with_timestamps():
     sim = XcpSim()
     truth: dict[int, float] = {}  # the ECU's estimate after each tick
